@@ -1,0 +1,564 @@
+"""Composable physical effects.
+
+An effect is one small class that keeps its parameters, priors, physics and
+meaning together. It acts at one *stage* of the signal path:
+
+``"pressure"``
+    Transforms the pressure that reaches the actuator, before the dead zone
+    (regulator lag, transport delay). The pressure over each sample interval is
+    given by its values at the interval's start and end (the simulator
+    interpolates linearly between them); the physics function rewrites both in
+    place for a whole batch of parameter sets::
+
+        physics(q, p_start, p_end, dt_s) -> None
+
+    with ``q`` of shape ``(batch, n_params)`` and ``p_start``, ``p_end`` of shape
+    ``(n_samples, batch)``. Loop over samples outside and the batch inside, so the
+    loop vectorises.
+
+``"force"``
+    Adds a force that opposes extension, on the same side of the equation of
+    motion as the stiffness ``K_e x`` (friction, nonlinear stiffness). The physics
+    function is called for one parameter set at one instant and returns the force
+    and its partial derivatives, which the implicit integrator needs::
+
+        physics(q, x_m, v_m_s, p_pa) -> (force_n, dforce_dx, dforce_dv)
+
+    with ``q`` of shape ``(n_params,)``.
+
+``"measurement"``
+    Maps the simulated position to what the sensor reports, in place, for the
+    whole batch (``q`` as for pressure effects, ``position_m`` of shape
+    ``(n_samples, batch)``)::
+
+        physics(q, time_s, position_m) -> None
+
+Parameters arrive in ``q`` in the order the effect declares them. The physics
+function is compiled with numba (a plain Python function is compiled when the
+class is defined), so effects never fall back to a Python loop inside the
+simulator.
+
+Writing a new effect takes a dozen lines; see :class:`Effect` for an example.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import ClassVar
+
+import numba
+import numpy as np
+
+from pmabayes.parameters import HalfNormal, LogNormal, Normal, Parameter
+
+__all__ = [
+    "STAGES",
+    "Effect",
+    "EffectError",
+    "smooth_sign",
+    "register_effect",
+    "registered_effects",
+    "get_effect",
+    "resolve_effects",
+    "RegulatorLag",
+    "TransportDelay",
+    "CoulombFriction",
+    "CubicStiffness",
+    "PressureStiffness",
+    "PositionOffset",
+]
+
+STAGES = ("pressure", "force", "measurement")
+
+
+class EffectError(ValueError):
+    """An effect is malformed, unknown, or clashes with another."""
+
+
+class Effect:
+    """Base class of a physical effect.
+
+    Subclasses set four class attributes and one physics function:
+
+    Attributes
+    ----------
+    name : str
+        Registry name, a Python identifier (``"regulator_lag"``).
+    stage : str
+        One of ``"pressure"``, ``"force"``, ``"measurement"``.
+    parameters : tuple of Parameter
+        The effect's parameters; names must not clash with any other parameter of
+        the model it is added to.
+    description : str
+        One paragraph: the physics, and the signature it leaves in the residual.
+    physics : callable
+        The stage's function (see the module docstring), wrapped in
+        ``staticmethod``. Plain Python functions are compiled with
+        ``numba.njit`` when the class is defined.
+
+    Examples
+    --------
+    A quadratic (turbulent) drag, written outside the package:
+
+    >>> import numpy as np
+    >>> from pmabayes import Effect, Parameter, HalfNormal, register_effect
+    >>> def drag(q, x, v, p):
+    ...     c = q[0]
+    ...     return c * v * abs(v), 0.0, 2.0 * c * abs(v)
+    >>> class QuadraticDrag(Effect):
+    ...     name = "quadratic_drag"
+    ...     stage = "force"
+    ...     parameters = (Parameter("c_quad", "N s^2/m^2", 50.0, HalfNormal(200.0),
+    ...                             bounds=(0.0, 1e5), null=0.0,
+    ...                             description="drag force per squared velocity"),)
+    ...     description = "Drag growing with the square of velocity."
+    ...     physics = staticmethod(drag)
+    >>> _ = register_effect(QuadraticDrag)
+    """
+
+    name: ClassVar[str] = ""
+    stage: ClassVar[str] = ""
+    parameters: ClassVar[tuple[Parameter, ...]] = ()
+    description: ClassVar[str] = ""
+    physics: ClassVar[object] = None
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if not cls.name:  # abstract intermediate class
+            return
+        where = f"effect class {cls.__qualname__}"
+        if not cls.name.isidentifier():
+            raise EffectError(f"{where}: name {cls.name!r} must be a Python identifier")
+        if cls.stage not in STAGES:
+            raise EffectError(f"{where}: stage {cls.stage!r} must be one of {STAGES}")
+        if not isinstance(cls.parameters, tuple) or not all(
+            isinstance(p, Parameter) for p in cls.parameters
+        ):
+            raise EffectError(f"{where}: parameters must be a tuple of Parameter")
+        names = [p.name for p in cls.parameters]
+        if len(set(names)) != len(names):
+            raise EffectError(f"{where}: duplicate parameter names {names}")
+        fn = cls.__dict__.get("physics")
+        if isinstance(fn, staticmethod):
+            fn = fn.__func__
+        if fn is None or not callable(fn):
+            raise EffectError(
+                f"{where}: set `physics = staticmethod(function)`; see pmabayes.effects"
+            )
+        if not isinstance(fn, numba.core.registry.CPUDispatcher):
+            fn = numba.njit(error_model="numpy")(fn)
+        cls.physics = staticmethod(fn)
+
+    @classmethod
+    def parameter_names(cls) -> tuple[str, ...]:
+        """Names of the effect's parameters, in declaration order."""
+        return tuple(p.name for p in cls.parameters)
+
+    @classmethod
+    def null_values(cls) -> dict[str, float]:
+        """Parameter values at which the effect vanishes (for the varying parameters)."""
+        return {p.name: p.null for p in cls.parameters if p.vary and p.null is not None}
+
+    def __repr__(self) -> str:
+        return f"<effect {self.name} ({self.stage}): {', '.join(self.parameter_names())}>"
+
+
+_REGISTRY: dict[str, type[Effect]] = {}
+
+
+def register_effect(effect: type[Effect], *, replace: bool = False) -> type[Effect]:
+    """Add an effect class to the registry so it can be named in the API and CLI.
+
+    Parameters
+    ----------
+    effect : type
+        A subclass of :class:`Effect`.
+    replace : bool
+        Allow replacing a different class already registered under the same name.
+        A class with the same module and qualified name (the same definition
+        imported again) always replaces the old one.
+
+    Returns
+    -------
+    type
+        ``effect`` itself, so this can be used as a class decorator.
+
+    Raises
+    ------
+    EffectError
+        If ``effect`` is not an Effect subclass, or its name is taken by another class.
+    """
+    if not (isinstance(effect, type) and issubclass(effect, Effect) and effect.name):
+        raise EffectError(f"register_effect needs an Effect subclass with a name, got {effect!r}")
+    old = _REGISTRY.get(effect.name)
+    # the same definition imported again (a reloaded plugin, a re-run notebook cell)
+    redefined = old is not None and (old.__module__, old.__qualname__) == (
+        effect.__module__, effect.__qualname__)
+    if old is not None and old is not effect and not (replace or redefined):
+        raise EffectError(
+            f"an effect named {effect.name!r} is already registered ({old.__module__}."
+            f"{old.__qualname__}); choose another name or pass replace=True"
+        )
+    _REGISTRY[effect.name] = effect
+    return effect
+
+
+def registered_effects() -> dict[str, type[Effect]]:
+    """All registered effects by name.
+
+    Returns
+    -------
+    dict
+        Name to effect class, built-in and user-registered.
+    """
+    return dict(_REGISTRY)
+
+
+def get_effect(name: str) -> type[Effect]:
+    """Look up a registered effect by name.
+
+    Parameters
+    ----------
+    name : str
+        Registry name, e.g. ``"regulator_lag"``.
+
+    Returns
+    -------
+    type
+        The effect class.
+
+    Raises
+    ------
+    EffectError
+        If no effect of that name is registered; the message lists the known ones.
+    """
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        known = ", ".join(sorted(_REGISTRY))
+        raise EffectError(f"unknown effect {name!r}; known effects: {known}") from None
+
+
+def resolve_effects(effects: Iterable[str | type[Effect] | Effect] | str | None) -> tuple:
+    """Turn names, classes or instances (or a comma-separated string) into effect classes.
+
+    Parameters
+    ----------
+    effects : iterable, str or None
+        Names, Effect subclasses or instances; or one comma-separated string.
+
+    Returns
+    -------
+    tuple of type
+        The effect classes in the given order.
+
+    Raises
+    ------
+    EffectError
+        On an unknown name, a non-effect, or the same effect listed twice.
+    """
+    if effects is None:
+        return ()
+    if isinstance(effects, str):
+        effects = [e.strip() for e in effects.split(",") if e.strip()]
+    out: list[type[Effect]] = []
+    for e in effects:
+        if isinstance(e, str):
+            cls = get_effect(e)
+        elif isinstance(e, Effect):
+            cls = type(e)
+        elif isinstance(e, type) and issubclass(e, Effect) and e.name:
+            cls = e
+        else:
+            raise EffectError(f"not an effect: {e!r}")
+        if cls in out:
+            raise EffectError(f"effect {cls.name!r} is listed twice")
+        out.append(cls)
+    return tuple(out)
+
+
+# ---------------------------------------------------------------------------------
+# Built-in effects
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _regulator_lag(q, p_start, p_end, dt_s):
+    # Exact response of the lag to each linear input piece, projected back onto one
+    # linear piece per interval (matching mean and first moment), so that tau -> 0
+    # recovers the held input and the output stays smooth in tau.
+    n, batch = p_start.shape
+    e_h = np.empty(batch)
+    inv_h = np.empty(batch)
+    m0 = np.empty(batch)
+    m1 = np.empty(batch)
+    y = np.empty(batch)
+    for i in range(batch):
+        h = dt_s / max(q[i, 0], 1e-300)
+        e_h[i] = math.exp(-h)
+        inv_h[i] = 1.0 / h
+        m0[i] = -math.expm1(-h) / h  # mean of exp(-h t) on [0, 1]
+        m1[i] = (-math.expm1(-h) - h * e_h[i]) / (h * h)  # first moment of exp(-h t)
+        y[i] = p_start[0, i]  # the regulator starts settled at the first command
+    for k in range(n):
+        for i in range(batch):
+            a = p_start[k, i]
+            slope = p_end[k, i] - a
+            ramp = slope * inv_h[i]
+            c = y[i] - a + ramp
+            mean = a + 0.5 * slope - ramp + c * m0[i]
+            moment = 0.5 * a + slope / 3.0 - 0.5 * ramp + c * m1[i]
+            y[i] = p_end[k, i] - ramp + c * e_h[i]
+            p_start[k, i] = 4.0 * mean - 6.0 * moment
+            p_end[k, i] = 6.0 * moment - 2.0 * mean
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _delay_moments(f, a0, b0, a1, b1):
+    # mean and first moment over one interval of a piecewise-linear signal whose
+    # previous piece (a0 -> b0) fills the first f of it and whose next piece
+    # (a1 -> b1) fills the rest
+    g = 1.0 - f
+    s0 = b0 - a0
+    s1 = b1 - a1
+    mean = f * a0 + s0 * (g * f + 0.5 * f * f) + g * a1 + 0.5 * s1 * g * g
+    moment = (
+        (a0 + s0 * g) * 0.5 * f * f
+        + s0 * f * f * f / 3.0
+        + (a1 - s1 * f) * 0.5 * (1.0 - f * f)
+        + s1 * (1.0 - f * f * f) / 3.0
+    )
+    return mean, moment
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _transport_delay(q, p_start, p_end, dt_s):
+    # Project the delayed piecewise-linear signal back onto one linear piece per
+    # interval, matching its mean and first moment: exact for linear input and
+    # continuous in the delay, so the likelihood stays smooth in t_delay.
+    n_samples, batch = p_start.shape
+    shift = np.empty(batch, dtype=np.int64)
+    w = np.empty((8, batch))  # start and end as linear maps of (a0, b0, a1, b1)
+    unit = np.eye(4)
+    for i in range(batch):
+        s = max(q[i, 0], 0.0) / dt_s
+        shift[i] = int(math.floor(s))
+        for j in range(4):
+            mean, moment = _delay_moments(s - shift[i], unit[j, 0], unit[j, 1], unit[j, 2],
+                                          unit[j, 3])
+            w[j, i] = 4.0 * mean - 6.0 * moment
+            w[4 + j, i] = 6.0 * moment - 2.0 * mean
+    rest = p_start[0].copy()  # before the trial the pressure rests at its first value
+    for k in range(n_samples - 1, -1, -1):  # backwards: reads only earlier samples
+        for i in range(batch):
+            j0 = k - shift[i] - 1
+            j0c = j0 if j0 > 0 else 0
+            j1c = j0 + 1 if j0 + 1 > 0 else 0
+            a0 = p_start[j0c, i] if j0 >= 0 else rest[i]
+            b0 = p_end[j0c, i] if j0 >= 0 else rest[i]
+            a1 = p_start[j1c, i] if j0 >= -1 else rest[i]
+            b1 = p_end[j1c, i] if j0 >= -1 else rest[i]
+            p_start[k, i] = w[0, i] * a0 + w[1, i] * b0 + w[2, i] * a1 + w[3, i] * b1
+            p_end[k, i] = w[4, i] * a0 + w[5, i] * b0 + w[6, i] * a1 + w[7, i] * b1
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def smooth_sign(u):
+    """Hyperbolic tangent from polynomials only, so that loops calling it vectorise.
+
+    libm's ``tanh`` is an opaque call that stops numba's loops from vectorising.
+
+    Parameters
+    ----------
+    u : float
+        Argument.
+
+    Returns
+    -------
+    float
+        ``tanh(u)`` to a relative error below 1e-13.
+    """
+    a = abs(u)
+    a = a if a < 40.0 else 40.0  # builtin min() would block vectorisation
+    q = -a / 64.0  # e^(-2a) = e^(128 q), |q| <= 0.625
+    phq = 1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (1 / 720 + q * (
+        1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
+            1 / 39916800 + q * (1 / 479001600 + q / 6227020800)))))))))))
+    # e^(128 q) - 1 = q phq (e + 1)(e^2 + 1)...(e^64 + 1), free of cancellation
+    e1 = 1.0 + q * phq
+    e2 = e1 * e1
+    e4 = e2 * e2
+    e8 = e4 * e4
+    e16 = e8 * e8
+    e32 = e16 * e16
+    e64 = e32 * e32
+    prod = phq * (e1 + 1.0) * (e2 + 1.0) * (e4 + 1.0) * (e8 + 1.0) * (e16 + 1.0)
+    prod *= (e32 + 1.0) * (e64 + 1.0)
+    t = a * prod / 64.0 / (1.0 + e64 * e64)
+    return t if u >= 0.0 else -t
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _coulomb_friction(q, x, v, p):
+    th = smooth_sign(v / q[1])
+    return q[0] * th, 0.0, q[0] * (1.0 - th * th) / q[1]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _cubic_stiffness(q, x, v, p):
+    return q[0] * x * x * x, 3.0 * q[0] * x * x, 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _pressure_stiffness(q, x, v, p):
+    return q[0] * p * x, q[0] * p, 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _position_offset(q, time_s, position_m):
+    n, batch = position_m.shape
+    for k in range(n):
+        for i in range(batch):
+            position_m[k, i] += q[i, 0]
+
+
+@register_effect
+class RegulatorLag(Effect):
+    """First-order lag of the pressure regulator."""
+
+    name = "regulator_lag"
+    stage = "pressure"
+    parameters = (
+        Parameter(
+            "tau_reg", "s", 0.04, LogNormal(0.03, 1.0), bounds=(0.0, 1.0), null=0.0,
+            description="time constant of the first-order lag between commanded and "
+            "actual pressure",
+            latex=r"\tau_\mathrm{reg}",
+        ),
+    )
+    description = (
+        "The proportional regulator and the tubing fill the muscle through a first-order "
+        "lag: the pressure that acts trails the command by tau_reg and its swings shrink "
+        "as frequency rises. In the residual: error that grows with the chirp's "
+        "frequency, and a response that lags the pressure (the residual correlates with "
+        "the input's rate of change)."
+    )
+    physics = staticmethod(_regulator_lag)
+
+
+@register_effect
+class TransportDelay(Effect):
+    """Dead time between the pressure command and the actuator."""
+
+    name = "transport_delay"
+    stage = "pressure"
+    parameters = (
+        Parameter(
+            "t_delay", "s", 0.02, LogNormal(0.02, 1.0), bounds=(0.0, 0.5), null=0.0,
+            description="dead time between commanded and actual pressure (valve, tubing)",
+            latex=r"T_\mathrm{d}",
+        ),
+    )
+    description = (
+        "The pressure wave needs time to travel down the tubing and the valve to react, "
+        "so the actuator sees the command t_delay late. Unlike a lag it shifts phase in "
+        "proportion to frequency without shrinking the amplitude. In the residual: error "
+        "proportional to the rate of change of the response, growing linearly with "
+        "frequency, and a peak of the input-residual cross-correlation at a positive lag."
+    )
+    physics = staticmethod(_transport_delay)
+
+
+@register_effect
+class CoulombFriction(Effect):
+    """Smooth Coulomb friction of the carriage and the braid."""
+
+    name = "coulomb_friction"
+    stage = "force"
+    parameters = (
+        Parameter(
+            "F_c", "N", 1.0, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+            description="Coulomb friction force opposing motion (carriage, rail, braid)",
+            latex=r"F_\mathrm{c}",
+        ),
+        Parameter(
+            "v_c", "m/s", 2e-3, LogNormal(2e-3, 1.0), bounds=(1e-6, 1.0), vary=False,
+            description="velocity below which friction is smoothed, F_c tanh(v/v_c); "
+            "2 mm/s resolves the switch at 1 kHz",
+            latex=r"v_\mathrm{c}",
+        ),
+    )
+    description = (
+        "Dry friction on the rail and between braid and bladder resists motion with a "
+        "force of nearly constant size F_c, reversing with the direction of motion "
+        "(smoothed as F_c tanh(v/v_c)). It widens the hysteresis loop by about 2 F_c / "
+        "K_e in position. In the residual: jumps of opposite sign where the velocity "
+        "reverses, so the residual correlates with the sign of the velocity."
+    )
+    physics = staticmethod(_coulomb_friction)
+
+
+@register_effect
+class CubicStiffness(Effect):
+    """Stiffness that grows (or softens) with extension."""
+
+    name = "cubic_stiffness"
+    stage = "force"
+    parameters = (
+        Parameter(
+            "K3", "N/m^3", 2e4, Normal(0.0, 5e4), bounds=(-1e7, 1e7), null=0.0,
+            description="cubic spring coefficient: elastic force K_e x + K3 x^3",
+            latex=r"K_3",
+        ),
+    )
+    description = (
+        "The bladder stiffens as it stretches, so the elastic force grows faster than "
+        "linearly with extension (K3 > 0; K3 < 0 softens). In the residual: error that "
+        "depends on position, curving the static pressure-position map at the largest "
+        "extensions, and nearly independent of frequency."
+    )
+    physics = staticmethod(_cubic_stiffness)
+
+
+@register_effect
+class PressureStiffness(Effect):
+    """Stiffness that grows with the pressure in the muscle."""
+
+    name = "pressure_stiffness"
+    stage = "force"
+    parameters = (
+        Parameter(
+            "K_p", "N/(m Pa)", 3e-4, HalfNormal(1e-3), bounds=(0.0, 1e-2), null=0.0,
+            description="growth of the stiffness with pressure: K = K_e + K_p p",
+            latex=r"K_p",
+        ),
+    )
+    description = (
+        "The pressurised braid is stiffer than the empty one: the stiffness rises with "
+        "pressure as K_e + K_p p, so the muscle extends less than linearly at high "
+        "pressure. In the residual: error proportional to the product of pressure and "
+        "position, largest at the peaks of each cycle."
+    )
+    physics = staticmethod(_pressure_stiffness)
+
+
+@register_effect
+class PositionOffset(Effect):
+    """Zero offset of the position sensor."""
+
+    name = "position_offset"
+    stage = "measurement"
+    parameters = (
+        Parameter(
+            "x_offset", "m", 5e-4, Normal(0.0, 2e-3), bounds=(-0.05, 0.05), null=0.0,
+            description="constant offset of the encoder's zero from the unloaded length",
+            latex=r"x_\mathrm{off}",
+        ),
+    )
+    description = (
+        "The encoder was zeroed away from the unloaded length, so every measured "
+        "position is shifted by x_offset. In the residual: a constant bias, the same at "
+        "every frequency, pressure and position."
+    )
+    physics = staticmethod(_position_offset)
+

@@ -1,0 +1,463 @@
+"""The PMA model: base physics, the rig it runs on, and composed effects.
+
+The base model is equation (1)-(2) of Godage et al. (dynamic control of PMAs) with
+the viscous damping ``d x'`` that the paper identifies but leaves out of (1)::
+
+    (M + m) x'' + d x' + (M + m) g s_g + K_e x + z = A max(p - p_dz, 0)
+    z' = x' [alpha - (beta sgn(x' z) + gamma) |z|]
+
+in SI units (m, s, Pa, N, kg). ``x`` is the length change from the unloaded length,
+``z`` the Bouc-Wen hysteretic force (N), so ``alpha`` is in N/m and ``beta``,
+``gamma`` in 1/m (the paper calls them dimensionless). ``s_g = +1`` when gravity
+opposes extension (the characterisation rig), ``-1`` when it pulls toward extension
+(the control rig with its 500 g load), 0 without gravity.
+
+A :class:`Rig` holds what is known and fixed (masses, area, gravity); a
+:class:`Model` composes the base physics with :mod:`pmabayes.effects`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from pmabayes.effects import Effect, resolve_effects
+from pmabayes.parameters import HalfNormal, LogNormal, Normal, Parameter, Prior, Uniform
+
+__all__ = [
+    "G_M_S2",
+    "PAPER_VALUES",
+    "PMA_MASS_KG",
+    "CARRIAGE_MASS_KG",
+    "CONTROL_LOAD_KG",
+    "PAPER_EXTENSION_M",
+    "PAPER_EXTENSION_PRESSURE_PA",
+    "derive_area",
+    "PAPER_AREA_M2",
+    "BASE_PARAMETERS",
+    "Rig",
+    "Model",
+    "ModelError",
+]
+
+G_M_S2 = 9.81
+PMA_MASS_KG = 0.022
+CARRIAGE_MASS_KG = 0.045
+CONTROL_LOAD_KG = 0.5
+PAPER_EXTENSION_M = 0.085
+PAPER_EXTENSION_PRESSURE_PA = 0.4e6
+
+#: The paper's point estimate (GlobalSearch + fmincon on the trial-mean RMS error).
+PAPER_VALUES: dict[str, float] = {
+    "alpha": 23.705,
+    "beta": 1.7267,
+    "gamma": -42.593,
+    "d": 155.76,
+    "K_e": 624.78,
+    "p_dz": 66.922e3,
+}
+
+
+class ModelError(ValueError):
+    """A model is composed or parameterised wrongly."""
+
+
+def derive_area(
+    *,
+    extension_m: float = PAPER_EXTENSION_M,
+    pressure_pa: float = PAPER_EXTENSION_PRESSURE_PA,
+    moving_mass_kg: float = CARRIAGE_MASS_KG + PMA_MASS_KG,
+    gravity_sign: float = 1.0,
+    g_m_s2: float = G_M_S2,
+    values: Mapping[str, float] | None = None,
+) -> float:
+    """Effective area ``A`` that gives the paper's steady-state extension.
+
+    The paper reports 85 mm of steady-state extension at 0.4 MPa but not ``A``.
+    With the trial convention of this package (start at rest at zero pressure,
+    where gravity alone sags the muscle to ``x0 = -(M+m) g s_g / K_e`` with
+    ``z = 0``) a pressure step makes ``x`` rise monotonically (the linear part is
+    over-damped), so ``z`` follows the loading branch of the Bouc-Wen equation,
+    ``dz/dx = alpha - (beta + gamma) z``, whose solution from ``z(x0) = 0`` is::
+
+        z(x) = alpha / c * (1 - exp(-c (x - x0))),   c = beta + gamma.
+
+    ``z`` is rate independent, so after 100 s the static balance holds::
+
+        A (p - p_dz) = K_e x + z(x) + (M + m) g s_g.
+
+    With the paper's values this gives ``A = 2.183e-4 m^2`` (53.11 N of spring,
+    18.95 N of hysteretic force and 0.66 N of weight over 333 kPa). Starting the
+    hysteretic state at ``x0 = 0`` instead (ignoring the 1 mm sag) gives the
+    slightly smaller 2.158e-4 m^2, close to the 2.159e-4 used by
+    ``shared/bench/c_reference``.
+
+    Parameters
+    ----------
+    extension_m : float
+        Steady-state ``x`` in m.
+    pressure_pa : float
+        Step pressure in Pa.
+    moving_mass_kg : float
+        ``M + m`` in kg.
+    gravity_sign : float
+        ``s_g``.
+    g_m_s2 : float
+        Gravitational acceleration.
+    values : mapping, optional
+        Base parameters; the paper's by default.
+
+    Returns
+    -------
+    float
+        ``A`` in m^2.
+    """
+    v = dict(PAPER_VALUES if values is None else values)
+    weight = moving_mass_kg * g_m_s2 * gravity_sign
+    x0 = -weight / v["K_e"]
+    c = v["beta"] + v["gamma"]
+    dx = extension_m - x0
+    z = v["alpha"] * dx if c == 0 else v["alpha"] / c * -math.expm1(-c * dx)
+    return (v["K_e"] * extension_m + z + weight) / (pressure_pa - v["p_dz"])
+
+
+PAPER_AREA_M2 = derive_area()
+
+#: Base parameters in kernel order; the order is part of the simulator's contract.
+BASE_PARAMETERS: tuple[Parameter, ...] = (
+    Parameter(
+        "alpha", "N/m", PAPER_VALUES["alpha"], LogNormal(25.0, 1.5), bounds=(0.0, 1e5),
+        description="Bouc-Wen initial stiffness of the hysteretic force z",
+        latex=r"\alpha",
+    ),
+    Parameter(
+        "beta", "1/m", PAPER_VALUES["beta"], HalfNormal(50.0), bounds=(0.0, 1e4),
+        description="Bouc-Wen loop-width coefficient (beta > 0 opens the loop)",
+        latex=r"\beta",
+    ),
+    Parameter(
+        "gamma", "1/m", PAPER_VALUES["gamma"], Normal(0.0, 50.0), bounds=(-1e4, 1e4),
+        description="Bouc-Wen shape coefficient (beta + gamma < 0 stiffens with extension)",
+        latex=r"\gamma",
+    ),
+    Parameter(
+        "d", "N s/m", PAPER_VALUES["d"], LogNormal(150.0, 1.0), bounds=(0.0, 1e5),
+        description="viscous damping of the muscle and carriage",
+        latex="d",
+    ),
+    Parameter(
+        "K_e", "N/m", PAPER_VALUES["K_e"], LogNormal(600.0, 1.0), bounds=(0.0, 1e6),
+        description="linear elastic stiffness of the bladder",
+        latex=r"K_e",
+    ),
+    Parameter(
+        "p_dz", "Pa", PAPER_VALUES["p_dz"], Uniform(0.0, 3e5), bounds=(0.0, 3e5),
+        description="dead-zone pressure below which the muscle does not extend",
+        latex=r"p_\mathrm{dz}",
+    ),
+)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The known, fixed constants of a test rig.
+
+    Parameters
+    ----------
+    moving_mass_kg : float
+        ``M + m``: carriage, load and muscle.
+    gravity_sign : float
+        ``s_g``: +1 gravity opposes extension, -1 pulls toward it, 0 none.
+    area_m2 : float
+        Effective area ``A`` (force per pressure); 1 for a force-driven oscillator.
+    input_kind : str
+        ``"pressure"`` (input in Pa, with dead zone) or ``"force"`` (input in N, no
+        dead zone, so ``p_dz`` is not a parameter).
+    g_m_s2 : float
+        Gravitational acceleration.
+    name : str
+        A label for reports.
+    """
+
+    moving_mass_kg: float
+    gravity_sign: float = 1.0
+    area_m2: float = PAPER_AREA_M2
+    input_kind: str = "pressure"
+    g_m_s2: float = G_M_S2
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        if not self.moving_mass_kg > 0:
+            raise ModelError(f"rig mass must be > 0 kg, got {self.moving_mass_kg}")
+        if self.gravity_sign not in (-1.0, 0.0, 1.0):
+            raise ModelError(f"gravity_sign must be -1, 0 or +1, got {self.gravity_sign}")
+        if not self.area_m2 > 0:
+            raise ModelError(f"area must be > 0, got {self.area_m2}")
+        if self.input_kind not in ("pressure", "force"):
+            raise ModelError(f"input_kind must be 'pressure' or 'force', got {self.input_kind!r}")
+
+    @classmethod
+    def characterisation(cls) -> Rig:
+        """The paper's identification rig: carriage + muscle, gravity opposing extension."""
+        return cls(CARRIAGE_MASS_KG + PMA_MASS_KG, 1.0, PAPER_AREA_M2, name="characterisation")
+
+    @classmethod
+    def control(cls, load_kg: float = CONTROL_LOAD_KG) -> Rig:
+        """The paper's control rig: a load hanging so that gravity pulls toward extension."""
+        return cls(CARRIAGE_MASS_KG + PMA_MASS_KG + load_kg, -1.0, PAPER_AREA_M2, name="control")
+
+    @classmethod
+    def force_oscillator(cls, mass_kg: float) -> Rig:
+        """A generic force-driven Bouc-Wen oscillator: ``m x'' + d x' + K_e x + z = u``."""
+        return cls(mass_kg, 0.0, 1.0, input_kind="force", name="force_oscillator")
+
+    @property
+    def input_name(self) -> str:
+        """Name of the input column in data files."""
+        return "pressure_pa" if self.input_kind == "pressure" else "force_n"
+
+    @property
+    def gravity_force_n(self) -> float:
+        """``(M + m) g s_g``, the gravity term on the left of the equation of motion."""
+        return self.moving_mass_kg * self.g_m_s2 * self.gravity_sign
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable form (for data sidecars and fit files)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> Rig:
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        known = {"moving_mass_kg", "gravity_sign", "area_m2", "input_kind", "g_m_s2", "name"}
+        unknown = set(d) - known
+        if unknown:
+            raise ModelError(f"unknown rig keys {sorted(unknown)}; expected {sorted(known)}")
+        return cls(**d)
+
+
+class Model:
+    """The base PMA model composed with physical effects.
+
+    Parameters
+    ----------
+    effects : iterable of str, Effect class or instance, or comma-separated str
+        Effects to add, in order. Pressure-path effects are applied in this order.
+    rig : Rig, optional
+        Fixed constants; :meth:`Rig.characterisation` by default.
+    priors : mapping of str to Prior, optional
+        Overrides of the default priors, by parameter name.
+    fixed : mapping of str to float, optional
+        Parameters held fixed at the given values (not identified). Settings that
+        are fixed by default (``vary=False``) can be freed with ``free``.
+    free : iterable of str, optional
+        Parameters fixed by default that should be identified.
+
+    Raises
+    ------
+    ModelError
+        If two parameters share a name, or an override names no parameter.
+
+    Examples
+    --------
+    >>> from pmabayes import Model
+    >>> m = Model(["regulator_lag", "coulomb_friction"])
+    >>> m.parameter_names
+    ('alpha', 'beta', 'gamma', 'd', 'K_e', 'p_dz', 'tau_reg', 'F_c', 'v_c')
+    >>> m.free_names[-2:]
+    ('tau_reg', 'F_c')
+    """
+
+    def __init__(
+        self,
+        effects: Iterable[str | type[Effect] | Effect] | str | None = None,
+        *,
+        rig: Rig | None = None,
+        priors: Mapping[str, Prior] | None = None,
+        fixed: Mapping[str, float] | None = None,
+        free: Iterable[str] | None = None,
+    ) -> None:
+        self.rig = Rig.characterisation() if rig is None else rig
+        self.effects: tuple[type[Effect], ...] = resolve_effects(effects)
+        base = BASE_PARAMETERS
+        if self.rig.input_kind == "force":
+            base = tuple(p for p in base if p.name != "p_dz")
+        params: list[Parameter] = list(base)
+        owner = {p.name: "the base model" for p in base}
+        for eff in self.effects:
+            for p in eff.parameters:
+                if p.name in owner:
+                    raise ModelError(
+                        f"parameter name clash: {p.name!r} of effect {eff.name!r} is already "
+                        f"declared by {owner[p.name]}; rename it in the effect"
+                    )
+                owner[p.name] = f"effect {eff.name!r}"
+                params.append(p)
+        self._base_count = len(base)
+        self.parameters: tuple[Parameter, ...] = tuple(params)
+        self.parameter_names: tuple[str, ...] = tuple(p.name for p in params)
+        self._index = {n: i for i, n in enumerate(self.parameter_names)}
+        self.priors: dict[str, Prior] = {p.name: p.prior for p in params}
+        for name, prior in (priors or {}).items():
+            self._check_name(name, "priors")
+            if not isinstance(prior, Prior):
+                raise ModelError(f"prior for {name!r} must be a pmabayes Prior, got {prior!r}")
+            self.priors[name] = prior
+        self.fixed: dict[str, float] = {p.name: p.default for p in params if not p.vary}
+        for name in free or ():
+            self._check_name(name, "free")
+            self.fixed.pop(name, None)
+        for name, value in (fixed or {}).items():
+            self._check_name(name, "fixed")
+            self.fixed[name] = float(value)
+        self.free_names: tuple[str, ...] = tuple(
+            n for n in self.parameter_names if n not in self.fixed
+        )
+
+    # -- naming -----------------------------------------------------------------
+    def _check_name(self, name: str, what: str) -> None:
+        if name not in self._index:
+            raise ModelError(
+                f"{what}: {name!r} is not a parameter of this model; parameters are "
+                f"{', '.join(self.parameter_names)}"
+            )
+
+    def index(self, name: str) -> int:
+        """Column of parameter ``name`` in a full parameter array."""
+        self._check_name(name, "index")
+        return self._index[name]
+
+    def parameter(self, name: str) -> Parameter:
+        """The :class:`Parameter` called ``name``."""
+        return self.parameters[self.index(name)]
+
+    def effect_slices(self) -> list[tuple[type[Effect], slice]]:
+        """Each effect with the columns its parameters occupy in a full parameter array."""
+        out, start = [], self._base_count
+        for eff in self.effects:
+            out.append((eff, slice(start, start + len(eff.parameters))))
+            start += len(eff.parameters)
+        return out
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the composed effects."""
+        return tuple(e.name for e in self.effects)
+
+    def with_effects(self, *effects: str | type[Effect] | Effect) -> Model:
+        """A new model with ``effects`` appended (priors and fixings kept)."""
+        kept_priors = {n: p for n, p in self.priors.items() if p is not self.parameter(n).prior}
+        return Model(
+            self.effects + resolve_effects(effects),
+            rig=self.rig,
+            priors=kept_priors,
+            fixed={n: v for n, v in self.fixed.items() if self.parameter(n).vary},
+        )
+
+    # -- parameter arrays -------------------------------------------------------
+    @property
+    def defaults(self) -> dict[str, float]:
+        """Default value of every parameter (fixed ones at their fixed value)."""
+        d = {p.name: p.default for p in self.parameters}
+        d.update(self.fixed)
+        return d
+
+    def theta(
+        self, params: Mapping[str, float | np.ndarray] | np.ndarray | None = None
+    ) -> np.ndarray:
+        """A full ``(batch, n_parameters)`` parameter array.
+
+        Parameters
+        ----------
+        params : mapping or array, optional
+            A mapping from names to scalars or 1-D arrays (one value per batch
+            member); missing names take their default. Or an array of shape
+            ``(n_parameters,)`` or ``(batch, n_parameters)`` in
+            :attr:`parameter_names` order. None gives the defaults.
+
+        Returns
+        -------
+        numpy.ndarray
+            C-contiguous float64 array ``(batch, n_parameters)``.
+
+        Raises
+        ------
+        ModelError
+            On unknown names, inconsistent batch sizes, wrong shapes, or values
+            outside a parameter's bounds.
+        """
+        if params is None:
+            params = {}
+        if isinstance(params, Mapping):
+            for name in params:
+                self._check_name(name, "parameters")
+            sizes = {np.size(v) for v in params.values() if np.ndim(v) > 0}
+            if len(sizes) > 1:
+                raise ModelError(f"parameter arrays have different lengths {sorted(sizes)}")
+            batch = sizes.pop() if sizes else 1
+            defaults = self.defaults
+            theta = np.empty((batch, len(self.parameter_names)))
+            for j, name in enumerate(self.parameter_names):
+                value = np.asarray(params.get(name, defaults[name]), dtype=float)
+                if value.ndim > 1:
+                    raise ModelError(f"parameter {name!r} must be a scalar or 1-D array")
+                theta[:, j] = value
+        else:
+            theta = np.array(params, dtype=float, ndmin=2)
+            if theta.ndim != 2 or theta.shape[1] != len(self.parameter_names):
+                raise ModelError(
+                    f"parameter array of shape {np.shape(params)} does not match the model's "
+                    f"{len(self.parameter_names)} parameters {self.parameter_names}"
+                )
+            theta = np.ascontiguousarray(theta)
+        self.check_bounds(theta)
+        return theta
+
+    def check_bounds(self, theta: np.ndarray) -> None:
+        """Raise :class:`ModelError` naming the first parameter outside its bounds."""
+        for j, p in enumerate(self.parameters):
+            bad = ~p.in_bounds(theta[:, j])
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise ModelError(
+                    f"parameter {p.name} = {float(theta[i, j])!r} (batch member {i}) is "
+                    f"outside its bounds {p.bounds} [{p.unit}]"
+                )
+
+    def log_prior(self, theta: np.ndarray) -> np.ndarray:
+        """Log prior density of each row of a full parameter array (fixed ones excluded)."""
+        theta = np.atleast_2d(theta)
+        total = np.zeros(theta.shape[0])
+        for j, p in enumerate(self.parameters):
+            if p.name in self.fixed:
+                continue
+            inside = p.in_bounds(theta[:, j])
+            total += np.where(inside, self.priors[p.name].logpdf(theta[:, j]), -np.inf)
+        return total
+
+    def describe(self) -> list[dict]:
+        """One row per parameter: name, unit, default, prior, bounds, fixed, meaning, source."""
+        rows = []
+        owners = ["base"] * self._base_count + [
+            e.name for e in self.effects for _ in e.parameters
+        ]
+        for p, owner in zip(self.parameters, owners, strict=True):
+            rows.append(
+                {
+                    "name": p.name,
+                    "unit": p.unit,
+                    "default": self.defaults[p.name],
+                    "prior": str(self.priors[p.name]),
+                    "bounds": p.bounds,
+                    "fixed": p.name in self.fixed,
+                    "description": p.description,
+                    "source": owner,
+                }
+            )
+        return rows
+
+    def __repr__(self) -> str:
+        eff = ", ".join(self.effect_names) or "none"
+        return f"Model(rig={self.rig.name}, effects={eff}, parameters={len(self.parameters)})"

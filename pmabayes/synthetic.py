@@ -1,0 +1,278 @@
+"""Synthetic repeated-chirp data, like the paper's characterisation runs.
+
+Everything here is synthetic: the positions come from :func:`pmabayes.simulate`
+of a chosen model, with optional *hidden effects* the fitted model may lack, plus
+a realistic measurement: a trial-to-trial disturbance that is autocorrelated in
+time and the quantisation of the paper's encoder (2000 counts per inch). The
+generator's settings are recorded in the dataset's metadata (the JSON sidecar),
+so every file says how to make it again.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from pmabayes.data import Dataset
+from pmabayes.effects import get_effect
+from pmabayes.model import Model, ModelError, Rig
+from pmabayes.simulator import simulate
+
+__all__ = [
+    "ENCODER_COUNTS_PER_M",
+    "Chirp",
+    "MeasurementNoise",
+    "hidden_effects_model",
+    "generate_chirp_dataset",
+]
+
+#: The paper's linear encoder: 2000 quadrature counts per inch.
+ENCODER_COUNTS_PER_M = 2000 / 0.0254
+
+
+@dataclass(frozen=True)
+class Chirp:
+    """A pressure chirp between two levels with linearly rising frequency.
+
+    ``p(t) = p_min + (p_max - p_min) / 2 * (1 - cos(2 pi (f0 t + (f1 - f0) t^2 / (2 T))))``,
+    which starts at rest at ``p_min``. The paper's: 0.1 to 3 Hz over 15 s, 0 to 0.5 MPa.
+
+    Parameters
+    ----------
+    f0_hz, f1_hz : float
+        Start and end frequency.
+    duration_s : float
+        Length ``T`` of the chirp.
+    p_min_pa, p_max_pa : float
+        Pressure range (gauge).
+    sample_rate_hz : float
+        Sampling rate of command and measurement.
+    """
+
+    f0_hz: float = 0.1
+    f1_hz: float = 3.0
+    duration_s: float = 15.0
+    p_min_pa: float = 0.0
+    p_max_pa: float = 0.5e6
+    sample_rate_hz: float = 1000.0
+
+    def __post_init__(self) -> None:
+        if not (0 < self.f0_hz and 0 < self.f1_hz and self.duration_s > 0):
+            raise ValueError(f"chirp needs positive frequencies and duration, got {self}")
+        if not self.p_min_pa < self.p_max_pa:
+            raise ValueError(f"chirp needs p_min_pa < p_max_pa, got {self}")
+        if not self.sample_rate_hz > 0:
+            raise ValueError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}")
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Sample times, ``round(duration * rate)`` samples from 0."""
+        n = int(round(self.duration_s * self.sample_rate_hz))
+        return np.arange(n) / self.sample_rate_hz
+
+    def phase_cycles(self, time_s: np.ndarray) -> np.ndarray:
+        """Phase of the chirp in cycles."""
+        rate = (self.f1_hz - self.f0_hz) / (2.0 * self.duration_s)
+        return self.f0_hz * time_s + rate * time_s**2
+
+    def frequency_hz(self, time_s: np.ndarray) -> np.ndarray:
+        """Instantaneous frequency at ``time_s``."""
+        return self.f0_hz + (self.f1_hz - self.f0_hz) * np.asarray(time_s) / self.duration_s
+
+    def pressure_pa(self, time_s: np.ndarray | None = None) -> np.ndarray:
+        """The commanded pressure at ``time_s`` (default: :attr:`time_s`)."""
+        t = self.time_s if time_s is None else np.asarray(time_s, dtype=float)
+        half = 0.5 * (self.p_max_pa - self.p_min_pa)
+        return self.p_min_pa + half * (1.0 - np.cos(2.0 * np.pi * self.phase_cycles(t)))
+
+
+@dataclass(frozen=True)
+class MeasurementNoise:
+    """How the synthetic measurement departs from the model's position.
+
+    Each trial gets its own disturbance ``e``, a stationary AR(1) (discretised
+    Ornstein-Uhlenbeck) process with standard deviation ``disturbance_std_m`` and
+    correlation time ``disturbance_corr_time_s``: it stands for what changes from
+    one repetition to the next (supply pressure, temperature, the braid settling).
+    The encoder then reports ``counts_per_m``-quantised ``x + e``.
+
+    Parameters
+    ----------
+    disturbance_std_m : float
+        Standard deviation of the per-trial disturbance; 0 turns it off.
+    disturbance_corr_time_s : float
+        Correlation time; the lag-one autocorrelation at sample interval ``dt`` is
+        ``exp(-dt / corr_time)``.
+    encoder_counts_per_m : float or None
+        Encoder resolution; None for no quantisation.
+    """
+
+    disturbance_std_m: float = 60e-6
+    disturbance_corr_time_s: float = 0.1
+    encoder_counts_per_m: float | None = ENCODER_COUNTS_PER_M
+
+    def __post_init__(self) -> None:
+        if self.disturbance_std_m < 0:
+            raise ValueError(f"disturbance_std_m must be >= 0, got {self.disturbance_std_m}")
+        if not self.disturbance_corr_time_s > 0:
+            raise ValueError(
+                f"disturbance_corr_time_s must be > 0, got {self.disturbance_corr_time_s}"
+            )
+        if self.encoder_counts_per_m is not None and not self.encoder_counts_per_m > 0:
+            raise ValueError(f"encoder_counts_per_m must be > 0, got {self.encoder_counts_per_m}")
+
+    def disturbance(self, n_trials: int, n_samples: int, dt_s: float, rng: np.random.Generator):
+        """Draw ``(n_trials, n_samples)`` stationary AR(1) disturbances."""
+        phi = math.exp(-dt_s / self.disturbance_corr_time_s)
+        innov = self.disturbance_std_m * math.sqrt(1.0 - phi * phi)
+        white = rng.standard_normal((n_trials, n_samples))
+        e = np.empty((n_trials, n_samples))
+        e[:, 0] = self.disturbance_std_m * white[:, 0]
+        for k in range(1, n_samples):
+            e[:, k] = phi * e[:, k - 1] + innov * white[:, k]
+        return e
+
+    def apply(self, position_m: np.ndarray, dt_s: float, rng: np.random.Generator) -> np.ndarray:
+        """Measure ``position_m`` (``(n_trials, n_samples)``): disturb, then quantise."""
+        y = position_m + self.disturbance(*position_m.shape, dt_s, rng)
+        if self.encoder_counts_per_m is not None:
+            y = np.round(y * self.encoder_counts_per_m) / self.encoder_counts_per_m
+        return y
+
+
+def hidden_effects_model(
+    effects: Mapping[str, Mapping[str, float] | float] | None,
+    *,
+    rig: Rig | None = None,
+) -> tuple[Model, dict[str, float]]:
+    """A model with the given effects and the parameter values they are set to.
+
+    Parameters
+    ----------
+    effects : mapping
+        Effect name to either a mapping of its parameter values, or one number for
+        its first varying parameter (``{"regulator_lag": 0.045}``). Parameters not
+        given keep their defaults.
+    rig : Rig, optional
+        The rig; characterisation rig by default.
+
+    Returns
+    -------
+    model : Model
+    values : dict
+        The values of every effect parameter given.
+
+    Raises
+    ------
+    ModelError
+        On an unknown parameter of an effect.
+    """
+    effects = dict(effects or {})
+    model = Model(list(effects), rig=rig)
+    values: dict[str, float] = {}
+    for name, setting in effects.items():
+        eff = get_effect(name)
+        if isinstance(setting, Mapping):
+            for pname, value in setting.items():
+                if pname not in eff.parameter_names():
+                    raise ModelError(
+                        f"effect {name!r} has no parameter {pname!r}; it has "
+                        f"{', '.join(eff.parameter_names())}"
+                    )
+                values[pname] = float(value)
+        else:
+            first = next(p.name for p in eff.parameters if p.vary)
+            values[first] = float(setting)
+    return model, values
+
+
+def generate_chirp_dataset(
+    *,
+    n_trials: int = 10,
+    seed: int | None = 0,
+    rng: np.random.Generator | None = None,
+    chirp: Chirp | None = None,
+    noise: MeasurementNoise | None = MeasurementNoise(),
+    params: Mapping[str, float] | None = None,
+    effects: Mapping[str, Mapping[str, float] | float] | None = None,
+    rig: Rig | None = None,
+    description: str = "",
+) -> Dataset:
+    """Repeated chirp trials from a model with optional hidden effects.
+
+    Parameters
+    ----------
+    n_trials : int
+        Number of repeated trials (all share the commanded pressure).
+    seed : int or None
+        Seed of the noise; ignored when ``rng`` is given.
+    rng : numpy.random.Generator, optional
+        Generator to draw the noise from (its state is not recorded).
+    chirp : Chirp, optional
+        The commanded pressure; the paper's chirp by default.
+    noise : MeasurementNoise or None
+        The measurement; None gives the exact model output.
+    params : mapping, optional
+        Base-model parameter values; the paper's by default.
+    effects : mapping, optional
+        Hidden effects and their values, as for :func:`hidden_effects_model`.
+    rig : Rig, optional
+        The rig; characterisation rig by default.
+    description : str
+        Free text stored in the metadata.
+
+    Returns
+    -------
+    Dataset
+        With metadata ``synthetic=True`` and the full generator settings.
+    """
+    if not (isinstance(n_trials, int | np.integer) and n_trials >= 1):
+        raise ValueError(f"n_trials must be a positive integer, got {n_trials!r}")
+    chirp = Chirp() if chirp is None else chirp
+    model, effect_values = hidden_effects_model(effects, rig=rig)
+    values = dict(model.defaults)
+    for name, value in (params or {}).items():
+        model.index(name)  # raises on unknown names
+        values[name] = float(value)
+    values.update(effect_values)
+    time_s = chirp.time_s
+    dt = 1.0 / chirp.sample_rate_hz
+    pressure = chirp.pressure_pa(time_s)
+    x = simulate(model, values, pressure, time_s=time_s)[0]
+    if rng is None:
+        rng = np.random.default_rng(seed)
+        recorded_seed = seed
+    else:
+        recorded_seed = None
+    if noise is None:
+        position = np.repeat(x[None], n_trials, axis=0)
+    else:
+        position = noise.apply(np.repeat(x[None], n_trials, axis=0), dt, rng)
+    metadata = {
+        "synthetic": True,
+        "description": description
+        or "Synthetic repeated pressure-chirp trials generated by pmabayes (not measured).",
+        "sample_rate_hz": chirp.sample_rate_hz,
+        "rig": model.rig.to_dict(),
+        "generator": {
+            "function": "pmabayes.synthetic.generate_chirp_dataset",
+            "seed": recorded_seed,
+            "n_trials": int(n_trials),
+            "chirp": asdict(chirp),
+            "noise": None if noise is None else asdict(noise),
+            "effects": {name: {p: effect_values[p] for p in get_effect(name).parameter_names()
+                               if p in effect_values} for name in model.effect_names},
+            "parameters": {k: float(v) for k, v in values.items()},
+        },
+    }
+    return Dataset(
+        time_s=time_s,
+        input=np.repeat(pressure[None], n_trials, axis=0),
+        position_m=position,
+        trial_ids=np.arange(n_trials),
+        input_name=model.rig.input_name,
+        metadata=metadata,
+    )

@@ -1,0 +1,203 @@
+"""Independent high-accuracy reference solver for the PMA / Bouc-Wen model.
+
+This module is the yardstick of the simulator tests. It deliberately shares no
+code with :mod:`pmabayes`: it integrates the continuous-time equations of motion
+
+    M x'' + d x' + M g s_g + K_e x + z + F_eff(x, x', p) = A max(p - p_dz, 0)
+    z' = x' [alpha - (beta sgn(x' z) + gamma) |z|]
+
+with the classical fourth-order Runge-Kutta method on a fine fixed step
+``h = dt / substeps``. The optional effects are written here from their physical
+definitions:
+
+* regulator lag: ``p' = (p_cmd(t) - p) / tau_reg``, a fourth state, ``p(0) = p_cmd[0]``;
+* transport delay: ``p(t) = p_cmd(t - t_delay)`` with ``p_cmd(t < 0) = p_cmd[0]``;
+* Coulomb friction ``F_c tanh(x' / v_c)``, cubic stiffness ``K3 x^3`` and pressure
+  stiffness ``K_p p x`` (``p`` the acting pressure);
+* position offset: measured position ``x + x_offset``.
+
+The commanded input is a zero-order hold: ``u[k]`` acts on ``[t_k, t_{k+1})``. The
+delayed command jumps inside a sample interval; each interval is therefore cut at
+that instant into two pieces on which the delayed command is constant, so every
+Runge-Kutta stage sees ``p_cmd(t - t_delay)`` exactly and no step straddles a jump.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy.optimize import brentq
+
+__all__ = ["ReferenceResult", "reference_simulate", "paper_chirp"]
+
+# Slots of the constants vector passed to the compiled integrator.
+(C_MASS, C_AREA, C_F_GRAV, C_ALPHA, C_BETA, C_GAMMA, C_D, C_K_E, C_P_DZ, C_DEAD_ZONE, C_TAU, C_F_C,
+ C_V_C, C_K3, C_K_P) = range(15)
+N_CONSTANTS = 15
+
+
+def paper_chirp(n: int = 15000, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's chirp: 0.1 to 3 Hz over 15 s, 0 to 0.5 MPa.
+
+    Returns
+    -------
+    t, p : numpy.ndarray
+        Sample times in s and commanded pressure in Pa.
+    """
+    t = np.arange(n) * dt
+    p = 0.25e6 * (1.0 - np.cos(2.0 * np.pi * (0.1 * t + 2.9 / 30.0 * t**2)))
+    return t, p
+
+
+@numba.njit(cache=True)
+def _rhs(c, x, v, z, pa, p_cmd):
+    """Time derivatives of (x, v, z, p_act) for a constant command ``p_cmd``."""
+    if c[C_TAU] > 0.0:
+        p = pa
+        dpa = (p_cmd - pa) / c[C_TAU]
+    else:
+        p = p_cmd
+        dpa = 0.0
+    drive = c[C_AREA] * (max(p - c[C_P_DZ], 0.0) if c[C_DEAD_ZONE] > 0.0 else p)
+    f_eff = c[C_F_C] * math.tanh(v / c[C_V_C]) + c[C_K3] * x * x * x + c[C_K_P] * p * x
+    acc = (drive - c[C_F_GRAV] - c[C_D] * v - c[C_K_E] * x - z - f_eff) / c[C_MASS]
+    sgn = 1.0 if v * z >= 0.0 else -1.0
+    dz = v * (c[C_ALPHA] - (c[C_BETA] * sgn + c[C_GAMMA]) * abs(z))
+    return v, acc, dz, dpa
+
+
+@numba.njit(cache=True)
+def _rk4_piece(c, y, p_cmd, length, steps):
+    """Advance ``y = [x, v, z, p_act]`` in place over ``length`` s in ``steps`` RK4 steps."""
+    h = length / steps
+    for _ in range(steps):
+        x, v, z, pa = y[0], y[1], y[2], y[3]
+        k1 = _rhs(c, x, v, z, pa, p_cmd)
+        k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
+                  pa + 0.5 * h * k1[3], p_cmd)
+        k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
+                  pa + 0.5 * h * k2[3], p_cmd)
+        k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3], p_cmd)
+        for j in range(4):
+            y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+
+
+@numba.njit(cache=True)
+def _integrate(c, u, dt, t_delay, substeps, x_init, out):
+    """Integrate a whole trial; ``out[:, k]`` receives (x, v, z, p_act) at ``t_k``."""
+    n = u.shape[0]
+    shift = int(math.floor(t_delay / dt))  # whole samples of delay
+    frac = t_delay / dt - shift  # the delayed command jumps at t_k + frac * dt
+    y = np.array([x_init, 0.0, 0.0, u[0]])
+    out[:, 0] = y
+    for k in range(n - 1):
+        # the delayed command is u[k - shift - 1] before the jump, u[k - shift] after
+        early = u[max(k - shift - 1, 0)]
+        late = u[max(k - shift, 0)]
+        if frac > 0.0:
+            _rk4_piece(c, y, early, frac * dt, max(1, int(math.ceil(frac * substeps))))
+            _rk4_piece(c, y, late, (1.0 - frac) * dt,
+                       max(1, int(math.ceil((1.0 - frac) * substeps))))
+        else:
+            _rk4_piece(c, y, late, dt, substeps)
+        out[:, k + 1] = y
+        if c[C_TAU] <= 0.0:  # no lag state: the acting pressure is the delayed command
+            # in force just after t_{k+1}
+            out[3, k + 1] = u[max(k + 1 - shift - (1 if frac > 0.0 else 0), 0)]
+
+
+@dataclass(frozen=True)
+class ReferenceResult:
+    """States of a reference simulation, each of shape ``(n_samples,)``."""
+
+    position_m: np.ndarray
+    true_position_m: np.ndarray
+    velocity_m_s: np.ndarray
+    hysteresis_n: np.ndarray
+    pressure_pa: np.ndarray
+    effect_force_n: np.ndarray
+
+
+def _static_equilibrium(rhs: float, K_e: float, K3: float, K_p: float, p0: float) -> float:
+    """Solve ``(K_e + K_p p0) x + K3 x^3 = rhs`` for the equilibrium position."""
+    k_lin = K_e + K_p * p0
+    if K3 == 0.0:
+        return rhs / k_lin
+
+    def g(x):
+        return k_lin * x + K3 * x**3 - rhs
+
+    lo, hi = -1e-3, 1e-3
+    while g(lo) > 0.0:
+        lo *= 2.0
+    while g(hi) < 0.0:
+        hi *= 2.0
+    return brentq(g, lo, hi, xtol=1e-18, rtol=4 * np.finfo(float).eps, maxiter=500)
+
+
+def reference_simulate(
+    u,
+    dt: float,
+    *,
+    mass: float,
+    area: float,
+    gravity_force: float,
+    alpha: float,
+    beta: float,
+    gamma: float,
+    d: float,
+    K_e: float,
+    p_dz: float = 0.0,
+    dead_zone: bool = True,
+    tau_reg: float = 0.0,
+    t_delay: float = 0.0,
+    F_c: float = 0.0,
+    v_c: float = 2e-3,
+    K3: float = 0.0,
+    K_p: float = 0.0,
+    x_offset: float = 0.0,
+    substeps: int = 64,
+) -> ReferenceResult:
+    """Simulate one trial with RK4 on ``substeps`` steps per sample interval.
+
+    Parameters
+    ----------
+    u : array_like
+        Commanded input, ``(n_samples,)``: pressure in Pa (force in N when
+        ``dead_zone`` is False), held constant over each sample interval.
+    dt : float
+        Sample interval in s.
+    mass, area, gravity_force : float
+        ``M + m`` (kg), ``A`` (m^2; 1 for force input) and ``(M + m) g s_g`` (N).
+    alpha, beta, gamma, d, K_e, p_dz : float
+        Base parameters (SI units).
+    dead_zone : bool
+        Apply ``max(p - p_dz, 0)`` (pressure rig); False for a force-driven rig.
+    tau_reg, t_delay, F_c, v_c, K3, K_p, x_offset : float
+        Effect parameters; 0 switches an effect off.
+    substeps : int
+        RK4 steps per sample interval.
+
+    Returns
+    -------
+    ReferenceResult
+        The trial's states at the sample times.
+    """
+    u = np.ascontiguousarray(u, dtype=float)
+    c = np.zeros(N_CONSTANTS)
+    c[C_MASS], c[C_AREA], c[C_F_GRAV] = mass, area, gravity_force
+    c[C_ALPHA], c[C_BETA], c[C_GAMMA] = alpha, beta, gamma
+    c[C_D], c[C_K_E], c[C_P_DZ] = d, K_e, p_dz
+    c[C_DEAD_ZONE] = 1.0 if dead_zone else 0.0
+    c[C_TAU], c[C_F_C], c[C_V_C], c[C_K3], c[C_K_P] = tau_reg, F_c, v_c, K3, K_p
+    p0 = u[0]
+    drive0 = area * (max(p0 - p_dz, 0.0) if dead_zone else p0)
+    x_init = _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p, p0)
+    out = np.empty((4, u.shape[0]))
+    _integrate(c, u, float(dt), float(t_delay), int(substeps), x_init, out)
+    x, v, z, p = out
+    f_eff = F_c * np.tanh(v / v_c) + K3 * x**3 + K_p * p * x
+    return ReferenceResult(x + x_offset, x, v, z, p, f_eff)

@@ -1,0 +1,39 @@
+"""Every public function and class has a numpydoc docstring whose sections match
+its signature (after python-control's docstring test)."""
+
+import importlib
+import inspect
+
+import numpydoc.validate
+import pytest
+
+MODULES = [
+    "pmabayes.data",
+    "pmabayes.parameters",
+    "pmabayes.effects",
+    "pmabayes.model",
+    "pmabayes.simulator",
+    "pmabayes.synthetic",
+    "pmabayes.plots",
+    "pmabayes.cli",
+]
+# missing docstring or summary, parameters undocumented or unknown, returns undocumented
+CHECKED = {"GL08", "SS01", "PR01", "PR02", "RT01"}
+
+
+def public_objects():
+    for modname in MODULES:
+        mod = importlib.import_module(modname)
+        for name in mod.__all__:
+            obj = getattr(mod, name)
+            if inspect.isfunction(obj) or inspect.isclass(obj) or hasattr(obj, "py_func"):
+                yield f"{modname}.{name}", obj
+
+
+@pytest.mark.parametrize("qualname", [q for q, _ in public_objects()])
+def test_numpydoc(qualname):
+    result = numpydoc.validate.validate(qualname)
+    errors = [f"{code}: {msg}" for code, msg in result["errors"] if code in CHECKED]
+    if inspect.isclass(dict(public_objects())[qualname]):
+        errors = [e for e in errors if not e.startswith("RT01")]
+    assert not errors, f"{qualname}: " + "; ".join(errors)

@@ -1,0 +1,129 @@
+"""Parameters, priors and model composition."""
+
+import math
+
+import numpy as np
+import pytest
+
+import pmabayes as pb
+from pmabayes.model import BASE_PARAMETERS, CARRIAGE_MASS_KG, PMA_MASS_KG
+
+
+def test_paper_values_are_the_defaults():
+    model = pb.Model()
+    assert model.parameter_names == ("alpha", "beta", "gamma", "d", "K_e", "p_dz")
+    for name, value in pb.PAPER_VALUES.items():
+        assert model.defaults[name] == value
+    assert pb.PAPER_VALUES["p_dz"] == 66922.0  # 66.922 kPa in Pa
+
+
+def test_derived_area_balances_the_static_equation():
+    v = pb.PAPER_VALUES
+    area = pb.derive_area()
+    x, p = 0.085, 0.4e6
+    weight = (CARRIAGE_MASS_KG + PMA_MASS_KG) * 9.81
+    x0 = -weight / v["K_e"]
+    # loading branch by explicit quadrature of dz/dx = alpha - (beta + gamma) z
+    xs = np.linspace(x0, x, 200001)
+    z = 0.0
+    h = xs[1] - xs[0]
+    for _ in xs[1:]:
+        k1 = v["alpha"] - (v["beta"] + v["gamma"]) * z
+        k2 = v["alpha"] - (v["beta"] + v["gamma"]) * (z + h * k1)
+        z += 0.5 * h * (k1 + k2)
+    expected = (v["K_e"] * x + z + weight) / (p - v["p_dz"])
+    assert area == pytest.approx(expected, rel=1e-6)
+    assert 2.1e-4 < area < 2.2e-4
+    # without gravity to lift, the same extension needs less area
+    assert pb.derive_area(gravity_sign=0.0) < area
+
+
+def test_composition_names_and_order():
+    model = pb.Model(["regulator_lag", "coulomb_friction"])
+    assert model.parameter_names[-3:] == ("tau_reg", "F_c", "v_c")
+    assert model.free_names[-2:] == ("tau_reg", "F_c")  # v_c is a fixed setting
+    assert model.fixed == {"v_c": 2e-3}
+    freed = pb.Model(["coulomb_friction"], free=["v_c"])
+    assert "v_c" in freed.free_names
+    assert model.with_effects("cubic_stiffness").effect_names == (
+        "regulator_lag", "coulomb_friction", "cubic_stiffness")
+
+
+def test_force_rig_has_no_dead_zone_parameter():
+    model = pb.Model(rig=pb.Rig.force_oscillator(2.0))
+    assert "p_dz" not in model.parameter_names
+    assert model.rig.input_name == "force_n"
+
+
+def test_theta_from_mapping_and_array():
+    model = pb.Model()
+    theta = model.theta({"K_e": [600.0, 700.0]})
+    assert theta.shape == (2, 6)
+    assert theta[1, model.index("K_e")] == 700.0
+    assert theta[0, model.index("alpha")] == pb.PAPER_VALUES["alpha"]
+    assert np.array_equal(model.theta(theta), theta)
+
+
+@pytest.mark.parametrize(
+    ("params", "match"),
+    [
+        ({"K": 1.0}, "'K' is not a parameter"),
+        ({"d": -1.0}, "parameter d = -1.0 .* outside its bounds"),
+        ({"p_dz": 4e5}, "p_dz .* outside its bounds"),
+        ({"K_e": [1.0, 2.0], "d": [1.0, 2.0, 3.0]}, "different lengths"),
+        (np.zeros(5), "does not match the model's 6 parameters"),
+    ],
+)
+def test_theta_rejects_bad_parameters(params, match):
+    with pytest.raises(pb.ModelError, match=match):
+        pb.Model().theta(params)
+
+
+def test_overrides_must_name_parameters():
+    with pytest.raises(pb.ModelError, match="'tau' is not a parameter"):
+        pb.Model(priors={"tau": pb.Normal(0, 1)})
+    with pytest.raises(pb.ModelError, match="must be a pmabayes Prior"):
+        pb.Model(priors={"d": 3.0})
+    with pytest.raises(TypeError):
+        pb.Model(effect=["regulator_lag"])  # misspelt keyword is rejected, not swallowed
+
+
+def test_log_prior_respects_bounds_and_overrides():
+    model = pb.Model(priors={"d": pb.Uniform(100.0, 200.0)})
+    theta = model.theta({"d": [150.0, 250.0]})
+    lp = model.log_prior(theta)
+    assert np.isfinite(lp[0]) and lp[1] == -np.inf
+    base = pb.Model().log_prior(model.theta({"d": 150.0}))
+    assert base[0] != lp[0]
+
+
+@pytest.mark.parametrize(
+    "prior",
+    [pb.Uniform(-1.0, 3.0), pb.Normal(2.0, 0.5), pb.LogNormal(3.0, 0.4), pb.HalfNormal(2.0)],
+)
+def test_prior_density_integrates_to_one_and_matches_samples(prior):
+    rng = np.random.default_rng(4)
+    draws = prior.sample(rng, 200_000)
+    lo, hi = np.quantile(draws, [0.0005, 0.9995])
+    grid = np.linspace(lo, hi, 20001)
+    mass = np.trapezoid(np.exp(prior.logpdf(grid)), grid)
+    assert mass == pytest.approx(0.999, abs=3e-3)
+    # the sample mean agrees with the density's mean
+    mean = np.trapezoid(grid * np.exp(prior.logpdf(grid)), grid) / mass
+    assert draws.mean() == pytest.approx(mean, rel=0.02, abs=0.01)
+    assert np.array_equal(prior.sample(np.random.default_rng(4), 10), draws[:10])
+
+
+def test_parameter_validation():
+    with pytest.raises(ValueError, match="outside its bounds"):
+        pb.Parameter("k", "N/m", -1.0, pb.HalfNormal(1.0), bounds=(0.0, 10.0))
+    with pytest.raises(ValueError, match="identifier"):
+        pb.Parameter("not ok", "N", 1.0, pb.HalfNormal(1.0))
+
+
+def test_every_base_parameter_is_documented():
+    for p in BASE_PARAMETERS:
+        assert p.unit and p.description and p.latex
+        assert p.in_bounds(p.default)
+        lo, hi = p.prior.support()
+        assert lo <= p.default <= hi and not math.isinf(p.prior.logpdf(p.default))
