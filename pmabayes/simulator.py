@@ -237,10 +237,15 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
     fill = [
         "pp = np.empty((2, n, batch))",
     ]
-    if shared_input:
+    if shared_input:  # p_in is (n, 1)
         fill += ["for k in range(n):", "    pp[0, k, :] = p_in[k, 0]"]
-    else:
-        fill += ["pp[0] = p_in"]
+    else:  # p_in is (batch, n): transpose in cache-sized blocks
+        fill += [
+            "for k0 in range(0, n, 64):",
+            "    for i in range(batch):",
+            "        for k in range(k0, min(k0 + 64, n)):",
+            "            pp[0, k, i] = p_in[i, k]",
+        ]
     fill += [
         "pp[1] = pp[0]",
     ]
@@ -412,8 +417,8 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True)
         Whether the kernel also records velocity, ``z``, acting pressure and effect
         force at every sample.
     shared_input : bool
-        Whether one input signal ``(n, 1)`` drives the whole batch, or each member
-        has its own ``(n, batch)``.
+        Whether one input signal, passed as ``(n, 1)``, drives the whole batch, or
+        each member has its own row of a ``(batch, n)`` array.
 
     Returns
     -------
@@ -562,7 +567,7 @@ def simulate(
     if u.ndim == 1:
         p_in = np.ascontiguousarray(u[:, None])
     elif u.ndim == 2 and u.shape[0] == theta.shape[0]:
-        p_in = np.ascontiguousarray(u.T)
+        p_in = np.ascontiguousarray(u)  # (batch, n); the kernel transposes it
     else:
         raise SimulationError(
             f"input_signal has shape {u.shape}; expected (n_samples,) or "
@@ -570,7 +575,7 @@ def simulate(
         )
     if not np.all(np.isfinite(p_in)):
         raise SimulationError("input_signal contains NaN or inf")
-    n = p_in.shape[0]
+    n = u.shape[-1]
     if n < 2:
         raise SimulationError("need at least 2 samples")
     t, dt = _time_axis(n, dt_s, time_s)
@@ -579,7 +584,7 @@ def simulate(
     out_x = np.empty((n, batch))
     args = (theta, p_in, t, dt, int(substeps), rig.moving_mass_kg, rig.gravity_force_n,
             rig.area_m2, out_x)
-    shared = p_in.shape[1] == 1
+    shared = u.ndim == 1
     if not states:
         kernel_for(model, shared_input=shared)(*args)
         return out_x.T
