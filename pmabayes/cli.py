@@ -1,8 +1,14 @@
 """Command-line interface: a thin layer over the Python API.
 
 ``pmabayes run DATA.csv --out DIR``
-    The main job on a data set: simulate the model on the data's input and write a
-    comparison figure and a summary.
+    The main job: fit the data (MAP and posterior) and write the report.
+``pmabayes fit DATA.csv --out FIT.nc``
+    Identify the parameters; chains are kept beside the fit and resumed.
+``pmabayes report FIT.nc --out DIR``
+    Summary tables (CSV, Markdown), diagnostics and figures in an HTML page.
+``pmabayes predict DATA.csv --out DIR``
+    Simulate the model (paper values or ``--param``) on the data's input and
+    compare, without fitting.
 ``pmabayes simulate OUT.csv``
     Write a synthetic repeated-chirp data set from the paper's parameters.
 ``pmabayes effects``
@@ -27,7 +33,9 @@ import numpy as np
 
 from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
+from pmabayes.fit import FitError, FitSettings, fit
 from pmabayes.model import Model, ModelError, Rig
+from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
@@ -45,6 +53,10 @@ def _parse_assignments(items: Sequence[str], what: str) -> dict[str, float]:
         except ValueError:
             raise ValueError(f"{what} {item!r}: {value!r} is not a number") from None
     return out
+
+
+def _effect_list(text: str) -> list[str]:
+    return [e.strip() for e in text.split(",") if e.strip()]
 
 
 def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -99,7 +111,7 @@ def load_plugin(spec: str) -> None:
         importlib.import_module(spec)
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def _cmd_predict(args: argparse.Namespace) -> int:
     from pmabayes.plots import plot_comparison  # matplotlib only where figures are made
 
     start = time.perf_counter()
@@ -132,6 +144,61 @@ def _cmd_run(args: argparse.Namespace) -> int:
           f"max error {summary['max_error_m'] * 1e6:.1f} um)")
     print(f"wrote {out / 'comparison.png'} and {out / 'summary.json'} "
           f"in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _fit_settings(args: argparse.Namespace) -> FitSettings:
+    return FitSettings(n_walkers=args.walkers, n_ensembles=args.ensembles,
+                       max_steps=args.steps, progress=not args.quiet)
+
+
+def _do_fit(args: argparse.Namespace, dataset: Dataset, out: Path):
+    model = model_for(dataset, args.effects)
+    chains = out.with_name(out.name + ".chains")
+    tree = fit(dataset, model, seed=args.seed, settings=_fit_settings(args),
+               chains_dir=chains, restart=args.restart)
+    save_fit(tree, out)
+    info = fit_info(tree)
+    conv = info["convergence"]
+    print(f"fit: {args.data} with {' + '.join(['base', *model.effect_names])}: "
+          f"MAP RMS cost {info['map']['rms_cost_m'] * 1e6:.1f} um "
+          f"(noise floor {info['data']['noise_floor_m'] * 1e6:.1f} um); "
+          f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
+          f"{conv['n_walkers']} walkers in {info['timings_s']['total']:.1f} s")
+    if not conv["converged"]:
+        print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
+              + "\nThe fit is saved anyway; rerun the same command with more --steps to "
+              "continue the chains.\n" + "!" * 78)
+    print(f"wrote {out} (chains in {chains})")
+    return tree
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    dataset = load(args.data)
+    _do_fit(args, dataset, Path(args.out))
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from pmabayes.report import write_report
+
+    tree = load_fit(args.fit)
+    dataset = load(args.data) if args.data else None
+    index = write_report(tree, Path(args.out), dataset=dataset)
+    print(f"wrote the report {index}")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from pmabayes.report import write_report
+
+    start = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    dataset = load(args.data)
+    tree = _do_fit(args, dataset, out / "fit.nc")
+    index = write_report(tree, out, dataset=dataset)
+    print(f"wrote the report {index} ({time.perf_counter() - start:.1f} s in all)")
     return 0
 
 
@@ -170,14 +237,47 @@ def _parser() -> argparse.ArgumentParser:
                         help="import user effects before running (repeatable)")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="compare the model with a data set (the main job)")
+    def fit_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--effects", default="", type=_effect_list,
+                       help="comma-separated effects to add to the base model")
+        p.add_argument("--seed", type=int, default=0, help="seed of everything random (0)")
+        p.add_argument("--walkers", type=int, default=32, help="walkers per ensemble (32)")
+        p.add_argument("--ensembles", type=int, default=2,
+                       help="independent ensembles, for R-hat across them (2)")
+        p.add_argument("--steps", type=int, default=20000,
+                       help="budget of steps per ensemble (20000); sampling stops earlier "
+                       "when converged")
+        p.add_argument("--restart", action="store_true",
+                       help="discard saved chains instead of resuming them")
+        p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+    run = sub.add_parser("run", help="the main job: fit a data set and write the report")
     run.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
-    run.add_argument("--out", required=True, help="output folder")
-    run.add_argument("--effects", default="", type=lambda s: [e for e in s.split(",") if e],
-                     help="comma-separated effects to add to the base model")
-    run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                     help="override a parameter value (repeatable)")
+    run.add_argument("--out", required=True, help="output folder (fit.nc and the report)")
+    fit_options(run)
     run.set_defaults(func=_cmd_run)
+
+    fitp = sub.add_parser("fit", help="identify the parameters: MAP and posterior")
+    fitp.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    fitp.add_argument("--out", required=True, help="the fit, a NetCDF file (FIT.nc)")
+    fit_options(fitp)
+    fitp.set_defaults(func=_cmd_fit)
+
+    rep = sub.add_parser("report", help="summary tables, diagnostics and figures of a fit")
+    rep.add_argument("fit", help="a fit written by `pmabayes fit`")
+    rep.add_argument("--data", help="the data file, to check it matches the fit")
+    rep.add_argument("--out", required=True, help="output folder")
+    rep.set_defaults(func=_cmd_report)
+
+    pred = sub.add_parser("predict", help="simulate the model on a data set's input and "
+                          "compare (no fitting)")
+    pred.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    pred.add_argument("--out", required=True, help="output folder")
+    pred.add_argument("--effects", default="", type=_effect_list,
+                      help="comma-separated effects to add to the base model")
+    pred.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                      help="override a parameter value (repeatable)")
+    pred.set_defaults(func=_cmd_predict)
 
     simu = sub.add_parser("simulate", help="write a synthetic repeated-chirp data set")
     simu.add_argument("out", help="output file (.csv with a .json sidecar, or .nc)")
@@ -221,7 +321,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for plugin in args.plugin:
             load_plugin(plugin)
         return args.func(args)
-    except (DataError, ModelError, EffectError, SimulationError, ValueError) as err:
+    except (DataError, ModelError, EffectError, SimulationError, FitError, FitFileError,
+            ValueError) as err:
         print(f"pmabayes {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -18,11 +18,14 @@ import numpy as np
 
 from pmabayes.data import Dataset
 from pmabayes.effects import get_effect
+from pmabayes.likelihood import ar1_noise
 from pmabayes.model import Model, ModelError, Rig
 from pmabayes.simulator import simulate
 
 __all__ = [
     "ENCODER_COUNTS_PER_M",
+    "PLAUSIBLE_REGION",
+    "draw_plausible",
     "Chirp",
     "MeasurementNoise",
     "hidden_effects_model",
@@ -31,6 +34,41 @@ __all__ = [
 
 #: The paper's linear encoder: 2000 quadrature counts per inch.
 ENCODER_COUNTS_PER_M = 2000 / 0.0254
+
+#: Where a PMA like the paper's plausibly lies: ``(low, high, scale)`` per base
+#: parameter, drawn uniformly (``"log"``: log-uniformly) by :func:`draw_plausible`.
+#: The priors are wider; this region is for simulation studies (calibration,
+#: detection rates) that need realistic muscles, not degenerate ones.
+PLAUSIBLE_REGION: dict[str, tuple[float, float, str]] = {
+    "alpha": (12.0, 45.0, "log"),
+    "beta": (0.5, 5.0, "log"),
+    "gamma": (-60.0, -25.0, "linear"),
+    "d": (100.0, 240.0, "log"),
+    "K_e": (450.0, 850.0, "log"),
+    "p_dz": (40e3, 100e3, "linear"),
+}
+
+
+def draw_plausible(rng: np.random.Generator) -> dict[str, float]:
+    """Draw base-model parameters from :data:`PLAUSIBLE_REGION`.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of randomness.
+
+    Returns
+    -------
+    dict
+        One value per base parameter.
+    """
+    out = {}
+    for name, (lo, hi, scale) in PLAUSIBLE_REGION.items():
+        if scale == "log":
+            out[name] = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+        else:
+            out[name] = float(rng.uniform(lo, hi))
+    return out
 
 
 @dataclass(frozen=True)
@@ -127,13 +165,7 @@ class MeasurementNoise:
     def disturbance(self, n_trials: int, n_samples: int, dt_s: float, rng: np.random.Generator):
         """Draw ``(n_trials, n_samples)`` stationary AR(1) disturbances."""
         phi = math.exp(-dt_s / self.disturbance_corr_time_s)
-        innov = self.disturbance_std_m * math.sqrt(1.0 - phi * phi)
-        white = rng.standard_normal((n_trials, n_samples))
-        e = np.empty((n_trials, n_samples))
-        e[:, 0] = self.disturbance_std_m * white[:, 0]
-        for k in range(1, n_samples):
-            e[:, k] = phi * e[:, k - 1] + innov * white[:, k]
-        return e
+        return ar1_noise(n_trials, n_samples, self.disturbance_std_m, phi, rng)
 
     def apply(self, position_m: np.ndarray, dt_s: float, rng: np.random.Generator) -> np.ndarray:
         """Measure ``position_m`` (``(n_trials, n_samples)``): disturb, then quantise."""

@@ -31,11 +31,11 @@ def test_simulate_with_effects_and_seed(tmp_path):
     assert a.metadata["generator"]["parameters"]["F_c"] == 0.5
 
 
-def test_run_writes_figure_and_summary(tmp_path, capsys):
+def test_predict_writes_figure_and_summary(tmp_path, capsys):
     data = tmp_path / "d.csv"
     main(["simulate", str(data), "--trials", "3", "--duration", "2", "--seed", "1"])
     out = tmp_path / "out"
-    assert main(["run", str(data), "--out", str(out)]) == 0
+    assert main(["predict", str(data), "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert (out / "comparison.png").stat().st_size > 10_000
     # data made by the paper's model: error of the order of the noise floor
@@ -49,7 +49,7 @@ def test_run_writes_figure_and_summary(tmp_path, capsys):
         (["simulate", "x.csv", "--effect", "nonsense=1"], "unknown effect 'nonsense'"),
         (["simulate", "x.csv", "--effect", "regulator_lag"], "must look like NAME=VALUE"),
         (["simulate", "x.csv", "--param", "d=abc"], "is not a number"),
-        (["run", "missing.csv", "--out", "o"], "missing.csv"),
+        (["predict", "missing.csv", "--out", "o"], "missing.csv"),
     ],
 )
 def test_bad_input_is_one_clear_line(tmp_path, monkeypatch, capsys, argv, message):
@@ -101,7 +101,69 @@ def test_plugin_effect_works_like_a_builtin(tmp_path):
     assert ds.metadata["generator"]["effects"] == {"cli_stiction": {"F_st": 2.0}}
     base = pb.simulate(pb.Model(), None, ds.input[0], time_s=ds.time_s)[0]
     assert np.max(np.abs(ds.position_m[0] - base)) > 1e-4
-    assert main(["--plugin", str(plugin), "run", str(out), "--out", str(tmp_path / "o"),
+    assert main(["--plugin", str(plugin), "predict", str(out), "--out", str(tmp_path / "o"),
                  "--effects", "cli_stiction", "--param", "F_st=2.0"]) == 0
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["rms_m"] < 1e-9  # the right model on noise-free data
+
+
+def test_fit_then_report_then_resume(tmp_path, capsys):
+    data = tmp_path / "d.csv"
+    main(["simulate", str(data), "--trials", "3", "--duration", "3", "--seed", "4"])
+    fit_path = tmp_path / "fit.nc"
+    args = ["fit", str(data), "--out", str(fit_path), "--walkers", "16", "--steps", "3000",
+            "--seed", "2"]
+    assert main(args) == 0
+    out = capsys.readouterr()
+    assert "MAP RMS cost" in out.out and "[pmabayes fit] step" in out.err  # progress lines
+    assert (tmp_path / "fit.nc.chains" / "ensemble_0.h5").exists()
+    assert main(["report", str(fit_path), "--data", str(data), "--out",
+                 str(tmp_path / "rep")]) == 0
+    html = (tmp_path / "rep" / "index.html").read_text()
+    assert "data:image/png;base64," in html and "alpha" in html
+    # the same command again resumes the saved chains instead of starting over
+    assert main([*args, "--quiet"]) == 0
+    assert "resuming" not in capsys.readouterr().err  # --quiet
+    from pmabayes.posterior import fit_info, load_fit
+
+    assert fit_info(load_fit(fit_path))["convergence"]["resumed"] is True
+
+
+def test_run_is_fit_plus_report(tmp_path):
+    data = tmp_path / "d.csv"
+    main(["simulate", str(data), "--trials", "3", "--duration", "3", "--seed", "5"])
+    assert main(["run", str(data), "--out", str(tmp_path / "r"), "--walkers", "16",
+                 "--quiet"]) == 0
+    for name in ("fit.nc", "index.html", "summary.csv", "summary.md", "ppc.png"):
+        assert (tmp_path / "r" / name).exists(), name
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda ds: ds.select_trials([0]), "only one trial"),
+        (lambda ds: __import__("pmabayes.data", fromlist=["Dataset"]).Dataset(
+            time_s=ds.time_s, input=ds.input, position_m=ds.position_m * 0.0,
+            trial_ids=ds.trial_ids), "every position is"),
+    ],
+)
+def test_fit_refuses_data_it_cannot_fit(tmp_path, capsys, make, message):
+    from pmabayes.data import save
+    from pmabayes.synthetic import Chirp, generate_chirp_dataset
+
+    ds = make(generate_chirp_dataset(n_trials=3, seed=1, chirp=Chirp(duration_s=1.0)))
+    path = tmp_path / "bad.csv"
+    save(ds, path)
+    assert main(["fit", str(path), "--out", str(tmp_path / "f.nc"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_fit_rejects_mpa(tmp_path, capsys):
+    path = tmp_path / "mpa.csv"
+    rows = ["trial,time_s,pressure_pa,position_m"]
+    rows += [f"{r},{k * 1e-3!r},{0.3 + 0.001 * k!r},{0.01 + 1e-5 * k!r}"
+             for r in range(2) for k in range(20)]
+    path.write_text("\n".join(rows) + "\n")
+    assert main(["fit", str(path), "--out", str(tmp_path / "f.nc")]) == 2
+    assert "looks like MPa" in capsys.readouterr().err

@@ -14,7 +14,11 @@ MODULES = [
     "pmabayes.model",
     "pmabayes.simulator",
     "pmabayes.synthetic",
+    "pmabayes.likelihood",
+    "pmabayes.fit",
+    "pmabayes.posterior",
     "pmabayes.plots",
+    "pmabayes.report",
     "pmabayes.cli",
 ]
 # missing docstring or summary, parameters undocumented or unknown, returns undocumented

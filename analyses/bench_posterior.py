@@ -1,0 +1,69 @@
+"""Wall time to a converged posterior on the bundled 10-trial data set.
+
+Fits ``data/pma_chirp_paper.csv`` (synthetic, made by the paper's model) with the
+base model and the default sampler settings: global search, MAP, then emcee
+ensembles until every parameter has R-hat across ensembles below 1.01, an ESS of at
+least 400 and a kept chain at least 50 autocorrelation times long. Compiling the
+simulator (first use on a machine) is done before the clock starts and reported
+separately.
+
+Usage::
+
+    python analyses/bench_posterior.py [--data PATH] [--seed S]
+
+The last line printed is ``posterior_seconds: <number>``. A benchmark, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pmabayes import Model, simulate
+from pmabayes.data import load
+from pmabayes.fit import FitSettings, fit
+from pmabayes.posterior import fit_info
+
+DEFAULT_DATA = Path(__file__).resolve().parents[1] / "data" / "pma_chirp_paper.csv"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Fit, print the diagnostics, and print ``posterior_seconds`` last."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    dataset = load(args.data)
+    start = time.perf_counter()
+    simulate(Model(), None, dataset.input[0][:10], dt_s=dataset.dt_s)  # compile or load
+    compile_s = time.perf_counter() - start
+
+    start = time.perf_counter()
+    tree = fit(dataset, Model(), seed=args.seed, settings=FitSettings(progress=True))
+    seconds = time.perf_counter() - start
+    info = fit_info(tree)
+    conv = info["convergence"]
+    print(f"data: {args.data} ({dataset.n_trials} trials x {dataset.n_samples} samples)")
+    print(f"kernel compile/load before timing: {compile_s:.1f} s")
+    print(f"converged: {conv['converged']} after {conv['n_steps']} steps x "
+          f"{conv['n_ensembles']} ensembles x {conv['n_walkers']} walkers"
+          + ("" if conv["converged"] else " -- " + "; ".join(conv["messages"])))
+    print(f"{'parameter':<15}{'tau':>8}{'ESS':>9}{'R-hat ens':>11}{'R-hat walkers':>15}")
+    for name in conv["tau"]:
+        rhat_e = conv["rhat_ensembles"][name] if conv["rhat_ensembles"] else float("nan")
+        print(f"{name:<15}{conv['tau'][name]:>8.1f}{conv['ess'][name]:>9.0f}"
+              f"{rhat_e:>11.4f}{conv['rhat'][name]:>15.4f}")
+    t = info["timings_s"]
+    print(f"MAP {t['map']:.1f} s, sampling {t['sampling']:.1f} s, total {t['total']:.1f} s; "
+          f"min ESS {min(conv['ess'].values()):.0f}, "
+          f"max R-hat across ensembles {max(conv['rhat_ensembles'].values()):.4f}")
+    print(f"posterior_seconds: {seconds:.1f}")
+    return 0 if np.isfinite(seconds) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

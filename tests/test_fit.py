@@ -1,0 +1,233 @@
+"""Identification: MAP, posterior sampling, convergence, resume, reproducibility."""
+
+import json
+import warnings
+
+import arviz as az
+import numpy as np
+import pytest
+
+import pmabayes as pb
+from pmabayes.data import Dataset
+from pmabayes.fit import FitError, FitSettings, Posterior, estimate_noise, find_map, fit
+from pmabayes.likelihood import Likelihood
+from pmabayes.posterior import fit_info, load_fit, save_fit
+from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
+
+CHIRP = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0)
+QUICK = FitSettings(n_walkers=16, n_ensembles=2, max_steps=3000, check_every=200)
+BASE = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")
+
+
+@pytest.fixture(scope="module")
+def small_data():
+    return generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP)
+
+
+@pytest.fixture(scope="module")
+def small_fit(small_data):
+    return fit(small_data, pb.Model(), seed=1, settings=QUICK)
+
+
+def test_transforms_round_trip_and_jacobian(small_data):
+    lik = Likelihood(pb.Model(), small_data)
+    post = Posterior(lik, estimate_noise(lik))
+    assert post.names == BASE
+    theta = np.array([[23.7, 1.7, -42.6, 155.8, 624.8, 66922.0]])
+    z = post.to_unconstrained(theta)
+    assert np.allclose(post.to_natural(z), theta, rtol=1e-13)
+    # log |d theta / d z| against finite differences of the transform
+    h = 1e-6 * np.maximum(1.0, np.abs(z[0]))  # relative steps: p_dz is ~7e4
+    jac = [(post.to_natural(z + h[j] * np.eye(6)[j])
+            - post.to_natural(z - h[j] * np.eye(6)[j]))[0, j] / (2 * h[j]) for j in range(6)]
+    assert post.log_jacobian(z)[0] == pytest.approx(np.sum(np.log(np.abs(jac))), rel=1e-6)
+
+
+def test_map_recovers_noise_free_parameters():
+    ds = generate_chirp_dataset(n_trials=2, seed=2, chirp=CHIRP, noise=None)
+    # a little independent noise so the noise model is identifiable
+    rng = np.random.default_rng(0)
+    noisy = Dataset(time_s=ds.time_s, input=ds.input,
+                    position_m=ds.position_m + 1e-6 * rng.standard_normal(ds.position_m.shape),
+                    trial_ids=ds.trial_ids)
+    lik = Likelihood(pb.Model(), noisy)
+    post = Posterior(lik, estimate_noise(lik))
+    result = find_map(post, rng=np.random.default_rng(0))
+    assert result.rms_cost_m < 2e-6
+    for name in BASE:
+        assert result.values[name] == pytest.approx(pb.PAPER_VALUES[name], rel=0.02), name
+
+
+def test_fit_tree_layout(small_fit, small_data, tmp_path):
+    tree = load_fit(save_fit(small_fit, tmp_path / "fit.nc"))
+    for group in ("posterior", "sample_stats", "log_likelihood", "observed_data",
+                  "constant_data", "posterior_predictive"):
+        assert group in tree.children, group
+    post = tree["posterior"]
+    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
+    assert n_chain == 2 * 16 and n_draw > 10
+    assert set(post.data_vars) == {*BASE, "sigma_noise_m", "rho_noise", "sigma_white_m"}
+    ll = tree["log_likelihood"]["position_m"]
+    assert ll.dims == ("chain", "draw", "trial") and ll.sizes["trial"] == 3
+    assert np.array_equal(tree["observed_data"]["position_m"].values, small_data.position_m)
+    pp = tree["posterior_predictive"]["position_m"]
+    assert pp.dims == ("chain", "draw", "trial", "time") and pp.dtype == np.float32
+    assert tree["sample_stats"]["ensemble"].values.tolist() == [0] * 16 + [1] * 16
+    info = fit_info(tree)
+    assert set(info["map"]["values"]) == {*BASE, "sigma_noise_m", "rho_noise",
+                                          "sigma_white_m"}
+    assert info["map"]["rms_cost_m"] > 0 and info["data"]["n_trials"] == 3
+    # leave-one-trial-out works on the per-trial log-likelihood (with 3 trials each
+    # is influential, so Pareto k warnings are expected here)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        loo = az.loo(tree, var_name="position_m")
+    assert np.isfinite(loo.elpd)
+
+
+def test_posterior_covers_the_truth(small_fit):
+    """Recovery on short generator data (AR(1) disturbance and quantisation).
+
+    Six 90% intervals all cover with probability 0.9**6 = 53% even when calibrated,
+    so this small fit is held to 99% intervals (94% jointly); the 90% claim is
+    tested on the full bundled data below and statistically by the calibration.
+    """
+    info = fit_info(small_fit)
+    assert info["convergence"]["converged"], info["convergence"]["messages"]
+    hdi = az.hdi(small_fit, prob=0.99)
+    for name in BASE:
+        lo, hi = hdi[name].values
+        assert lo <= pb.PAPER_VALUES[name] <= hi, (name, lo, hi)
+    # the noise model finds the disturbance's strong correlation
+    assert float(small_fit["posterior"]["rho_noise"].mean()) > 0.95
+
+
+def test_noise_estimate_recovers_the_generator():
+    """AR(1) disturbance and white noise recovered from 20 pure-noise trials."""
+    rng = np.random.default_rng(1)
+    from pmabayes.likelihood import ar1_noise
+
+    e = ar1_noise(20, 4000, 4e-5, 0.97, rng) + 5e-6 * rng.standard_normal((20, 4000))
+    ds = Dataset(time_s=np.arange(4000) * 1e-3, input=np.full((20, 4000), 2e5),
+                 position_m=e + 0.01, trial_ids=np.arange(20))
+    noise = estimate_noise(Likelihood(pb.Model(), ds))
+    sd = np.sqrt(np.diag(noise.cov_u))
+    assert abs(np.log(noise.sigma / 4e-5)) < 3 * sd[0]
+    assert abs(np.arctanh(noise.rho) - np.arctanh(0.97)) < 3 * sd[1]
+    assert abs(np.log(noise.white / 5e-6)) < 3 * sd[2]
+
+
+def test_noise_comes_from_repeatability_not_model_error():
+    """A model that cannot describe the data does not get its error called noise."""
+    lab = generate_chirp_dataset(n_trials=4, seed=4, chirp=CHIRP,
+                                 effects={"regulator_lag": 0.045})
+    lik = Likelihood(pb.Model(), lab)
+    noise = estimate_noise(lik)
+    gen = lab.metadata["generator"]["noise"]
+    # the disturbance (60 um) and quantisation (12.7 um steps: 3.7 um RMS), not the
+    # mm of lag error
+    assert 50e-6 < noise.sigma < 75e-6
+    assert 2e-6 < noise.white < 6e-6
+    tree = fit(lab, pb.Model(), seed=0, settings=QUICK)
+    info = fit_info(tree)
+    assert info["map"]["rms_cost_m"] > 10 * info["data"]["noise_floor_m"]
+    assert gen["disturbance_std_m"] == 60e-6
+
+
+def test_recovery_on_the_bundled_data():
+    """The 90% HDI of every base parameter covers the value that generated the
+    bundled data set (10 trials of the paper's 15 s chirp)."""
+    from pathlib import Path
+
+    from pmabayes.data import load
+
+    ds = load(Path(__file__).resolve().parents[1] / "data" / "pma_chirp_paper.csv")
+    truth = ds.metadata["generator"]["parameters"]
+    tree = fit(ds, pb.Model(), seed=0)
+    assert fit_info(tree)["convergence"]["converged"]
+    hdi = az.hdi(tree, prob=0.9)
+    for name in BASE:
+        lo, hi = hdi[name].values
+        assert lo <= truth[name] <= hi, (name, lo, hi, truth[name])
+
+
+def test_same_seed_same_numbers_to_the_bit(small_data, small_fit):
+    again = fit(small_data, pb.Model(), seed=1, settings=QUICK)
+    for name in small_fit["posterior"].data_vars:
+        assert np.array_equal(again["posterior"][name].values,
+                              small_fit["posterior"][name].values), name
+    other = fit(small_data, pb.Model(), seed=2, settings=QUICK)
+    assert not np.array_equal(other["posterior"]["alpha"].values,
+                              small_fit["posterior"]["alpha"].values)
+
+
+def test_resumed_run_equals_uninterrupted(small_data, tmp_path):
+    never = FitSettings(n_walkers=16, n_ensembles=2, max_steps=300, check_every=100,
+                        min_ess=1e12)  # never converges: runs to the budget
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        whole = fit(small_data, pb.Model(), seed=5, settings=never)
+        # a run stopped after 100 steps (as if killed), then resumed to the same budget
+        fit(small_data, pb.Model(), seed=5, chains_dir=tmp_path / "c",
+            settings=FitSettings(**{**never.__dict__, "max_steps": 100}))
+        resumed = fit(small_data, pb.Model(), seed=5, chains_dir=tmp_path / "c",
+                      settings=never)
+    assert fit_info(resumed)["convergence"]["resumed"] is True
+    for name in whole["posterior"].data_vars:
+        assert np.array_equal(whole["posterior"][name].values,
+                              resumed["posterior"][name].values), name
+    # chains of another fit are not silently reused
+    with pytest.raises(FitError, match="holds chains of a different fit"):
+        fit(small_data, pb.Model(), seed=6, chains_dir=tmp_path / "c", settings=never)
+
+
+def test_not_converged_says_so_and_still_returns(small_data):
+    with pytest.warns(RuntimeWarning, match="did NOT converge"):
+        tree = fit(small_data, pb.Model(), seed=3,
+                   settings=FitSettings(n_walkers=16, max_steps=100, check_every=100))
+    conv = fit_info(tree)["convergence"]
+    assert conv["converged"] is False and conv["messages"]
+    assert "posterior" in tree.children
+
+
+def test_data_the_model_cannot_describe(small_data):
+    flipped = Dataset(time_s=small_data.time_s, input=small_data.input,
+                      position_m=-small_data.position_m, trial_ids=small_data.trial_ids,
+                      source="flipped.csv")
+    with pytest.raises(FitError, match="flipped.csv: the best fit leaves an RMS error"):
+        fit(flipped, pb.Model(), seed=0, settings=QUICK)
+    with pytest.raises(FitError, match="only one trial"):
+        fit(small_data.select_trials([0]), pb.Model(), settings=QUICK)
+    with pytest.raises(FitError, match="n_walkers must be at least 12"):
+        fit(small_data, pb.Model(), settings=FitSettings(n_walkers=8))
+
+
+def test_small_calibration():
+    """A small version of analyses/calibration.py on short data.
+
+    For each of 3 data sets (parameters drawn from the plausible region) and each
+    parameter, z = (truth - posterior mean) / posterior sd. Calibrated intervals
+    give an RMS z near 1; an i.i.d. noise model gives several, and so do intervals
+    too narrow by more than 60% (the bound). Coverage of the 90% HDIs is also
+    checked, loosely (18 correlated intervals are a small sample).
+    """
+    rng = np.random.default_rng(7)
+    z, covered = [], 0
+    for _ in range(3):
+        truth = draw_plausible(rng)
+        seed = int(rng.integers(2**31))
+        ds = generate_chirp_dataset(n_trials=3, seed=seed, chirp=CHIRP, params=truth)
+        tree = fit(ds, pb.Model(), seed=seed, settings=QUICK)
+        hdi = az.hdi(tree, prob=0.9)
+        for name in BASE:
+            draws = tree["posterior"][name].values
+            z.append((truth[name] - draws.mean()) / draws.std())
+            lo, hi = hdi[name].values
+            covered += bool(lo <= truth[name] <= hi)
+    rms_z = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.5 < rms_z < 1.6, f"RMS z = {rms_z:.2f} (z = {np.round(z, 2)})"
+    assert covered >= 12, f"{covered}/18 intervals covered the truth"
+
+
+def test_info_is_json(small_fit):
+    assert json.loads(small_fit.attrs["pmabayes"])["model"]["effects"] == []

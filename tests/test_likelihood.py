@@ -1,0 +1,93 @@
+"""The AR(1) likelihood of repeated trials."""
+
+import math
+
+import numpy as np
+import pytest
+
+import pmabayes as pb
+from pmabayes.data import Dataset
+from pmabayes.likelihood import Likelihood, LikelihoodError
+from pmabayes.synthetic import Chirp, generate_chirp_dataset
+
+CHIRP = Chirp(duration_s=0.4, f0_hz=1.0, f1_hz=3.0)  # short: the reference is dense
+
+
+def brute_force(y, x, sigma, rho, white=0.0):
+    """Exact Gaussian log-likelihood of one series, from its dense covariance:
+    AR(1) sigma^2 rho^|i-j| plus white^2 on the diagonal."""
+    e = np.asarray(y - x, dtype=float)
+    n = e.size
+    lag = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    cov = sigma**2 * rho**lag + white**2 * np.eye(n)
+    sign, logdet = np.linalg.slogdet(cov)
+    return -0.5 * (n * math.log(2 * math.pi) + logdet + e @ np.linalg.solve(cov, e))
+
+
+@pytest.fixture(scope="module")
+def lik():
+    ds = generate_chirp_dataset(n_trials=4, seed=3, chirp=CHIRP)
+    return Likelihood(pb.Model(), ds)
+
+
+def test_matches_the_dense_gaussian(lik):
+    theta = pb.Model().theta({"K_e": [600.0, 624.78, 650.0]})
+    x = lik.simulate(theta)
+    sigma = np.array([5e-5, 6e-5, 7e-5])
+    rho = np.array([0.95, 0.99, -0.3])
+    white = np.array([4e-6, 0.0, 2e-5])
+    expected = np.array([[brute_force(lik.dataset.position_m[t], x[b], sigma[b], rho[b],
+                                      white[b]) for t in range(4)] for b in range(3)])
+    pointwise = lik.pointwise(x, sigma, rho, white)
+    assert np.allclose(pointwise, expected, rtol=1e-10, atol=1e-6)
+    assert np.allclose(lik.log_likelihood(x, sigma, rho, white), expected.sum(axis=1),
+                       rtol=1e-10, atol=1e-6)
+
+
+def test_rms_cost_is_the_papers(lik):
+    x = lik.simulate(pb.Model().theta())
+    expected = np.sqrt(np.mean((lik.dataset.position_m.mean(axis=0) - x[0]) ** 2))
+    assert lik.rms_cost(x)[0] == pytest.approx(expected, rel=1e-12)
+
+
+def make(position, inputs=None, input_name="pressure_pa"):
+    n = position.shape[1]
+    inputs = np.full(position.shape, 2e5) if inputs is None else inputs
+    return Dataset(time_s=np.arange(n) * 1e-3, input=inputs, position_m=position,
+                   trial_ids=np.arange(position.shape[0]), input_name=input_name,
+                   source="test.csv")
+
+
+@pytest.mark.parametrize(
+    ("dataset", "model", "match"),
+    [
+        (make(np.full((1, 50), 0.01)), pb.Model(), "only one trial .* at least 2 repeated"),
+        (make(np.zeros((3, 50))), pb.Model(), "every position is 0.0 m"),
+        (make(np.ones((2, 50)) * 0.01, inputs=np.vstack([np.full(50, 2e5), np.full(50, 3e5)])),
+         pb.Model(), "trial 1 has a different input"),
+        (make(np.ones((2, 50)) * 0.01, input_name="force_n"), pb.Model(),
+         "'force_n' but the model's rig"),
+    ],
+)
+def test_data_that_cannot_be_fitted(dataset, model, match):
+    with pytest.raises(LikelihoodError, match=match):
+        Likelihood(model, dataset)
+
+
+def test_factorises_into_deviations_and_mean(lik):
+    """total = deviations (model-free, R - 1 series) + trial mean (sqrt(R) g)."""
+    x = lik.simulate(pb.Model().theta({"K_e": [600.0, 650.0]}))
+    sigma, rho, white = np.array([5e-5, 8e-5]), np.array([0.97, 0.5]), np.array([3e-6, 1e-5])
+    total = lik.pointwise(x, sigma, rho, white).sum(axis=1)
+    parts = (lik.deviation_log_likelihood(sigma, rho, white)
+             + lik.mean_log_likelihood(x, sigma, rho, white))
+    assert np.allclose(total, parts, rtol=1e-10)
+    # the deviation part is what Helmert contrasts of the trials give, written plainly
+    r = lik.n_trials
+    helmert = np.array([[1.0] * (j + 1) + [-(j + 1.0)] + [0.0] * (r - j - 2)
+                        for j in range(r - 1)])
+    helmert /= np.linalg.norm(helmert, axis=1, keepdims=True)
+    contrasts = helmert @ lik.dataset.position_m
+    expected = sum(brute_force(c, 0.0, 7e-5, 0.9, 5e-6) for c in contrasts)
+    assert lik.deviation_log_likelihood(7e-5, 0.9, 5e-6)[0] == pytest.approx(expected,
+                                                                             rel=1e-10)

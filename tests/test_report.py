@@ -1,0 +1,382 @@
+"""Tests of the report stage on a small, realistic fake fit written to and read from NetCDF."""
+
+from __future__ import annotations
+
+import base64
+import csv
+import json
+import re
+
+import arviz as az
+import numpy as np
+import pytest
+import xarray as xr
+
+from pmabayes.data import Dataset
+from pmabayes.model import PAPER_VALUES
+from pmabayes.posterior import fit_info, load_fit, save_fit
+from pmabayes.report import SUMMARY_COLUMNS, summary_table, write_report, write_summary
+
+PARAMS = {  # name: (unit, posterior mean, posterior sd)
+    "alpha": ("N/m", 24.1, 0.6),
+    "beta": ("1/m", 2.1, 0.3),
+    "gamma": ("1/m", -35.0, 1.5),  # the paper's -42.6 is off the pair plot's scale
+    "d": ("N s/m", 152.0, 3.0),
+    "K_e": ("N/m", 630.0, 5.0),
+    "p_dz": ("Pa", 67.4e3, 400.0),
+    "tau_reg": ("s", 0.045, 0.002),
+    "sigma_noise_m": ("m", 2.2e-5, 1e-6),
+    "rho_noise": ("1", 0.93, 0.01),
+}
+FIGURES = ("trace.png", "rank.png", "pair.png", "ppc.png", "residual.png")
+
+
+def _chirp_pressure(t: np.ndarray) -> np.ndarray:
+    """0.1 -> 3 Hz linear chirp around 0.2 MPa."""
+    f0, f1, span = 0.1, 3.0, t[-1] - t[0]
+    phase = 2 * np.pi * (f0 * t + 0.5 * (f1 - f0) / span * t**2)
+    return 0.2e6 + 0.15e6 * np.sin(phase)
+
+
+def _response(p: np.ndarray, t: np.ndarray, gain: float, lag: float) -> np.ndarray:
+    """A smooth stand-in for the model: delayed, scaled pressure (about 80 mm of motion)."""
+    return gain * (np.interp(t - lag, t, p) - 0.05e6) / 0.3e6 * 0.08
+
+
+def _ar1(rng: np.random.Generator, shape: tuple[int, ...], sigma: float, rho: float):
+    """Stationary AR(1) noise along the last axis."""
+    w = rng.standard_normal(shape)
+    e = np.empty(shape)
+    e[..., 0] = sigma * w[..., 0]
+    c = sigma * np.sqrt(1 - rho**2)
+    for k in range(1, shape[-1]):
+        e[..., k] = rho * e[..., k - 1] + c * w[..., k]
+    return e
+
+
+def make_fit(
+    *,
+    n_chain: int = 8,
+    n_draw: int = 100,
+    n_trial: int = 3,
+    n_time: int = 500,
+    n_pp: int = 12,
+    dt_s: float = 0.02,
+    converged: bool = True,
+    synthetic: bool = True,
+    seed: int = 1,
+) -> xr.DataTree:
+    """A fake fit with the layout of :mod:`pmabayes.posterior` (and ``fit.py``)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_time) * dt_s
+    p = _chirp_pressure(t)
+    names = list(PARAMS)
+    # correlated posterior (d and K_e trade off), a few walkers slightly shifted
+    z = rng.standard_normal((n_chain, n_draw, len(names)))
+    z[..., 4] = 0.8 * z[..., 3] + 0.6 * z[..., 4]
+    posterior = {
+        n: PARAMS[n][1] + PARAMS[n][2] * z[..., j] for j, n in enumerate(names)
+    }
+    sigma = PARAMS["sigma_noise_m"][1]
+    truth = _response(p, t, 1.0, 0.05)
+    rho = PARAMS["rho_noise"][1]
+    observed = truth + _ar1(rng, (n_trial, n_time), sigma, rho)
+    gains = 1.0 + 1e-4 * rng.standard_normal(n_pp)
+    model_pp = np.stack([_response(p, t, g, 0.05) for g in gains])  # (n_pp, time)
+    pred = model_pp[:, None, :] + _ar1(rng, (n_pp, n_trial, n_time), sigma, rho)
+    trials = np.arange(1, n_trial + 1)
+    tree = az.from_dict(
+        {
+            "posterior": posterior,
+            "sample_stats": {"lp": -0.5 * (z**2).sum(axis=-1)},
+            "observed_data": {"position_m": observed},
+            "constant_data": {"pressure_pa": p},
+            "posterior_predictive": {
+                "position_m": pred[None].astype(np.float32),
+                "model_position_m": model_pp[None].astype(np.float32),
+            },
+        },
+        dims={"position_m": ["trial", "time"], "model_position_m": ["time"],
+              "pressure_pa": ["time"]},
+        coords={"trial": trials, "time": t},
+    )
+    ll = xr.Dataset(
+        {"position_m": (("chain", "draw", "trial"), rng.normal(-100, 1, (n_chain, n_draw,
+                                                                         n_trial)))},
+        coords={"chain": np.arange(n_chain), "draw": np.arange(n_draw), "trial": trials},
+    )
+    tree["log_likelihood"] = xr.DataTree(ll)
+    ss = tree["sample_stats"].to_dataset()
+    ss["ensemble"] = ("chain", np.repeat([0, 1], n_chain // 2))
+    tree["sample_stats"] = xr.DataTree(ss)
+
+    noise_floor = float(np.sqrt(observed.var(axis=0, ddof=1).mean() / n_trial))
+    map_values = {n: PARAMS[n][1] + 0.1 * PARAMS[n][2] for n in names}
+    params = [
+        {"name": n, "unit": PARAMS[n][0], "default": PARAMS[n][1], "prior": "Normal(0, 1)",
+         "bounds": [-1e9, 1e9], "fixed": False, "description": f"parameter {n}",
+         "source": "noise" if n in ("sigma_noise_m", "rho_noise") else "base"}
+        for n in names
+    ]
+    params.append({"name": "v_c", "unit": "m/s", "default": 0.002, "prior": "Normal(0, 1)",
+                   "bounds": [0.0, 1.0], "fixed": True, "description": "fixed", "source": "x"})
+    messages = (
+        ["all checks passed"] if converged
+        else ["R-hat over walkers 1.07 > 1.01 for alpha", "ESS 212 < 400 for beta"]
+    )
+    info = {
+        "pmabayes_version": "0.1.0",
+        "model": {"effects": ["regulator_lag"], "rig": {"name": "characterisation"},
+                  "free": names[:-2], "fixed": {"v_c": 0.002}, "parameters": params},
+        "noise": {"model": "AR(1) per trial", "parameters": ["sigma_noise_m", "rho_noise"]},
+        "data": {"source": "data/pma_chirp_fake.csv", "n_trials": n_trial,
+                 "n_samples": n_time, "dt_s": dt_s, "input_name": "pressure_pa",
+                 "synthetic": synthetic, "noise_floor_m": noise_floor},
+        "paper_values": dict(PAPER_VALUES),
+        "map": {"values": map_values, "log_posterior": 1234.5, "rms_cost_m": 3.1e-5,
+                "global_search": {"values": {n: map_values[n] for n in names[:6]},
+                                  "rms_cost_m": 2.9e-5}},
+        "convergence": {
+            "converged": converged, "messages": messages, "n_ensembles": 2,
+            "n_walkers": n_chain // 2, "n_steps": 4000, "burn": 1000, "thin": 30,
+            "tau": {n: 40.0 + j for j, n in enumerate(names)},
+            "ess": {n: 900.0 + 10 * j for j, n in enumerate(names)},
+            "rhat": {n: 1.001 for n in names},
+            "rhat_ensembles": {n: 1.002 + 0.001 * j for j, n in enumerate(names)},
+            "min_ess": 400.0, "tau_multiple": 50.0,
+        },
+        "seed": seed,
+        "timings_s": {"map": 12.5, "sampling": 340.0, "total": 360.2},
+    }
+    tree.attrs["pmabayes"] = json.dumps(info)
+    return tree
+
+
+def _dataset_of(tree: xr.DataTree, source: str) -> Dataset:
+    obs = tree["observed_data"]["position_m"]
+    p = tree["constant_data"]["pressure_pa"].values
+    return Dataset(
+        time_s=obs["time"].values,
+        input=np.tile(p, (obs.sizes["trial"], 1)),
+        position_m=obs.values,
+        trial_ids=obs["trial"].values,
+        metadata={"synthetic": True},
+        source=source,
+    )
+
+
+@pytest.fixture(scope="module")
+def bad_fit(tmp_path_factory):
+    """The fake fit (not converged, synthetic data), read back from NetCDF."""
+    path = save_fit(make_fit(converged=False), tmp_path_factory.mktemp("fit") / "fit.nc")
+    return load_fit(path)
+
+
+@pytest.fixture(scope="module")
+def bad_report(bad_fit, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report_bad")
+    return write_report(bad_fit, out)
+
+
+@pytest.fixture(scope="module")
+def good_report(tmp_path_factory):
+    """Converged, non-synthetic, reported with its matching data set."""
+    tree = make_fit(converged=True, synthetic=False, seed=2)
+    tree = load_fit(save_fit(tree, tmp_path_factory.mktemp("fit") / "good.nc"))
+    out = tmp_path_factory.mktemp("report_good")
+    return write_report(tree, out, dataset=_dataset_of(tree, "lab/run_42.csv"))
+
+
+# ----------------------------------------------------------------------------- table
+
+
+def test_summary_rows_match_numpy_and_fit_info(bad_fit):
+    info = fit_info(bad_fit)
+    rows = summary_table(bad_fit)
+    assert [r["name"] for r in rows] == list(PARAMS)
+    rhat = az.rhat(bad_fit, sample_dims=["chain", "draw"])  # the posterior node
+    ess_bulk = az.ess(bad_fit, sample_dims=["chain", "draw"])
+    for r in rows:
+        x = bad_fit["posterior"][r["name"]].values
+        assert set(r) == set(SUMMARY_COLUMNS)
+        assert r["unit"] == PARAMS[r["name"]][0]
+        np.testing.assert_allclose(r["mean"], x.mean(), rtol=1e-12)
+        np.testing.assert_allclose(r["sd"], x.std(ddof=1), rtol=1e-12)
+        np.testing.assert_allclose(r["r_hat"], float(rhat[r["name"]]), rtol=1e-12)
+        np.testing.assert_allclose(r["ess_bulk"], float(ess_bulk[r["name"]]), rtol=1e-12)
+        conv = info["convergence"]
+        assert r["ess"] == conv["ess"][r["name"]]
+        assert r["tau"] == conv["tau"][r["name"]]
+        assert r["r_hat_ensembles"] == conv["rhat_ensembles"][r["name"]]
+        assert r["map"] == info["map"]["values"][r["name"]]
+        assert r["paper"] == PAPER_VALUES.get(r["name"])
+        assert r["ci_prob"] == 0.9
+    assert sum(r["paper"] is not None for r in rows) == len(PAPER_VALUES)
+    assert rows[-1]["global_search"] is None and rows[0]["global_search"] is not None
+
+
+def test_summary_hdi_is_90_percent_hdi(bad_fit):
+    rows = {r["name"]: r for r in summary_table(bad_fit)}
+    hdi90 = az.hdi(bad_fit, prob=0.9)
+    default = az.summary(bad_fit, fmt="xarray", round_to="none")  # ArviZ default: 89% ETI
+    assert "eti89_lb" in default["summary"].values
+    for name, r in rows.items():
+        lo, hi = (float(v) for v in hdi90[name].values)
+        assert (r["hdi_low"], r["hdi_high"]) == (lo, hi)
+        x = bad_fit["posterior"][name].values.ravel()
+        inside = np.mean((x >= lo) & (x <= hi))
+        assert abs(inside - 0.9) <= 2 / x.size
+        eti = default[name].sel(summary=["eti89_lb", "eti89_ub"]).values
+        assert not np.allclose(eti, [lo, hi], rtol=0, atol=1e-12)
+    narrow = {r["name"]: r for r in summary_table(bad_fit, ci_prob=0.5)}
+    for name, r in rows.items():
+        assert narrow[name]["hdi_high"] - narrow[name]["hdi_low"] < r["hdi_high"] - r["hdi_low"]
+
+
+def test_summary_rejects_bad_arguments(bad_fit):
+    with pytest.raises(ValueError, match="ci_prob"):
+        summary_table(bad_fit, ci_prob=90)
+    with pytest.raises(TypeError):
+        summary_table(bad_fit, hdi_prob=0.9)  # unknown keyword
+    with pytest.raises(TypeError):
+        write_report(bad_fit, "unused", data=None)  # unknown keyword
+
+
+def test_write_summary_csv_and_markdown(bad_fit, tmp_path):
+    rows = summary_table(bad_fit)
+    csv_path, md_path = write_summary(rows, tmp_path / "out")
+    with csv_path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        assert tuple(reader.fieldnames) == SUMMARY_COLUMNS
+        back = list(reader)
+    assert len(back) == len(rows)
+    for r, b in zip(rows, back, strict=True):
+        assert b["name"] == r["name"] and b["unit"] == r["unit"]
+        for key in ("mean", "sd", "hdi_low", "hdi_high", "r_hat", "ess", "ess_bulk", "map"):
+            assert float(b[key]) == r[key]  # full precision
+        assert b["paper"] == ("" if r["paper"] is None else repr(r["paper"]))
+
+    lines = md_path.read_text(encoding="utf-8").splitlines()
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header[:6] == ["parameter", "unit (SI)", "mean", "sd", "90% HDI low",
+                          "90% HDI high"]
+    assert "paper" in header and "MAP" in header and "ESS bulk" in header
+    assert re.fullmatch(r"\|(-{3}:?\|)+", lines[1].replace("---:", "---").replace(
+        "|---|", "|---|"))
+    assert len(lines) == 2 + len(rows)
+    for r, line in zip(rows, lines[2:], strict=True):
+        cells = dict(zip(header, (c.strip() for c in line.strip("|").split("|")),
+                         strict=True))
+        assert cells["parameter"] == f"`{r['name']}`"
+        assert cells["unit (SI)"] == r["unit"]
+        assert cells["mean"] == f"{r['mean']:.4g}"
+        assert float(cells["90% HDI low"]) == float(f"{r['hdi_low']:.4g}")
+        assert cells["paper"] == ("\u2014" if r["paper"] is None else f"{r['paper']:.4g}")
+        assert cells["MAP"] == f"{r['map']:.4g}"
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def _html(index):
+    return index.read_text(encoding="utf-8")
+
+
+def test_report_writes_every_file(bad_report):
+    out = bad_report.parent
+    assert bad_report.name == "index.html"
+    for name in ("summary.csv", "summary.md", *FIGURES):
+        assert (out / name).stat().st_size > 1000 or name.startswith("summary")
+    for name in FIGURES:
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_report_html_is_self_contained(bad_report):
+    text = _html(bad_report)
+    assert "http://" not in text and "https://" not in text
+    assert "<script" not in text.lower() and "<link" not in text.lower()
+    assert "@import" not in text and "url(" not in text
+    sources = re.findall(r'src="([^"]*)"', text)
+    assert len(sources) == len(FIGURES)
+    assert all(s.startswith("data:image/png;base64,") for s in sources)
+    # every figure file is embedded byte for byte
+    embedded = {base64.b64decode(s.split(",", 1)[1]) for s in sources}
+    assert embedded == {(bad_report.parent / f).read_bytes() for f in FIGURES}
+
+
+def test_report_html_content_not_converged(bad_report, bad_fit):
+    text = _html(bad_report)
+    for name in PARAMS:
+        assert f"<td>{name}</td>" in text
+    for unit in ("N s/m", "Pa", "1/m"):
+        assert f"<td>{unit}</td>" in text
+    assert "NOT CONVERGED" in text
+    for message in fit_info(bad_fit)["convergence"]["messages"]:
+        assert message.replace(">", "&gt;").replace("<", "&lt;") in text
+    assert "Synthetic data" in text
+    assert "pma_chirp_fake.csv" in text
+    assert "31 µm" in text and "29 µm" in text  # MAP and global-search RMS costs
+    floor = fit_info(bad_fit)["data"]["noise_floor_m"]
+    assert f"{floor * 1e6:.3g} µm" in text
+    assert "90% HDI low" in text
+    assert "24.16" in text  # MAP of alpha
+    assert "23.7" in text  # paper's alpha (%.4g)
+
+
+def test_report_html_content_converged(good_report):
+    text = _html(good_report)
+    assert "NOT CONVERGED" not in text and "not-converged" not in text
+    assert 'class="banner ok"' in text
+    assert "Synthetic data" not in text
+    assert "run_42.csv" in text  # the data set's source names the report
+    assert text.count("data:image/png;base64,") == len(FIGURES)
+
+
+def test_report_dataset_mismatch(bad_fit, tmp_path):
+    ds = _dataset_of(bad_fit, "lab/other.csv")
+    changed = ds.position_m.copy()
+    changed[1, 7] += 1e-9
+    wrong_values = Dataset(time_s=ds.time_s, input=ds.input, position_m=changed,
+                           trial_ids=ds.trial_ids, source="lab/other.csv")
+    with pytest.raises(ValueError, match=r"lab/other\.csv.*pma_chirp_fake\.csv"):
+        write_report(bad_fit, tmp_path / "a", dataset=wrong_values)
+    with pytest.raises(ValueError, match=r"lab/other\.csv.*shape"):
+        write_report(bad_fit, tmp_path / "b", dataset=ds.select_trials([0, 1]))
+    shifted = Dataset(time_s=ds.time_s + 0.5, input=ds.input, position_m=ds.position_m,
+                      trial_ids=ds.trial_ids, source="lab/other.csv")
+    with pytest.raises(ValueError, match=r"lab/other\.csv.*sample times"):
+        write_report(bad_fit, tmp_path / "c", dataset=shifted)
+    assert not any((tmp_path / d).exists() for d in "abc")
+
+
+def test_predictive_quantiles_blockwise(monkeypatch):
+    import pmabayes.report as report
+
+    rng = np.random.default_rng(3)
+    da = xr.DataArray(rng.normal(size=(1, 6, 3, 101)).astype(np.float32),
+                      dims=("chain", "draw", "trial", "time"))
+    monkeypatch.setattr(report, "_QUANTILE_BLOCK", 18 * 7)  # blocks of 7 samples
+    got = report._quantiles_over_samples(da, [0.05, 0.5, 0.95])
+    want = np.quantile(da.values.reshape(18, 101), [0.05, 0.5, 0.95], axis=0)
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
+def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    import pmabayes.report as report
+
+    def boom(*args, **kwargs):
+        plt.figure()  # a half-made figure must not leak
+        raise RuntimeError("simulated ArviZ failure")
+
+    monkeypatch.setattr(report.az, "plot_trace_dist", boom)
+    monkeypatch.setattr(report.az, "plot_rank", boom)
+    before = plt.get_fignums()
+    note = report._trace_figure(bad_fit, tmp_path / "t.png", {"sigma_noise_m": "m"})
+    assert "fallback" in note and "simulated ArviZ failure" in note
+    factor, note = report._rank_figure(bad_fit, tmp_path / "r.png")
+    assert factor == 1 and "fallback" in note
+    assert plt.get_fignums() == before
+    for name in ("t.png", "r.png"):
+        assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
