@@ -878,11 +878,18 @@ def fit(
             if min(c.shape[0] for c in chains) < 20:
                 continue
             diag = _diagnose(chains, posterior.names, settings)
+            # a bar towards convergence: the run stops when the chain is long
+            # enough, not at a known step count
+            done_frac = min(1.0, (diag.n_steps - diag.burn) / (settings.tau_multiple
+                                                              * diag.tau.max()),
+                            diag.ess.min() / settings.min_ess)
+            bar = "#" * int(round(20 * done_frac))
             _progress(settings, (
-                f"step {diag.n_steps}/{settings.max_steps} x {settings.n_ensembles} ensembles x "
-                f"{settings.n_walkers} walkers: kept {diag.n_steps - diag.burn} steps of the "
-                f"{settings.tau_multiple * diag.tau.max():.0f} needed ({settings.tau_multiple:g} x "
-                f"tau {diag.tau.max():.0f}), ESS min {diag.ess.min():.0f}"
+                f"[{bar:-<20}] step {diag.n_steps} (budget {settings.max_steps}) x "
+                f"{settings.n_ensembles} ensembles x {settings.n_walkers} walkers: kept "
+                f"{diag.n_steps - diag.burn} of {settings.tau_multiple * diag.tau.max():.0f} "
+                f"steps needed ({settings.tau_multiple:g} x tau {diag.tau.max():.0f}), "
+                f"ESS min {diag.ess.min():.0f}"
                 + (f", R-hat across ensembles max {diag.rhat_ensembles.max():.4f}"
                    if diag.rhat_ensembles is not None else "")
                 + f", {time.perf_counter() - t_sample:.0f} s"
