@@ -115,7 +115,7 @@ def test_fit_then_report_then_resume(tmp_path, capsys):
             "--seed", "2"]
     assert main(args) == 0
     out = capsys.readouterr()
-    assert "MAP RMS cost" in out.out and "[pmabayes fit] step" in out.err  # progress lines
+    assert "MAP RMS cost" in out.out and "steps needed" in out.err  # progress bar lines
     assert (tmp_path / "fit.nc.chains" / "ensemble_0.h5").exists()
     assert main(["report", str(fit_path), "--data", str(data), "--out",
                  str(tmp_path / "rep")]) == 0
