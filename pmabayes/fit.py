@@ -852,6 +852,14 @@ def fit(
         pool = ProcessPoolExecutor(max_workers=n_proc, mp_context=ctx,
                                    initializer=_init_worker, initargs=(posterior,))
     diag = None
+    # Workers are forked so that user effects (defined in a notebook or loaded with
+    # --plugin, not importable by name) reach them without pickling. Python warns
+    # about fork in a process with threads; here the threads are OpenBLAS's pool,
+    # which reinitialises in the child (pthread_atfork), and numba and h5py run none.
+    caught = warnings.catch_warnings()
+    caught.__enter__()
+    warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
+                            category=DeprecationWarning)
     try:
         while True:
             done = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).iteration
@@ -899,6 +907,7 @@ def fit(
     finally:
         if pool is not None:
             pool.shutdown()
+        caught.__exit__(None, None, None)
     t_sampling = time.perf_counter() - t_sample
     chains = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
               for p in paths]

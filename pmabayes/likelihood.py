@@ -156,6 +156,30 @@ def _kalman_loglik(y, x, scale, sigma, rho, white):
     return out
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _kalman_innovations(y, scale, sigma, rho, white):
+    """Standardised innovations ``v_k / sqrt(S_k)`` of ``scale * y`` (one series).
+
+    For data the model and noise describe, these are independent N(0, 1): the
+    whitened residual that system identification's classic tests expect.
+    """
+    n = y.shape[0]
+    out = np.empty(n)
+    s2 = sigma * sigma
+    q = s2 * (1.0 - rho * rho)
+    r = white * white
+    p = s2
+    est = 0.0
+    for k in range(n):
+        s_k = p + r
+        gain = p / s_k
+        v = scale * y[k] - est
+        out[k] = v / math.sqrt(s_k)
+        est = rho * (est + gain * v)
+        p = rho * rho * (1.0 - gain) * p + q
+    return out
+
+
 class LikelihoodError(ValueError):
     """The data cannot be fitted as given (too few trials, no motion, wrong rig)."""
 
@@ -308,6 +332,25 @@ class Likelihood:
         x = np.atleast_2d(x)
         return (self.deviation_log_likelihood(*self._params(sigma, rho, white, x.shape[0]))
                 + self.mean_log_likelihood(x, sigma, rho, white))
+
+    def innovations(self, x: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
+        """Standardised innovations of the trial mean's residual under the noise model.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Model positions ``(n_samples,)``.
+        sigma, rho, white : float
+            Noise parameters.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_samples,)``; independent N(0, 1) when the model describes the data.
+        """
+        g = np.ascontiguousarray(self.y_mean - np.asarray(x, dtype=float).reshape(-1))
+        return _kalman_innovations(g, math.sqrt(self.n_trials), float(sigma), float(rho),
+                                   float(white))
 
     def pointwise(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
         """Log-likelihood of each trial, ``(batch, n_trials)``; sums to :meth:`log_likelihood`.
