@@ -361,23 +361,18 @@ def rank_effects(
         Most evidence first.
     """
     from pmabayes.effects import registered_effects
-    from pmabayes.likelihood import Likelihood as _Lik
 
     model = likelihood.model
     present = set(model.effect_names)
     names = [n for n in (candidates or registered_effects()) if n not in present]
-    scale = math.sqrt(likelihood.n_trials)
-    pars = (float(noise.sigma), float(noise.rho), float(noise.white))
 
     def whiten(v: np.ndarray) -> np.ndarray:
-        from pmabayes.likelihood import _kalman_innovations
-
-        return _kalman_innovations(np.ascontiguousarray(v), scale, *pars)
+        return likelihood.whiten(v, noise.sigma, noise.rho, noise.white)
 
     out = []
     for name in names:
         ext = model.with_effects(name)
-        lik = _Lik(ext, likelihood.dataset, substeps=likelihood.substeps)
+        lik = Likelihood(ext, likelihood.dataset, substeps=likelihood.substeps)
         eff = ext.effects[-1]
         tested = [p.name for p in eff.parameters if p.vary]
         point = dict(ext.defaults)

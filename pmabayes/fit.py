@@ -728,6 +728,57 @@ def _progress(settings: FitSettings, text: str) -> None:
         print(f"[pmabayes fit] {text}", file=sys.stderr, flush=True)
 
 
+def _sample_rounds(posterior: Posterior, paths: list[str], initials: list[np.ndarray],
+                   ens_seeds: list[int], settings: FitSettings, pool,
+                   t_sample: float) -> _Diagnostics:
+    """Advance all ensembles round by round until converged or out of budget."""
+    diag = None
+    while True:
+        done = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).iteration
+                if os.path.exists(p) else 0 for p in paths]
+        n_done = min(done)
+        budget_left = settings.max_steps - n_done
+        if diag is not None and (diag.converged or budget_left <= 0):
+            break
+        elapsed = time.perf_counter() - t_sample
+        if diag is not None and settings.max_seconds and elapsed > settings.max_seconds:
+            break
+        step = min(settings.check_every, budget_left) if budget_left > 0 else 0
+        if step > 0:
+            jobs = [(p, step - (d - n_done), initials[e] if d == 0 else None, ens_seeds[e],
+                     settings.moves)
+                    for e, (p, d) in enumerate(zip(paths, done, strict=True))]
+            if pool is None:
+                for job in jobs:
+                    _advance(*job)
+            else:
+                list(pool.map(_advance, *zip(*jobs, strict=True)))
+        chains = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
+                  for p in paths]
+        if min(c.shape[0] for c in chains) < 20:
+            continue
+        diag = _diagnose(chains, posterior.names, settings)
+        # a bar towards convergence: the run stops when the chain is long
+        # enough, not at a known step count
+        done_frac = min(1.0, (diag.n_steps - diag.burn) / (settings.tau_multiple
+                                                          * diag.tau.max()),
+                        diag.ess.min() / settings.min_ess)
+        bar = "#" * int(round(20 * done_frac))
+        _progress(settings, (
+            f"[{bar:-<20}] step {diag.n_steps} (budget {settings.max_steps}) x "
+            f"{settings.n_ensembles} ensembles x {settings.n_walkers} walkers: kept "
+            f"{diag.n_steps - diag.burn} of {settings.tau_multiple * diag.tau.max():.0f} "
+            f"steps needed ({settings.tau_multiple:g} x tau {diag.tau.max():.0f}), "
+            f"ESS min {diag.ess.min():.0f}"
+            + (f", R-hat across ensembles max {diag.rhat_ensembles.max():.4f}"
+               if diag.rhat_ensembles is not None else "")
+            + f", {time.perf_counter() - t_sample:.0f} s"
+        ))
+        if step == 0:
+            break
+    return diag
+
+
 def fit(
     dataset: Dataset,
     model: Model | None = None,
@@ -780,6 +831,9 @@ def fit(
     except LikelihoodError as exc:
         raise FitError(str(exc)) from None
     posterior = Posterior(likelihood, estimate_noise(likelihood))
+    if settings.max_steps < 20:
+        raise FitError(f"max_steps must be at least 20 (the autocorrelation time needs a "
+                       f"chain), got {settings.max_steps}")
     if settings.n_walkers < 2 * posterior.ndim:
         raise FitError(f"n_walkers must be at least {2 * posterior.ndim} (twice the "
                        f"{posterior.ndim} parameters), got {settings.n_walkers}")
@@ -846,68 +900,23 @@ def fit(
     t_sample = time.perf_counter()
     n_proc = settings.processes or min(settings.n_ensembles, os.cpu_count() or 1)
     _init_worker(posterior)
-    pool = None
-    if n_proc > 1 and settings.n_ensembles > 1:
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        pool = ProcessPoolExecutor(max_workers=n_proc, mp_context=ctx,
-                                   initializer=_init_worker, initargs=(posterior,))
-    diag = None
     # Workers are forked so that user effects (defined in a notebook or loaded with
     # --plugin, not importable by name) reach them without pickling. Python warns
     # about fork in a process with threads; here the threads are OpenBLAS's pool,
     # which reinitialises in the child (pthread_atfork), and numba and h5py run none.
-    caught = warnings.catch_warnings()
-    caught.__enter__()
-    warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
-                            category=DeprecationWarning)
-    try:
-        while True:
-            done = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).iteration
-                    if os.path.exists(p) else 0 for p in paths]
-            n_done = min(done)
-            budget_left = settings.max_steps - n_done
-            if diag is not None and (diag.converged or budget_left <= 0):
-                break
-            elapsed = time.perf_counter() - t_sample
-            if diag is not None and settings.max_seconds and elapsed > settings.max_seconds:
-                break
-            step = min(settings.check_every, budget_left) if budget_left > 0 else 0
-            if step > 0:
-                jobs = [(p, step - (d - n_done), initials[e] if d == 0 else None, ens_seeds[e],
-                         settings.moves)
-                        for e, (p, d) in enumerate(zip(paths, done, strict=True))]
-                if pool is None:
-                    for job in jobs:
-                        _advance(*job)
-                else:
-                    list(pool.map(_advance, *zip(*jobs, strict=True)))
-            chains = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
-                      for p in paths]
-            if min(c.shape[0] for c in chains) < 20:
-                continue
-            diag = _diagnose(chains, posterior.names, settings)
-            # a bar towards convergence: the run stops when the chain is long
-            # enough, not at a known step count
-            done_frac = min(1.0, (diag.n_steps - diag.burn) / (settings.tau_multiple
-                                                              * diag.tau.max()),
-                            diag.ess.min() / settings.min_ess)
-            bar = "#" * int(round(20 * done_frac))
-            _progress(settings, (
-                f"[{bar:-<20}] step {diag.n_steps} (budget {settings.max_steps}) x "
-                f"{settings.n_ensembles} ensembles x {settings.n_walkers} walkers: kept "
-                f"{diag.n_steps - diag.burn} of {settings.tau_multiple * diag.tau.max():.0f} "
-                f"steps needed ({settings.tau_multiple:g} x tau {diag.tau.max():.0f}), "
-                f"ESS min {diag.ess.min():.0f}"
-                + (f", R-hat across ensembles max {diag.rhat_ensembles.max():.4f}"
-                   if diag.rhat_ensembles is not None else "")
-                + f", {time.perf_counter() - t_sample:.0f} s"
-            ))
-            if step == 0:
-                break
-    finally:
-        if pool is not None:
-            pool.shutdown()
-        caught.__exit__(None, None, None)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
+                                category=DeprecationWarning)
+        pool = None
+        if n_proc > 1 and settings.n_ensembles > 1:
+            ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+            pool = ProcessPoolExecutor(max_workers=n_proc, mp_context=ctx,
+                                       initializer=_init_worker, initargs=(posterior,))
+        try:
+            _sample_rounds(posterior, paths, initials, ens_seeds, settings, pool, t_sample)
+        finally:
+            if pool is not None:
+                pool.shutdown()
     t_sampling = time.perf_counter() - t_sample
     chains = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
               for p in paths]

@@ -333,6 +333,28 @@ class Likelihood:
         return (self.deviation_log_likelihood(*self._params(sigma, rho, white, x.shape[0]))
                 + self.mean_log_likelihood(x, sigma, rho, white))
 
+    def whiten(self, v: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
+        """Standardised Kalman innovations of ``sqrt(R) v`` under the noise model.
+
+        Linear in ``v``. Applied to the trial mean's residual it gives
+        :meth:`innovations`; applied to sensitivities, their whitened versions.
+
+        Parameters
+        ----------
+        v : numpy.ndarray
+            A series on the data's time grid, ``(n_samples,)``.
+        sigma, rho, white : float
+            Noise parameters.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_samples,)``.
+        """
+        v = np.ascontiguousarray(np.asarray(v, dtype=float).reshape(-1))
+        return _kalman_innovations(v, math.sqrt(self.n_trials), float(sigma), float(rho),
+                                   float(white))
+
     def innovations(self, x: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
         """Standardised innovations of the trial mean's residual under the noise model.
 
@@ -348,9 +370,8 @@ class Likelihood:
         numpy.ndarray
             ``(n_samples,)``; independent N(0, 1) when the model describes the data.
         """
-        g = np.ascontiguousarray(self.y_mean - np.asarray(x, dtype=float).reshape(-1))
-        return _kalman_innovations(g, math.sqrt(self.n_trials), float(sigma), float(rho),
-                                   float(white))
+        return self.whiten(self.y_mean - np.asarray(x, dtype=float).reshape(-1),
+                           sigma, rho, white)
 
     def pointwise(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
         """Log-likelihood of each trial, ``(batch, n_trials)``; sums to :meth:`log_likelihood`.

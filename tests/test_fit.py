@@ -231,3 +231,8 @@ def test_small_calibration():
 
 def test_info_is_json(small_fit):
     assert json.loads(small_fit.attrs["pmabayes"])["model"]["effects"] == []
+
+
+def test_too_small_a_budget_is_refused(small_data):
+    with pytest.raises(FitError, match="max_steps must be at least 20"):
+        fit(small_data, pb.Model(), settings=FitSettings(max_steps=10))
