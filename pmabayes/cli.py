@@ -11,6 +11,13 @@
     compare, without fitting.
 ``pmabayes simulate OUT.csv``
     Write a synthetic repeated-chirp data set from the paper's parameters.
+``pmabayes diagnose DATA.csv [--effects A,B] [--out DIR] [--json OUT.json]``
+    Fit a model (MAP), compare it with the measurements against the noise floor,
+    show where it fails and rank the library's effects by the evidence that they
+    are missing; the best candidates are refitted and compared by ELPD.
+``pmabayes compare FIT_A.nc FIT_B.nc ... --data DATA.csv --out DIR``
+    Fits of the same data side by side: error per band against the floor,
+    whiteness tests and leave-one-trial-out ELPD; the error-falling figure.
 ``pmabayes effects``
     List the registered physical effects and their parameters.
 
@@ -34,7 +41,7 @@ import numpy as np
 from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
 from pmabayes.fit import FitError, FitSettings, fit
-from pmabayes.model import Model, ModelError, Rig
+from pmabayes.model import Model, ModelError
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
@@ -86,9 +93,7 @@ def model_for(dataset: Dataset, effects: Sequence[str] = ()) -> Model:
     -------
     Model
     """
-    rig_meta = dataset.metadata.get("rig")
-    rig = Rig.from_dict(rig_meta) if isinstance(rig_meta, dict) else Rig.characterisation()
-    return Model(list(effects), rig=rig)
+    return Model.for_dataset(dataset, list(effects))
 
 
 def load_plugin(spec: str) -> None:
@@ -202,6 +207,58 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from pmabayes.criticism import diagnose
+
+    start = time.perf_counter()
+    dataset = load(args.data)
+    result = diagnose(dataset, Model.for_dataset(dataset, args.effects),
+                      candidates=args.candidates or None, seed=args.seed,
+                      progress=not args.quiet)
+    summary = result.to_dict()
+    label = " + ".join(["base", *result.model.effect_names])
+    print(f"model: {label}")
+    print(f"RMS error of the trial mean: {result.rms_m * 1e6:.1f} um (noise floor "
+          f"{result.noise_floor_m * 1e6:.1f} um); adequate: {'yes' if result.adequate else 'no'}")
+    for f in result.ranking[:5]:
+        est = ", ".join(f"{k}={v:.4g}" for k, v in f.estimate.items())
+        print(f"  {f.effect:<22s} evidence {f.evidence:10.4g}  "
+              f"{'significant' if f.significant else 'n.s.':<11s}  {est}")
+    print(result.verdict)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
+        print(f"wrote {args.json}")
+    if args.out:
+        from pmabayes.report import write_diagnosis
+
+        index = write_diagnosis(result, Path(args.out))
+        print(f"wrote {index}")
+    print(f"({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from pmabayes.criticism import compare_fits
+    from pmabayes.report import write_comparison
+
+    dataset = load(args.data)
+    fits = [load_fit(f) for f in args.fits]
+    labels = args.labels.split(",") if args.labels else None
+    result = compare_fits(fits, dataset, labels=labels)
+    for k in result.labels:
+        b = result.bands[k][-1]
+        print(f"{k:<40s} RMS {b.rms_m * 1e6:9.1f} um = {b.ratio:7.3g}x floor  "
+              f"Ljung-Box p {result.whiteness[k]['ljung_box_p']:.2g}  "
+              f"ELPD {result.elpd[k]['elpd']:.1f}")
+    for step in result.elpd_steps:
+        print(f"{step['from']} -> {step['to']}: ELPD {step['elpd_diff']:+.1f} "
+              f"+- {step['se']:.1f}")
+    index = write_comparison(result, Path(args.out), dataset=dataset)
+    print(f"wrote {index}")
+    return 0
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     effects = _parse_effects(args.effect)
     params = _parse_assignments(args.param, "--param")
@@ -278,6 +335,28 @@ def _parser() -> argparse.ArgumentParser:
     pred.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                       help="override a parameter value (repeatable)")
     pred.set_defaults(func=_cmd_predict)
+
+    diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
+                          "effect is missing")
+    diag.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    diag.add_argument("--effects", default="", type=_effect_list,
+                      help="comma-separated effects to add to the base model")
+    diag.add_argument("--candidates", default="", type=_effect_list,
+                      help="effects to test (all registered effects by default)")
+    diag.add_argument("--out", help="folder for the figures and an HTML page")
+    diag.add_argument("--json", help="write a machine-readable summary here")
+    diag.add_argument("--seed", type=int, default=0, help="seed of everything random (0)")
+    diag.add_argument("--quiet", action="store_true", help="no progress lines")
+    diag.set_defaults(func=_cmd_diagnose)
+
+    comp = sub.add_parser("compare", help="fits of the same data side by side: error per "
+                          "band, whiteness, ELPD")
+    comp.add_argument("fits", nargs="+", help="two or more fits (FIT.nc) of the same data")
+    comp.add_argument("--data", required=True, help="the data file the fits were made from")
+    comp.add_argument("--out", required=True, help="output folder")
+    comp.add_argument("--labels", help="comma-separated names of the fits (default: their "
+                      "models, base + effect + ...)")
+    comp.set_defaults(func=_cmd_compare)
 
     simu = sub.add_parser("simulate", help="write a synthetic repeated-chirp data set")
     simu.add_argument("out", help="output file (.csv with a .json sidecar, or .nc)")

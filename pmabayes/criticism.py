@@ -17,13 +17,21 @@ from the data relative to what repeatability allows:
 from __future__ import annotations
 
 import math
+import sys
+import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal, stats
 
 from pmabayes.data import Dataset
+from pmabayes.effects import get_effect, registered_effects
+from pmabayes.fit import NoiseEstimate, Posterior, estimate_noise, find_map
 from pmabayes.likelihood import Likelihood
+from pmabayes.model import Model
+from pmabayes.posterior import check_dataset, fit_info, model_from_fit
+from pmabayes.simulator import Simulation, simulate
 
 __all__ = [
     "DEFAULT_BANDS_HZ",
@@ -36,6 +44,14 @@ __all__ = [
     "ljung_box",
     "EffectEvidence",
     "rank_effects",
+    "Signature",
+    "residual_signature",
+    "Refit",
+    "Finding",
+    "Diagnosis",
+    "diagnose",
+    "FitComparison",
+    "compare_fits",
 ]
 
 #: Bands of the chirp's instantaneous frequency (Hz) for error tables.
@@ -360,7 +376,6 @@ def rank_effects(
     list of EffectEvidence
         Most evidence first.
     """
-    from pmabayes.effects import registered_effects
 
     model = likelihood.model
     present = set(model.effect_names)
@@ -410,12 +425,805 @@ def rank_effects(
             p_value = float(stats.norm.sf(z))
         else:
             p_value = float(stats.chi2.sf(stat, len(tested)))
-        estimate = {n: float(point[n] + step[i]) for i, n in enumerate(tested)}
-        interval = {n: (estimate[n] - 1.645 * sd[i], estimate[n] + 1.645 * sd[i])
-                    for i, n in enumerate(tested)}
+        estimate, interval = {}, {}
+        for i, n in enumerate(tested):
+            est = point[n] + step[i]
+            lo, hi = est - 1.645 * sd[i], est + 1.645 * sd[i]
+            if one_sided[i]:  # the constrained estimate: a bound is the smallest value
+                est, lo, hi = max(est, point[n]), max(lo, point[n]), max(hi, point[n])
+            estimate[n], interval[n] = float(est), (float(lo), float(hi))
         excess = max(float(r_w @ r_w) - r_w.size, 1e-12)
         out.append(EffectEvidence(name, stat, len(tested), p_value, False, estimate, interval,
                                   float(min(stat / excess, 1.0))))
     threshold = level / max(len(out), 1)
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
     return sorted(out, key=lambda e: -e.statistic)
+
+
+# ---------------------------------------------------------------------------------
+# the diagnosis: fit, criticise, rank, refit the candidates, explain
+
+
+@dataclass(frozen=True)
+class Signature:
+    """Where and how a model's trial-mean residual departs from the noise.
+
+    Parameters
+    ----------
+    bands : list of BandError
+        Errors per frequency band, the last one overall.
+    ljung_box_p : float
+        Ljung-Box p-value (25 lags) of the whitened residual.
+    energy : float
+        Mean square of the whitened residual: 1 for pure noise.
+    energy_p : float
+        p-value of ``energy`` against pure noise (chi-squared, one-sided).
+    correlations : dict
+        Correlation of the residual with the model's position, velocity and
+        pressure and with the rate of change of the command.
+    ccf_lag_s : float
+        Lag at which the whitened residual correlates most with the earlier rate
+        of change of the command (positive: the residual follows the command).
+    ccf_peak : float
+        That correlation.
+    ccf_bound : float
+        Its 99% bound for independent series.
+    """
+
+    bands: list
+    ljung_box_p: float
+    energy: float
+    energy_p: float
+    correlations: dict
+    ccf_lag_s: float
+    ccf_peak: float
+    ccf_bound: float
+
+    @property
+    def ratio(self) -> float:
+        """Overall RMS error over the noise floor."""
+        return self.bands[-1].ratio
+
+    def describe(self) -> str:
+        """The signature in one or two plain sentences, from the numbers."""
+        bands = [b for b in self.bands[:-1] if b.n_samples > 0]
+        ratios = [b.ratio for b in bands]
+        overall = self.bands[-1]
+        text = (f"The error is {overall.rms_m * 1e6:.3g} µm RMS against a noise floor of "
+                f"{overall.floor_m * 1e6:.3g} µm ({overall.ratio:.3g}x)")
+        if len(bands) >= 2:
+            lo, hi = bands[0], bands[-1]
+            span = (f"from {lo.ratio:.3g}x the floor at {_band_text(lo.band_hz)} to "
+                    f"{hi.ratio:.3g}x at {_band_text(hi.band_hz)}")
+            if hi.ratio > 2.0 * lo.ratio:
+                text += f"; it grows with frequency, {span}"
+            elif lo.ratio > 2.0 * hi.ratio:
+                text += f"; it is largest at low frequency, {span}"
+            else:
+                text += (f"; it is spread over the whole chirp ({min(ratios):.3g}x to "
+                         f"{max(ratios):.3g}x the floor per band)")
+        text += "."
+        if self.correlations:
+            name, value = max(self.correlations.items(), key=lambda kv: abs(kv[1]))
+            text += f" The residual correlates most with the {name} (r = {value:+.2f})."
+        if abs(self.ccf_peak) > self.ccf_bound and self.ccf_lag_s > 0:
+            text += (f" The whitened residual follows the rate of change of the command "
+                     f"{self.ccf_lag_s * 1e3:.0f} ms earlier (correlation {self.ccf_peak:+.2f}, "
+                     f"{abs(self.ccf_peak) / self.ccf_bound:.0f}x its 99% bound): the response "
+                     "lags the pressure more than the model allows.")
+        if self.ljung_box_p < 0.01:
+            text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
+        return text
+
+
+def _band_text(band: tuple[float, float]) -> str:
+    lo, hi = band
+    return f"{lo:g}-{hi:g} Hz" if math.isfinite(hi) else f"above {lo:g} Hz"
+
+
+def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
+                       ) -> Signature:
+    """Measure the signature of a model's residual on the data.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        Data and noise model.
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+    sim : pmabayes.simulator.Simulation
+        The model's simulation (batch of one) with its states.
+    max_lag_s : float
+        Largest lag of the cross-correlation with the command's rate.
+
+    Returns
+    -------
+    Signature
+    """
+    ds = likelihood.dataset
+    x = sim.position_m[0]
+    r = likelihood.y_mean - x
+    e = innovations(likelihood, x, noise)
+    n = e.size
+    energy = float(np.mean(e * e))
+    rate = np.gradient(ds.input[0], ds.time_s)
+    signals = {"position": x, "velocity": sim.velocity_m_s[0], "pressure": sim.pressure_pa[0],
+               "pressure rate": rate}
+    corr = {}
+    for name, s in signals.items():
+        if np.std(s) > 0 and np.std(r) > 0:
+            corr[name] = float(np.corrcoef(r, s)[0, 1])
+    max_lag = max(1, int(round(max_lag_s / ds.dt_s)))
+    lags_r, ccf_r, bound = cross_correlation(e, rate, max_lag=max_lag)
+    pos = lags_r >= 0
+    k = int(np.argmax(np.abs(ccf_r[pos])))
+    return Signature(
+        bands=band_errors(ds, x), ljung_box_p=ljung_box(e)[1], energy=energy,
+        energy_p=float(stats.chi2.sf(energy * n, n)), correlations=corr,
+        ccf_lag_s=float(lags_r[pos][k] * ds.dt_s), ccf_peak=float(ccf_r[pos][k]),
+        ccf_bound=bound,
+    )
+
+
+@dataclass(frozen=True)
+class Refit:
+    """A model refitted with one more effect (MAP with a Laplace posterior).
+
+    Parameters
+    ----------
+    effect : str
+        The added effect.
+    values : dict
+        MAP of every parameter of the extended model.
+    interval : dict
+        ``(low, high)`` equal-tailed interval of each of the effect's free
+        parameters at the diagnosis' ``ci_prob``, from Laplace draws.
+    rms_m : float
+        RMS error of the trial mean at the MAP.
+    signature : Signature
+        The refitted model's residual signature.
+    explained : float
+        Fraction of the base model's excess whitened residual energy (above pure
+        noise) that the refit removes.
+    elpd : float
+        Leave-one-trial-out ELPD (PSIS-LOO over Laplace draws).
+    elpd_diff : float
+        ``elpd`` minus the base model's: positive when the effect predicts left-out
+        trials better.
+    elpd_diff_se : float
+        Standard error of ``elpd_diff`` from the per-trial differences.
+    contribution_m : numpy.ndarray
+        The effect's contribution to the model output at the MAP: the output minus
+        the output with the effect switched off (its null values).
+    next_effect : str or None
+        The significant candidate that best explains what the refit leaves (score
+        test on the refit), if any.
+    explained_with_next : float
+        Fraction of the base model's excess removed by the refit and, to first
+        order, by ``next_effect`` after it: near 1 when the two together account
+        for the misfit.
+    """
+
+    effect: str
+    values: dict
+    interval: dict
+    rms_m: float
+    signature: Signature
+    explained: float
+    elpd: float
+    elpd_diff: float
+    elpd_diff_se: float
+    contribution_m: np.ndarray
+    next_effect: str | None = None
+    explained_with_next: float = 0.0
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One candidate effect in a diagnosis: its evidence, size and meaning.
+
+    Parameters
+    ----------
+    effect : str
+        Registry name.
+    evidence : float
+        Score (Lagrange multiplier) statistic that the effect is missing.
+    p_value : float
+        Its p-value.
+    significant : bool
+        Below the family-wise level (Bonferroni over the candidates).
+    estimate : dict
+        The effect's parameters: MAP of the refit when refitted, else the
+        score test's one-step estimate.
+    interval : dict
+        ``(low, high)`` for each: Laplace interval of the refit, else the
+        one-step interval.
+    explained : float
+        Fraction of the excess residual energy removed (refit, else first order).
+    refit : Refit or None
+        The refit, for significant candidates.
+    explanation : str
+        A paragraph in physical terms: what the effect is, the residual's
+        signature, and what adding it does.
+    """
+
+    effect: str
+    evidence: float
+    p_value: float
+    significant: bool
+    estimate: dict
+    interval: dict
+    explained: float
+    refit: Refit | None
+    explanation: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        out = {
+            "effect": self.effect, "evidence": self.evidence, "p_value": self.p_value,
+            "significant": self.significant, "estimate": dict(self.estimate),
+            "interval": {k: [float(a), float(b)] for k, (a, b) in self.interval.items()},
+            "explained": self.explained, "explanation": self.explanation,
+            "refit": None,
+        }
+        if self.refit is not None:
+            out["refit"] = {"rms_m": self.refit.rms_m, "elpd_diff": self.refit.elpd_diff,
+                            "elpd_diff_se": self.refit.elpd_diff_se,
+                            "ljung_box_p": self.refit.signature.ljung_box_p,
+                            "noise_ratio": self.refit.signature.ratio}
+        return out
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """A model confronted with repeated trials: how good, where it fails, what is missing.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data.
+    model : Model
+        The diagnosed model.
+    values : dict
+        Its MAP, with the noise parameters.
+    noise : NoiseEstimate
+        The noise identified from the spread between trials.
+    simulation : Simulation
+        The model at the MAP, with its states.
+    signature : Signature
+        The residual's signature.
+    adequate : bool
+        The whitened residual is consistent with the noise: its mean square is
+        within ``1 + energy_tolerance`` of pure noise and its autocorrelation is
+        not significant (Ljung-Box at ``level_adequate``).
+    missing : str or None
+        The effect found missing: the refitted significant candidate with the best
+        ELPD, provided it removes at least ``min_explained`` of the excess
+        residual. None when nothing significant is missing, or when no candidate
+        explains the misfit (see ``verdict``).
+    ranking : list of Finding
+        Every candidate, most evidence first: the refitted ones by ELPD, then the
+        others by score statistic.
+    elpd : float
+        Leave-one-trial-out ELPD of the model (PSIS-LOO over Laplace draws).
+    verdict : str
+        The conclusion in words.
+    settings : dict
+        The settings used (level, thresholds, ci_prob, seed).
+    """
+
+    dataset: Dataset
+    model: Model
+    values: dict
+    noise: NoiseEstimate
+    simulation: Simulation
+    signature: Signature
+    adequate: bool
+    missing: str | None
+    ranking: list
+    elpd: float
+    verdict: str
+    settings: dict
+
+    @property
+    def rms_m(self) -> float:
+        """RMS error of the trial mean at the MAP."""
+        return self.signature.bands[-1].rms_m
+
+    @property
+    def noise_floor_m(self) -> float:
+        """RMS error a perfect model would have (from the spread between trials)."""
+        return self.signature.bands[-1].floor_m
+
+    @property
+    def residual_m(self) -> np.ndarray:
+        """Trial mean minus model, ``(n_samples,)``."""
+        return self.dataset.mean_position_m - self.simulation.position_m[0]
+
+    @property
+    def innovations(self) -> np.ndarray:
+        """The residual whitened by the identified noise model."""
+        lik = Likelihood(self.model, self.dataset)
+        return innovations(lik, self.simulation.position_m[0], self.noise)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the keys of ``pmabayes diagnose --json``)."""
+        sig = self.signature
+        return {
+            "data": self.dataset.source,
+            "synthetic": bool(self.dataset.metadata.get("synthetic", False)),
+            "effects": list(self.model.effect_names),
+            "rms_m": self.rms_m,
+            "noise_floor_m": self.noise_floor_m,
+            "adequate": self.adequate,
+            "missing": self.missing,
+            "verdict": self.verdict,
+            "ranking": [f.to_dict() for f in self.ranking],
+            "values": dict(self.values),
+            "elpd_loo": self.elpd,
+            "whiteness": {"ljung_box_p": sig.ljung_box_p, "energy": sig.energy,
+                          "energy_p": sig.energy_p},
+            "signature": sig.describe(),
+            "bands": [{"band_hz": [b.band_hz[0], b.band_hz[1] if math.isfinite(b.band_hz[1])
+                                   else None],
+                       "rms_m": b.rms_m, "nrms": b.nrms, "max_m": b.max_m,
+                       "floor_m": b.floor_m, "ratio": b.ratio} for b in sig.bands],
+            "settings": dict(self.settings),
+        }
+
+
+def _laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, ci_prob: float,
+                 names: tuple[str, ...] = ()):
+    """PSIS-LOO (by trial) and intervals from draws of the MAP's Laplace approximation."""
+    import arviz as az
+
+    lik = posterior.likelihood
+    z = rng.multivariate_normal(map_result.z, map_result.covariance_z, size=n_draws,
+                                method="eigh")
+    theta = posterior.to_natural(z)
+    theta = theta[np.isfinite(posterior.log_prior(theta))]
+    x = lik.simulate(posterior.full_theta(theta))
+    sigma, rho, white = posterior.noise.draws(rng, theta.shape[0])
+    pointwise = lik.pointwise(x, sigma, rho, white)
+    ok = np.all(np.isfinite(pointwise), axis=1)
+    tree = az.from_dict({"posterior": {"theta": theta[ok][None, :, 0]},
+                         "log_likelihood": {"position_m": pointwise[ok][None]}},
+                        dims={"position_m": ["trial"]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pareto k is reported in the summary instead
+        loo = az.loo(tree, var_name="position_m")
+    tail = (1.0 - ci_prob) / 2.0
+    interval = {}
+    for n in names:
+        j = posterior.names.index(n)
+        lo, hi = np.quantile(theta[ok][:, j], [tail, 1.0 - tail])
+        interval[n] = (float(lo), float(hi))
+    return float(loo.elpd), np.asarray(loo.elpd_i).reshape(-1), interval
+
+
+def _model_values(model, values: dict) -> dict:
+    return {k: v for k, v in values.items() if k in model.parameter_names}
+
+
+def _contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
+                       freq_hz: np.ndarray, bands_hz) -> str:
+    if not np.std(contribution_m) > 0:
+        return ""
+    corr = float(np.corrcoef(contribution_m, base_residual_m)[0, 1])
+    best, best_rms = None, -1.0
+    for lo, hi in bands_hz:
+        sel = (freq_hz >= lo) & (freq_hz < hi)
+        if sel.any():
+            rms = float(np.sqrt(np.mean(contribution_m[sel] ** 2)))
+            if rms > best_rms:
+                best, best_rms = (lo, hi), rms
+    return (f" Its contribution to the output correlates {corr:+.2f} with the base model's "
+            f"residual and is largest at {_band_text(best)} ({best_rms * 1e6:.3g} µm RMS).")
+
+
+def _explanation(eff, evidence: float, p_value: float, significant: bool,
+                 signature: Signature, refit: Refit | None, contribution_text: str,
+                 ci_prob: float) -> str:
+    text = f"{eff.name} ({eff.stage} stage): {' '.join(eff.description.split())} "
+    text += signature.describe()
+    text += (f" Score test that {eff.name} is missing: statistic {evidence:.3g}, "
+             f"p = {p_value:.2g}, {'significant' if significant else 'not significant'}.")
+    if refit is None:
+        return text
+    parts = []
+    for p in eff.parameters:
+        if p.name in refit.interval:
+            lo, hi = refit.interval[p.name]
+            parts.append(f"{p.name} = {refit.values[p.name]:.4g} {p.unit} "
+                         f"({ci_prob:.0%} interval {lo:.4g} to {hi:.4g})")
+    text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
+             f"{refit.rms_m * 1e6:.3g} µm ({refit.signature.ratio:.3g}x the floor), "
+             f"{refit.explained:.0%} of the excess residual is removed, and the "
+             f"leave-one-trial-out ELPD changes by {refit.elpd_diff:+.1f} "
+             f"± {refit.elpd_diff_se:.1f}.")
+    return text + contribution_text
+
+
+def _fit_map(likelihood: Likelihood, noise, rng: np.random.Generator):
+
+    posterior = Posterior(likelihood, noise)
+    return posterior, find_map(posterior, rng=rng)
+
+
+def _say(progress: bool, text: str) -> None:
+    if progress:
+        print(f"diagnose: {text}", file=sys.stderr, flush=True)
+
+
+def diagnose(
+    dataset: Dataset,
+    model: Model | None = None,
+    *,
+    effects: Iterable[str] = (),
+    candidates: Iterable[str] | None = None,
+    level: float = 0.05,
+    level_adequate: float = 0.01,
+    energy_tolerance: float = 0.1,
+    max_refits: int = 3,
+    min_explained: float = 0.9,
+    ci_prob: float = 0.9,
+    n_draws: int = 400,
+    seed: int | np.random.Generator = 0,
+    substeps: int = 1,
+    progress: bool = False,
+) -> Diagnosis:
+    """Fit a model, criticise it and find which effect in the library is missing.
+
+    1. The noise comes from the spread between trials and the model's MAP from
+       the trial mean (:func:`pmabayes.fit.find_map`).
+    2. The residual's signature: errors per frequency band against the noise
+       floor, whiteness of the residual whitened by the noise model, its
+       correlation with the model's states and with the command's rate.
+    3. Every candidate effect is ranked by the score test
+       (:func:`rank_effects`), which needs no refit.
+    4. The significant candidates (at most ``max_refits``, strongest first) are
+       added one at a time and refitted; each refit is judged by the excess
+       residual it removes and by its leave-one-trial-out ELPD (PSIS-LOO over
+       draws from the refit's Laplace approximation). The refit also gives the
+       effect's size with an interval. This separates effects that the first-order
+       score test cannot (a regulator lag and a transport delay).
+    5. The missing effect is the refitted candidate with the best ELPD among
+       those that account for the misfit: the refit is adequate, or it removes
+       at least ``min_explained`` of the excess residual alone or together with
+       the candidate that the refit's own score test finds next (so that two
+       missing effects of similar size are found one after the other). If none
+       does, the misfit is reported as unexplained instead of naming the least
+       bad candidate.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Repeated trials of one input.
+    model : Model, optional
+        The model to diagnose; the base model on the data's rig by default.
+    effects : iterable of str
+        Effects to add to ``model`` first (as ``--effects`` on the command line).
+    candidates : iterable of str, optional
+        Effects to test; every registered effect not in the model by default.
+    level : float
+        Family-wise false-alarm level of the ranking.
+    level_adequate : float
+        Level of the Ljung-Box test of ``adequate``.
+    energy_tolerance : float
+        ``adequate`` also needs the whitened residual's mean square within
+        ``1 + energy_tolerance`` of pure noise. A tolerance, not a chi-squared
+        test: with the noise parameters estimated from a few trials the energy of
+        pure noise scatters by about 0.03 around 1 (measured), twice the
+        chi-squared spread, so an exact test would reject correct models. 0.1
+        means a model error below about a third of the noise level.
+    max_refits : int
+        Significant candidates refitted at most.
+    min_explained : float
+        Fraction of the excess residual that a refit (alone or with the next
+        candidate) must remove for its effect to be named missing.
+    ci_prob : float
+        Probability of the intervals.
+    n_draws : int
+        Laplace draws for the ELPD and the intervals.
+    seed : int or numpy.random.Generator
+        Seeds the global searches and the draws.
+    substeps : int
+        Simulator substeps per sample.
+    progress : bool
+        Print what is being done to stderr.
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    ValueError
+        On settings out of range.
+    """
+
+    if not 0.0 < level < 1.0 or not 0.0 < level_adequate < 1.0:
+        raise ValueError("level and level_adequate must be in (0, 1)")
+    if not 0.0 < ci_prob < 1.0:
+        raise ValueError(f"ci_prob must be in (0, 1), got {ci_prob}")
+    if not 0.0 <= min_explained <= 1.0:
+        raise ValueError(f"min_explained must be in [0, 1], got {min_explained}")
+    if int(max_refits) < 0 or int(n_draws) < 50:
+        raise ValueError("max_refits must be >= 0 and n_draws >= 50")
+    rng = np.random.default_rng(seed)
+    if candidates is not None:
+        candidates = tuple(candidates)
+        for c in candidates:
+            get_effect(c)  # unknown names fail here, before any fitting
+    model = Model.for_dataset(dataset) if model is None else model
+    if effects:
+        model = model.with_effects(*[e for e in effects if e not in model.effect_names])
+    lik = Likelihood(model, dataset, substeps=substeps)
+    name = " + ".join(["base", *model.effect_names])
+    _say(progress, f"fitting {name} to {dataset.source or 'the data'} (MAP)")
+    noise = estimate_noise(lik)
+    posterior, best = _fit_map(lik, noise, rng)
+    values = dict(best.values)
+
+    def run(m, vals):
+        return simulate(m, _model_values(m, vals), lik.input, time_s=dataset.time_s,
+                        substeps=substeps, states=True)
+
+    sim = run(model, values)
+    signature = residual_signature(lik, noise, sim)
+    elpd, elpd_i, _ = _laplace_loo(posterior, best, rng, n_draws, ci_prob)
+    n = dataset.n_samples
+    base_excess = max(signature.energy * n - n, 1e-12)
+    base_resid = lik.y_mean - sim.position_m[0]
+    freq = instantaneous_frequency(dataset)
+
+    _say(progress, "ranking the candidate effects (score test)")
+    ranked = rank_effects(lik, noise, values, candidates=candidates, level=level)
+    refits: dict[str, Refit] = {}
+    for ev in [e for e in ranked if e.significant][: int(max_refits)]:
+        _say(progress, f"refitting with {ev.effect} ({len(refits) + 1} of at most "
+             f"{max_refits})")
+        ext = model.with_effects(ev.effect)
+        ext_lik = Likelihood(ext, dataset, substeps=substeps)
+        ext_post, ext_map = _fit_map(ext_lik, noise, rng)
+        eff = ext.effects[-1]
+        tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
+        e_elpd, e_elpd_i, interval = _laplace_loo(ext_post, ext_map, rng, n_draws, ci_prob,
+                                                  tested)
+        ext_sim = run(ext, ext_map.values)
+        off = dict(ext_map.values)
+        off.update({p.name: p.null for p in eff.parameters if p.vary})
+        contribution = ext_sim.position_m[0] - run(ext, off).position_m[0]
+        ext_sig = residual_signature(ext_lik, noise, ext_sim)
+        explained = float(np.clip((signature.energy - ext_sig.energy) * n / base_excess,
+                                  0.0, 1.0))
+        # one step of look-ahead: does another candidate account for what is left?
+        following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
+                                             candidates=candidates, level=level)
+                     if e.significant]
+        nxt = max(following, key=lambda e: e.explained) if following else None
+        diff = e_elpd_i - elpd_i
+        refits[ev.effect] = Refit(
+            effect=ev.effect, values=dict(ext_map.values), interval=interval,
+            rms_m=ext_sig.bands[-1].rms_m, signature=ext_sig, explained=explained,
+            elpd=e_elpd, elpd_diff=float(diff.sum()),
+            elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
+            contribution_m=contribution, next_effect=nxt.effect if nxt else None,
+            explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
+        )
+
+    findings = []
+    for ev in ranked:
+        eff = get_effect(ev.effect)
+        refit = refits.get(ev.effect)
+        if refit is not None:
+            estimate = {k: refit.values[k] for k in refit.interval}
+            interval, explained = refit.interval, refit.explained
+            contrib = _contribution_text(refit.contribution_m, base_resid, freq,
+                                         DEFAULT_BANDS_HZ)
+        else:
+            estimate, interval, explained, contrib = ev.estimate, ev.interval, ev.explained, ""
+        findings.append(Finding(
+            effect=ev.effect, evidence=ev.statistic, p_value=ev.p_value,
+            significant=ev.significant, estimate=estimate, interval=interval,
+            explained=explained, refit=refit,
+            explanation=_explanation(eff, ev.statistic, ev.p_value, ev.significant, signature,
+                                     refit, contrib, ci_prob),
+        ))
+
+    # refitted candidates first, by how well they predict left-out trials
+    findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
+    def is_adequate(sig: Signature) -> bool:
+        return bool(sig.energy <= 1.0 + energy_tolerance and sig.ljung_box_p >= level_adequate)
+
+    adequate = is_adequate(signature)
+    explaining = [r for r in refits.values()
+                  if max(r.explained, r.explained_with_next) >= min_explained
+                  or is_adequate(r.signature)]
+    missing = max(explaining, key=lambda r: r.elpd).effect if explaining else None
+    verdict = _verdict(name, model.effect_names, signature, adequate, missing, refits, findings,
+                       min_explained)
+    _say(progress, verdict)
+    return Diagnosis(
+        dataset=dataset, model=model, values=values, noise=noise, simulation=sim,
+        signature=signature, adequate=adequate, missing=missing, ranking=findings,
+        elpd=elpd, verdict=verdict,
+        settings={"level": level, "level_adequate": level_adequate,
+                  "energy_tolerance": energy_tolerance, "max_refits": max_refits,
+                  "min_explained": min_explained, "ci_prob": ci_prob, "n_draws": n_draws,
+                  "seed": seed if isinstance(seed, int) else None, "substeps": substeps,
+                  "candidates": [f.effect for f in findings]},
+    )
+
+
+def _verdict(name: str, effects: tuple, signature: Signature, adequate: bool,
+             missing: str | None, refits: dict, findings: list, min_explained: float) -> str:
+    sig = (f"RMS error {signature.bands[-1].rms_m * 1e6:.3g} µm against a floor of "
+           f"{signature.bands[-1].floor_m * 1e6:.3g} µm; whitened residual energy "
+           f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
+           f"p = {signature.ljung_box_p:.2g}")
+    if missing is not None:
+        r = refits[missing]
+        others = [f.effect for f in findings if f.refit is not None and f.effect != missing]
+        text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
+                f"{r.rms_m * 1e6:.3g} µm ({r.signature.ratio:.3g}x the floor) and removes "
+                f"{r.explained:.0%} of the excess residual.")
+        if others:
+            text += (f" It predicts left-out trials better than the other refitted "
+                     f"candidate(s) ({', '.join(others)}).")
+        return text + (f" Next: add it (--effects {','.join([*effects, missing])}) and "
+                       "diagnose again.")
+    significant = [f for f in findings if f.significant]
+    if adequate and not significant:
+        return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}) "
+                "and no candidate effect is significantly missing.")
+    if not significant:
+        return (f"{name}: the residual is above the noise floor ({sig}), but no effect in "
+                "the library is significantly missing; something outside the library is. "
+                "See the residual signature figures, and register an effect that describes "
+                "it.")
+    best = (max(refits.values(), key=lambda r: max(r.explained, r.explained_with_next))
+            if refits else None)
+    detail = ""
+    if best is not None:
+        detail = (f" the best refit ({best.effect}) removes only {best.explained:.0%} of the "
+                  "excess residual")
+        if best.next_effect:
+            detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
+        detail += f", and at least {min_explained:.0%} is required"
+    return (f"{name}: the residual is {'consistent with' if adequate else 'above'} the noise "
+            f"floor ({sig}); candidates are significant but none explains the misfit:"
+            f"{detail}. Something outside the library is missing; no candidate is named.")
+
+
+# ---------------------------------------------------------------------------------
+# watching the error fall: fits of the same data side by side
+
+
+@dataclass(frozen=True)
+class FitComparison:
+    """Fits of one data set side by side (base, base + effect, ...).
+
+    Parameters
+    ----------
+    labels : list of str
+        One per fit, in the given order (``base``, ``base + regulator_lag``...).
+    bands : dict
+        Label to :func:`band_errors` of the MAP model.
+    whiteness : dict
+        Label to ``{"ljung_box_p", "energy", "energy_p"}`` of the whitened residual.
+    innovations : dict
+        Label to the whitened residual.
+    elpd : dict
+        Label to ``{"elpd", "se", "elpd_diff", "dse", "rank", "max_pareto_k"}``:
+        leave-one-trial-out PSIS-LOO (:func:`arviz.loo`) on the fits' posterior
+        draws; ``elpd_diff`` and its standard error ``dse`` are relative to the best
+        fit, from the paired per-trial differences (as :func:`arviz.compare`).
+    elpd_steps : list of dict
+        Each fit against the one before it: ``{"from", "to", "elpd_diff", "se"}``
+        with the standard error of the paired per-trial differences.
+    command_rate : numpy.ndarray
+        Rate of change of the commanded input (for the cross-correlation figure).
+    dt_s : float
+        Sample interval.
+    """
+
+    labels: list
+    bands: dict
+    whiteness: dict
+    innovations: dict
+    elpd: dict
+    elpd_steps: list
+    command_rate: np.ndarray
+    dt_s: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        return {
+            "fits": [
+                {"label": k, "rms_m": self.bands[k][-1].rms_m,
+                 "noise_floor_m": self.bands[k][-1].floor_m,
+                 "ratio": self.bands[k][-1].ratio,
+                 "bands": [{"band_hz": [b.band_hz[0], b.band_hz[1]
+                                        if math.isfinite(b.band_hz[1]) else None],
+                            "rms_m": b.rms_m, "floor_m": b.floor_m, "ratio": b.ratio}
+                           for b in self.bands[k]],
+                 "whiteness": self.whiteness[k], "elpd": self.elpd[k]}
+                for k in self.labels
+            ],
+            "elpd_steps": self.elpd_steps,
+        }
+
+
+def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
+    """Compare fits of the same data: error per band, whiteness and ELPD.
+
+    Parameters
+    ----------
+    fits : sequence of xarray.DataTree
+        Fits written by :func:`pmabayes.fit.fit` (same data, different models).
+    dataset : Dataset
+        The data they were made from (checked against each fit).
+    labels : sequence of str, optional
+        Names of the fits; ``base + effect + ...`` from their models by default.
+
+    Returns
+    -------
+    FitComparison
+
+    Raises
+    ------
+    ValueError
+        With fewer than two fits, labels that do not match, or a fit made from
+        other data.
+    """
+    import arviz as az
+
+
+    fits = list(fits)
+    if len(fits) < 2:
+        raise ValueError("compare needs at least two fits of the same data")
+    models = [model_from_fit(t) for t in fits]
+    if labels is None:
+        labels = [" + ".join(["base", *m.effect_names]) for m in models]
+    labels = list(labels)
+    if len(labels) != len(fits) or len(set(labels)) != len(labels):
+        raise ValueError(f"need {len(fits)} distinct labels, got {labels}")
+    bands, white, innov, elpd_i = {}, {}, {}, {}
+    for label, tree, model in zip(labels, fits, models, strict=True):
+        check_dataset(tree, dataset)
+        info = fit_info(tree)
+        lik = Likelihood(model, dataset)
+        vals = _model_values(model, info["map"]["values"])
+        x = simulate(model, vals, lik.input, time_s=dataset.time_s)[0]
+        nz = info["noise"]
+        e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
+        energy = float(np.mean(e * e))
+        bands[label] = band_errors(dataset, x)
+        white[label] = {"ljung_box_p": ljung_box(e)[1], "energy": energy,
+                        "energy_p": float(stats.chi2.sf(energy * e.size, e.size))}
+        innov[label] = e
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the largest Pareto k is kept in the table
+        loos = {label: az.loo(tree, var_name="position_m")
+                for label, tree in zip(labels, fits, strict=True)}
+    for label in labels:
+        elpd_i[label] = np.asarray(loos[label].elpd_i).reshape(-1)
+    best = max(labels, key=lambda k: float(loos[k].elpd))
+    order = sorted(labels, key=lambda k: -float(loos[k].elpd))
+    elpd = {}
+    for label in labels:
+        d = elpd_i[label] - elpd_i[best]
+        elpd[label] = {"elpd": float(loos[label].elpd), "se": float(loos[label].se),
+                       "elpd_diff": float(d.sum()), "dse": float(math.sqrt(d.size * np.var(d))),
+                       "rank": order.index(label),
+                       "max_pareto_k": float(np.max(np.asarray(loos[label].pareto_k)))}
+    steps = []
+    for a, b in zip(labels[:-1], labels[1:], strict=True):
+        d = elpd_i[b] - elpd_i[a]
+        steps.append({"from": a, "to": b, "elpd_diff": float(d.sum()),
+                      "se": float(math.sqrt(d.size * np.var(d)))})
+    return FitComparison(labels=labels, bands=bands, whiteness=white, innovations=innov,
+                         elpd=elpd, elpd_steps=steps,
+                         command_rate=np.gradient(dataset.input[0], dataset.time_s),
+                         dt_s=dataset.dt_s)

@@ -356,6 +356,27 @@ class Model:
             fixed={n: v for n, v in self.fixed.items() if self.parameter(n).vary},
         )
 
+    @classmethod
+    def for_dataset(cls, dataset, effects: Iterable[str | type[Effect] | Effect] | str = ()
+                    ) -> Model:
+        """The model for a data set, on the rig its metadata records.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Data whose ``metadata["rig"]`` (if any) gives the rig; the
+            characterisation rig otherwise.
+        effects : iterable or str
+            Effects to add to the base model.
+
+        Returns
+        -------
+        Model
+        """
+        rig_meta = dataset.metadata.get("rig") if dataset.metadata else None
+        rig = Rig.from_dict(rig_meta) if isinstance(rig_meta, dict) else Rig.characterisation()
+        return cls(effects, rig=rig)
+
     # -- parameter arrays -------------------------------------------------------
     @property
     def defaults(self) -> dict[str, float]:

@@ -14,9 +14,20 @@ matplotlib.use("Agg")  # files only; no display needed
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from pmabayes.criticism import (  # noqa: E402
+    autocorrelation,
+    cross_correlation,
+    instantaneous_frequency,
+)
 from pmabayes.data import Dataset  # noqa: E402
 
-__all__ = ["plot_comparison"]
+__all__ = [
+    "plot_comparison",
+    "plot_band_errors",
+    "plot_residual_signature",
+    "plot_whiteness",
+    "plot_ranking",
+]
 
 
 def plot_comparison(
@@ -85,4 +96,209 @@ def plot_comparison(
     fig.suptitle(f"{Path(src).name}{tag}: measurement and {label}", fontsize=11)
     if path is not None:
         fig.savefig(path, dpi=120)
+    return fig
+
+
+def _band_label(band: tuple[float, float]) -> str:
+    lo, hi = band
+    return "all" if lo == 0.0 and not np.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
+
+
+def plot_band_errors(
+    errors: dict,
+    *,
+    title: str = "",
+    path: str | Path | None = None,
+) -> plt.Figure:
+    """RMS error per frequency band for one or more models, beside the noise floor.
+
+    Parameters
+    ----------
+    errors : dict
+        Label to a list of :class:`pmabayes.criticism.BandError` (same bands for
+        every label, the last one overall), in the order to draw them: for
+        example base, base + one effect, base + two effects.
+    title : str
+        Figure title.
+    path : str or Path, optional
+        Where to save the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    labels = list(errors)
+    bands = [b.band_hz for b in errors[labels[0]]]
+    fig, ax = plt.subplots(figsize=(8.5, 4.6), layout="constrained")
+    width = 0.8 / len(labels)
+    xs = np.arange(len(bands))
+    cmap = plt.get_cmap("viridis")
+    for i, label in enumerate(labels):
+        rms = [b.rms_m * 1e6 for b in errors[label]]
+        bars = ax.bar(xs - 0.4 + width * (i + 0.5), rms, width,
+                      color=cmap(i / max(len(labels) - 1, 1)), label=label)
+        for bar, row in zip(bars, errors[label], strict=True):
+            ax.annotate(f"{row.ratio:.3g}x", (bar.get_x() + bar.get_width() / 2,
+                                               bar.get_height()),
+                        ha="center", va="bottom", fontsize=7, rotation=90,
+                        xytext=(0, 2), textcoords="offset points")
+    floors = [b.floor_m * 1e6 for b in errors[labels[0]]]
+    for x, f in zip(xs, floors, strict=True):
+        ax.hlines(f, x - 0.45, x + 0.45, color="k", lw=2,
+                  label="noise floor" if x == 0 else None)
+    ax.set_yscale("log")
+    ax.set_xticks(xs, [_band_label(b) for b in bands])
+    ax.set_xlabel("instantaneous frequency of the chirp")
+    ax.set_ylabel("RMS error of the trial mean [µm]")
+    ax.set_title(title or "error per frequency band (label: multiple of the floor)",
+                 fontsize=10)
+    fig.legend(loc="outside lower center", ncol=min(len(labels) + 1, 3), fontsize=8)
+    ax.margins(y=0.25)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def plot_residual_signature(
+    dataset: Dataset,
+    simulation,
+    *,
+    label: str = "model",
+    path: str | Path | None = None,
+) -> plt.Figure:
+    """The trial-mean residual against time, frequency, velocity, pressure and position.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data.
+    simulation : pmabayes.simulator.Simulation
+        The model (batch of one) with its states.
+    label : str
+        Name of the model in the title.
+    path : str or Path, optional
+        Where to save the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    resid = (dataset.mean_position_m - simulation.position_m[0]) * 1e6
+    floor = dataset.noise_floor_m * 1e6
+    is_pressure = dataset.input_name == "pressure_pa"
+    against = [
+        ("time [s]", dataset.time_s),
+        ("instantaneous frequency [Hz]", instantaneous_frequency(dataset)),
+        ("model velocity [mm/s]", simulation.velocity_m_s[0] * 1e3),
+        ("model pressure [MPa]" if is_pressure else "input force [N]",
+         simulation.pressure_pa[0] / (1e6 if is_pressure else 1.0)),
+        ("model position [mm]", simulation.position_m[0] * 1e3),
+    ]
+    fig, axes = plt.subplots(1, 5, figsize=(15, 3.4), layout="constrained", sharey=True)
+    step = max(1, resid.size // 4000)
+    for ax, (name, v) in zip(axes, against, strict=True):
+        if name.startswith("time"):
+            ax.plot(v, resid, color="k", lw=0.5)
+        else:
+            ax.scatter(v[::step], resid[::step], s=2, color="k", alpha=0.4, linewidths=0)
+        ax.axhspan(-floor, floor, color="tab:green", alpha=0.3)
+        ax.axhline(0.0, color="tab:gray", lw=0.5)
+        ax.set_xlabel(name)
+    axes[0].set_ylabel("trial mean − model [µm]")
+    rms = float(np.sqrt(np.mean(resid**2)))
+    fig.suptitle(f"where {label} fails: residual (RMS {rms:.3g} µm) against the noise floor "
+                 f"±{floor:.3g} µm (green)", fontsize=10)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def plot_whiteness(
+    innovations: dict,
+    command_rate: np.ndarray,
+    dt_s: float,
+    *,
+    max_lag_s: float = 0.2,
+    level: float = 0.99,
+    path: str | Path | None = None,
+) -> plt.Figure:
+    """Autocorrelation of the whitened residual and its cross-correlation with the input.
+
+    Parameters
+    ----------
+    innovations : dict
+        Label to whitened residual (:func:`pmabayes.criticism.innovations`), one
+        curve per model.
+    command_rate : numpy.ndarray
+        Rate of change of the commanded input.
+    dt_s : float
+        Sample interval.
+    max_lag_s : float
+        Largest lag shown.
+    level : float
+        Confidence level of the bounds for a white, independent residual.
+    path : str or Path, optional
+        Where to save the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    max_lag = max(1, int(round(max_lag_s / dt_s)))
+    fig, (ax_a, ax_c) = plt.subplots(1, 2, figsize=(11, 3.6), layout="constrained")
+    cmap = plt.get_cmap("viridis")
+    labels = list(innovations)
+    bound = 0.0
+    for i, label in enumerate(labels):
+        e = innovations[label]
+        color = cmap(i / max(len(labels) - 1, 1))
+        lags, acf, bound = autocorrelation(e, max_lag=max_lag, level=level)
+        ax_a.plot(lags * dt_s * 1e3, acf, color=color, lw=1.0, label=label)
+        lags_c, ccf, _ = cross_correlation(e, command_rate, max_lag=max_lag, level=level)
+        ax_c.plot(lags_c * dt_s * 1e3, ccf, color=color, lw=1.0, label=label)
+    for ax in (ax_a, ax_c):
+        ax.axhspan(-bound, bound, color="tab:green", alpha=0.3,
+                   label=f"{level:.0%} bound (white)")
+        ax.axhline(0.0, color="tab:gray", lw=0.5)
+        ax.set_xlabel("lag [ms]")
+        ax.legend(fontsize=7)
+    ax_a.set_title("autocorrelation of the whitened residual", fontsize=10)
+    ax_c.set_title("cross-correlation with the earlier command rate", fontsize=10)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def plot_ranking(findings, *, level: float = 0.05, path: str | Path | None = None
+                 ) -> plt.Figure:
+    """Evidence that each candidate effect is missing.
+
+    Parameters
+    ----------
+    findings : list of pmabayes.criticism.Finding
+        The ranking of a diagnosis.
+    level : float
+        Family-wise level; the Bonferroni threshold is drawn.
+    path : str or Path, optional
+        Where to save the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from scipy import stats
+
+    names = [f.effect for f in findings][::-1]
+    values = [max(f.evidence, 1e-3) for f in findings][::-1]
+    colors = ["tab:red" if f.significant else "tab:gray" for f in findings][::-1]
+    fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(names) + 1.2), layout="constrained")
+    ax.barh(names, values, color=colors)
+    threshold = stats.chi2.isf(level / max(len(findings), 1), 1)
+    ax.axvline(threshold, color="k", ls="--", lw=1,
+               label=f"significance threshold (level {level:g}, Bonferroni, 1 dof)")
+    ax.set_xscale("log")
+    ax.set_xlabel("score statistic (evidence that the effect is missing)")
+    ax.legend(fontsize=7, loc="lower right")
+    if path is not None:
+        fig.savefig(path, dpi=110)
     return fig

@@ -35,11 +35,15 @@ import os
 from pathlib import Path
 
 import arviz as az
+import numpy as np
 import xarray as xr
 
+from pmabayes.data import Dataset
 from pmabayes.likelihood import NOISE_PARAMETERS
+from pmabayes.model import Model, Rig
 
-__all__ = ["NOISE_NAMES", "save_fit", "load_fit", "fit_info", "FitFileError"]
+__all__ = ["NOISE_NAMES", "save_fit", "load_fit", "fit_info", "model_from_fit", "check_dataset",
+           "FitFileError"]
 
 #: Names of the noise parameters added to every fit.
 NOISE_NAMES = tuple(p.name for p in NOISE_PARAMETERS)
@@ -125,3 +129,59 @@ def fit_info(tree: xr.DataTree) -> dict:
         return json.loads(tree.attrs["pmabayes"])
     except (KeyError, json.JSONDecodeError) as exc:
         raise FitFileError(f"not a pmabayes fit: {exc}") from None
+
+
+def model_from_fit(tree: xr.DataTree) -> Model:
+    """Rebuild the fitted model (effects, rig, fixed values) from a fit.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    Model
+        Priors are the effects' defaults; user effects must be registered first
+        (``pmabayes --plugin FILE.py`` on the command line).
+    """
+    m = fit_info(tree).get("model") or {}
+    rig = m.get("rig")
+    return Model(list(m.get("effects") or []),
+                 rig=Rig.from_dict(rig) if isinstance(rig, dict) else None,
+                 fixed=m.get("fixed") or None)
+
+
+def check_dataset(tree: xr.DataTree, dataset: Dataset) -> None:
+    """Check that a data set is the one a fit was made from.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+    dataset : Dataset
+        The data.
+
+    Raises
+    ------
+    ValueError
+        If the trials' shape, positions (within 1e-12 m) or times differ.
+    """
+    if not isinstance(dataset, Dataset):
+        raise TypeError(f"dataset must be a pmabayes.data.Dataset, got {type(dataset).__name__}")
+    fit_src = (fit_info(tree).get("data") or {}).get("source") or "the fit"
+    obs = tree["observed_data"]["position_m"].transpose("trial", "time")
+    where = (f"dataset {dataset.source or '(no source)'} does not match the observed data "
+             f"of the fit (made from {fit_src})")
+    if obs.shape != dataset.position_m.shape:
+        raise ValueError(
+            f"{where}: position_m has shape {dataset.position_m.shape} (trials, samples), "
+            f"the fit's has {obs.shape}"
+        )
+    diff = float(np.max(np.abs(np.asarray(obs.values, dtype=float) - dataset.position_m)))
+    if not diff <= 1e-12:
+        raise ValueError(f"{where}: position_m differs by up to {diff:.3g} m (tolerance 1e-12 m)")
+    t = np.asarray(obs["time"].values, dtype=float)
+    t_diff = float(np.max(np.abs(t - dataset.time_s)))
+    if not t_diff <= 1e-12 * max(1.0, float(np.max(np.abs(t)))):
+        raise ValueError(f"{where}: the sample times differ by up to {t_diff:.3g} s")

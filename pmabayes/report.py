@@ -33,9 +33,10 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
 from pmabayes.data import Dataset
-from pmabayes.posterior import FitFileError, fit_info
+from pmabayes.posterior import FitFileError, check_dataset, fit_info
 
-__all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report"]
+__all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
+           "write_comparison"]
 
 #: Keys of a summary row, in CSV column order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -703,27 +704,6 @@ def _img(path: Path, alt: str, caption: str) -> str:
     )
 
 
-def _check_dataset(tree: xr.DataTree, info: dict, dataset: Dataset) -> None:
-    if not isinstance(dataset, Dataset):
-        raise TypeError(f"dataset must be a pmabayes.data.Dataset, got {type(dataset).__name__}")
-    fit_src = (info.get("data") or {}).get("source") or "the fit"
-    obs = tree["observed_data"]["position_m"].transpose("trial", "time")
-    where = (f"dataset {dataset.source or '(no source)'} does not match the observed data "
-             f"of the fit (made from {fit_src})")
-    if obs.shape != dataset.position_m.shape:
-        raise ValueError(
-            f"{where}: position_m has shape {dataset.position_m.shape} (trials, samples), "
-            f"the fit's has {obs.shape}"
-        )
-    diff = float(np.max(np.abs(np.asarray(obs.values, dtype=float) - dataset.position_m)))
-    if not diff <= 1e-12:
-        raise ValueError(f"{where}: position_m differs by up to {diff:.3g} m (tolerance 1e-12 m)")
-    t = np.asarray(obs["time"].values, dtype=float)
-    t_diff = float(np.max(np.abs(t - dataset.time_s)))
-    if not t_diff <= 1e-12 * max(1.0, float(np.max(np.abs(t)))):
-        raise ValueError(f"{where}: the sample times differ by up to {t_diff:.3g} s")
-
-
 def write_report(
     tree: xr.DataTree,
     out_dir: str | Path,
@@ -775,7 +755,7 @@ def write_report(
     ci_prob = _check_ci_prob(ci_prob)
     info = _check_tree(tree, ["posterior", "observed_data", "posterior_predictive"])
     if dataset is not None:
-        _check_dataset(tree, info, dataset)
+        check_dataset(tree, dataset)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
@@ -945,3 +925,206 @@ def _banner(conv: Mapping) -> str:
         "The sampler did not meet its convergence criteria; the intervals below are not "
         f"reliable.{listed}</div>"
     )
+
+
+# ------------------------------------------------------------------- model criticism
+
+
+def _page(title: str, body: Sequence[str]) -> str:
+    return "\n".join([
+        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{html.escape(title)}</title>", f"<style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>", *body, "</body></html>",
+    ]) + "\n"
+
+
+def _synthetic_note(dataset: Dataset) -> str:
+    if not dataset.metadata.get("synthetic"):
+        return ""
+    return ('<p class="note"><strong>Synthetic data.</strong> These measurements were '
+            "simulated, not measured on hardware.</p>")
+
+
+def _band_rows(rows) -> list[list[Any]]:
+    out = []
+    for b in rows:
+        lo, hi = b.band_hz
+        name = "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
+        out.append([name, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, b.floor_m * 1e6, b.ratio])
+    return out
+
+
+_BAND_HEADER = ["band", "RMS [µm]", "normalised RMS", "max [µm]", "floor [µm]", "RMS / floor"]
+
+
+def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
+    """Write the figures, ``diagnosis.json`` and an HTML page of a diagnosis.
+
+    Parameters
+    ----------
+    diagnosis : pmabayes.criticism.Diagnosis
+        The result of :func:`pmabayes.criticism.diagnose`.
+    out_dir : str or Path
+        Destination folder, created if needed. Written: ``comparison.png``,
+        ``bands.png``, ``signature.png``, ``whiteness.png``, ``ranking.png``,
+        ``diagnosis.json`` and ``index.html``.
+
+    Returns
+    -------
+    Path
+        The path of ``index.html`` (self-contained: figures embedded).
+    """
+    import json
+
+    import matplotlib.pyplot as plt
+
+    from pmabayes.plots import (
+        plot_band_errors,
+        plot_comparison,
+        plot_ranking,
+        plot_residual_signature,
+        plot_whiteness,
+    )
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    d = diagnosis
+    ds = d.dataset
+    label = " + ".join(["base", *d.model.effect_names])
+    x = d.simulation.position_m[0]
+    e = d.innovations
+    rate = np.gradient(ds.input[0], ds.time_s)
+    figs = {
+        "comparison": (plot_comparison(ds, x, label=f"{label} (MAP)"),
+                       "Trials, their mean and the model at its MAP; the residual beside the "
+                       "noise floor; the hysteresis loop."),
+        "bands": (plot_band_errors({label: d.signature.bands}),
+                  "RMS error of the trial mean per band of the chirp's instantaneous "
+                  "frequency, with the noise floor (black): the error a perfect model would "
+                  "have, from the spread between the trials."),
+        "signature": (plot_residual_signature(ds, d.simulation, label=label),
+                      "Where the model fails: the residual against time, frequency, velocity, "
+                      "pressure and position."),
+        "whiteness": (plot_whiteness({label: e}, rate, ds.dt_s),
+                      "Whiteness and independence tests: the residual whitened by the noise "
+                      "model should stay inside the bounds at almost every lag."),
+        "ranking": (plot_ranking(d.ranking, level=d.settings["level"]),
+                    "Score-test evidence that each candidate effect is missing (red: "
+                    "significant)."),
+    }
+    for name, (fig, _) in figs.items():
+        fig.savefig(out_dir / f"{name}.png", dpi=_PNG_DPI)
+        plt.close(fig)
+    summary = d.to_dict()
+    (out_dir / "diagnosis.json").write_text(json.dumps(summary, indent=2) + "\n")
+    sig = d.signature
+    cls = "ok" if d.adequate and d.missing is None else "bad"
+    body = [
+        f'<p class="meta">data: <code>{html.escape(ds.source or "(in memory)")}</code> · '
+        f"{ds.n_trials} trials × {ds.n_samples} samples · model: {html.escape(label)} · "
+        f"seed {html.escape(str(d.settings.get('seed')))}</p>",
+        _synthetic_note(ds),
+        f'<div class="banner {cls}">{html.escape(d.verdict)}</div>',
+        "<h2>Compare: error against the noise floor</h2>",
+        _table(_BAND_HEADER, _band_rows(sig.bands)),
+        f"<p>Whitened residual: energy {sig.energy:.4g} (1 for pure noise, p = "
+        f"{sig.energy_p:.2g}); Ljung-Box p = {sig.ljung_box_p:.2g}. "
+        f"Adequate: <strong>{'yes' if d.adequate else 'no'}</strong>.</p>",
+        "<h2>See where it fails</h2>", f"<p>{html.escape(sig.describe())}</p>",
+        "<h2>What is missing: the candidate effects</h2>",
+        "<p>Refitted candidates first (by leave-one-trial-out ELPD), then the others by "
+        "score statistic. Estimates and intervals of refitted candidates come from the "
+        f"refit's MAP and Laplace draws ({d.settings['ci_prob']:.0%} intervals); the others "
+        "are the score test's one-step values.</p>",
+        _table(["effect", "evidence", "p", "significant", "estimate", "interval",
+                "explained", "ΔELPD ± se"],
+               [[f.effect, f.evidence, f.p_value, "yes" if f.significant else "no",
+                 ", ".join(f"{k} = {_fmt(v)}" for k, v in f.estimate.items()),
+                 ", ".join(f"{_fmt(a)} to {_fmt(b)}" for a, b in f.interval.values()),
+                 f"{f.explained:.0%}",
+                 f"{f.refit.elpd_diff:+.1f} ± {f.refit.elpd_diff_se:.1f}" if f.refit else "—"]
+                for f in d.ranking], num_from=1),
+    ]
+    for f in d.ranking:
+        if f.significant:
+            body.append(f"<h3>{html.escape(f.effect)}</h3><p>{html.escape(f.explanation)}</p>")
+    body.append("<h2>Figures</h2>")
+    for name, (_, caption) in figs.items():
+        body.append(_img(out_dir / f"{name}.png", f"{name} plot", caption))
+    index = out_dir / "index.html"
+    index.write_text(_page(f"pmabayes diagnosis: {Path(ds.source or 'data').name}", body),
+                     encoding="utf-8")
+    return index
+
+
+def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None = None
+                     ) -> Path:
+    """Write the error-falling figure, tables and an HTML page of a fit comparison.
+
+    Parameters
+    ----------
+    comparison : pmabayes.criticism.FitComparison
+        From :func:`pmabayes.criticism.compare_fits`.
+    out_dir : str or Path
+        Destination folder. Written: ``error_falling.png``, ``whiteness.png``,
+        ``comparison.json``, ``comparison.md`` and ``index.html``.
+    dataset : Dataset, optional
+        The data, to name it and mark it synthetic.
+
+    Returns
+    -------
+    Path
+        The path of ``index.html``.
+    """
+    import json
+
+    import matplotlib.pyplot as plt
+
+    from pmabayes.plots import plot_band_errors, plot_whiteness
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    c = comparison
+    fig = plot_band_errors(c.bands, title="the error falls as effects are added "
+                                           "(label: multiple of the noise floor)")
+    fig.savefig(out_dir / "error_falling.png", dpi=_PNG_DPI)
+    plt.close(fig)
+    fig = plot_whiteness(c.innovations, c.command_rate, c.dt_s)
+    fig.savefig(out_dir / "whiteness.png", dpi=_PNG_DPI)
+    plt.close(fig)
+    (out_dir / "comparison.json").write_text(json.dumps(c.to_dict(), indent=2) + "\n")
+    bands = [b.band_hz for b in c.bands[c.labels[0]]]
+    band_names = ["all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
+                  for lo, hi in bands]
+    header = ["fit", *[f"RMS {b} [µm]" for b in band_names], "RMS / floor",
+              "Ljung-Box p", "energy", "ELPD (LOO)", "ΔELPD vs best ± se"]
+    rows = [[k, *[b.rms_m * 1e6 for b in c.bands[k]], c.bands[k][-1].ratio,
+             c.whiteness[k]["ljung_box_p"], c.whiteness[k]["energy"], c.elpd[k]["elpd"],
+             f"{c.elpd[k]['elpd_diff']:.1f} ± {c.elpd[k]['dse']:.1f}"] for k in c.labels]
+    rows.append(["noise floor", *[b.floor_m * 1e6 for b in c.bands[c.labels[0]]], 1.0,
+                 "", "", "", ""])
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    md += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in rows]
+    md += ["", "| step | ΔELPD | se |", "|---|---|---|"]
+    md += [f"| {s['from']} → {s['to']} | {s['elpd_diff']:+.1f} | {s['se']:.1f} |"
+           for s in c.elpd_steps]
+    (out_dir / "comparison.md").write_text("\n".join(md) + "\n")
+    name = Path(dataset.source).name if dataset is not None and dataset.source else "data"
+    body = [
+        f'<p class="meta">{len(c.labels)} fits of <code>{html.escape(name)}</code></p>',
+        _synthetic_note(dataset) if dataset is not None else "",
+        "<h2>Error per frequency band, whiteness and ELPD</h2>",
+        _table(header, rows),
+        "<h2>Each step</h2>",
+        _table(["step", "ΔELPD (leave one trial out)", "se"],
+               [[f"{s['from']} → {s['to']}", s["elpd_diff"], s["se"]] for s in c.elpd_steps]),
+        _img(out_dir / "error_falling.png", "error falling",
+             "RMS error of the trial mean per frequency band for each fit, with the noise "
+             "floor (black)."),
+        _img(out_dir / "whiteness.png", "whiteness",
+             "Whitened residual of each fit: autocorrelation and cross-correlation with the "
+             "command's rate, against the bounds for a white residual."),
+    ]
+    index = out_dir / "index.html"
+    index.write_text(_page(f"pmabayes comparison: {name}", body), encoding="utf-8")
+    return index

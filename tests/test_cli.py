@@ -167,3 +167,57 @@ def test_fit_rejects_mpa(tmp_path, capsys):
     path.write_text("\n".join(rows) + "\n")
     assert main(["fit", str(path), "--out", str(tmp_path / "f.nc")]) == 2
     assert "looks like MPa" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def offset_data(tmp_path_factory):
+    """Short data with a hidden 0.5 mm sensor offset."""
+    data = tmp_path_factory.mktemp("offset") / "d.csv"
+    main(["simulate", str(data), "--trials", "4", "--duration", "4", "--seed", "6",
+          "--effect", "position_offset=5e-4"])
+    return data
+
+
+def test_diagnose_writes_json_and_page(offset_data, tmp_path, capsys):
+    out, js = tmp_path / "diag", tmp_path / "diag.json"
+    assert main(["diagnose", str(offset_data), "--out", str(out), "--json", str(js),
+                 "--candidates", "regulator_lag,coulomb_friction,position_offset",
+                 "--quiet"]) == 0
+    summary = json.loads(js.read_text())
+    assert summary["missing"] == "position_offset" and summary["adequate"] is False
+    assert summary["effects"] == [] and summary["rms_m"] > 2 * summary["noise_floor_m"]
+    assert {r["effect"] for r in summary["ranking"]} == {"regulator_lag", "coulomb_friction",
+                                                        "position_offset"}
+    assert "position_offset is missing" in capsys.readouterr().out
+    html = (out / "index.html").read_text()
+    for name in ("bands", "signature", "whiteness", "ranking", "comparison"):
+        assert (out / f"{name}.png").exists()
+    assert html.count("data:image/png;base64,") == 5 and "Synthetic data" in html
+    # the effect added: adequate, nothing missing
+    assert main(["diagnose", str(offset_data), "--effects", "position_offset", "--json", str(js),
+                 "--candidates", "regulator_lag,coulomb_friction", "--quiet"]) == 0
+    summary = json.loads(js.read_text())
+    assert summary["adequate"] is True and summary["missing"] is None
+
+
+def test_compare_two_fits(offset_data, tmp_path, capsys):
+    fits = []
+    for effects in ("", "position_offset"):
+        path = tmp_path / f"fit{len(fits)}.nc"
+        assert main(["fit", str(offset_data), "--out", str(path), "--effects", effects,
+                     "--walkers", "16", "--quiet"]) == 0
+        fits.append(str(path))
+    out = tmp_path / "cmp"
+    assert main(["compare", *fits, "--data", str(offset_data), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "base -> base + position_offset: ELPD +" in text
+    summary = json.loads((out / "comparison.json").read_text())
+    base, added = summary["fits"]
+    assert added["rms_m"] < 0.5 * base["rms_m"] and added["ratio"] < 1.25
+    assert summary["elpd_steps"][0]["elpd_diff"] > 3 * summary["elpd_steps"][0]["se"]
+    assert (out / "error_falling.png").exists() and (out / "index.html").exists()
+    # a fit of other data is refused with one line
+    other = tmp_path / "other.csv"
+    main(["simulate", str(other), "--trials", "4", "--duration", "4", "--seed", "7"])
+    assert main(["compare", *fits, "--data", str(other), "--out", str(out)]) == 2
+    assert "does not match the observed data" in capsys.readouterr().err

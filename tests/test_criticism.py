@@ -182,3 +182,136 @@ def test_a_hidden_user_effect_is_found():
     ranked = rank_effects(lik, noise, values,
                           candidates=(*BUILTINS, "crit_quadratic_drag"))
     assert ranked[0].effect == "crit_quadratic_drag" and ranked[0].significant
+
+
+# ---------------------------------------------------------------------------------
+# the diagnosis loop: fit, criticise, rank, refit, add, watch the error fall
+
+#: hidden effects at sizes a lab would care about, and the parameter to recover
+HIDDEN = [
+    ("regulator_lag", 0.045, "tau_reg"),
+    ("transport_delay", 0.02, "t_delay"),
+    ("coulomb_friction", 0.8, "F_c"),
+    ("cubic_stiffness", 2e4, "K3"),
+    ("pressure_stiffness", 3e-4, "K_p"),
+    ("position_offset", 5e-4, "x_offset"),
+]
+
+
+def diagnosis(ds, effects=(), candidates=BUILTINS, **kw):
+    from pmabayes.criticism import diagnose
+
+    return diagnose(ds, effects=effects, candidates=candidates, seed=0, **kw)
+
+
+@pytest.mark.parametrize(("name", "value", "param"), HIDDEN)
+def test_a_hidden_effect_is_found_added_and_the_error_falls_to_the_floor(name, value, param):
+    ds = generate_chirp_dataset(n_trials=6, seed=3, chirp=RANK_CHIRP, effects={name: value})
+    before = diagnosis(ds, ci_prob=0.99)
+    assert not before.adequate and before.rms_m > 2 * before.noise_floor_m
+    top = before.ranking[0]
+    assert (top.effect, before.missing) == (name, name), before.verdict
+    assert top.significant and top.refit is not None
+    lo, hi = top.interval[param]  # a 99% interval from the refit
+    assert lo < value < hi, (param, value, top.interval)
+    assert name in top.explanation and "floor" in top.explanation
+    after = diagnosis(ds, effects=[name])
+    assert after.adequate and after.missing is None, after.verdict
+    assert after.rms_m <= 1.25 * after.noise_floor_m
+    assert not any(f.significant for f in after.ranking)
+    assert after.rms_m < 0.5 * before.rms_m
+
+
+def test_two_hidden_effects_are_found_one_after_the_other_then_the_loop_stops():
+    ds = generate_chirp_dataset(n_trials=6, seed=7, chirp=RANK_CHIRP,
+                                effects={"regulator_lag": 0.045, "coulomb_friction": 0.8})
+    found, rms = [], []
+    for _ in range(4):
+        d = diagnosis(ds, effects=found)
+        rms.append(d.rms_m)
+        if d.missing is None:
+            break
+        found.append(d.missing)
+    assert found == ["regulator_lag", "coulomb_friction"]
+    assert d.adequate and d.rms_m <= 1.25 * d.noise_floor_m
+    assert rms[0] > rms[1] > rms[2]
+
+
+def test_no_hidden_effect_nothing_flagged():
+    ds = generate_chirp_dataset(n_trials=6, seed=8, chirp=RANK_CHIRP)
+    d = diagnosis(ds)
+    assert d.adequate and d.missing is None
+    assert not any(f.significant for f in d.ranking)
+    assert "adequate" in d.verdict
+
+
+def _ripple(q, x, v, p):
+    k = 2.0 * np.pi / q[1]
+    return q[0] * np.sin(k * x), q[0] * k * np.cos(k * x), 0.0
+
+
+class TestRailRipple(pb.Effect):
+    """A force periodic in position (a guide rail's detents): in no library."""
+
+    __test__ = False
+    name = "test_rail_ripple"
+    stage = "force"
+    parameters = (
+        pb.Parameter("F_r", "N", 1.0, pb.HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+                     description="ripple amplitude"),
+        pb.Parameter("L_r", "m", 0.004, pb.HalfNormal(0.01), bounds=(1e-4, 1.0), null=0.004,
+                     vary=False, description="ripple period"),
+    )
+    description = "Periodic force of the guide rail."
+    physics = staticmethod(_ripple)
+
+
+def test_an_effect_outside_the_library_is_flagged_but_not_attributed():
+    from pmabayes.synthetic import MeasurementNoise
+
+    clean = generate_chirp_dataset(n_trials=6, seed=5, chirp=RANK_CHIRP, noise=None)
+    model = pb.Model([TestRailRipple])  # never registered: only this test knows it
+    x = pb.simulate(model, {"F_r": 2.0}, clean.input[0], time_s=clean.time_s)[0]
+    noisy = MeasurementNoise().apply(np.repeat(x[None], 6, axis=0), clean.dt_s,
+                                     np.random.default_rng(5))
+    ds = Dataset(time_s=clean.time_s, input=clean.input, position_m=noisy,
+                 trial_ids=clean.trial_ids, input_name=clean.input_name,
+                 metadata={**clean.metadata, "description": "base model plus a rail ripple"})
+    d = diagnosis(ds)
+    assert not d.adequate and d.rms_m > 5 * d.noise_floor_m
+    assert d.missing is None
+    assert "no candidate is named" in d.verdict
+
+
+def test_a_hidden_user_effect_is_diagnosed():
+    ds = generate_chirp_dataset(n_trials=6, seed=4, chirp=RANK_CHIRP,
+                                effects={"crit_quadratic_drag": 300.0})
+    d = diagnosis(ds, candidates=(*BUILTINS, "crit_quadratic_drag"))
+    assert d.missing == "crit_quadratic_drag" and d.ranking[0].effect == "crit_quadratic_drag"
+    assert "Drag growing" in d.ranking[0].explanation
+
+
+def test_diagnosis_json_has_the_documented_keys():
+    import json
+
+    ds = generate_chirp_dataset(n_trials=6, seed=9, chirp=RANK_CHIRP,
+                                effects={"position_offset": 5e-4})
+    d = diagnosis(ds, max_refits=1)
+    out = json.loads(json.dumps(d.to_dict()))
+    for key in ("effects", "rms_m", "noise_floor_m", "adequate", "missing", "ranking"):
+        assert key in out
+    assert out["missing"] == "position_offset" and out["effects"] == []
+    row = out["ranking"][0]
+    for key in ("effect", "evidence", "significant", "estimate", "interval", "explanation"):
+        assert key in row
+    lo, hi = row["interval"]["x_offset"]
+    assert lo < row["estimate"]["x_offset"] < hi and hi - lo < 1e-4
+
+
+def test_diagnose_rejects_bad_settings(perfect):
+    from pmabayes.criticism import diagnose
+
+    with pytest.raises(ValueError, match="ci_prob"):
+        diagnose(perfect[0], ci_prob=1.5)
+    with pytest.raises(TypeError):
+        diagnose(perfect[0], bogus=1)
