@@ -104,11 +104,11 @@ def _discretise(mass, damping, stiffness, dt, out):
     out[7] = e[1, 3]
 
 
-def _bw_rate_lines(z: str, dx: str) -> list[str]:
+def _bw_rate_lines(z: str, dx: str, cst: str = "cst") -> list[str]:
     """Code setting ``c`` and ``kz = dz/dx`` at ``z`` for motion in the direction of ``dx``."""
     return [
-        f"c = cst[9, i] * (1.0 if {dx} * {z} >= 0.0 else -1.0) + cst[10, i]",
-        f"kz = cst[8, i] - c * abs({z})",
+        f"c = {cst}[9, i] * (1.0 if {dx} * {z} >= 0.0 else -1.0) + {cst}[10, i]",
+        f"kz = {cst}[8, i] - c * abs({z})",
     ]
 
 
@@ -128,7 +128,7 @@ def _phi_lines(y: str, out: str) -> list[str]:
     ]
 
 
-def _bw_update_lines(z: str, dx: str, out: str) -> list[str]:
+def _bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
     """Code setting ``out`` to the exact Bouc-Wen ``z`` after displacement ``dx``.
 
     Emitted inline (a call would stop the batch loop from vectorising); uses ``c``
@@ -154,10 +154,10 @@ def _bw_update_lines(z: str, dx: str, out: str) -> list[str]:
         "1 / 30240 - y02 / 1209600)))",
         f"rem = {dx} - d0",
         f"cross = ({z} * {dx} < 0.0) & (kz > 0.0) & (abs({dx}) > abs(d0))",
-        "c2 = cst[9, i] + cst[10, i]",
+        f"c2 = {cst}[9, i] + {cst}[10, i]",
     ]
     lines += _phi_lines("-c2 * abs(rem)", "ph2")
-    lines += [f"{out} = rem * cst[8, i] * ph2 if cross else z_nc"]
+    lines += [f"{out} = rem * {cst}[8, i] * ph2 if cross else z_nc"]
     return lines
 
 
@@ -182,56 +182,147 @@ def _inlined(dispatcher):
     return numba.njit(inline="always", error_model="numpy")(fn)
 
 
-def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict]:
-    """Source of the kernel for ``model`` and the globals it needs injected."""
-    slices = model.effect_slices()
-    pressure = [(e, s) for e, s in slices if e.stage == "pressure"]
-    force = [(e, s) for e, s in slices if e.stage == "force"]
-    measure = [(e, s) for e, s in slices if e.stage == "measurement"]
-    dead_zone = model.rig.input_kind == "pressure"
-    # force physics is inlined at numba's IR level so the batch loop can vectorise
-    inject = {
-        f"_eff{j}": (_inlined(e.physics) if e.stage == "force" else e.physics)
-        for j, (e, _) in enumerate(slices)
-    }
-    name_of = {e: f"_eff{j}" for j, (e, _) in enumerate(slices)}
+class _PlantCode:
+    """Generated source lines of one model's physics, for kernels built from them.
 
-    def actuator(p: str) -> str:
-        if dead_zone:
-            return f"area * max({p} - cst[11, i], 0.0) - f_grav"
+    The open-loop kernel below and the closed loop in :mod:`pmabayes.control` are
+    generated from these same lines, so the two integrate the plant identically.
+    Names in the emitted code: ``theta`` (the ``(batch, n_parameters)`` array) and
+    ``cst`` (per-member constants, rows: 8 discretisation coefficients, alpha,
+    beta, gamma, p_dz) can be renamed so that two models share one kernel; ``i`` is
+    the batch member; ``mass``, ``f_grav``, ``area``, ``dt`` and ``substeps`` are
+    kernel arguments.
+    """
+
+    def __init__(self, model: Model, *, theta: str = "theta", cst: str = "cst",
+                 prefix: str = "_eff") -> None:
+        self.model = model
+        self.theta = theta
+        self.cst = cst
+        slices = model.effect_slices()
+        self.pressure = [(e, s) for e, s in slices if e.stage == "pressure"]
+        self.force = [(e, s) for e, s in slices if e.stage == "force"]
+        self.measure = [(e, s) for e, s in slices if e.stage == "measurement"]
+        self.dead_zone = model.rig.input_kind == "pressure"
+        # force physics is inlined at numba's IR level so the batch loop can vectorise
+        self.inject = {
+            f"{prefix}{j}": (_inlined(e.physics) if e.stage == "force" else e.physics)
+            for j, (e, _) in enumerate(slices)
+        }
+        self.name_of = {e: f"{prefix}{j}" for j, (e, _) in enumerate(slices)}
+
+    def q(self, e) -> str:
+        """Name of the contiguous parameter rows of force effect ``e``."""
+        return f"q{self.name_of[e]}"
+
+    def setup(self) -> list[str]:
+        """Lines filling ``cst`` and the force effects' parameter rows."""
+        t, c = self.theta, self.cst
+        lines = [
+            f"{c} = np.empty((12, {t}.shape[0]))",
+            "col = np.empty(8)",
+            f"for i in range({t}.shape[0]):",
+            # alpha (the hysteresis' initial stiffness) joins the exact linear part; only
+            # the remainder r = z - alpha x is taken as linear in time over a step
+            f"    _discretise(mass, {t}[i, 3], {t}[i, 4] + {t}[i, 0], dt / substeps, col)",
+            f"    {c}[:8, i] = col",
+            f"    {c}[8, i] = {t}[i, 0]",
+            f"    {c}[9, i] = {t}[i, 1]",
+            f"    {c}[10, i] = {t}[i, 2]",
+            f"    {c}[11, i] = {t + '[i, 5]' if self.dead_zone else '0.0'}",
+        ]
+        # contiguous per-effect parameter rows: a strided slice defeats vectorisation
+        lines += [f"{self.q(e)} = {t}[:, {s.start}:{s.stop}].copy()" for e, s in self.force]
+        return lines
+
+    def actuator(self, p: str) -> str:
+        """Expression of the actuator force minus gravity at pressure ``p``."""
+        if self.dead_zone:
+            return f"area * max({p} - {self.cst}[11, i], 0.0) - f_grav"
         return f"area * {p} - f_grav"
 
-    def eval_forces(x: str, v: str, p: str, out: str, derivs: bool) -> list[str]:
+    def forces(self, x: str, v: str, p: str, out: str, derivs: bool) -> list[str]:
+        """Lines summing the force effects into ``out`` (and ``out_x``, ``out_v``)."""
         lines = [f"{out} = 0.0"] + ([f"{out}_x = 0.0", f"{out}_v = 0.0"] if derivs else [])
-        for e, _ in force:
-            lines.append(f"r = {name_of[e]}(q_{name_of[e]}[i], {x}, {v}, {p})")
+        for e, _ in self.force:
+            lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p})")
             lines.append(f"{out} += r[0]")
             if derivs:
                 lines += [f"{out}_x += r[1]", f"{out}_v += r[2]"]
         return lines
+
+    def rest(self, p: str, out: str) -> list[str]:
+        """Lines setting ``out`` to the static equilibrium with ``z = 0`` at pressure ``p``."""
+        k_e = f"{self.theta}[i, 4]"
+        lines = [f"rhs = {self.actuator(p)}", f"{out} = rhs / {k_e}"]
+        if self.force:  # static equilibrium with z = 0 under nonlinear force effects
+            lines += ["for it in range(50):"]
+            lines += ["    " + ln for ln in self.forces(out, "0.0", p, "fe", True)]
+            lines += [
+                f"    step = ({k_e} * {out} + fe - rhs) / ({k_e} + fe_x)",
+                f"    {out} -= step",
+                f"    if abs(step) <= 1e-15 * (1.0 + abs({out})):",
+                "        break",
+            ]
+        return lines
+
+    def step(self, p_start: str, p_end: str, x0: str, v0: str, z0: str,
+             x1: str, v1: str, z1: str) -> list[str]:
+        """Lines advancing the state over one step with pressure from ``p_start`` to ``p_end``."""
+        c = self.cst
+        step = [
+            f"r0 = {z0} - {c}[8, i] * {x0}",
+            f"fs = {self.actuator(p_start)}",
+            f"fe = {self.actuator(p_end)}" if p_end != p_start else "fe = fs",
+        ]
+        if self.force:
+            step += self.forces(x0, v0, p_end, "efs", True)
+            if p_end != p_start:
+                step += self.forces(x0, v0, p_start, "ef0", False)
+            else:
+                step += ["ef0 = efs"]
+            step += ["g0 = fs - r0 - ef0", "gs = fe - r0 - efs"]
+        else:
+            step += ["g0 = fs - r0", "gs = fe - r0"]
+        step += [
+            f"xs = {c}[0, i] * {x0} + {c}[1, i] * {v0} + {c}[4, i] * g0 + {c}[6, i] * (gs - g0)",
+            f"vs = {c}[2, i] * {x0} + {c}[3, i] * {v0} + {c}[5, i] * g0 + {c}[7, i] * (gs - g0)",
+            f"dxs = xs - {x0}",
+        ]
+        step += _bw_rate_lines(z0, "dxs", c)
+        # The end-of-step force (z and effects) is linearly implicit; z then advances
+        # exactly over the displacement dx, and x1 = x0 + dx keeps z and x consistent,
+        # so the rate-independent hysteresis cannot drift.
+        # s is the end-of-step increment of the remainder force r (and of the effects)
+        if self.force:
+            step += [
+                f"ax = kz - {c}[8, i] + efs_x",
+                f"s = (ax * dxs + efs_v * (vs - {v0})) / (1.0 + {c}[6, i] * ax + {c}[7, i] "
+                "* efs_v)",
+                f"dx = dxs - {c}[6, i] * s",
+            ]
+            step += _bw_update_lines(z0, "dx", z1, c)
+            step += [f"s += ({z1} - {z0}) - kz * dx"]
+        else:
+            step += [f"dx = dxs / (1.0 + {c}[6, i] * (kz - {c}[8, i]))"]
+            step += _bw_update_lines(z0, "dx", z1, c)
+            step += [f"s = {z1} - {z0} - {c}[8, i] * dx"]
+        step += [f"{x1} = {x0} + dx", f"{v1} = vs - {c}[7, i] * s"]
+        return step
+
+
+def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict]:
+    """Source of the kernel for ``model`` and the globals it needs injected."""
+    plant = _PlantCode(model)
+    pressure, measure = plant.pressure, plant.measure
+    name_of = plant.name_of
 
     args = "theta, p_in, time_s, dt, substeps, mass, f_grav, area, out_x"
     if record:
         args += ", out_v, out_z, out_p, out_f, out_true"
     # Few distinct arrays keep the vectoriser's runtime alias checks cheap: all
     # per-member constants live in rows of `cst`, the state in rows of `st`.
-    body = [
-        "n = out_x.shape[0]",
-        "batch = theta.shape[0]",
-        "cst = np.empty((12, batch))",
-        "col = np.empty(8)",
-        "for i in range(batch):",
-        # alpha (the hysteresis' initial stiffness) joins the exact linear part; only
-        # the remainder r = z - alpha x is taken as linear in time over a step
-        "    _discretise(mass, theta[i, 3], theta[i, 4] + theta[i, 0], dt / substeps, col)",
-        "    cst[:8, i] = col",
-        "    cst[8, i] = theta[i, 0]",
-        "    cst[9, i] = theta[i, 1]",
-        "    cst[10, i] = theta[i, 2]",
-        f"    cst[11, i] = {'theta[i, 5]' if dead_zone else '0.0'}",
-    ]
-    # contiguous per-effect parameter rows: a strided slice of theta defeats vectorisation
-    body += [f"q_{name_of[e]} = theta[:, {s.start}:{s.stop}].copy()" for e, s in force]
+    body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
     # the pressure path goes through `pp` (start and end value of each interval);
     # only a shared input without pressure effects skips it
     fill = [
@@ -262,67 +353,15 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
     shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
 
     def loops(p_start: str, p_end: str, p_next: str, p_first: str) -> list[str]:
-        out = [
-            "for i in range(batch):",
-            f"    p0 = {p_first}",
-            f"    rhs = {actuator('p0')}",
-            "    xi = rhs / theta[i, 4]",
-        ]
-        if force:  # static equilibrium with z = 0 under nonlinear force effects
-            out += ["    for it in range(50):"]
-            out += ["        " + ln for ln in eval_forces("xi", "0.0", "p0", "fe", True)]
-            out += [
-                "        step = (theta[i, 4] * xi + fe - rhs) / (theta[i, 4] + fe_x)",
-                "        xi -= step",
-                "        if abs(step) <= 1e-15 * (1.0 + abs(xi)):",
-                "            break",
-            ]
+        out = ["for i in range(batch):", f"    p0 = {p_first}"]
+        out += ["    " + ln for ln in plant.rest("p0", "xi")]
         out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
         if record:
             out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
-            out += ["    " + ln for ln in eval_forces("xi", "0.0", "p0", "f0", False)]
+            out += ["    " + ln for ln in plant.forces("xi", "0.0", "p0", "f0", False)]
             out += ["    out_f[0, i] = f0"]
-        step = [
-            "x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]",
-            "r0 = z0 - cst[8, i] * x0",
-            f"fs = {actuator(p_start)}",
-            f"fe = {actuator(p_end)}" if p_end != p_start else "fe = fs",
-        ]
-        if force:
-            step += eval_forces("x0", "v0", p_end, "efs", True)
-            if p_end != p_start:
-                step += eval_forces("x0", "v0", p_start, "ef0", False)
-            else:
-                step += ["ef0 = efs"]
-            step += ["g0 = fs - r0 - ef0", "gs = fe - r0 - efs"]
-        else:
-            step += ["g0 = fs - r0", "gs = fe - r0"]
-        step += [
-            "xs = cst[0, i] * x0 + cst[1, i] * v0 + cst[4, i] * g0 + cst[6, i] * (gs - g0)",
-            "vs = cst[2, i] * x0 + cst[3, i] * v0 + cst[5, i] * g0 + cst[7, i] * (gs - g0)",
-            "dxs = xs - x0",
-        ]
-        step += _bw_rate_lines("z0", "dxs")
-        # The end-of-step force (z and effects) is linearly implicit; z then advances
-        # exactly over the displacement dx, and x1 = x0 + dx keeps z and x consistent,
-        # so the rate-independent hysteresis cannot drift.
-        # s is the end-of-step increment of the remainder force r (and of the effects)
-        if force:
-            step += [
-                "ax = kz - cst[8, i] + efs_x",
-                "s = (ax * dxs + efs_v * (vs - v0)) / (1.0 + cst[6, i] * ax + cst[7, i] * efs_v)",
-                "dx = dxs - cst[6, i] * s",
-            ]
-            step += _bw_update_lines("z0", "dx", "z1")
-            step += ["s += (z1 - z0) - kz * dx"]
-        else:
-            step += ["dx = dxs / (1.0 + cst[6, i] * (kz - cst[8, i]))"]
-            step += _bw_update_lines("z0", "dx", "z1")
-            step += ["s = z1 - z0 - cst[8, i] * dx"]
-        step += [
-            "x1 = x0 + dx",
-            "v1 = vs - cst[7, i] * s",
-        ]
+        step = ["x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]"]
+        step += plant.step(p_start, p_end, "x0", "v0", "z0", "x1", "v1", "z1")
         step += ["st[0, i] = x1; st[1, i] = v1; st[2, i] = z1"]
         sample = ["out_x[k + 1, i] = st[0, i]"]
         if record:
@@ -331,7 +370,7 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
                 "out_z[k + 1, i] = st[2, i]",
                 f"out_p[k + 1, i] = {p_next}",
             ]
-            sample += eval_forces("st[0, i]", "st[1, i]", p_next, "fn", False)
+            sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False)
             sample += ["out_f[k + 1, i] = fn"]
         out += ["for k in range(n - 1):"]
         if p_start == "pk":
@@ -360,12 +399,12 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
     text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
     text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
     text += f"FASTMATH = set({sorted(_FASTMATH)!r})\n"
-    for g in inject:
+    for g in plant.inject:
         text += f"{g} = None  # injected before the first call\n"
     text += "\n\n@njit(cache=True, fastmath=FASTMATH, error_model='numpy')\n"
     text += f"def kernel({args}):\n"
     text += _indent(body, 4) + "\n"
-    return text, inject
+    return text, plant.inject
 
 
 def cache_dir() -> Path:
@@ -429,7 +468,20 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True)
     with _LOCK:
         if key in _KERNELS:
             return _KERNELS[key]
-        text, inject = _generate(model, record, shared_input)
+    text, inject = _generate(model, record, shared_input)
+    return _compile(key, text, inject)
+
+
+def _compile(key: tuple, text: str, inject: dict, name: str = "kernel"):
+    """Compile generated source (module-level function ``name``), cached on disk and in memory.
+
+    Shared by every generated kernel (here and in :mod:`pmabayes.control`); the file
+    name hashes the source, the helpers it calls and the library versions, so a
+    change to any of them compiles afresh.
+    """
+    with _LOCK:
+        if key in _KERNELS:
+            return _KERNELS[key]
         fingerprint = text + _source_fingerprint(_discretise)
         fingerprint += "".join(_source_fingerprint(f) for f in inject.values())
         fingerprint += numba.__version__ + np.__version__ + sys.version
@@ -454,8 +506,8 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True)
         spec.loader.exec_module(module)
         for g, fn in inject.items():
             setattr(module, g, fn)
-        _KERNELS[key] = module.kernel
-        return module.kernel
+        _KERNELS[key] = getattr(module, name)
+        return _KERNELS[key]
 
 
 # ---------------------------------------------------------------------------------
