@@ -268,6 +268,8 @@ class ClosedLoop:
         Controller output, held between controller samples.
     initial_pressure_pa : numpy.ndarray
         The pressure the plant rests under at the start ``(batch,)``.
+    metadata : dict
+        The timing, the gains of each run and the computed torque's prediction time.
     """
 
     time_s: np.ndarray
@@ -758,8 +760,11 @@ def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np
     err = pos - ref
     om = 2 * np.pi * frequency_hz
     basis = np.column_stack([np.ones_like(t), np.sin(om * t), np.cos(om * t)])
-    coef_r = np.linalg.lstsq(basis, ref.T, rcond=None)[0]
-    coef_y = np.linalg.lstsq(basis, pos.T, rcond=None)[0]
+    # least squares by the pseudo-inverse, row by row, so a run's numbers do not depend
+    # on the batch it came in (a multi-column LAPACK or BLAS call may block differently)
+    proj = np.linalg.pinv(basis)
+    coef_r = np.stack([(ref * proj[j]).sum(axis=1) for j in range(3)])
+    coef_y = np.stack([(pos * proj[j]).sum(axis=1) for j in range(3)])
     amp_r = np.hypot(coef_r[1], coef_r[2])
     amp_y = np.hypot(coef_y[1], coef_y[2])
     lag = np.degrees(np.arctan2(coef_r[2], coef_r[1]) - np.arctan2(coef_y[2], coef_y[1]))
@@ -903,7 +908,8 @@ def track(frequency_hz: float, *, controllers: Sequence[str] = CONTROLLERS,
 
 
 def figure5(out_path=None, *, model: Model | None = None,
-            params: Mapping[str, float] | None = None,
+            params: Mapping[str, float] | None = None, plant_model: Model | None = None,
+            plant_params: Mapping[str, float] | None = None,
             frequencies_hz: Sequence[float] = (0.5, 1.0, 2.0),
             duration_s: float = 10.0) -> dict:
     """Reproduce the paper's Fig. 5 and check its claims.
@@ -913,9 +919,15 @@ def figure5(out_path=None, *, model: Model | None = None,
     out_path : str or Path, optional
         Where to write the figure (PNG); no figure if None.
     model : Model, optional
-        Plant and controller model; the base model on :meth:`Rig.control` by default.
+        The controller's model (and the plant's unless ``plant_model`` is given); the
+        base model on :meth:`Rig.control` by default.
     params : mapping, optional
         Its parameters; the paper's values by default.
+    plant_model : Model, optional
+        A plant that differs from the controller's model, e.g. with a regulator lag
+        the model lacks.
+    plant_params : mapping, optional
+        The plant's parameters (the model's defaults for those not given).
     frequencies_hz : sequence of float
         The panels' frequencies (the paper's 0.5, 1 and 2 Hz).
     duration_s : float
@@ -929,11 +941,15 @@ def figure5(out_path=None, *, model: Model | None = None,
     """
     model = _nominal_model(model)
     theta = model.theta(params)
+    if plant_model is None:
+        plant_model, theta_p = model, theta
+    else:
+        theta_p = plant_model.theta(plant_params)
     freqs = [float(f) for f in frequencies_hz]
     names = [c for _ in freqs for c in CONTROLLERS]
     fr = np.repeat(freqs, len(CONTROLLERS))
     batch = len(names)
-    run = closed_loop_batch(model, np.repeat(theta, batch, axis=0), model,
+    run = closed_loop_batch(plant_model, np.repeat(theta_p, batch, axis=0), model,
                             np.repeat(theta, batch, axis=0), fr, names, duration_s=duration_s)
     metrics: dict[float, dict[str, dict[str, float]]] = {}
     for j, (f, c) in enumerate(zip(fr, names, strict=True)):

@@ -20,6 +20,8 @@ MODULES = [
     "pmabayes.criticism",
     "pmabayes.plots",
     "pmabayes.report",
+    "pmabayes.control",
+    "pmabayes.robustness",
     "pmabayes.cli",
 ]
 # missing docstring or summary, parameters undocumented or unknown, returns undocumented

@@ -1,0 +1,306 @@
+"""Closed-loop control: controllers, the multi-rate loop, metrics, sweeps and the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from pmabayes import Model, Rig, simulate
+from pmabayes.cli import main
+from pmabayes.control import (
+    DEFAULT_GAINS,
+    OPERATING_OFFSET_M,
+    REFERENCE_AMPLITUDE_M,
+    REFERENCE_MEAN_M,
+    ControlError,
+    closed_loop,
+    figure5,
+    operating_offset_m,
+    track,
+    tracking_metrics,
+    tune_gains,
+)
+from pmabayes.posterior import save_fit
+from pmabayes.robustness import (
+    METRICS,
+    robustness_sweep,
+    summarise_robustness,
+    write_robustness,
+)
+
+CONTROL = Model(rig=Rig.control())
+
+
+def fake_fit(path, *, spread=0.01, n_chain=4, n_draw=25, seed=0, effects=(), values=None):
+    """A fit file with the layout of `pmabayes fit`, draws scattered around the paper's values."""
+    rng = np.random.default_rng(seed)
+    model = Model(list(effects))
+    centre = {**model.defaults, **(values or {})}
+    post = {n: (("chain", "draw"), centre[n] * (1 + spread * rng.standard_normal(
+        (n_chain, n_draw)))) for n in model.free_names}
+    post["sigma_noise_m"] = (("chain", "draw"), np.full((n_chain, n_draw), 5e-5))
+    tree = xr.DataTree.from_dict({"posterior": xr.Dataset(post)})
+    tree.attrs["pmabayes"] = json.dumps({"model": {
+        "effects": list(effects), "rig": Rig.characterisation().to_dict(),
+        "free": list(model.free_names), "fixed": dict(model.fixed)}})
+    return save_fit(tree, path)
+
+
+# -- the operating point ------------------------------------------------------------
+
+
+def test_operating_point_keeps_the_trough_above_the_sag():
+    sag = -Rig.control().gravity_force_n / CONTROL.defaults["K_e"]
+    trough = REFERENCE_MEAN_M - REFERENCE_AMPLITUDE_M
+    assert 8.8e-3 < sag < 9.0e-3
+    assert trough == pytest.approx(sag + 0.005, abs=1e-4)
+    assert OPERATING_OFFSET_M == operating_offset_m() == pytest.approx(0.0315)
+
+
+# -- the closed loop ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("controller", ["pid", "ct"])
+def test_nominal_loop_is_stable_and_tracks(controller):
+    run = closed_loop(controller, 0.5)
+    x = run.position_m[0]
+    assert np.all(np.isfinite(x))
+    m = tracking_metrics(run.time_s, run.reference_m, run.position_m, 0.5)
+    assert m["rms_error_m"][0] < 2e-3  # under 10% of the 22.5 mm amplitude
+    assert 0.9 < m["amplitude_ratio"][0] < 1.1
+    assert abs(m["phase_lag_deg"][0]) < 10
+    # it settles: the last two periods agree with each other
+    last, before = x[-2000:], x[-4000:-2000]
+    assert np.max(np.abs(last - before)) < 5e-4
+    assert np.all((run.command_pa >= 0) & (run.command_pa <= 0.9e6))
+
+
+def test_computed_torque_beats_pid_on_the_nominal_model():
+    result = track(1.0)
+    ct, pid = result["controllers"]["ct"], result["controllers"]["pid"]
+    assert ct["rms_error_m"] < pid["rms_error_m"]
+
+
+def test_multirate_timing():
+    run = closed_loop("ct", 1.0, duration_s=3.0)
+    cmd, u = run.command_pa[0], run.controller_output_pa[0]
+    k_cmd = np.nonzero(np.diff(cmd))[0] + 1
+    k_u = np.nonzero(np.diff(u))[0] + 1
+    assert len(k_cmd) > 30 and len(k_u) > 150  # both really move
+    assert np.all(k_cmd % 50 == 0)  # 20 Hz regulator command, held
+    assert np.all(k_u % 10 == 0)  # 100 Hz controller
+    # the command is the controller output sampled at the 20 Hz instants
+    ticks = np.arange(0, len(cmd), 50)
+    np.testing.assert_array_equal(cmd[ticks], u[ticks])
+    assert np.any(cmd[ticks[:-1] + 10] != u[ticks[:-1] + 10])
+    # the reading is quantised to the encoder's counts and held between controller samples
+    counts = run.measured_m[0] * (2000 / 0.0254)
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+    assert np.all(np.nonzero(np.diff(run.measured_m[0]))[0] % 10 == 9)
+
+
+@pytest.mark.parametrize("effects,params", [
+    ([], {}),
+    (["regulator_lag", "coulomb_friction", "position_offset"],
+     {"tau_reg": 0.04, "F_c": 0.8, "x_offset": 3e-4}),
+    (["transport_delay", "cubic_stiffness"], {"t_delay": 0.0235, "K3": 2e4}),
+])
+@pytest.mark.parametrize("controller", ["pid", "ct"])
+def test_closed_loop_plant_equals_open_loop_replay(effects, params, controller):
+    model = Model(effects, rig=Rig.control())
+    run = closed_loop(controller, 1.0, model=model, params=params, duration_s=4.0)
+    pre = 2000  # rest under the initial pressure before the loop starts
+    u = np.concatenate([np.full(pre, run.initial_pressure_pa[0]), run.command_pa[0]])
+    sim = simulate(model, params, u, dt_s=1e-3, states=True)
+    np.testing.assert_allclose(sim.true_position_m[0, pre:], run.position_m[0], rtol=0,
+                               atol=1e-12)
+
+
+def test_mismatched_controller_model_changes_only_ct():
+    plant = Model(["regulator_lag"], rig=Rig.control())
+    a = closed_loop("ct", 1.0, model=plant, params={"tau_reg": 0.045}, controller_model=CONTROL,
+                    controller_params={}, duration_s=4.0)
+    b = closed_loop("ct", 1.0, model=plant, params={"tau_reg": 0.045}, duration_s=4.0)
+    assert a.metadata["prediction_s"][0] == pytest.approx(0.025)
+    assert b.metadata["prediction_s"][0] == pytest.approx(0.025 + 0.045)
+    assert not np.allclose(a.position_m, b.position_m)
+
+
+# -- metrics on known signals ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("ratio,lag_deg", [(0.8, 30.0), (1.1, 0.0), (0.5, 200.0), (1.0, -20.0)])
+def test_metrics_exact_on_sinusoids(ratio, lag_deg):
+    f, amp, mean = 1.3, 0.02, 0.03
+    t = np.arange(0, 10.001, 1e-3)
+    w = 2 * np.pi * f
+    ref = mean + amp * np.sin(w * t)
+    y = mean + ratio * amp * np.sin(w * t - np.radians(lag_deg))
+    m = tracking_metrics(t, ref, y, f)
+    assert m["amplitude_ratio"][0] == pytest.approx(ratio, rel=1e-9)
+    assert m["phase_lag_deg"][0] == pytest.approx(lag_deg, abs=1e-7)
+    assert m["overshoot_pct"][0] == pytest.approx(100 * (ratio - 1), abs=1e-3)
+    err_amp = amp * abs(ratio * np.exp(-1j * np.radians(lag_deg)) - 1)
+    # 1.3 Hz is not a whole number of samples per period: RMS and maximum to 1e-4
+    assert m["rms_error_m"][0] == pytest.approx(err_amp / np.sqrt(2), rel=1e-4)
+    assert m["max_error_m"][0] == pytest.approx(err_amp, rel=1e-4)
+
+
+def test_metrics_window_is_whole_periods_after_startup():
+    f = 0.25
+    t = np.arange(0, 10.001, 1e-3)
+    ref = np.sin(2 * np.pi * f * t)
+    y = ref.copy()
+    y[t < 5.999] += 1.0  # the start-up and the first kept... only before the window
+    m = tracking_metrics(t, ref, y, f)  # window: the last whole 4 s period, 6-10 s
+    assert m["rms_error_m"][0] < 1e-12
+    with pytest.raises(ControlError, match="no whole period"):
+        tracking_metrics(t[:3000], ref[:3000], y[:3000], f)
+    with pytest.raises(ControlError, match="> 0"):
+        tracking_metrics(t, ref, y, 0.0)
+
+
+# -- gains --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("controller", ["ct", "pid"])
+def test_gain_rule_reproduces_the_defaults(controller):
+    assert tune_gains(controller) == pytest.approx(DEFAULT_GAINS[controller], rel=1e-12)
+
+
+# -- errors -------------------------------------------------------------------------
+
+
+def test_bad_input_is_refused_clearly():
+    with pytest.raises(ControlError, match="unknown controller 'lqr'"):
+        closed_loop("lqr", 1.0)
+    with pytest.raises(ControlError, match="frequency must be > 0"):
+        closed_loop("pid", 0.0)
+    with pytest.raises(ControlError, match="frequency must be > 0"):
+        track(-1.0)
+    with pytest.raises(ControlError, match="unknown ct gains"):
+        closed_loop("ct", 1.0, gains={"ct": {"ki": 1.0}})
+    with pytest.raises(TypeError):
+        closed_loop("pid", 1.0, frequency=2.0)
+    with pytest.raises(ControlError, match="pressure-driven"):
+        closed_loop("pid", 1.0, model=Model(rig=Rig.force_oscillator(1.0)))
+
+
+# -- robustness sweeps ----------------------------------------------------------------
+
+
+SMALL = {"samples": 3, "frequencies_hz": (0.5, 2.0), "duration_s": 4.0, "progress": False}
+
+
+def test_sweep_same_seed_same_numbers_however_chunked(tmp_path):
+    path = fake_fit(tmp_path / "fit.nc")
+    a = robustness_sweep(path, seed=7, chunk_size=5, processes=1, **SMALL)
+    b = robustness_sweep(path, seed=7, chunk_size=12, processes=1, **SMALL)
+    c = robustness_sweep(path, seed=8, chunk_size=12, processes=1, **SMALL)
+    assert a["rms_error_m"].dims == ("sample", "frequency", "controller")
+    assert a["rms_error_m"].shape == (3, 2, 2)
+    for m in METRICS:
+        np.testing.assert_array_equal(a[m].values, b[m].values)
+        assert np.all(np.isfinite(a[m].values))
+    assert not np.array_equal(a["sample_parameters"].values, c["sample_parameters"].values)
+    summary = summarise_robustness(a)
+    assert summary["p_ct_beats_pid"].dims == ("frequency",)
+    assert np.all(summary["rms_error_m_q05"] <= summary["rms_error_m_q95"])
+
+
+def test_sweep_on_local_processes_equals_one_process(tmp_path):
+    path = fake_fit(tmp_path / "fit.nc")
+    a = robustness_sweep(path, seed=3, chunk_size=4, processes=1, **SMALL)
+    b = robustness_sweep(path, seed=3, chunk_size=4, processes=2, **SMALL)
+    for m in METRICS:
+        np.testing.assert_array_equal(a[m].values, b[m].values)
+
+
+def test_sweep_on_dask_equals_local(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    path = fake_fit(tmp_path / "fit.nc")
+    local = robustness_sweep(path, seed=5, chunk_size=12, processes=1, **SMALL)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        remote = robustness_sweep(path, seed=5, chunk_size=5, client=client, **SMALL)
+    assert remote.attrs["runner"].startswith("dask")
+    for m in METRICS:
+        np.testing.assert_array_equal(local[m].values, remote[m].values)
+
+
+def test_sweep_modes_at_zero_spread_are_the_nominal_loop(tmp_path):
+    path = fake_fit(tmp_path / "fit.nc", spread=0.0)
+    kw = {**SMALL, "samples": 2, "frequencies_hz": (1.0,), "duration_s": 10.0,
+          "processes": 1}
+    plant = robustness_sweep(path, mode="plant", **kw)
+    model = robustness_sweep(path, mode="model", **kw)
+    nominal = track(1.0)["controllers"]
+    for j, c in enumerate(("pid", "ct")):
+        for m in METRICS:
+            assert plant[m].values[0, 0, j] == pytest.approx(nominal[c][m], rel=1e-9)
+            assert model[m].values[1, 0, j] == pytest.approx(nominal[c][m], rel=1e-9)
+    with pytest.raises(ControlError, match="unknown mode"):
+        robustness_sweep(path, mode="both", **kw)
+
+
+def test_sweep_output_files(tmp_path):
+    path = fake_fit(tmp_path / "fit.nc", effects=["regulator_lag"],
+                    values={"tau_reg": 0.03})
+    ds = robustness_sweep(path, processes=1, **SMALL)
+    assert "tau_reg" in ds["parameter"].values
+    paths = write_robustness(ds, tmp_path / "out")
+    assert all(p.is_file() for p in paths.values())
+    back = xr.open_dataset(paths["netcdf"], engine="h5netcdf")
+    np.testing.assert_array_equal(back["rms_error_m"].values, ds["rms_error_m"].values)
+    back.close()
+    assert "p_ct_beats_pid" in paths["summary_csv"].read_text().splitlines()[0]
+
+
+# -- Fig. 5 and the command line -----------------------------------------------------
+
+
+def test_figure5_reports_each_claim(tmp_path):
+    result = figure5(tmp_path / "fig5.png", duration_s=6.0)
+    assert (tmp_path / "fig5.png").stat().st_size > 10_000
+    assert len(result["claims"]) == 3
+    assert all(isinstance(c["reproduced"], bool) and c["evidence"] for c in result["claims"])
+    assert set(result["metrics"]) == {0.5, 1.0, 2.0}
+
+
+def test_cli_track_json(tmp_path, capsys):
+    out = tmp_path / "t.json"
+    assert main(["track", "--freq", "1", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["frequency_hz"] == 1.0
+    assert set(data["controllers"]) == {"pid", "ct"}
+    for m in data["controllers"].values():
+        assert set(m) == {"rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg",
+                          "overshoot_pct"}
+    assert main(["track", "--freq", "0.5", "--controller", "ct", "--json", str(out)]) == 0
+    assert set(json.loads(out.read_text())["controllers"]) == {"ct"}
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["track", "--freq", "1", "--controller", "lqr"], "unknown controller 'lqr'"),
+    (["track", "--freq", "0"], "frequency must be > 0"),
+    (["track", "--freq", "-2"], "frequency must be > 0"),
+    (["track", "--freq", "1", "--fit", "nowhere.nc"], "no such fit file"),
+    (["robustness", "nowhere.nc", "--out", "x"], "no such fit file"),
+])
+def test_cli_errors(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+def test_cli_robustness_and_track_with_a_fit(tmp_path, capsys):
+    path = fake_fit(tmp_path / "fit.nc")
+    assert main(["robustness", str(path), "--samples", "2", "--freqs", "0.5", "1",
+                 "--duration", "4", "--processes", "1", "--quiet", "--out",
+                 str(tmp_path / "rob")]) == 0
+    assert (tmp_path / "rob" / "robustness.nc").is_file()
+    assert "P(CT beats PID)" in capsys.readouterr().out
+    assert main(["track", "--freq", "1", "--fit", str(path), "--duration", "4"]) == 0
+    assert "posterior mean" in capsys.readouterr().out
