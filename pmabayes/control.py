@@ -22,10 +22,11 @@ simulates that rig as faithfully as the paper describes it:
 zero pressure, ``(M + m) g / K_e = 8.9 mm`` with the paper's values, but the paper's
 reference reaches down to -17.5 mm (the paper's ``x`` is measured from the loaded
 rest, ours from the unloaded length). The reference is therefore shifted by
-:data:`OPERATING_OFFSET_M` = 31.4 mm (:func:`operating_offset_m`: the sag plus a
-5 mm margin, so that the trough at 13.9 mm stays above the dead zone and the
-controller keeps authority there). Every run here uses
-``x_d = 0.0364 + 0.0225 sin(2 pi f t)`` m.
+:data:`OPERATING_OFFSET_M` = 31.5 mm (:func:`operating_offset_m`: the trough is
+lifted to the sag plus a 5 mm margin, 13.9 mm, rounded up to 0.1 mm), so that the
+trough stays above the dead zone and the controller keeps authority there. Every
+run here, for every controller, frequency and posterior sample, uses
+``x_d = 0.0365 + 0.0225 sin(2 pi f t)`` m (14.0 to 59.0 mm).
 
 **PID** (joint space, on the error ``e = x_d - y``)::
 
@@ -148,7 +149,7 @@ def operating_offset_m(model: Model | None = None, params: Mapping[str, float] |
     return math.ceil((sag + margin_m - trough) * 1e4 - 1e-9) / 1e4
 
 
-#: The operating offset with the paper's values: 31.4 mm.
+#: The operating offset with the paper's values: 31.5 mm.
 OPERATING_OFFSET_M = operating_offset_m()
 #: Mean of every reference here: 0.005 m + :data:`OPERATING_OFFSET_M`.
 REFERENCE_MEAN_M = PAPER_REFERENCE_MEAN_M + OPERATING_OFFSET_M
@@ -219,15 +220,13 @@ class Timing:
     def __post_init__(self) -> None:
         if not self.plant_dt_s > 0:
             raise ControlError(f"plant_dt_s must be > 0, got {self.plant_dt_s}")
-        for name in ("controller_period_s", "command_period_s"):
-            value = getattr(self, name)
-            base = self.plant_dt_s if name == "controller_period_s" else self.controller_period_s
+        for name, base_name in (("controller_period_s", "plant_dt_s"),
+                                ("command_period_s", "controller_period_s")):
+            value, base = getattr(self, name), getattr(self, base_name)
             ratio = value / base
             if not (value > 0 and abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1):
-                raise ControlError(
-                    f"{name}={value} must be a whole multiple (>= 1) of "
-                    f"{'plant_dt_s' if base is self.plant_dt_s else 'controller_period_s'}="
-                    f"{base}")
+                raise ControlError(f"{name}={value} must be a whole multiple (>= 1) of "
+                                   f"{base_name}={base}")
         if not 0 <= self.pressure_min_pa < self.pressure_max_pa:
             raise ControlError("need 0 <= pressure_min_pa < pressure_max_pa")
         if self.encoder_counts_per_m < 0 or self.derivative_filter_s < 0:
@@ -293,7 +292,7 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
     ctrl = _PlantCode(ctrl_model, theta="theta_c", cst="ccst", prefix="_ceff")
     inject = {**plant.inject, **ctrl.inject}
     lagged = bool(plant.pressure)
-    args = ("theta_p, theta_c, freq_hz, kind, gains, t_pred, p_init, ref, limits, steps, "
+    args = ("theta_p, theta_c, freq_hz, kind, gains, t_pred, p_init, ref, cfg, steps, "
             "mass, f_grav, area, c_mass, c_f_grav, c_area, dt, window, out_x, out_y, "
             "out_cmd, out_u")
     body = [
@@ -303,10 +302,10 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
         "n_ctrl = steps[0]",
         "n_cmd = steps[1]",
         "t_ctrl = n_ctrl * dt",
-        "t_filter = ref[2]",
-        "counts = ref[3]",
-        "p_lo = limits[0]",
-        "p_hi = limits[1]",
+        "t_filter = cfg[0]",
+        "counts = cfg[1]",
+        "p_lo = cfg[2]",
+        "p_hi = cfg[3]",
         "w_f = t_ctrl / (t_filter + t_ctrl)",
     ]
     body += plant.setup() + ctrl.setup()
@@ -496,19 +495,23 @@ def _value(model: Model, theta: np.ndarray, name: str, default: float = 0.0) -> 
 
 def _initial_pressure(model: Model, theta: np.ndarray, x_m: float) -> np.ndarray:
     """Pressure holding ``model`` at rest at ``x_m`` with ``z = 0``."""
-    force = model.rig.gravity_force_n + theta[:, model.index("K_e")] * x_m
-    for eff, s in model.effect_slices():
-        if eff.stage != "force":
-            continue
-        for i in range(theta.shape[0]):  # few members; the pressure guess is refined below
-            p = model.rig.area_m2 and (force[i] / model.rig.area_m2)
-            for _ in range(3):
-                force_i = eff.physics(np.ascontiguousarray(theta[i, s]), x_m, 0.0, p)[0]
-                p = (model.rig.gravity_force_n + theta[i, model.index("K_e")] * x_m
-                     + force_i) / model.rig.area_m2
-            force[i] += force_i
+    rig = model.rig
+    base = rig.gravity_force_n + theta[:, model.index("K_e")] * x_m
     p_dz = _value(model, theta, "p_dz")
-    return p_dz + force / model.rig.area_m2
+    p = p_dz + base / rig.area_m2
+    force = [(e, s) for e, s in model.effect_slices() if e.stage == "force"]
+    if not force:
+        return p
+    for i in range(theta.shape[0]):  # fixed point: a force effect may depend on p
+        for _ in range(50):
+            extra = sum(e.physics(np.ascontiguousarray(theta[i, s]), x_m, 0.0, p[i])[0]
+                        for e, s in force)
+            p_new = p_dz[i] + (base[i] + extra) / rig.area_m2
+            done = abs(p_new - p[i]) <= 1e-9 * (1.0 + abs(p_new))
+            p[i] = p_new
+            if done:
+                break
+    return p
 
 
 def _pressure_memory_steps(model: Model, theta: np.ndarray, dt: float,
@@ -608,16 +611,16 @@ def closed_loop_batch(
               + _value(controller_model, theta_c, "tau_reg"))
     p_init = np.clip(_initial_pressure(controller_model, theta_c, REFERENCE_MEAN_M),
                      timing.pressure_min_pa, timing.pressure_max_pa)
-    ref = np.array([REFERENCE_MEAN_M, REFERENCE_AMPLITUDE_M, timing.derivative_filter_s,
-                    timing.encoder_counts_per_m])
-    limits = np.array([timing.pressure_min_pa, timing.pressure_max_pa])
+    ref = np.array([REFERENCE_MEAN_M, REFERENCE_AMPLITUDE_M])
+    cfg = np.array([timing.derivative_filter_s, timing.encoder_counts_per_m,
+                    timing.pressure_min_pa, timing.pressure_max_pa])
     steps = np.array([timing.steps_per_control, timing.steps_per_command], dtype=np.int64)
     window = _pressure_memory_steps(plant_model, theta_p, dt, pressure_memory_s)
     out_x = np.empty((n, batch))
     rec = [np.empty((n, batch)) for _ in range(3)] if record else [np.empty((1, 1))] * 3
     kernel = _kernel(plant_model, controller_model, record)
     kernel(theta_p, theta_c, freq, kind, gain_arr, np.ascontiguousarray(t_pred),
-           np.ascontiguousarray(p_init), ref, limits, steps,
+           np.ascontiguousarray(p_init), ref, cfg, steps,
            plant_model.rig.moving_mass_kg, plant_model.rig.gravity_force_n,
            plant_model.rig.area_m2, controller_model.rig.moving_mass_kg,
            controller_model.rig.gravity_force_n, controller_model.rig.area_m2, dt, window,
@@ -665,7 +668,8 @@ def closed_loop(
     controller_model : Model, optional
         The model the computed torque inverts; the plant's model by default.
     controller_params : mapping, optional
-        Its parameters; the plant's by default (a perfectly identified plant).
+        Its parameters. By default the plant's when the controller uses the plant's
+        model (a perfectly identified plant), else ``controller_model``'s defaults.
     duration_s : float
         Length of the run in s.
     gains : mapping, optional
