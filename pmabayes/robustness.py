@@ -31,7 +31,7 @@ import sys
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
+from multiprocessing import get_all_start_methods, get_context
 from pathlib import Path
 
 import numpy as np
@@ -283,7 +283,10 @@ def robustness_sweep(
             for job in jobs:
                 collect(*_run_chunk(job))
         else:
-            with ProcessPoolExecutor(n_proc, mp_context=get_context("spawn")) as pool:
+            # fork where there is one: workers inherit the loaded kernels, where spawn
+            # re-imports numba and xarray in each (seconds per worker)
+            method = "fork" if "fork" in get_all_start_methods() else "spawn"
+            with ProcessPoolExecutor(n_proc, mp_context=get_context(method)) as pool:
                 for fut in as_completed([pool.submit(_run_chunk, j) for j in jobs]):
                     collect(*fut.result())
         runner = f"{n_proc} local process{'es' if n_proc > 1 else ''}"
