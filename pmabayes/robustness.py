@@ -387,6 +387,8 @@ def plot_robustness(ds: xr.Dataset, path) -> Path:
     axes[2].set_ylabel("P(CT beats PID)")
     axes[2].set_xlabel("reference frequency [Hz]")
     axes[2].set_xscale("log")
+    axes[2].set_xticks(f, [f"{v:.2g}" for v in f], minor=False)
+    axes[2].minorticks_off()
     axes[0].set_title(f"{ds.sizes['sample']} posterior samples, mode '{ds.attrs.get('mode')}'")
     fig.tight_layout()
     path = Path(path)

@@ -117,7 +117,7 @@ def test_closed_loop_plant_equals_open_loop_replay(effects, params, controller):
                                atol=1e-12)
 
 
-def test_mismatched_controller_model_changes_only_ct():
+def test_controller_model_sets_the_prediction_of_computed_torque():
     plant = Model(["regulator_lag"], rig=Rig.control())
     a = closed_loop("ct", 1.0, model=plant, params={"tau_reg": 0.045}, controller_model=CONTROL,
                     controller_params={}, duration_s=4.0)
