@@ -700,6 +700,10 @@ def closed_loop(
                              controller, duration_s=duration_s, gains=gains, timing=timing)
 
 
+_METRIC_NAMES = ("rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg",
+                 "overshoot_pct")
+
+
 def _analysis_window(time_s: np.ndarray, frequency_hz: float, settle_s: float) -> np.ndarray:
     period = 1.0 / frequency_hz
     dt = time_s[1] - time_s[0]
@@ -761,25 +765,29 @@ def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np
     t = time_s[idx]
     ref = np.broadcast_to(ref, pos.shape)[:, idx]
     pos = pos[:, idx]
-    err = pos - ref
     om = 2 * np.pi * frequency_hz
     basis = np.column_stack([np.ones_like(t), np.sin(om * t), np.cos(om * t)])
-    # least squares by the pseudo-inverse, row by row, so a run's numbers do not depend
-    # on the batch it came in (a multi-column LAPACK or BLAS call may block differently)
-    proj = np.linalg.pinv(basis)
-    coef_r = np.stack([(ref * proj[j]).sum(axis=1) for j in range(3)])
-    coef_y = np.stack([(pos * proj[j]).sum(axis=1) for j in range(3)])
-    amp_r = np.hypot(coef_r[1], coef_r[2])
-    amp_y = np.hypot(coef_y[1], coef_y[2])
-    lag = np.degrees(np.arctan2(coef_r[2], coef_r[1]) - np.arctan2(coef_y[2], coef_y[1]))
-    lag = (lag + 90.0) % 360.0 - 90.0
-    return {
-        "rms_error_m": np.sqrt(np.mean(err**2, axis=1)),
-        "max_error_m": np.max(np.abs(err), axis=1),
-        "amplitude_ratio": amp_y / amp_r,
-        "phase_lag_deg": lag,
-        "overshoot_pct": 100.0 * (pos.max(axis=1) - ref.max(axis=1)) / amp_r,
-    }
+    proj = np.ascontiguousarray(np.linalg.pinv(basis))  # least squares by the pseudo-inverse
+    out = {k: np.empty(pos.shape[0]) for k in _METRIC_NAMES}
+    # Row by row on contiguous 1-D copies, by numpy's pairwise sums (not BLAS, whose
+    # threads and blocking may vary): reductions over an axis of a 2-D array block (and
+    # so round) differently with the batch's shape, and a run's numbers must not depend
+    # on the batch it came in.
+    for i in range(pos.shape[0]):
+        r = np.ascontiguousarray(ref[i])
+        y = np.ascontiguousarray(pos[i])
+        err = y - r
+        c_r = [float(np.sum(r * proj[j])) for j in range(3)]
+        c_y = [float(np.sum(y * proj[j])) for j in range(3)]
+        amp_r = math.hypot(c_r[1], c_r[2])
+        amp_y = math.hypot(c_y[1], c_y[2])
+        lag = math.degrees(math.atan2(c_r[2], c_r[1]) - math.atan2(c_y[2], c_y[1]))
+        out["rms_error_m"][i] = math.sqrt(float(np.sum(err * err)) / err.size)
+        out["max_error_m"][i] = float(np.max(np.abs(err)))
+        out["amplitude_ratio"][i] = amp_y / amp_r
+        out["phase_lag_deg"][i] = (lag + 90.0) % 360.0 - 90.0
+        out["overshoot_pct"][i] = 100.0 * (float(y.max()) - float(r.max())) / amp_r
+    return out
 
 
 def tune_gains(controller: str, *, model: Model | None = None,
