@@ -7,7 +7,7 @@ simulates that rig as faithfully as the paper describes it:
 
 * **Plant**: the identified model (any composition of effects) on
   :meth:`Rig.control`, integrated at 1 kHz by exactly the scheme and the same
-  generated code as :func:`pmabayes.simulate` (:class:`pmabayes.simulator._PlantCode`),
+  generated code as :func:`pmabayes.simulate` (``pmabayes.simulator.PlantCode``),
   so replaying the closed loop's pressure command open loop reproduces its position.
 * **Controller**: runs at 100 Hz on the encoder reading (quantised to the paper's
   2000 counts per inch, after the plant's measurement effects).
@@ -78,14 +78,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pmabayes.model import PAPER_VALUES, Model, Rig
-from pmabayes.simulator import (
-    _FASTMATH,
-    _bw_rate_lines,
-    _bw_update_lines,
-    _compile,
-    _indent,
-    _PlantCode,
-    _structure_key,
+from pmabayes.simulator import (  # the internal code-generation API
+    FASTMATH,
+    PlantCode,
+    bw_rate_lines,
+    bw_update_lines,
+    cached_kernel,
+    compile_kernel,
+    indent_lines,
+    structure_key,
 )
 from pmabayes.synthetic import ENCODER_COUNTS_PER_M
 
@@ -288,8 +289,8 @@ class ClosedLoop:
 
 
 def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str, dict]:
-    plant = _PlantCode(plant_model, theta="theta_p", cst="cst", prefix="_eff")
-    ctrl = _PlantCode(ctrl_model, theta="theta_c", cst="ccst", prefix="_ceff")
+    plant = PlantCode(plant_model, theta="theta_p", cst="cst", prefix="_eff")
+    ctrl = PlantCode(ctrl_model, theta="theta_c", cst="ccst", prefix="_ceff")
     inject = {**plant.inject, **ctrl.inject}
     lagged = bool(plant.pressure)
     args = ("theta_p, theta_c, freq_hz, kind, gains, t_pred, p_init, ref, cfg, steps, "
@@ -359,8 +360,8 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
         "else:",
         "    zo = cs[2, i]",
     ]
-    tick += ["    " + ln for ln in _bw_rate_lines("zo", "dy", "ccst")]
-    tick += ["    " + ln for ln in _bw_update_lines("zo", "dy", "zn", "ccst")]
+    tick += ["    " + ln for ln in bw_rate_lines("zo", "dy", "ccst")]
+    tick += ["    " + ln for ln in bw_update_lines("zo", "dy", "zn", "ccst")]
     tick += [
         "    cs[2, i] = zn",
         "    tp = t + t_pred[i]",
@@ -439,19 +440,22 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
     text += (", ".join(ctrl_model.effect_names) or "none") + f"; recording: {record}\n"
     text += "import math\nimport numpy as np\nfrom numba import njit\n"
     text += "from pmabayes.simulator import _discretise\n"
-    text += f"FASTMATH = set({sorted(_FASTMATH)!r})\n"
+    text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in inject:
         text += f"{g} = None  # injected before the first call\n"
     text += "\n\n@njit(cache=True, fastmath=FASTMATH, error_model='numpy')\n"
-    text += f"def closed_loop({args}):\n" + _indent(body, 4) + "\n"
+    text += f"def closed_loop({args}):\n" + indent_lines(body, 4) + "\n"
     return text, inject
 
 
 def _kernel(plant_model: Model, ctrl_model: Model, record: bool):
-    key = ("closed_loop", _structure_key(plant_model, False, False),
-           _structure_key(ctrl_model, False, False), record)
+    key = ("closed_loop", structure_key(plant_model, False, False),
+           structure_key(ctrl_model, False, False), record)
+    kernel = cached_kernel(key)
+    if kernel is not None:
+        return kernel
     text, inject = _generate(plant_model, ctrl_model, record)
-    return _compile(key, text, inject, name="closed_loop")
+    return compile_kernel(key, text, inject, name="closed_loop")
 
 
 # ---------------------------------------------------------------------------------
