@@ -7,7 +7,10 @@ Two cases, both with the controllers on the paper's identified base model:
   45 ms regulator lag and 0.8 N of Coulomb friction, that the paper's model lacks.
 
 For each, the figure (reference, PID and computed-torque responses, the error below
-each) and a check of each of the paper's claims, reproduced or not, with the numbers.
+each; :func:`pmabayes.plots.plot_figure5`), the metrics with the fraction of time the
+command spends in the dead zone and at the upper limit, and a check of each of the
+paper's claims (:func:`pmabayes.reproduction.figure5`), reproduced or not, with the
+numbers.
 
 Usage::
 
@@ -19,8 +22,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pmabayes.control import REFERENCE_MEAN_M, figure5
+from pmabayes.control import REFERENCE_MEAN_M
 from pmabayes.model import Model, Rig
+from pmabayes.plots import plot_figure5, plt
+from pmabayes.reproduction import figure5
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,18 +39,21 @@ def main(argv: list[str] | None = None) -> int:
         "nominal": {},
         "lab": {"plant_model": lab, "plant_params": {"tau_reg": 0.045, "F_c": 0.8}},
     }
-    print(f"reference: x_d = {REFERENCE_MEAN_M:.4f} + 0.0225 sin(2 pi f t) m, 500 g load")
+    print(f"reference: x_d = {REFERENCE_MEAN_M:.4f} + 0.0225 sin(2 pi f t) m, 500 g load "
+          "(mean by control.operating_mean_m)")
     for name, kw in cases.items():
         path = args.out / f"figure5_{name}.png"
-        result = figure5(path, **kw)
-        print(f"\n== {name} plant ({path})")
+        result = figure5(**kw)
+        plt.close(plot_figure5(result["run"], path=path))
+        print(f"\n== {name} plant ({path}); gains {result['gains']}")
         print(f"{'f [Hz]':>6} {'ctrl':>4} {'RMS mm':>7} {'max mm':>7} {'amp':>6} "
-              f"{'lag deg':>8} {'over %':>7}")
+              f"{'lag deg':>8} {'over %':>7} {'dead %':>7} {'sat %':>6}")
         for f, per in result["metrics"].items():
             for c, m in per.items():
                 print(f"{f:6.2f} {c:>4} {1e3 * m['rms_error_m']:7.2f} "
                       f"{1e3 * m['max_error_m']:7.2f} {m['amplitude_ratio']:6.3f} "
-                      f"{m['phase_lag_deg']:8.1f} {m['overshoot_pct']:7.1f}")
+                      f"{m['phase_lag_deg']:8.1f} {m['overshoot_pct']:7.1f} "
+                      f"{100 * m['dead_zone_fraction']:7.1f} {100 * m['saturated_fraction']:6.1f}")
         for claim in result["claims"]:
             verdict = "REPRODUCED" if claim["reproduced"] else "NOT reproduced"
             print(f"- {verdict}: {claim['claim']} ({claim['evidence']})")

@@ -234,15 +234,14 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 
 def _cmd_track(args: argparse.Namespace) -> int:
     from pmabayes.control import CONTROLLERS, track
-    from pmabayes.robustness import control_model_from_fit, posterior_samples
+    from pmabayes.robustness import control_model_from_fit, posterior_mean
 
     model, params, source = None, None, "the paper's values"
     if args.fit:
         tree = load_fit(args.fit)
         model = control_model_from_fit(tree)
-        _, mean, _ = posterior_samples(tree, model, 1)
-        params = mean
-        source = f"the posterior mean of {args.fit}"
+        params = posterior_mean(tree, model)
+        source = f"the posterior mean of {args.fit} (gains tuned on it by the rule)"
     controllers = CONTROLLERS if args.controller is None else (args.controller,)
     result = track(args.freq, controllers=controllers, model=model, params=params,
                    duration_s=args.duration)
@@ -250,7 +249,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
     for name, m in result["controllers"].items():
         print(f"  {name:>3}: RMS error {1e3 * m['rms_error_m']:.3f} mm, max "
               f"{1e3 * m['max_error_m']:.3f} mm, amplitude ratio {m['amplitude_ratio']:.3f}, "
-              f"phase lag {m['phase_lag_deg']:.1f} deg, overshoot {m['overshoot_pct']:.1f}%")
+              f"phase lag {m['phase_lag_deg']:.1f} deg, overshoot {m['overshoot_pct']:.1f}%, "
+              f"in the dead zone {100 * m['dead_zone_fraction']:.0f}% of the time")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
         print(f"wrote {args.json}")
@@ -258,12 +258,15 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
+    from pmabayes.plots import plot_robustness, plt  # matplotlib only where figures are made
     from pmabayes.robustness import robustness_sweep, summarise_robustness, write_robustness
 
     ds = robustness_sweep(args.fit, samples=args.samples, frequencies_hz=args.freqs,
                           mode=args.mode, seed=args.seed, duration_s=args.duration,
                           processes=args.processes, progress=not args.quiet)
     paths = write_robustness(ds, args.out)
+    paths["figure"] = Path(args.out) / "robustness.png"
+    plt.close(plot_robustness(ds, path=paths["figure"]))
     summary = summarise_robustness(ds)
     print(f"{ds.sizes['sample']} samples, mode {args.mode}, in {ds.attrs['sweep_seconds']:.1f} s "
           f"on {ds.attrs['runner']}")
@@ -271,7 +274,9 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
         med = summary["rms_error_m_median"].sel(frequency=f)
         print(f"  {f:6.3f} Hz: median RMS error PID {1e3 * float(med.sel(controller='pid')):.3f}"
               f" mm, CT {1e3 * float(med.sel(controller='ct')):.3f} mm; P(CT beats PID) "
-              f"{float(summary['p_ct_beats_pid'].sel(frequency=f)):.3f}")
+              f"{float(summary['p_ct_beats_pid'].sel(frequency=f)):.3f} (MC error "
+              f"{float(summary['p_ct_beats_pid_mc_error'].sel(frequency=f)):.3f})")
+    print(f"gains ({ds.attrs['gains_source']}): {ds.attrs['gains']}")
     print("wrote " + ", ".join(str(p) for p in paths.values()))
     return 0
 

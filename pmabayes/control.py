@@ -15,18 +15,22 @@ simulates that rig as faithfully as the paper describes it:
   (zero-order hold), limited to 0..0.9 MPa (the regulator's 0-10 V range). The
   controller's output at a 20 Hz instant is applied at once (no computation delay).
 * **Start**: the plant rests at the static equilibrium (``z = 0``) under the
-  pressure that the controller's model needs at the reference's start; the
+  pressure that the controller's model needs at the reference's mean; the
   integrator of the PID starts there too (bumpless start).
 
-**Operating point.** With the load, ``x`` cannot go below the sag under the load at
-zero pressure, ``(M + m) g / K_e = 8.9 mm`` with the paper's values, but the paper's
-reference reaches down to -17.5 mm (the paper's ``x`` is measured from the loaded
-rest, ours from the unloaded length). The reference is therefore shifted by
-:data:`OPERATING_OFFSET_M` = 31.5 mm (:func:`operating_offset_m`: the trough is
-lifted to the sag plus a 5 mm margin, 13.9 mm, rounded up to 0.1 mm), so that the
-trough stays above the dead zone and the controller keeps authority there. Every
-run here, for every controller, frequency and posterior sample, uses
-``x_d = 0.0365 + 0.0225 sin(2 pi f t)`` m (14.0 to 59.0 mm).
+**Operating point** (an assumption: the paper gives no origin for ``x``). The paper
+only says that the 5 mm bias of its reference compensates the load's offset, so its
+``x`` is measured from an origin it does not state. Ours is the unloaded length,
+and the reference keeps the paper's amplitude (22.5 mm) and frequencies with a mean
+chosen by a dynamic rule, :func:`operating_mean_m`: the smallest mean, on a 1 mm
+grid, at which the pressure the nominal model needs along ``x_d`` at 2 Hz (the
+paper's fastest; inertia, damping, stiffness, hysteresis, gravity, dead zone) stays
+50 kPa above the dead zone ``p_dz`` and 50 kPa under 0.9 MPa. With the paper's
+values this is :data:`REFERENCE_MEAN_M` = 0.100 m (77.5 to 122.5 mm; the model
+asks 0.118 to 0.538 MPa at 2 Hz). A mean closer to the sag under the load would
+put the trough in the dead zone, where the actuator has no authority and the
+controllers' verdicts would be set by the choice of mean. The same mean is used by
+every run here unless ``reference_mean_m`` says otherwise.
 
 **PID** (joint space, on the error ``e = x_d - y``)::
 
@@ -56,33 +60,51 @@ which vents faster. Effects of the controller's model are inverted where possibl
   ahead (``x_hat = y + v_hat t_pred``). For a delay this is exact in phase; for a
   lag it is the first-order lead ``1 + tau s ~ exp(tau s)``, right in phase at low
   frequency and without the lead's high-frequency gain;
-* measurement effects are not inverted.
+* a sensor zero offset (``position_offset``) is subtracted from the reading; other
+  measurement effects are not inverted.
 
-**Gains** come from one rule, :func:`tune_gains`: on the nominal model (the paper's
-values, no effects) the gains that give the smallest RMS error at 0.5 Hz on a log
-grid, among those whose loop still tracks (RMS error below 10% of the amplitude)
-with every gain doubled, a gain margin of 2 (6 dB). :data:`DEFAULT_GAINS` holds the
-result; ``tests/test_control.py`` checks that the rule reproduces it.
+The velocity is not predicted: ``d v_hat`` and the outer ``K_d`` term use the
+filtered velocity of the reading, not the velocity ``t_pred`` ahead (a predicted
+velocity needs the acceleration, which differencing a 12.7 um encoder at 100 Hz
+gives too noisily).
 
-**Metrics** (:func:`tracking_metrics`) use whole periods after the start-up: the
-first ``max(2 s, one period)`` is dropped and the largest whole number of periods
-that ends at the end of the run is kept.
+**Gains** come from one rule, :func:`tune_gains`, run on the nominal model of the
+experiment (the paper's values here, :data:`DEFAULT_GAINS`; a fit's posterior mean
+in :func:`nominal_gains`): the gain set with the smallest RMS error at 0.5 Hz on a
+log grid, among those that are robustly stable: with every gain doubled (a 6 dB
+gain margin), and separately with an extra 20 ms transport delay in the plant (a
+delay margin), the loop must still reach a periodic steady state (the last two
+periods within 0.5 mm of each other) with an RMS error at most twice the
+nominal. ``tests/test_control.py`` checks that the rule reproduces
+:data:`DEFAULT_GAINS`.
+
+**Metrics** (:func:`tracking_metrics`, :func:`loop_metrics`) use whole periods after
+the start-up: the first ``max(2 s, one period)`` is dropped and the largest whole
+number of periods that ends at the end of the run is kept. :func:`loop_metrics`
+adds the fraction of that time the command sits in the plant's dead zone (no
+actuator force) or at the upper pressure limit.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from pmabayes.model import PAPER_VALUES, Model, Rig
+from pmabayes import simulator as _simulator
+from pmabayes.model import Model, Rig
 from pmabayes.simulator import (  # the internal code-generation API
     FASTMATH,
     PlantCode,
     bw_rate_lines,
     bw_update_lines,
+    cache_dir,
     cached_kernel,
     compile_kernel,
     indent_lines,
@@ -92,79 +114,175 @@ from pmabayes.synthetic import ENCODER_COUNTS_PER_M
 
 __all__ = [
     "CONTROLLERS",
+    "METRICS",
     "PAPER_REFERENCE_MEAN_M",
     "REFERENCE_AMPLITUDE_M",
-    "OPERATING_OFFSET_M",
     "REFERENCE_MEAN_M",
     "DEFAULT_GAINS",
     "ControlError",
+    "GainGridWarning",
     "Timing",
     "ClosedLoop",
-    "operating_offset_m",
+    "operating_mean_m",
     "reference_m",
     "closed_loop",
     "closed_loop_batch",
     "tracking_metrics",
+    "command_fractions",
+    "gain_array",
+    "period_difference_m",
+    "loop_metrics",
     "tune_gains",
+    "nominal_gains",
     "track",
-    "figure5",
 ]
 
 #: Controller names, in the order used by arrays and datasets.
 CONTROLLERS = ("pid", "ct")
+#: Metrics of :func:`loop_metrics`, in the order used by datasets.
+METRICS = ("rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg", "overshoot_pct",
+           "dead_zone_fraction", "saturated_fraction")
+_TRACKING = METRICS[:5]
+#: The paper's reference mean, in its own (unstated) origin.
 PAPER_REFERENCE_MEAN_M = 0.005
+#: The paper's reference amplitude.
 REFERENCE_AMPLITUDE_M = 0.0225
-_MARGIN_M = 0.005
+_PRESSURE_MAX_PA = 0.9e6
 
 
 class ControlError(ValueError):
     """Bad input to a controller or a closed-loop simulation."""
 
 
-def operating_offset_m(model: Model | None = None, params: Mapping[str, float] | None = None,
-                       *, margin_m: float = _MARGIN_M) -> float:
-    """Offset that makes the paper's reference feasible with the control rig's load.
+class GainGridWarning(UserWarning):
+    """The gain rule's best gains sit on the edge of its grid."""
 
-    The load pulls the muscle to its sag ``x_0 = -(M + m) g s_g / K_e`` at zero
-    pressure, and no pressure makes it shorter (the muscle only extends). The
-    offset lifts the reference's trough ``0.005 - 0.0225`` m to ``x_0 + margin_m``.
+
+def _nominal_model(model: Model | None) -> Model:
+    return Model(rig=Rig.control()) if model is None else model
+
+
+def _theta1(model: Model, params) -> np.ndarray:
+    """One full parameter row from a mapping (model defaults for the rest) or an array."""
+    theta = model.theta(params)
+    if theta.shape[0] != 1:
+        raise ControlError(f"one parameter set expected, got {theta.shape[0]}")
+    return theta
+
+
+def operating_mean_m(model: Model | None = None, params=None, *, frequency_hz: float = 2.0,
+                     amplitude_m: float = REFERENCE_AMPLITUDE_M, margin_pa: float = 50e3,
+                     pressure_max_pa: float = _PRESSURE_MAX_PA,
+                     resolution_m: float = 1e-3) -> float:
+    """Reference mean at which the model can follow the reference without the dead zone.
+
+    Along ``x_d = mean + amplitude sin(2 pi f t)`` the model needs the pressure
+    ``p = p_dz + (M_tot x_d'' + d x_d' + K_e x_d + z + F_g + f_effects) / A``, with
+    ``z`` the Bouc-Wen force along ``x_d`` in its periodic state (rate independent,
+    so it does not depend on the mean). The rule takes the smallest mean, rounded up
+    to ``resolution_m``, at which ``p`` stays at least ``margin_pa`` above ``p_dz``;
+    it must then also stay ``margin_pa`` under ``pressure_max_pa``.
 
     Parameters
     ----------
     model : Model, optional
         Model on the control rig; the base model on :meth:`Rig.control` by default.
-    params : mapping, optional
-        Parameter values (only ``K_e`` matters); the paper's by default.
-    margin_m : float
-        Height of the trough above the sag, in m.
+    params : mapping or numpy.ndarray, optional
+        Its parameters (the model's defaults, the paper's values, for those not given).
+    frequency_hz : float
+        The fastest reference to be tracked (the paper's 2 Hz).
+    amplitude_m : float
+        Reference amplitude in m.
+    margin_pa : float
+        Distance kept from the dead zone and from the upper limit, in Pa.
+    pressure_max_pa : float
+        Upper pressure limit (0.9 MPa).
+    resolution_m : float
+        The mean is rounded up to a multiple of this.
 
     Returns
     -------
     float
-        The offset in m, rounded up to 0.1 mm.
+        The mean in m.
+
+    Raises
+    ------
+    ControlError
+        If no mean keeps the pressure inside both margins (lower the frequency, the
+        amplitude or the margin).
     """
-    model = Model(rig=Rig.control()) if model is None else model
-    values = {**model.defaults, **PAPER_VALUES, **dict(params or {})}
-    sag = -model.rig.gravity_force_n / values["K_e"]
-    trough = PAPER_REFERENCE_MEAN_M - REFERENCE_AMPLITUDE_M
-    return math.ceil((sag + margin_m - trough) * 1e4 - 1e-9) / 1e4
+    if not (frequency_hz > 0 and amplitude_m > 0 and margin_pa >= 0 and resolution_m > 0):
+        raise ControlError("need frequency_hz > 0, amplitude_m > 0, margin_pa >= 0 and "
+                           "resolution_m > 0")
+    model = _nominal_model(model)
+    theta = _theta1(model, params)[0]
+    v = dict(zip(model.parameter_names, theta, strict=True))
+    rig = model.rig
+    n = 2000  # samples per period; two periods from z = 0, the second is periodic
+    om = 2 * np.pi * frequency_hz
+    phase = np.arange(2 * n + 1) * (2 * np.pi / n)
+    s, c = np.sin(phase), np.cos(phase)
+    z = np.zeros(phase.size)
+    dxs = amplitude_m * np.diff(s)
+    for k, dx in enumerate(dxs):  # midpoint rule for dz/dx = alpha - (beta sgn + gamma)|z|
+        for _ in range(2):
+            zm = z[k] if _ == 0 else 0.5 * (z[k] + z[k + 1])
+            sgn = 1.0 if dx * zm >= 0.0 else -1.0
+            z[k + 1] = z[k] + dx * (v["alpha"] - (v["beta"] * sgn + v["gamma"]) * abs(zm))
+    sl = slice(n, 2 * n)
+    z = z[sl]
+    vel = amplitude_m * om * c[sl]
+    acc = -amplitude_m * om * om * s[sl]
+    force_effects = [(e, theta[sl_e]) for e, sl_e in model.effect_slices() if e.stage == "force"]
+    p_dz = v.get("p_dz", 0.0)
+
+    def pressure(mean: float) -> np.ndarray:
+        x = mean + amplitude_m * s[sl]
+        base = rig.moving_mass_kg * acc + v["d"] * vel + v["K_e"] * x + z + rig.gravity_force_n
+        p = p_dz + base / rig.area_m2
+        for k in range(p.size if force_effects else 0):  # an effect may depend on p
+            for _ in range(50):
+                extra = sum(e.physics(np.ascontiguousarray(q), x[k], vel[k], p[k])[0]
+                            for e, q in force_effects)
+                p_new = p_dz + (base[k] + extra) / rig.area_m2
+                done = abs(p_new - p[k]) <= 1e-9 * (1.0 + abs(p_new))
+                p[k] = p_new
+                if done:
+                    break
+        return p
+
+    low = p_dz + margin_pa
+    lo, hi = 0.0, 1.0
+    if pressure(hi).min() < low:
+        raise ControlError(f"no mean up to {hi} m keeps the pressure {margin_pa:g} Pa above "
+                           "the dead zone")
+    for _ in range(60):  # the trough's pressure grows with the mean
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if pressure(mid).min() < low else (lo, mid)
+    mean = math.ceil(hi / resolution_m - 1e-9) * resolution_m
+    p = pressure(mean)
+    if p.min() < low or p.max() > pressure_max_pa - margin_pa:
+        raise ControlError(
+            f"at {frequency_hz:g} Hz the model needs {p.min():.4g} to {p.max():.4g} Pa: no "
+            f"mean keeps it {margin_pa:g} Pa inside p_dz..{pressure_max_pa:g} Pa; lower the "
+            "frequency, the amplitude or the margin")
+    return round(mean, 12)
 
 
-#: The operating offset with the paper's values: 31.5 mm.
-OPERATING_OFFSET_M = operating_offset_m()
-#: Mean of every reference here: 0.005 m + :data:`OPERATING_OFFSET_M`.
-REFERENCE_MEAN_M = PAPER_REFERENCE_MEAN_M + OPERATING_OFFSET_M
+#: Mean of every reference here, by :func:`operating_mean_m` with the paper's values.
+REFERENCE_MEAN_M = operating_mean_m()
 
-#: Gains from :func:`tune_gains` with its defaults. PID: ``kp`` in Pa/m, ``ki`` in
-#: Pa/(m s), ``kd`` in Pa s/m; computed torque: ``kp`` in 1/s^2, ``kd`` in 1/s.
+#: Gains from :func:`tune_gains` with its defaults on the paper's values. PID: ``kp``
+#: in Pa/m, ``ki`` in Pa/(m s), ``kd`` in Pa s/m; computed torque: ``kp`` in 1/s^2,
+#: ``kd`` in 1/s.
 DEFAULT_GAINS: dict[str, dict[str, float]] = {
-    "pid": {"kp": 17782794.100389227, "ki": 316227766.01683795, "kd": 31622.776601683792},
-    "ct": {"kp": 3995.8775124988906, "kd": 151.7110888234397},
+    "pid": {"kp": 10000000.0, "ki": 177827941.00389227, "kd": 100.0},
+    "ct": {"kp": 3995.8775124988906, "kd": 69.53424904407653},
 }
 _GAIN_NAMES = {"pid": ("kp", "ki", "kd"), "ct": ("kp", "kd")}
 
 
-def reference_m(time_s: np.ndarray, frequency_hz: float, *, mean_m: float = REFERENCE_MEAN_M,
+def reference_m(time_s: np.ndarray, frequency_hz, *, mean_m: float = REFERENCE_MEAN_M,
                 amplitude_m: float = REFERENCE_AMPLITUDE_M) -> np.ndarray:
     """The tracking reference ``x_d = mean + amplitude sin(2 pi f t)``.
 
@@ -172,10 +290,10 @@ def reference_m(time_s: np.ndarray, frequency_hz: float, *, mean_m: float = REFE
     ----------
     time_s : numpy.ndarray
         Times in s.
-    frequency_hz : float
-        Reference frequency.
+    frequency_hz : float or numpy.ndarray
+        Reference frequency (an array broadcasts against ``time_s``).
     mean_m : float
-        Mean, :data:`REFERENCE_MEAN_M` (the paper's 5 mm plus the operating offset).
+        Mean, :data:`REFERENCE_MEAN_M` by default (see :func:`operating_mean_m`).
     amplitude_m : float
         Amplitude, the paper's 22.5 mm.
 
@@ -184,7 +302,8 @@ def reference_m(time_s: np.ndarray, frequency_hz: float, *, mean_m: float = REFE
     numpy.ndarray
         The reference in m.
     """
-    return mean_m + amplitude_m * np.sin(2 * np.pi * frequency_hz * np.asarray(time_s))
+    return mean_m + amplitude_m * np.sin(2 * np.pi * np.asarray(frequency_hz)
+                                         * np.asarray(time_s))
 
 
 @dataclass(frozen=True)
@@ -214,7 +333,7 @@ class Timing:
     controller_period_s: float = 0.01
     command_period_s: float = 0.05
     pressure_min_pa: float = 0.0
-    pressure_max_pa: float = 0.9e6
+    pressure_max_pa: float = _PRESSURE_MAX_PA
     encoder_counts_per_m: float = ENCODER_COUNTS_PER_M
     derivative_filter_s: float = 0.01
 
@@ -263,13 +382,16 @@ class ClosedLoop:
     measured_m : numpy.ndarray
         The controller's reading, held between its samples (effects, quantisation).
     command_pa : numpy.ndarray
-        Pressure command to the regulator, held between its updates.
+        Pressure command to the regulator, held between its updates (always recorded).
     controller_output_pa : numpy.ndarray
         Controller output, held between controller samples.
     initial_pressure_pa : numpy.ndarray
         The pressure the plant rests under at the start ``(batch,)``.
+    dead_zone_pa : numpy.ndarray
+        The plant's dead zone ``p_dz`` of each run ``(batch,)``.
     metadata : dict
-        The timing, the gains of each run and the computed torque's prediction time.
+        The timing, the gains of each run, the computed torque's prediction time and
+        the reference's mean and amplitude.
     """
 
     time_s: np.ndarray
@@ -278,9 +400,10 @@ class ClosedLoop:
     reference_m: np.ndarray
     position_m: np.ndarray
     measured_m: np.ndarray | None
-    command_pa: np.ndarray | None
+    command_pa: np.ndarray
     controller_output_pa: np.ndarray | None
     initial_pressure_pa: np.ndarray
+    dead_zone_pa: np.ndarray
     metadata: dict = field(default_factory=dict)
 
 
@@ -293,9 +416,12 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
     ctrl = PlantCode(ctrl_model, theta="theta_c", cst="ccst", prefix="_ceff")
     inject = {**plant.inject, **ctrl.inject}
     lagged = bool(plant.pressure)
+    # the one measurement effect computed torque inverts: a known zero offset
+    offset = (f" - theta_c[i, {ctrl_model.index('x_offset')}]"
+              if "position_offset" in ctrl_model.effect_names else "")
     args = ("theta_p, theta_c, freq_hz, kind, gains, t_pred, p_init, ref, cfg, steps, "
-            "mass, f_grav, area, c_mass, c_f_grav, c_area, dt, window, out_x, out_y, "
-            "out_cmd, out_u")
+            "mass, f_grav, area, c_mass, c_f_grav, c_area, dt, window, out_x, out_hold, "
+            "out_y, out_u")
     body = [
         "substeps = 1",
         "n = out_x.shape[0]",
@@ -369,7 +495,7 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
         "    xr = ref[0] + ref[1] * sn",
         "    xr_d = ref[1] * om * math.cos(om * tp)",
         "    xr_dd = -ref[1] * om * om * sn",
-        "    xh = y + vh * t_pred[i]",
+        f"    xh = y{offset} + vh * t_pred[i]",
         "    acc = xr_dd + gains[i, 1] * (xr_d - vh) + gains[i, 0] * (xr - xh)",
     ]
     tick += ["    " + ln for ln in ctrl.forces("xh", "vh", "cs[5, i]", "fc", False)]
@@ -396,6 +522,7 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
         "        if k % n_cmd == 0:",
         "            for i in range(batch):",
         "                cs[5, i] = cs[4, i]",
+        "                out_hold[k // n_cmd, i] = cs[5, i]",
     ]
     if lagged:
         loop += [
@@ -419,7 +546,6 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
     if record:
         loop += [
             "        out_y[k, i] = cs[3, i]",
-            "        out_cmd[k, i] = cs[5, i]",
             "        out_u[k, i] = cs[4, i]",
         ]
     loop += ["    if k == n - 1:", "        break"]
@@ -472,7 +598,29 @@ def _controller_codes(controller: str | Sequence[str], batch: int) -> tuple[np.n
     return np.array([CONTROLLERS.index(c) for c in names], dtype=np.int64), names
 
 
-def _gain_array(names: tuple, gains: Mapping | None) -> np.ndarray:
+def gain_array(controllers: Sequence[str], gains: Mapping | None = None) -> np.ndarray:
+    """Gain rows ``(len(controllers), 3)`` for the kernel, checked.
+
+    Parameters
+    ----------
+    controllers : sequence of str
+        The controller of each row.
+    gains : mapping, optional
+        ``{"pid": {"kp": ...}, "ct": {...}}``; gains not given are
+        :data:`DEFAULT_GAINS`.
+
+    Returns
+    -------
+    numpy.ndarray
+        Each row the controller's gains in the order of :data:`DEFAULT_GAINS`, zero
+        padded.
+
+    Raises
+    ------
+    ControlError
+        On an unknown controller or gain name, or a gain that is negative or not finite.
+    """
+    names = tuple(controllers)
     table = {c: dict(DEFAULT_GAINS[c]) for c in CONTROLLERS}
     for c, g in (gains or {}).items():
         if c not in CONTROLLERS:
@@ -484,6 +632,8 @@ def _gain_array(names: tuple, gains: Mapping | None) -> np.ndarray:
         table[c].update({k: float(v) for k, v in g.items()})
     out = np.zeros((len(names), 3))
     for i, c in enumerate(names):
+        if c not in CONTROLLERS:
+            raise ControlError(f"unknown controller {c!r}; choose one of {', '.join(CONTROLLERS)}")
         row = [table[c][k] for k in _GAIN_NAMES[c]]
         out[i, :len(row)] = row
     if not np.all(np.isfinite(out)) or np.any(out < 0):
@@ -545,6 +695,7 @@ def closed_loop_batch(
     duration_s: float = 10.0,
     gains: Mapping[str, Mapping[str, float]] | np.ndarray | None = None,
     timing: Timing | None = None,
+    reference_mean_m: float = REFERENCE_MEAN_M,
     record: bool = True,
     pressure_memory_s: float | None = None,
 ) -> ClosedLoop:
@@ -571,8 +722,11 @@ def closed_loop_batch(
         of gains per run, ``(batch, 3)``, in the order of :data:`DEFAULT_GAINS`.
     timing : Timing, optional
         Rates, limits and sensor; the paper's by default.
+    reference_mean_m : float
+        Mean of the reference (:data:`REFERENCE_MEAN_M`, see :func:`operating_mean_m`);
+        the amplitude is the paper's 22.5 mm.
     record : bool
-        Also record the reading, the command and the controller output.
+        Also record the reading and the controller output (the command always is).
     pressure_memory_s : float, optional
         How far back the plant's pressure effects look (see the README); derived
         from the built-in effects' parameters by default.
@@ -598,6 +752,8 @@ def closed_loop_batch(
         raise ControlError(f"frequency must be > 0 Hz, got {np.unique(freq)[:4].tolist()}")
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise ControlError(f"duration_s must be > 0, got {duration_s}")
+    if not math.isfinite(reference_mean_m):
+        raise ControlError(f"reference_mean_m must be finite, got {reference_mean_m}")
     for model in (plant_model, controller_model):
         if model.rig.input_kind != "pressure":
             raise ControlError("closed-loop control needs a pressure-driven rig "
@@ -608,41 +764,40 @@ def closed_loop_batch(
         if gain_arr.shape != (batch, 3) or not np.all(np.isfinite(gain_arr) & (gain_arr >= 0)):
             raise ControlError(f"a gain array must be finite, >= 0 and ({batch}, 3)")
     else:
-        gain_arr = _gain_array(names, gains)
+        gain_arr = gain_array(names, gains)
     dt = timing.plant_dt_s
     n = int(round(duration_s / dt)) + 1
     t_pred = (timing.command_period_s / 2 + _value(controller_model, theta_c, "t_delay")
               + _value(controller_model, theta_c, "tau_reg"))
-    p_init = np.clip(_initial_pressure(controller_model, theta_c, REFERENCE_MEAN_M),
+    p_init = np.clip(_initial_pressure(controller_model, theta_c, reference_mean_m),
                      timing.pressure_min_pa, timing.pressure_max_pa)
-    ref = np.array([REFERENCE_MEAN_M, REFERENCE_AMPLITUDE_M])
+    ref = np.array([reference_mean_m, REFERENCE_AMPLITUDE_M])
     cfg = np.array([timing.derivative_filter_s, timing.encoder_counts_per_m,
                     timing.pressure_min_pa, timing.pressure_max_pa])
     steps = np.array([timing.steps_per_control, timing.steps_per_command], dtype=np.int64)
     window = _pressure_memory_steps(plant_model, theta_p, dt, pressure_memory_s)
     out_x = np.empty((n, batch))
-    rec = [np.empty((n, batch)) for _ in range(3)] if record else [np.empty((1, 1))] * 3
+    out_hold = np.empty(((n - 1) // timing.steps_per_command + 1, batch))
+    rec = [np.empty((n, batch)) for _ in range(2)] if record else [np.empty((1, 1))] * 2
     kernel = _kernel(plant_model, controller_model, record)
     kernel(theta_p, theta_c, freq, kind, gain_arr, np.ascontiguousarray(t_pred),
            np.ascontiguousarray(p_init), ref, cfg, steps,
            plant_model.rig.moving_mass_kg, plant_model.rig.gravity_force_n,
            plant_model.rig.area_m2, controller_model.rig.moving_mass_kg,
            controller_model.rig.gravity_force_n, controller_model.rig.area_m2, dt, window,
-           out_x, *rec)
+           out_x, out_hold, *rec)
     time_s = np.arange(n) * dt
-    reference = REFERENCE_MEAN_M + REFERENCE_AMPLITUDE_M * np.sin(
-        2 * np.pi * freq[:, None] * time_s[None, :])
+    command = np.repeat(out_hold.T, timing.steps_per_command, axis=1)[:, :n]
     return ClosedLoop(
-        time_s=time_s, frequency_hz=freq, controller=names, reference_m=reference,
-        position_m=out_x.T, measured_m=rec[0].T if record else None,
-        command_pa=rec[1].T if record else None,
-        controller_output_pa=rec[2].T if record else None, initial_pressure_pa=p_init,
-        metadata={"timing": timing, "gains": gain_arr, "prediction_s": t_pred},
+        time_s=time_s, frequency_hz=freq, controller=names,
+        reference_m=reference_m(time_s[None, :], freq[:, None], mean_m=reference_mean_m),
+        position_m=out_x.T, measured_m=rec[0].T if record else None, command_pa=command,
+        controller_output_pa=rec[1].T if record else None, initial_pressure_pa=p_init,
+        dead_zone_pa=_value(plant_model, theta_p, "p_dz"),
+        metadata={"timing": timing, "gains": gain_arr, "prediction_s": t_pred,
+                  "reference_mean_m": float(reference_mean_m),
+                  "reference_amplitude_m": REFERENCE_AMPLITUDE_M},
     )
-
-
-def _nominal_model(model: Model | None) -> Model:
-    return Model(rig=Rig.control()) if model is None else model
 
 
 def closed_loop(
@@ -656,6 +811,7 @@ def closed_loop(
     duration_s: float = 10.0,
     gains: Mapping[str, Mapping[str, float]] | None = None,
     timing: Timing | None = None,
+    reference_mean_m: float = REFERENCE_MEAN_M,
 ) -> ClosedLoop:
     """One closed-loop run of the paper's tracking experiment.
 
@@ -677,9 +833,12 @@ def closed_loop(
     duration_s : float
         Length of the run in s.
     gains : mapping, optional
-        Overrides of :data:`DEFAULT_GAINS`.
+        Overrides of :data:`DEFAULT_GAINS` (which are tuned on the paper's values; see
+        :func:`nominal_gains` for gains tuned on another model).
     timing : Timing, optional
         Rates, limits and sensor; the paper's by default.
+    reference_mean_m : float
+        Mean of the reference.
 
     Returns
     -------
@@ -701,11 +860,20 @@ def closed_loop(
         controller_params)
     theta_c = cmodel.theta(cparams)
     return closed_loop_batch(model, theta_p, cmodel, theta_c, np.array([float(frequency_hz)]),
-                             controller, duration_s=duration_s, gains=gains, timing=timing)
+                             controller, duration_s=duration_s, gains=gains, timing=timing,
+                             reference_mean_m=reference_mean_m)
 
 
-_METRIC_NAMES = ("rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg",
-                 "overshoot_pct")
+# ---------------------------------------------------------------------------------
+# Metrics
+
+
+def _check_frequency(frequency_hz) -> float:
+    if isinstance(frequency_hz, bool) or not isinstance(frequency_hz, int | float | np.number):
+        raise ControlError(f"frequency must be a number > 0 Hz, got {frequency_hz!r}")
+    if not (math.isfinite(float(frequency_hz)) and frequency_hz > 0):
+        raise ControlError(f"frequency must be > 0 Hz, got {frequency_hz}")
+    return float(frequency_hz)
 
 
 def _analysis_window(time_s: np.ndarray, frequency_hz: float, settle_s: float) -> np.ndarray:
@@ -719,7 +887,22 @@ def _analysis_window(time_s: np.ndarray, frequency_hz: float, settle_s: float) -
             f"the run ({end:.3g} s) holds no whole period of {frequency_hz:g} Hz after the "
             f"first {start:.3g} s of start-up; run for at least {start + period:.3g} s")
     first = int(round((end - n_periods * period - time_s[0]) / dt))
-    return np.arange(first, len(time_s))
+    # the last sample excluded, so the window spans whole periods exactly
+    return np.arange(first, len(time_s) - 1)
+
+
+def minimum_duration_s(frequency_hz: float, settle_s: float = 2.0) -> float:
+    """Shortest run whose metrics have one whole period after the start-up (internal)."""
+    return max(settle_s, 1.0 / frequency_hz) + 1.0 / frequency_hz
+
+
+def _rows(time_s, *signals) -> tuple[np.ndarray, ...]:
+    time_s = np.asarray(time_s, dtype=float)
+    rows = [np.atleast_2d(np.asarray(x, dtype=float)) for x in signals]
+    if any(r.shape[-1] != time_s.size for r in rows):
+        raise ControlError("every signal must have as many samples as time_s")
+    batch = max(r.shape[0] for r in rows)
+    return (time_s, *(np.broadcast_to(r, (batch, time_s.size)) for r in rows))
 
 
 def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np.ndarray,
@@ -728,7 +911,8 @@ def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np
 
     The window drops the first ``max(settle_s, one period)`` and keeps the largest
     whole number of periods ending at the last sample (the last sample excluded,
-    so the window spans whole periods exactly).
+    so the window spans whole periods exactly). Each run is reduced on its own
+    contiguous row, so its numbers do not depend on the batch it came in.
 
     Parameters
     ----------
@@ -758,28 +942,20 @@ def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np
     ControlError
         If the frequency is not > 0 or the run holds no whole period after start-up.
     """
-    if not (np.isfinite(frequency_hz) and frequency_hz > 0):
-        raise ControlError(f"frequency must be > 0 Hz, got {frequency_hz}")
-    time_s = np.asarray(time_s, dtype=float)
-    ref = np.atleast_2d(np.asarray(reference_m, dtype=float))
-    pos = np.atleast_2d(np.asarray(position_m, dtype=float))
-    if ref.shape[-1] != time_s.size or pos.shape[-1] != time_s.size:
-        raise ControlError("reference, position and time must have the same number of samples")
-    idx = _analysis_window(time_s, frequency_hz, settle_s)[:-1]
+    frequency_hz = _check_frequency(frequency_hz)
+    time_s, ref, pos = _rows(time_s, reference_m, position_m)
+    idx = _analysis_window(time_s, frequency_hz, settle_s)
     t = time_s[idx]
-    ref = np.broadcast_to(ref, pos.shape)[:, idx]
-    pos = pos[:, idx]
     om = 2 * np.pi * frequency_hz
     basis = np.column_stack([np.ones_like(t), np.sin(om * t), np.cos(om * t)])
     proj = np.ascontiguousarray(np.linalg.pinv(basis))  # least squares by the pseudo-inverse
-    out = {k: np.empty(pos.shape[0]) for k in _METRIC_NAMES}
+    out = {k: np.empty(pos.shape[0]) for k in _TRACKING}
     # Row by row on contiguous 1-D copies, by numpy's pairwise sums (not BLAS, whose
     # threads and blocking may vary): reductions over an axis of a 2-D array block (and
-    # so round) differently with the batch's shape, and a run's numbers must not depend
-    # on the batch it came in.
+    # so round) differently with the batch's shape.
     for i in range(pos.shape[0]):
-        r = np.ascontiguousarray(ref[i])
-        y = np.ascontiguousarray(pos[i])
+        r = np.ascontiguousarray(ref[i, idx])
+        y = np.ascontiguousarray(pos[i, idx])
         err = y - r
         c_r = [float(np.sum(r * proj[j])) for j in range(3)]
         c_y = [float(np.sum(y * proj[j])) for j in range(3)]
@@ -794,17 +970,180 @@ def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np
     return out
 
 
-def tune_gains(controller: str, *, model: Model | None = None,
-               params: Mapping[str, float] | None = None, frequency_hz: float = 0.5,
-               margin: float = 2.0, tolerance: float = 0.1, duration_s: float = 10.0,
-               grid: Mapping[str, Sequence[float]] | None = None,
-               timing: Timing | None = None) -> dict[str, float]:
-    """The documented gain rule: best tracking at 0.5 Hz with a gain margin.
+def command_fractions(time_s: np.ndarray, command_pa: np.ndarray, frequency_hz: float, *,
+                      dead_zone_pa, pressure_max_pa: float = _PRESSURE_MAX_PA,
+                      settle_s: float = 2.0) -> dict[str, np.ndarray]:
+    """Fractions of the metrics' window with the command in the dead zone or at the limit.
 
-    Every gain set on a log grid is simulated on the nominal model. Among those whose
-    loop still tracks with every gain multiplied by ``margin`` (RMS error below
-    ``tolerance`` times the amplitude), the one with the smallest RMS error at
-    ``frequency_hz`` wins.
+    Parameters
+    ----------
+    time_s : numpy.ndarray
+        Uniform times ``(n,)``.
+    command_pa : numpy.ndarray
+        Pressure command ``(n,)`` or ``(batch, n)``.
+    frequency_hz : float
+        The reference frequency (sets the window, as in :func:`tracking_metrics`).
+    dead_zone_pa : float or numpy.ndarray
+        The plant's ``p_dz``, one or one per run.
+    pressure_max_pa : float
+        The command's upper limit.
+    settle_s : float
+        Start-up to drop.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        ``dead_zone_fraction`` (command at or below ``p_dz``: no actuator force) and
+        ``saturated_fraction`` (command at the upper limit), each ``(batch,)``.
+    """
+    frequency_hz = _check_frequency(frequency_hz)
+    time_s, cmd = _rows(time_s, command_pa)
+    idx = _analysis_window(time_s, frequency_hz, settle_s)
+    p_dz = np.broadcast_to(np.asarray(dead_zone_pa, dtype=float), (cmd.shape[0],))
+    window = cmd[:, idx]
+    return {"dead_zone_fraction": np.mean(window <= p_dz[:, None], axis=1),
+            "saturated_fraction": np.mean(window >= pressure_max_pa, axis=1)}
+
+
+def period_difference_m(time_s: np.ndarray, position_m: np.ndarray,
+                        frequency_hz: float) -> np.ndarray:
+    """Largest difference between the last period of a response and the one before.
+
+    A loop in a periodic steady state repeats itself (up to the encoder's
+    quantisation); one still settling, or oscillating at another frequency, does not.
+
+    Parameters
+    ----------
+    time_s : numpy.ndarray
+        Uniform times ``(n,)``, spanning at least two periods.
+    position_m : numpy.ndarray
+        Response ``(n,)`` or ``(batch, n)``.
+    frequency_hz : float
+        The reference frequency.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``max |x(t) - x(t - T)|`` over the last period ``T``, in m, ``(batch,)``
+        (the earlier period linearly interpolated; inf for a non-finite response).
+    """
+    frequency_hz = _check_frequency(frequency_hz)
+    time_s, pos = _rows(time_s, position_m)
+    period = 1.0 / frequency_hz
+    if time_s[-1] - time_s[0] < 2 * period:
+        raise ControlError(f"need two periods of {frequency_hz:g} Hz, got "
+                           f"{time_s[-1] - time_s[0]:.3g} s")
+    last = time_s >= time_s[-1] - period
+    out = np.empty(pos.shape[0])
+    for i in range(pos.shape[0]):
+        x = pos[i]
+        before = np.interp(time_s[last] - period, time_s, x)
+        d = np.abs(x[last] - before)
+        out[i] = float(d.max()) if np.all(np.isfinite(d)) else np.inf
+    return out
+
+
+def loop_metrics(run: ClosedLoop, *, settle_s: float = 2.0) -> dict[str, np.ndarray]:
+    """Every metric of :data:`METRICS` for each run of a closed-loop batch.
+
+    Parameters
+    ----------
+    run : ClosedLoop
+        Runs from :func:`closed_loop_batch` (any mix of frequencies).
+    settle_s : float
+        Start-up to drop.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        The metrics of :func:`tracking_metrics` and :func:`command_fractions`,
+        each ``(batch,)``.
+    """
+    batch = run.position_m.shape[0]
+    out = {m: np.empty(batch) for m in METRICS}
+    p_max = run.metadata["timing"].pressure_max_pa
+    for f in np.unique(run.frequency_hz):
+        sel = np.flatnonzero(run.frequency_hz == f)
+        met = tracking_metrics(run.time_s, run.reference_m[sel], run.position_m[sel], float(f),
+                               settle_s=settle_s)
+        met |= command_fractions(run.time_s, run.command_pa[sel], float(f),
+                                 dead_zone_pa=run.dead_zone_pa[sel], pressure_max_pa=p_max,
+                                 settle_s=settle_s)
+        for m in METRICS:
+            out[m][sel] = met[m]
+    return out
+
+
+# ---------------------------------------------------------------------------------
+# Gains
+
+
+def _default_grid(controller: str) -> dict[str, np.ndarray]:
+    if controller == "pid":
+        return {"kp": np.geomspace(1e5, 1e9, 17), "ki": np.geomspace(1e5, 1e10, 21),
+                "kd": np.concatenate([[0.0], np.geomspace(1e2, 1e6, 9)])}
+    w = np.geomspace(1.0, 200.0, 24)
+    zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0])
+    ww, zz = np.meshgrid(w, zeta, indexing="ij")
+    return {"kp": (ww**2).ravel(), "kd": (2 * zz * ww).ravel()}
+
+
+def _candidates(controller: str, grid: Mapping[str, Sequence[float]]) -> np.ndarray:
+    names = _GAIN_NAMES[controller]
+    if set(grid) != set(names):
+        raise ControlError(f"grid must give {names} for {controller}, got {sorted(grid)}")
+    values = [np.asarray(grid[k], dtype=float).ravel() for k in names]
+    if any(v.size == 0 or not np.all(np.isfinite(v) & (v >= 0)) for v in values):
+        raise ControlError("grid values must be finite, >= 0 and not empty")
+    if controller == "pid":  # every combination
+        mesh = np.meshgrid(*values, indexing="ij")
+        return np.column_stack([m.ravel() for m in mesh])
+    if len({v.size for v in values}) != 1:  # computed torque: (kp, kd) pairs
+        raise ControlError(f"a computed-torque grid pairs kp[j] with kd[j]: give lists of "
+                           f"equal length, got {[v.size for v in values]}")
+    return np.column_stack(values)
+
+
+def _on_edge(controller: str, cand: np.ndarray, best: np.ndarray) -> list[str]:
+    """Names of the best gains that sit on the grid's edge (a zero gain is no edge)."""
+    if controller == "pid":
+        axes = dict(zip(_GAIN_NAMES["pid"], cand.T, strict=True))
+        value = dict(zip(_GAIN_NAMES["pid"], best, strict=True))
+    else:  # the pairs' stiffness and damping ratio
+        kp, kd = cand.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            axes = {"kp": kp, "zeta": np.where(kp > 0, kd / (2 * np.sqrt(kp)), 0.0)}
+        value = {"kp": best[0], "zeta": best[1] / (2 * math.sqrt(best[0])) if best[0] else 0.0}
+    return [k for k, a in axes.items()
+            if np.unique(a).size > 1 and value[k] != 0 and value[k] in (a.min(), a.max())]
+
+
+def _delayed_plant(model: Model, theta: np.ndarray, delay_s: float) -> tuple[Model, np.ndarray]:
+    """The plant with ``delay_s`` more transport delay."""
+    values = dict(zip(model.parameter_names, theta[0], strict=True))
+    plant = model if "transport_delay" in model.effect_names else model.with_effects(
+        "transport_delay")
+    values["t_delay"] = values.get("t_delay", 0.0) + delay_s
+    return plant, plant.theta({k: v for k, v in values.items()
+                               if k in plant.parameter_names and k not in plant.fixed})
+
+
+def tune_gains(controller: str, *, model: Model | None = None, params=None,
+               frequency_hz: float = 0.5, margin: float = 2.0, delay_margin_s: float = 0.02,
+               rms_factor: float = 2.0, settle_tolerance_m: float = 5e-4,
+               duration_s: float = 10.0, grid: Mapping[str, Sequence[float]] | None = None,
+               timing: Timing | None = None,
+               reference_mean_m: float = REFERENCE_MEAN_M) -> dict[str, float]:
+    """The documented gain rule: best tracking at 0.5 Hz among robustly stable gains.
+
+    Every gain set on the grid is simulated on the nominal model at ``frequency_hz``,
+    then again with every gain multiplied by ``margin`` (a gain margin), and again
+    with the nominal gains and ``delay_margin_s`` of extra transport delay in the
+    plant (a delay margin; the controller's model, and so its prediction, unchanged).
+    A gain set qualifies when all three runs reach a periodic steady state (the last
+    two periods within ``settle_tolerance_m``, :func:`period_difference_m`) and the
+    two perturbed runs' RMS errors are at most ``rms_factor`` times the nominal run's.
+    The qualifying set with the smallest nominal RMS error wins.
 
     Parameters
     ----------
@@ -812,23 +1151,32 @@ def tune_gains(controller: str, *, model: Model | None = None,
         ``"pid"`` or ``"ct"``.
     model : Model, optional
         The nominal model; the base model on :meth:`Rig.control` by default.
-    params : mapping, optional
-        Its parameters; the paper's values by default.
+    params : mapping or numpy.ndarray, optional
+        Its parameters (a mapping, or a full parameter array); the model's defaults
+        (the paper's values) by default.
     frequency_hz : float
         Tuning frequency.
     margin : float
-        Factor all gains must tolerate.
-    tolerance : float
-        RMS error, as a fraction of the amplitude, that counts as still tracking.
+        Factor all gains must tolerate (2: 6 dB).
+    delay_margin_s : float
+        Extra plant delay the gains must tolerate, in s (0 skips the check).
+    rms_factor : float
+        Largest RMS error of a perturbed run, relative to the nominal run's.
+    settle_tolerance_m : float
+        Largest difference between the last two periods of every run.
     duration_s : float
         Length of each run.
     grid : mapping of str to sequence of float, optional
-        Values per gain; by default PID ``kp`` 10^5..10^9 Pa/m, ``ki`` 10^5..10^10
-        Pa/(m s), ``kd`` 0 and 10^2..10^6 Pa s/m (4 values per decade); computed torque
-        ``kp = w^2``, ``kd = 2 zeta w`` with ``w`` 1..200 rad/s (24 values) and
-        ``zeta`` 0.4..2 (8 values).
+        Values per gain. For PID every combination of the ``kp``, ``ki`` and ``kd``
+        lists (a mesh); by default ``kp`` 10^5..10^9 Pa/m, ``ki`` 10^5..10^10
+        Pa/(m s), ``kd`` 0 and 10^2..10^6 Pa s/m, 4 values per decade. For computed
+        torque ``kp[j]`` goes with ``kd[j]`` (pairs; the lists must be of equal
+        length); by default ``kp = w^2``, ``kd = 2 zeta w`` for ``w`` 1..200 rad/s (24
+        values, geometric) by ``zeta`` 0.4..2 (8 values).
     timing : Timing, optional
         Rates, limits and sensor.
+    reference_mean_m : float
+        Mean of the reference.
 
     Returns
     -------
@@ -838,53 +1186,125 @@ def tune_gains(controller: str, *, model: Model | None = None,
     Raises
     ------
     ControlError
-        If no gain set on the grid meets the margin.
+        If the grid is malformed or no gain set on it qualifies.
+
+    Warns
+    -----
+    GainGridWarning
+        If a chosen gain (for computed torque: ``kp`` or the damping ratio) sits on
+        the edge of the grid: the grid should be widened.
     """
     _controller_codes(controller, 1)
+    if not (margin >= 1 and delay_margin_s >= 0 and rms_factor >= 1
+            and settle_tolerance_m > 0):
+        raise ControlError("need margin >= 1, delay_margin_s >= 0, rms_factor >= 1 and "
+                           "settle_tolerance_m > 0")
+    frequency_hz = _check_frequency(frequency_hz)
     model = _nominal_model(model)
-    if grid is None:
-        if controller == "pid":
-            grid = {"kp": np.geomspace(1e5, 1e9, 17), "ki": np.geomspace(1e5, 1e10, 21),
-                    "kd": np.concatenate([[0.0], np.geomspace(1e2, 1e6, 9)])}
-        else:
-            w = np.geomspace(1.0, 200.0, 24)
-            zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0])
-            ww, zz = np.meshgrid(w, zeta, indexing="ij")
-            grid = {"kp": (ww**2).ravel(), "kd": (2 * zz * ww).ravel()}
+    grid = _default_grid(controller) if grid is None else grid
     names = _GAIN_NAMES[controller]
-    if set(grid) != set(names):
-        raise ControlError(f"grid must give {names} for {controller}, got {sorted(grid)}")
-    if controller == "pid":
-        mesh = np.meshgrid(*[np.asarray(grid[k], float) for k in names], indexing="ij")
-        cand = np.column_stack([m.ravel() for m in mesh])
-    else:  # paired values (w, zeta)
-        cand = np.column_stack([np.asarray(grid[k], float) for k in names])
-    both = np.concatenate([cand, margin * cand])
-    theta = model.theta(params)
-    rms = np.empty(len(both))
-    for lo in range(0, len(both), 512):
-        sl = slice(lo, min(lo + 512, len(both)))
-        b = sl.stop - sl.start
-        g = np.zeros((b, 3))
-        g[:, :len(names)] = both[sl]
-        th = np.repeat(theta, b, axis=0)
-        run = closed_loop_batch(model, th, model, th, np.full(b, float(frequency_hz)),
-                                controller, gains=g, duration_s=duration_s, timing=timing,
-                                record=False)
-        rms[sl] = tracking_metrics(run.time_s, run.reference_m, run.position_m,
-                                   frequency_hz)["rms_error_m"]
-    rms = np.where(np.isfinite(rms), rms, np.inf)
-    nominal, doubled = rms[:len(cand)], rms[len(cand):]
-    ok = doubled < tolerance * REFERENCE_AMPLITUDE_M
+    cand = _candidates(controller, grid)
+    theta = _theta1(model, params)
+    cases = [(model, theta, cand), (model, theta, margin * cand)]
+    if delay_margin_s > 0:
+        cases.append((*_delayed_plant(model, theta, delay_margin_s), cand))
+    rms, diff = [], []
+    for plant, theta_p, gains in cases:
+        r, d = np.empty(len(cand)), np.empty(len(cand))
+        for lo in range(0, len(cand), 512):
+            sl = slice(lo, min(lo + 512, len(cand)))
+            b = sl.stop - sl.start
+            g = np.zeros((b, 3))
+            g[:, :len(names)] = gains[sl]
+            run = closed_loop_batch(plant, np.repeat(theta_p, b, axis=0), model,
+                                    np.repeat(theta, b, axis=0), np.full(b, frequency_hz),
+                                    controller, gains=g, duration_s=duration_s, timing=timing,
+                                    reference_mean_m=reference_mean_m, record=False)
+            r[sl] = tracking_metrics(run.time_s, run.reference_m, run.position_m,
+                                     frequency_hz)["rms_error_m"]
+            d[sl] = period_difference_m(run.time_s, run.position_m, frequency_hz)
+        rms.append(np.where(np.isfinite(r), r, np.inf))
+        diff.append(d)
+    ok = np.all([d <= settle_tolerance_m for d in diff], axis=0) & np.isfinite(rms[0])
+    for r in rms[1:]:
+        ok &= r <= rms_factor * rms[0]
     if not ok.any():
-        raise ControlError(f"no {controller} gains on the grid keep a gain margin of {margin}")
-    best = int(np.argmin(np.where(ok, nominal, np.inf)))
+        raise ControlError(
+            f"no {controller} gains on the grid keep a gain margin of {margin:g} and a delay "
+            f"margin of {delay_margin_s:g} s; widen the grid or relax the margins")
+    best = int(np.argmin(np.where(ok, rms[0], np.inf)))
+    edge = _on_edge(controller, cand, cand[best])
+    if edge:
+        warnings.warn(f"the best {controller} gains sit on the grid's edge in "
+                      f"{', '.join(edge)}; widen the grid there", GainGridWarning, stacklevel=2)
     return {k: float(v) for k, v in zip(names, cand[best], strict=True)}
 
 
+_RULE_VERSION = "2"  # bump when tune_gains' rule or its defaults change
+
+
+def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | None = None,
+                  reference_mean_m: float = REFERENCE_MEAN_M,
+                  cache: bool = True) -> dict[str, dict[str, float]]:
+    """Both controllers' gains by :func:`tune_gains` (its defaults) on a nominal model.
+
+    :data:`DEFAULT_GAINS` for the paper's values; for another model (e.g. a fit's
+    posterior mean with its effects) the rule is run on it, and the result cached on
+    disk (under :func:`pmabayes.simulator.cache_dir`, keyed by the model, the values,
+    the timing, the reference mean and the code), so each nominal model is tuned once.
+
+    Parameters
+    ----------
+    model : Model, optional
+        The nominal model; the base model on :meth:`Rig.control` by default.
+    params : mapping or numpy.ndarray, optional
+        Its parameters; the model's defaults by default.
+    timing : Timing, optional
+        Rates, limits and sensor.
+    reference_mean_m : float
+        Mean of the reference.
+    cache : bool
+        Read and write the disk cache.
+
+    Returns
+    -------
+    dict
+        ``{"pid": {...}, "ct": {...}}``.
+    """
+    model = _nominal_model(model)
+    theta = _theta1(model, params)
+    timing = Timing() if timing is None else timing
+    paper = Model(rig=Rig.control())
+    if (model.effect_names == () and model.rig == paper.rig and not model.fixed
+            and np.array_equal(theta, paper.theta(None)) and timing == Timing()
+            and reference_mean_m == REFERENCE_MEAN_M):
+        return {c: dict(g) for c, g in DEFAULT_GAINS.items()}
+    source = Path(__file__).read_text() + Path(_simulator.__file__).read_text()
+    key = json.dumps({"effects": [f"{e.__module__}.{e.__qualname__}" for e in model.effects],
+                      "rig": model.rig.to_dict(), "theta": theta[0].tolist(),
+                      "timing": repr(timing), "mean": float(reference_mean_m),
+                      "rule": _RULE_VERSION, "code": hashlib.sha256(source.encode()).hexdigest()},
+                     sort_keys=True)
+    path = cache_dir() / "gains" / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
+    if cache and path.is_file():
+        return json.loads(path.read_text())
+    gains = {c: tune_gains(c, model=model, params=theta, timing=timing,
+                           reference_mean_m=reference_mean_m) for c in CONTROLLERS}
+    if cache:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{id(gains)}.tmp")
+            tmp.write_text(json.dumps(gains))
+            tmp.replace(path)
+        except OSError:  # a read-only cache: tune again next time
+            pass
+    return gains
+
+
 def track(frequency_hz: float, *, controllers: Sequence[str] = CONTROLLERS,
-          model: Model | None = None, params: Mapping[str, float] | None = None,
-          duration_s: float = 10.0) -> dict:
+          model: Model | None = None, params=None, duration_s: float = 10.0,
+          gains: Mapping[str, Mapping[str, float]] | None = None,
+          reference_mean_m: float = REFERENCE_MEAN_M) -> dict:
     """Metrics of each controller tracking one frequency (``pmabayes track``).
 
     Parameters
@@ -895,134 +1315,38 @@ def track(frequency_hz: float, *, controllers: Sequence[str] = CONTROLLERS,
         Which controllers to run.
     model : Model, optional
         Plant and controller model; the base model on :meth:`Rig.control` by default.
-    params : mapping, optional
+    params : mapping or numpy.ndarray, optional
         Its parameters; the paper's values by default.
     duration_s : float
         Length of each run.
+    gains : mapping, optional
+        Gains per controller; by default :func:`nominal_gains` on the model (the rule
+        run on it, :data:`DEFAULT_GAINS` for the paper's values).
+    reference_mean_m : float
+        Mean of the reference.
 
     Returns
     -------
     dict
         ``{"frequency_hz": f, "controllers": {name: {"rms_error_m": ..., "max_error_m":
-        ..., "amplitude_ratio": ..., "phase_lag_deg": ..., "overshoot_pct": ...}}}``.
+        ..., "amplitude_ratio": ..., "phase_lag_deg": ..., "overshoot_pct": ...,
+        "dead_zone_fraction": ..., "saturated_fraction": ...}}, "gains": {...}}``.
     """
-    if not (isinstance(frequency_hz, int | float) and math.isfinite(frequency_hz)
-            and frequency_hz > 0):
-        raise ControlError(f"frequency must be > 0 Hz, got {frequency_hz}")
+    frequency_hz = _check_frequency(frequency_hz)
     model = _nominal_model(model)
-    theta = model.theta(params)
+    theta = _theta1(model, params)
     names = tuple(controllers)
     _controller_codes(names, len(names))
+    if gains is None:
+        gains = nominal_gains(model, theta, reference_mean_m=reference_mean_m)
     run = closed_loop_batch(model, np.repeat(theta, len(names), axis=0), model,
                             np.repeat(theta, len(names), axis=0),
-                            np.full(len(names), float(frequency_hz)), names,
-                            duration_s=duration_s, record=False)
-    m = tracking_metrics(run.time_s, run.reference_m, run.position_m, frequency_hz)
-    return {"frequency_hz": float(frequency_hz),
+                            np.full(len(names), frequency_hz), names,
+                            duration_s=duration_s, gains=gains,
+                            reference_mean_m=reference_mean_m, record=False)
+    m = loop_metrics(run)
+    return {"frequency_hz": frequency_hz,
             "controllers": {c: {k: float(v[j]) for k, v in m.items()}
-                            for j, c in enumerate(names)}}
-
-
-def figure5(out_path=None, *, model: Model | None = None,
-            params: Mapping[str, float] | None = None, plant_model: Model | None = None,
-            plant_params: Mapping[str, float] | None = None,
-            frequencies_hz: Sequence[float] = (0.5, 1.0, 2.0),
-            duration_s: float = 10.0) -> dict:
-    """Reproduce the paper's Fig. 5 and check its claims.
-
-    Parameters
-    ----------
-    out_path : str or Path, optional
-        Where to write the figure (PNG); no figure if None.
-    model : Model, optional
-        The controller's model (and the plant's unless ``plant_model`` is given); the
-        base model on :meth:`Rig.control` by default.
-    params : mapping, optional
-        Its parameters; the paper's values by default.
-    plant_model : Model, optional
-        A plant that differs from the controller's model, e.g. with a regulator lag
-        the model lacks.
-    plant_params : mapping, optional
-        The plant's parameters (the model's defaults for those not given).
-    frequencies_hz : sequence of float
-        The panels' frequencies (the paper's 0.5, 1 and 2 Hz).
-    duration_s : float
-        Length of each run.
-
-    Returns
-    -------
-    dict
-        ``metrics`` (per frequency and controller, as :func:`track`) and ``claims``,
-        a list of ``{"claim", "reproduced", "evidence"}``.
-    """
-    model = _nominal_model(model)
-    theta = model.theta(params)
-    if plant_model is None:
-        plant_model, theta_p = model, theta
-    else:
-        theta_p = plant_model.theta(plant_params)
-    freqs = [float(f) for f in frequencies_hz]
-    names = [c for _ in freqs for c in CONTROLLERS]
-    fr = np.repeat(freqs, len(CONTROLLERS))
-    batch = len(names)
-    run = closed_loop_batch(plant_model, np.repeat(theta_p, batch, axis=0), model,
-                            np.repeat(theta, batch, axis=0), fr, names, duration_s=duration_s)
-    metrics: dict[float, dict[str, dict[str, float]]] = {}
-    for j, (f, c) in enumerate(zip(fr, names, strict=True)):
-        m = tracking_metrics(run.time_s, run.reference_m[j], run.position_m[j], f)
-        metrics.setdefault(float(f), {})[c] = {k: float(v[0]) for k, v in m.items()}
-    claims = []
-    if all(f in metrics for f in (0.5, 1.0, 2.0)):
-        rms = {f: (metrics[f]["pid"]["rms_error_m"], metrics[f]["ct"]["rms_error_m"])
-               for f in (0.5, 1.0, 2.0)}
-        claims.append({
-            "claim": "computed torque tracks better (lower RMS error) than PID at 0.5, 1 "
-                     "and 2 Hz",
-            "reproduced": all(ct < pid for pid, ct in rms.values()),
-            "evidence": "; ".join(f"{f:g} Hz: PID {1e3 * p:.2f} mm, CT {1e3 * c:.2f} mm"
-                                  for f, (p, c) in rms.items())})
-        lag_pid = metrics[2.0]["pid"]["phase_lag_deg"]
-        lag_ct = metrics[2.0]["ct"]["phase_lag_deg"]
-        claims.append({
-            "claim": "at 2 Hz PID is close to 180 degrees out of phase (150-210 taken as "
-                     "close) while computed torque stays under 180",
-            "reproduced": bool(150.0 <= lag_pid <= 210.0 and lag_ct < 180.0),
-            "evidence": f"phase lag at 2 Hz: PID {lag_pid:.0f} deg, CT {lag_ct:.0f} deg"})
-        over = metrics[1.0]["ct"]["overshoot_pct"]
-        claims.append({
-            "claim": "computed torque overshoots by about 10% at 1 Hz (5-15% taken as about)",
-            "reproduced": bool(5.0 <= over <= 15.0),
-            "evidence": f"CT overshoot at 1 Hz: {over:.1f}% of the amplitude"})
-    if out_path is not None:
-        _plot_figure5(run, freqs, out_path)
-    return {"metrics": metrics, "claims": claims}
-
-
-def _plot_figure5(run: ClosedLoop, freqs: list[float], out_path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2 * len(freqs), 1, figsize=(8, 3.2 * len(freqs)), sharex=True,
-                             gridspec_kw={"height_ratios": [2, 1] * len(freqs)})
-    t = run.time_s
-    for k, f in enumerate(freqs):
-        top, bottom = axes[2 * k], axes[2 * k + 1]
-        j_pid = 2 * k
-        top.plot(t, 1e3 * run.reference_m[j_pid], "k--", lw=1, label="$x_d$")
-        for j, (c, style) in enumerate(zip(CONTROLLERS, ("C0", "C3"), strict=True)):
-            label = {"pid": "$x_{FB}$ (PID)", "ct": "$x_{CT}$ (computed torque)"}[c]
-            top.plot(t, 1e3 * run.position_m[2 * k + j], style, lw=1, label=label)
-            bottom.plot(t, 1e3 * (run.reference_m[2 * k + j] - run.position_m[2 * k + j]),
-                        style, lw=1)
-        top.set_ylabel("x [mm]")
-        top.set_title(f"({'abc'[k] if k < 3 else k}) {f:g} Hz")
-        bottom.set_ylabel("error [mm]")
-        bottom.axhline(0, color="k", lw=0.5)
-        if k == 0:
-            top.legend(loc="upper right", fontsize=8, ncol=3)
-    axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(out_path, dpi=120)
-    plt.close(fig)
+                            for j, c in enumerate(names)},
+            "gains": {c: {k: float(v) for k, v in gains[c].items()} for c in names
+                      if c in gains}}

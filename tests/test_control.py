@@ -1,29 +1,36 @@
 """Closed-loop control: controllers, the multi-rate loop, metrics, sweeps and the CLI."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 import xarray as xr
 
+import pmabayes.robustness as robustness
 from pmabayes import Model, Rig, simulate
 from pmabayes.cli import main
 from pmabayes.control import (
     DEFAULT_GAINS,
-    OPERATING_OFFSET_M,
+    METRICS,
     REFERENCE_AMPLITUDE_M,
     REFERENCE_MEAN_M,
     ControlError,
+    GainGridWarning,
     closed_loop,
-    figure5,
-    operating_offset_m,
+    loop_metrics,
+    nominal_gains,
+    operating_mean_m,
+    period_difference_m,
     track,
     tracking_metrics,
     tune_gains,
 )
+from pmabayes.plots import plot_figure5, plot_robustness, plt
 from pmabayes.posterior import save_fit
+from pmabayes.reproduction import figure5
 from pmabayes.robustness import (
-    METRICS,
+    posterior_mean,
     robustness_sweep,
     summarise_robustness,
     write_robustness,
@@ -50,12 +57,26 @@ def fake_fit(path, *, spread=0.01, n_chain=4, n_draw=25, seed=0, effects=(), val
 # -- the operating point ------------------------------------------------------------
 
 
-def test_operating_point_keeps_the_trough_above_the_sag():
-    sag = -Rig.control().gravity_force_n / CONTROL.defaults["K_e"]
-    trough = REFERENCE_MEAN_M - REFERENCE_AMPLITUDE_M
-    assert 8.8e-3 < sag < 9.0e-3
-    assert trough == pytest.approx(sag + 0.005, abs=1e-4)
-    assert OPERATING_OFFSET_M == operating_offset_m() == pytest.approx(0.0315)
+def test_operating_point_keeps_the_inverse_model_out_of_the_dead_zone():
+    assert REFERENCE_MEAN_M == operating_mean_m() == pytest.approx(0.100)
+    # the inverse-model pressure along x_d at 2 Hz, independently: quasi-static plus
+    # inertia and damping bound it, hysteresis adds at most a few N
+    rig, v = Rig.control(), CONTROL.defaults
+    t = np.linspace(0, 0.5, 2001)
+    x = REFERENCE_MEAN_M + REFERENCE_AMPLITUDE_M * np.sin(4 * np.pi * t)
+    xd, xdd = np.gradient(x, t), np.gradient(np.gradient(x, t), t)
+    p = v["p_dz"] + (rig.moving_mass_kg * xdd + v["d"] * xd + v["K_e"] * x
+                     + rig.gravity_force_n) / rig.area_m2
+    assert p.min() > v["p_dz"] + 30e3 and p.max() < 0.9e6 - 300e3
+    # one mm lower and the rule's 50 kPa margin would be broken: the smallest such mean
+    lower = operating_mean_m(resolution_m=1e-4)
+    assert REFERENCE_MEAN_M - 1e-3 < lower <= REFERENCE_MEAN_M
+    # the model's own values count (a stiffer muscle needs less offset), fixed ones too
+    stiff = Model(rig=Rig.control(), fixed={"K_e": 900.0})
+    assert operating_mean_m(stiff) < REFERENCE_MEAN_M
+    assert operating_mean_m(CONTROL, {"K_e": 900.0}) == operating_mean_m(stiff)
+    with pytest.raises(ControlError, match="lower the"):
+        operating_mean_m(frequency_hz=6.0)
 
 
 # -- the closed loop ----------------------------------------------------------------
@@ -66,20 +87,57 @@ def test_nominal_loop_is_stable_and_tracks(controller):
     run = closed_loop(controller, 0.5)
     x = run.position_m[0]
     assert np.all(np.isfinite(x))
-    m = tracking_metrics(run.time_s, run.reference_m, run.position_m, 0.5)
+    m = loop_metrics(run)
     assert m["rms_error_m"][0] < 2e-3  # under 10% of the 22.5 mm amplitude
     assert 0.9 < m["amplitude_ratio"][0] < 1.1
     assert abs(m["phase_lag_deg"][0]) < 10
+    assert m["dead_zone_fraction"][0] == 0 and m["saturated_fraction"][0] == 0
     # it settles: the last two periods agree with each other
     last, before = x[-2000:], x[-4000:-2000]
     assert np.max(np.abs(last - before)) < 5e-4
+    assert period_difference_m(run.time_s, x, 0.5)[0] == pytest.approx(
+        np.max(np.abs(last - before)), abs=1e-12)
     assert np.all((run.command_pa >= 0) & (run.command_pa <= 0.9e6))
+
+
+@pytest.mark.parametrize("controller", ["pid", "ct"])
+def test_default_gains_keep_their_margins(controller):
+    """The README's claim: doubled gains, or 20 ms more delay, still settle and track."""
+    nominal = closed_loop(controller, 0.5)
+    doubled = closed_loop(controller, 0.5, gains={controller: {
+        k: 2 * v for k, v in DEFAULT_GAINS[controller].items()}})
+    delayed = closed_loop(controller, 0.5, model=Model(["transport_delay"], rig=Rig.control()),
+                          params={"t_delay": 0.02}, controller_model=CONTROL,
+                          controller_params={})
+    rms = [tracking_metrics(r.time_s, r.reference_m, r.position_m, 0.5)["rms_error_m"][0]
+           for r in (nominal, doubled, delayed)]
+    for r in (nominal, doubled, delayed):
+        assert period_difference_m(r.time_s, r.position_m, 0.5)[0] < 5e-4
+    assert rms[1] <= 2 * rms[0] and rms[2] <= 2 * rms[0]
+
+
+def test_metrics_report_the_dead_zone():
+    run = closed_loop("pid", 1.0, reference_mean_m=0.0365)  # trough near the sag
+    m = loop_metrics(run)
+    cmd = run.command_pa[0][run.time_s >= 2.0][:-1]
+    assert m["dead_zone_fraction"][0] == pytest.approx(np.mean(cmd <= run.dead_zone_pa[0]))
+    assert m["dead_zone_fraction"][0] > 0.1
+    assert run.reference_m[0, 0] == pytest.approx(0.0365)
 
 
 def test_computed_torque_beats_pid_on_the_nominal_model():
     result = track(1.0)
     ct, pid = result["controllers"]["ct"], result["controllers"]["pid"]
     assert ct["rms_error_m"] < pid["rms_error_m"]
+    assert result["gains"] == DEFAULT_GAINS
+    assert track(np.float32(1.0))["controllers"]["ct"]["rms_error_m"] == ct["rms_error_m"]
+
+
+def test_computed_torque_removes_a_known_sensor_offset():
+    model = Model(["position_offset"], rig=Rig.control())
+    run = closed_loop("ct", 0.5, model=model, params={"x_offset": 1e-3})
+    bias = np.mean((run.position_m[0] - run.reference_m[0])[run.time_s >= 2.0])
+    assert abs(bias) < 1e-4  # it was the whole 1 mm before the offset was inverted
 
 
 def test_multirate_timing():
@@ -166,7 +224,23 @@ def test_metrics_window_is_whole_periods_after_startup():
 
 @pytest.mark.parametrize("controller", ["ct", "pid"])
 def test_gain_rule_reproduces_the_defaults(controller):
-    assert tune_gains(controller) == pytest.approx(DEFAULT_GAINS[controller], rel=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", GainGridWarning)  # and they are inside the grid
+        assert tune_gains(controller) == pytest.approx(DEFAULT_GAINS[controller], rel=1e-12)
+
+
+def test_gain_rule_rejects_unstable_gains_and_warns_on_the_grid_edge():
+    pid = DEFAULT_GAINS["pid"]
+    with pytest.warns(GainGridWarning, match="kp"):
+        g = tune_gains("pid", grid={"kp": [pid["kp"], 3e7], "ki": [pid["ki"]], "kd": [pid["kd"]]})
+    assert g == pid
+    # the old rule's PID gains track with doubled gains but do not settle: refused
+    with pytest.raises(ControlError, match="widen the grid"):
+        tune_gains("pid", grid={"kp": [1.78e7], "ki": [3.16e8], "kd": [3.16e4]})
+    with pytest.raises(ControlError, match="equal length"):
+        tune_gains("ct", grid={"kp": [100.0, 400.0], "kd": [20.0]})
+    with pytest.raises(ControlError, match="grid must give"):
+        tune_gains("ct", grid={"kp": [100.0], "ki": [20.0]})
 
 
 # -- errors -------------------------------------------------------------------------
@@ -190,7 +264,9 @@ def test_bad_input_is_refused_clearly():
 # -- robustness sweeps ----------------------------------------------------------------
 
 
-SMALL = {"samples": 3, "frequencies_hz": (0.5, 2.0), "duration_s": 4.0, "progress": False}
+# the paper's gains: tuning on each fake fit's posterior mean is tested once, below
+SMALL = {"samples": 3, "frequencies_hz": (0.5, 2.0), "duration_s": 4.0, "progress": False,
+         "gains": DEFAULT_GAINS}
 
 
 def test_sweep_same_seed_same_numbers_however_chunked(tmp_path):
@@ -233,13 +309,71 @@ def test_sweep_on_dask_equals_local(tmp_path):
         np.testing.assert_array_equal(local[m].values, remote[m].values)
 
 
+@pytest.mark.parametrize("mode", ["plant", "model"])
+def test_sweep_modes_draw_the_right_side(tmp_path, monkeypatch, mode):
+    path = fake_fit(tmp_path / "fit.nc", spread=0.05)
+    seen = []
+    real = robustness.closed_loop_batch
+
+    def spy(plant_model, plant_theta, controller_model, controller_theta, *args, **kw):
+        seen.append((np.array(plant_theta), np.array(controller_theta)))
+        return real(plant_model, plant_theta, controller_model, controller_theta, *args, **kw)
+
+    monkeypatch.setattr(robustness, "closed_loop_batch", spy)
+    ds = robustness_sweep(path, mode=mode, processes=1, chunk_size=1000, **SMALL)
+    assert len(seen) == 1
+    theta_plant, theta_controller = seen[0]
+    drawn = np.repeat(ds["sample_parameters"].values, 2 * 2, axis=0)  # x frequency x ctrl
+    mean = np.broadcast_to(ds["nominal_parameters"].values, drawn.shape)
+    assert not np.allclose(drawn, mean)
+    if mode == "plant":
+        np.testing.assert_array_equal(theta_plant, drawn)
+        np.testing.assert_array_equal(theta_controller, mean)
+    else:
+        np.testing.assert_array_equal(theta_plant, mean)
+        np.testing.assert_array_equal(theta_controller, drawn)
+
+
+def test_sweep_tunes_both_controllers_on_the_posterior_mean(tmp_path):
+    from pmabayes.posterior import load_fit
+
+    path = fake_fit(tmp_path / "fit.nc", effects=["regulator_lag"], values={"tau_reg": 0.03})
+    kw = {**SMALL, "samples": 2, "frequencies_hz": (1.0,)}
+    del kw["gains"]
+    ds = robustness_sweep(path, processes=1, **kw)
+    tree = load_fit(path)
+    model = robustness.control_model_from_fit(tree)
+    mean = posterior_mean(tree, model)
+    np.testing.assert_array_equal(ds["nominal_parameters"].values, mean)
+    tuned = nominal_gains(model, mean)
+    assert json.loads(ds.attrs["gains"]) == tuned
+    assert ds.attrs["gains_source"].startswith("tune_gains")
+    assert tuned != DEFAULT_GAINS  # the lag changes the best gains
+    given = robustness_sweep(path, processes=1, gains=DEFAULT_GAINS, **kw)
+    assert json.loads(given.attrs["gains"]) == DEFAULT_GAINS
+    assert not np.array_equal(given["rms_error_m"].values, ds["rms_error_m"].values)
+
+
+def test_sweep_refuses_bad_settings_before_simulating(tmp_path):
+    path = fake_fit(tmp_path / "fit.nc")
+    for bad in (0, -1, 1.5):
+        with pytest.raises(ControlError, match="processes must be an integer >= 1"):
+            robustness_sweep(path, processes=bad, **SMALL)
+    with pytest.raises(ControlError, match="use at least 8 s"):
+        robustness_sweep(path, **{**SMALL, "frequencies_hz": (0.25, 1.0)})
+    with pytest.raises(ControlError, match="unknown controllers"):
+        robustness_sweep(path, processes=1, **{**SMALL, "gains": {"lqr": {}}})
+    ds = robustness_sweep(path, processes=1, seed=np.random.default_rng(1), **SMALL)
+    assert "0x" not in str(ds.attrs["seed"])
+
+
 def test_sweep_modes_at_zero_spread_are_the_nominal_loop(tmp_path):
     path = fake_fit(tmp_path / "fit.nc", spread=0.0)
     kw = {**SMALL, "samples": 2, "frequencies_hz": (1.0,), "duration_s": 10.0,
           "processes": 1}
     plant = robustness_sweep(path, mode="plant", **kw)
     model = robustness_sweep(path, mode="model", **kw)
-    nominal = track(1.0)["controllers"]
+    nominal = track(1.0, gains=DEFAULT_GAINS)["controllers"]
     for j, c in enumerate(("pid", "ct")):
         for m in METRICS:
             assert plant[m].values[0, 0, j] == pytest.approx(nominal[c][m], rel=1e-9)
@@ -258,18 +392,25 @@ def test_sweep_output_files(tmp_path):
     back = xr.open_dataset(paths["netcdf"], engine="h5netcdf")
     np.testing.assert_array_equal(back["rms_error_m"].values, ds["rms_error_m"].values)
     back.close()
-    assert "p_ct_beats_pid" in paths["summary_csv"].read_text().splitlines()[0]
+    head = paths["summary_csv"].read_text().splitlines()[0]
+    assert "p_ct_beats_pid" in head and "p_ct_beats_pid_mc_error" in head
+    summary = summarise_robustness(ds)
+    assert np.all(summary["p_ct_beats_pid_mc_error"] >= 1 / 3 - 1e-12)
+    plt.close(plot_robustness(ds, path=tmp_path / "rob.png"))
+    assert (tmp_path / "rob.png").stat().st_size > 10_000
 
 
 # -- Fig. 5 and the command line -----------------------------------------------------
 
 
 def test_figure5_reports_each_claim(tmp_path):
-    result = figure5(tmp_path / "fig5.png", duration_s=6.0)
+    result = figure5(duration_s=6.0)
+    plt.close(plot_figure5(result["run"], path=tmp_path / "fig5.png"))
     assert (tmp_path / "fig5.png").stat().st_size > 10_000
     assert len(result["claims"]) == 3
     assert all(isinstance(c["reproduced"], bool) and c["evidence"] for c in result["claims"])
     assert set(result["metrics"]) == {0.5, 1.0, 2.0}
+    assert set(result["metrics"][1.0]["ct"]) == set(METRICS)
 
 
 def test_cli_track_json(tmp_path, capsys):
@@ -279,8 +420,9 @@ def test_cli_track_json(tmp_path, capsys):
     assert data["frequency_hz"] == 1.0
     assert set(data["controllers"]) == {"pid", "ct"}
     for m in data["controllers"].values():
-        assert set(m) == {"rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg",
-                          "overshoot_pct"}
+        assert {"rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg",
+                "overshoot_pct"} <= set(m)
+        assert set(m) == set(METRICS)
     assert main(["track", "--freq", "0.5", "--controller", "ct", "--json", str(out)]) == 0
     assert set(json.loads(out.read_text())["controllers"]) == {"ct"}
 

@@ -22,6 +22,7 @@ MODULES = [
     "pmabayes.report",
     "pmabayes.control",
     "pmabayes.robustness",
+    "pmabayes.reproduction",
     "pmabayes.cli",
 ]
 # missing docstring or summary, parameters undocumented or unknown, returns undocumented
