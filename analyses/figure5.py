@@ -8,7 +8,9 @@ Two cases, both with the controllers on the paper's identified base model:
 
 For each, the figure (reference, PID and computed-torque responses, the error below
 each; :func:`pmabayes.plots.plot_figure5`), the metrics with the fraction of time the
-command spends in the dead zone and at the upper limit, and a check of each of the
+command spends in the dead zone and at the upper limit and the difference between
+the last two periods (``settle mm``; large when the loop never settles), and a check
+of each of the
 paper's claims (:func:`pmabayes.reproduction.figure5`), reproduced or not, with the
 numbers.
 
@@ -22,7 +24,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pmabayes.control import REFERENCE_MEAN_M
+from pmabayes.control import REFERENCE_MEAN_M, period_difference_m
 from pmabayes.model import Model, Rig
 from pmabayes.plots import plot_figure5, plt
 from pmabayes.reproduction import figure5
@@ -47,13 +49,17 @@ def main(argv: list[str] | None = None) -> int:
         plt.close(plot_figure5(result["run"], path=path))
         print(f"\n== {name} plant ({path}); gains {result['gains']}")
         print(f"{'f [Hz]':>6} {'ctrl':>4} {'RMS mm':>7} {'max mm':>7} {'amp':>6} "
-              f"{'lag deg':>8} {'over %':>7} {'dead %':>7} {'sat %':>6}")
+              f"{'lag deg':>8} {'over %':>7} {'dead %':>7} {'sat %':>6} {'settle mm':>9}")
+        run = result["run"]
+        settle = {(float(f), c): period_difference_m(run.time_s, run.position_m[j], f)[0]
+                  for j, (f, c) in enumerate(zip(run.frequency_hz, run.controller, strict=True))}
         for f, per in result["metrics"].items():
             for c, m in per.items():
                 print(f"{f:6.2f} {c:>4} {1e3 * m['rms_error_m']:7.2f} "
                       f"{1e3 * m['max_error_m']:7.2f} {m['amplitude_ratio']:6.3f} "
                       f"{m['phase_lag_deg']:8.1f} {m['overshoot_pct']:7.1f} "
-                      f"{100 * m['dead_zone_fraction']:7.1f} {100 * m['saturated_fraction']:6.1f}")
+                      f"{100 * m['dead_zone_fraction']:7.1f} {100 * m['saturated_fraction']:6.1f} "
+                      f"{1e3 * settle[(f, c)]:9.3f}")
         for claim in result["claims"]:
             verdict = "REPRODUCED" if claim["reproduced"] else "NOT reproduced"
             print(f"- {verdict}: {claim['claim']} ({claim['evidence']})")

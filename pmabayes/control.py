@@ -1081,7 +1081,7 @@ def loop_metrics(run: ClosedLoop, *, settle_s: float = 2.0) -> dict[str, np.ndar
 def _default_grid(controller: str) -> dict[str, np.ndarray]:
     if controller == "pid":
         return {"kp": np.geomspace(1e5, 1e9, 17), "ki": np.geomspace(1e5, 1e10, 21),
-                "kd": np.concatenate([[0.0], np.geomspace(1e2, 1e6, 9)])}
+                "kd": np.concatenate([[0.0], np.geomspace(1e2, 1e8, 13)])}
     w = np.geomspace(1.0, 200.0, 24)
     zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0])
     ww, zz = np.meshgrid(w, zeta, indexing="ij")
@@ -1168,8 +1168,9 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
         Length of each run.
     grid : mapping of str to sequence of float, optional
         Values per gain. For PID every combination of the ``kp``, ``ki`` and ``kd``
-        lists (a mesh); by default ``kp`` 10^5..10^9 Pa/m, ``ki`` 10^5..10^10
-        Pa/(m s), ``kd`` 0 and 10^2..10^6 Pa s/m, 4 values per decade. For computed
+        lists (a mesh); by default ``kp`` 10^5..10^9 Pa/m and ``ki`` 10^5..10^10
+        Pa/(m s), 4 values per decade, ``kd`` 0 and 10^2..10^8 Pa s/m, 2 per
+        decade. For computed
         torque ``kp[j]`` goes with ``kd[j]`` (pairs; the lists must be of equal
         length); by default ``kp = w^2``, ``kd = 2 zeta w`` for ``w`` 1..200 rad/s (24
         values, geometric) by ``zeta`` 0.4..2 (8 values).
@@ -1240,7 +1241,7 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     return {k: float(v) for k, v in zip(names, cand[best], strict=True)}
 
 
-_RULE_VERSION = "2"  # bump when tune_gains' rule or its defaults change
+_RULE_VERSION = "3"  # bump when tune_gains' rule or its defaults change
 
 
 def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | None = None,
