@@ -283,7 +283,7 @@ def robustness_sweep(
         raise ControlError(f"chunk_size must be an integer >= 1, got {chunk_size!r}")
     if processes is not None and (isinstance(processes, bool) or not (
             isinstance(processes, int | np.integer) and processes >= 1)):
-        raise ControlError(f"processes must be an integer >= 1 (or None for every core), "
+        raise ControlError(f"processes must be an integer >= 1 (or left out for every core), "
                            f"got {processes!r}")
     source = str(fit) if isinstance(fit, str | Path) else "(in memory)"
     tree = load_fit(fit) if isinstance(fit, str | Path) else fit
