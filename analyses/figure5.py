@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pmabayes.control import REFERENCE_MEAN_M, period_difference_m
+from pmabayes.control import REFERENCE_MEAN_M, inverse_model_pressure_pa, period_difference_m
 from pmabayes.model import Model, Rig
 from pmabayes.plots import plot_figure5, plt
 from pmabayes.reproduction import figure5
@@ -43,6 +43,10 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(f"reference: x_d = {REFERENCE_MEAN_M:.4f} + 0.0225 sin(2 pi f t) m, 500 g load "
           "(mean by control.operating_mean_m)")
+    ranges = [(f, inverse_model_pressure_pa(f)) for f in (0.5, 1.0, 2.0)]
+    print("pressure the paper's model needs along x_d: " + "; ".join(
+        f"{f:g} Hz {p.min() / 1e6:.3f}-{p.max() / 1e6:.3f} MPa" for f, p in ranges)
+        + f" (p_dz {Model(rig=Rig.control()).defaults['p_dz'] / 1e6:.3f} MPa, limit 0.9 MPa)")
     for name, kw in cases.items():
         path = args.out / f"figure5_{name}.png"
         result = figure5(**kw)

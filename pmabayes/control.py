@@ -124,6 +124,7 @@ __all__ = [
     "Timing",
     "ClosedLoop",
     "operating_mean_m",
+    "inverse_model_pressure_pa",
     "reference_m",
     "closed_loop",
     "closed_loop_batch",
@@ -170,6 +171,48 @@ def _theta1(model: Model, params) -> np.ndarray:
     return theta
 
 
+def _inverse_pressure(model: Model | None, params, frequency_hz: float, amplitude_m: float):
+    """``(pressure(mean), p_dz)``: the pressure the model needs over one period of x_d."""
+    model = _nominal_model(model)
+    theta = _theta1(model, params)[0]
+    v = dict(zip(model.parameter_names, theta, strict=True))
+    rig = model.rig
+    n = 2000  # samples per period; two periods from z = 0, the second is periodic
+    om = 2 * np.pi * frequency_hz
+    phase = np.arange(2 * n + 1) * (2 * np.pi / n)
+    s, c = np.sin(phase), np.cos(phase)
+    z = np.zeros(phase.size)
+    dxs = amplitude_m * np.diff(s)
+    for k, dx in enumerate(dxs):  # midpoint rule for dz/dx = alpha - (beta sgn + gamma)|z|
+        for corrector in (False, True):  # Euler predictor, then the midpoint
+            zm = 0.5 * (z[k] + z[k + 1]) if corrector else z[k]
+            sgn = 1.0 if dx * zm >= 0.0 else -1.0
+            z[k + 1] = z[k] + dx * (v["alpha"] - (v["beta"] * sgn + v["gamma"]) * abs(zm))
+    sl = slice(n, 2 * n)
+    z = z[sl]
+    vel = amplitude_m * om * c[sl]
+    acc = -amplitude_m * om * om * s[sl]
+    p_dz = v.get("p_dz", 0.0)
+    force_effects = [(e, theta[sl_e]) for e, sl_e in model.effect_slices() if e.stage == "force"]
+
+    def pressure(mean: float) -> np.ndarray:
+        x = mean + amplitude_m * s[sl]
+        base = rig.moving_mass_kg * acc + v["d"] * vel + v["K_e"] * x + z + rig.gravity_force_n
+        p = p_dz + base / rig.area_m2
+        for k in range(p.size if force_effects else 0):  # an effect may depend on p
+            for _ in range(50):
+                extra = sum(e.physics(np.ascontiguousarray(q), x[k], vel[k], p[k])[0]
+                            for e, q in force_effects)
+                p_new = p_dz + (base[k] + extra) / rig.area_m2
+                done = abs(p_new - p[k]) <= 1e-9 * (1.0 + abs(p_new))
+                p[k] = p_new
+                if done:
+                    break
+        return p
+
+    return pressure, p_dz
+
+
 def operating_mean_m(model: Model | None = None, params=None, *, frequency_hz: float = 2.0,
                      amplitude_m: float = REFERENCE_AMPLITUDE_M, margin_pa: float = 50e3,
                      pressure_max_pa: float = _PRESSURE_MAX_PA,
@@ -214,43 +257,7 @@ def operating_mean_m(model: Model | None = None, params=None, *, frequency_hz: f
     if not (frequency_hz > 0 and amplitude_m > 0 and margin_pa >= 0 and resolution_m > 0):
         raise ControlError("need frequency_hz > 0, amplitude_m > 0, margin_pa >= 0 and "
                            "resolution_m > 0")
-    model = _nominal_model(model)
-    theta = _theta1(model, params)[0]
-    v = dict(zip(model.parameter_names, theta, strict=True))
-    rig = model.rig
-    n = 2000  # samples per period; two periods from z = 0, the second is periodic
-    om = 2 * np.pi * frequency_hz
-    phase = np.arange(2 * n + 1) * (2 * np.pi / n)
-    s, c = np.sin(phase), np.cos(phase)
-    z = np.zeros(phase.size)
-    dxs = amplitude_m * np.diff(s)
-    for k, dx in enumerate(dxs):  # midpoint rule for dz/dx = alpha - (beta sgn + gamma)|z|
-        for _ in range(2):
-            zm = z[k] if _ == 0 else 0.5 * (z[k] + z[k + 1])
-            sgn = 1.0 if dx * zm >= 0.0 else -1.0
-            z[k + 1] = z[k] + dx * (v["alpha"] - (v["beta"] * sgn + v["gamma"]) * abs(zm))
-    sl = slice(n, 2 * n)
-    z = z[sl]
-    vel = amplitude_m * om * c[sl]
-    acc = -amplitude_m * om * om * s[sl]
-    force_effects = [(e, theta[sl_e]) for e, sl_e in model.effect_slices() if e.stage == "force"]
-    p_dz = v.get("p_dz", 0.0)
-
-    def pressure(mean: float) -> np.ndarray:
-        x = mean + amplitude_m * s[sl]
-        base = rig.moving_mass_kg * acc + v["d"] * vel + v["K_e"] * x + z + rig.gravity_force_n
-        p = p_dz + base / rig.area_m2
-        for k in range(p.size if force_effects else 0):  # an effect may depend on p
-            for _ in range(50):
-                extra = sum(e.physics(np.ascontiguousarray(q), x[k], vel[k], p[k])[0]
-                            for e, q in force_effects)
-                p_new = p_dz + (base[k] + extra) / rig.area_m2
-                done = abs(p_new - p[k]) <= 1e-9 * (1.0 + abs(p_new))
-                p[k] = p_new
-                if done:
-                    break
-        return p
-
+    pressure, p_dz = _inverse_pressure(model, params, frequency_hz, amplitude_m)
     low = p_dz + margin_pa
     lo, hi = 0.0, 1.0
     if pressure(hi).min() < low:
@@ -271,6 +278,38 @@ def operating_mean_m(model: Model | None = None, params=None, *, frequency_hz: f
 
 #: Mean of every reference here, by :func:`operating_mean_m` with the paper's values.
 REFERENCE_MEAN_M = operating_mean_m()
+
+
+def inverse_model_pressure_pa(frequency_hz: float, *, model: Model | None = None, params=None,
+                              mean_m: float = REFERENCE_MEAN_M,
+                              amplitude_m: float = REFERENCE_AMPLITUDE_M) -> np.ndarray:
+    """The pressure a model needs to follow the reference exactly, over one period.
+
+    ``p = p_dz + (M_tot x_d'' + d x_d' + K_e x_d + z + F_g + f_effects) / A`` along
+    ``x_d = mean + amplitude sin(2 pi f t)``, with ``z`` the Bouc-Wen force in its
+    periodic state (the rule of :func:`operating_mean_m` keeps it inside the limits).
+
+    Parameters
+    ----------
+    frequency_hz : float
+        Reference frequency.
+    model : Model, optional
+        Model on the control rig; the base model on :meth:`Rig.control` by default.
+    params : mapping or numpy.ndarray, optional
+        Its parameters (the model's defaults for those not given).
+    mean_m : float
+        Reference mean.
+    amplitude_m : float
+        Reference amplitude.
+
+    Returns
+    -------
+    numpy.ndarray
+        The pressure in Pa at 2000 phases over one period, from phase 0.
+    """
+    frequency_hz = _check_frequency(frequency_hz)
+    pressure, _ = _inverse_pressure(model, params, frequency_hz, amplitude_m)
+    return pressure(mean_m)
 
 #: Gains from :func:`tune_gains` with its defaults on the paper's values. PID: ``kp``
 #: in Pa/m, ``ki`` in Pa/(m s), ``kd`` in Pa s/m; computed torque: ``kp`` in 1/s^2,

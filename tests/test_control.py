@@ -18,6 +18,7 @@ from pmabayes.control import (
     ControlError,
     GainGridWarning,
     closed_loop,
+    inverse_model_pressure_pa,
     loop_metrics,
     nominal_gains,
     operating_mean_m,
@@ -68,6 +69,10 @@ def test_operating_point_keeps_the_inverse_model_out_of_the_dead_zone():
     p = v["p_dz"] + (rig.moving_mass_kg * xdd + v["d"] * xd + v["K_e"] * x
                      + rig.gravity_force_n) / rig.area_m2
     assert p.min() > v["p_dz"] + 30e3 and p.max() < 0.9e6 - 300e3
+    # the rule's own pressure (with hysteresis) keeps its 50 kPa margins, close to that
+    p_rule = inverse_model_pressure_pa(2.0)
+    assert p_rule.min() >= v["p_dz"] + 50e3 and p_rule.max() <= 0.9e6 - 50e3
+    assert abs(p_rule.min() - p.min()) < 20e3 and abs(p_rule.max() - p.max()) < 20e3
     # one mm lower and the rule's 50 kPa margin would be broken: the smallest such mean
     lower = operating_mean_m(resolution_m=1e-4)
     assert REFERENCE_MEAN_M - 1e-3 < lower <= REFERENCE_MEAN_M
