@@ -20,6 +20,10 @@
     whiteness tests and leave-one-trial-out ELPD; the error-falling figure.
 ``pmabayes effects``
     List the registered physical effects and their parameters.
+``pmabayes track --freq F``
+    Closed-loop tracking of the paper's sinusoid by PID and computed torque.
+``pmabayes robustness FIT.nc --out DIR``
+    Posterior samples through both controllers across tracking frequencies.
 
 ``--plugin FILE.py`` (before the command) imports a file that registers user
 effects, so they work on the command line exactly like the built-in ones.
@@ -285,6 +289,84 @@ def _cmd_effects(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_track(args: argparse.Namespace) -> int:
+    from pmabayes.control import CONTROLLERS, track
+    from pmabayes.robustness import control_model_from_fit, posterior_mean
+
+    model, params, source = None, None, "the paper's values"
+    if args.fit:
+        tree = load_fit(args.fit)
+        model = control_model_from_fit(tree)
+        params = posterior_mean(tree, model)
+        source = f"the posterior mean of {args.fit} (gains tuned on it by the rule)"
+    controllers = CONTROLLERS if args.controller is None else (args.controller,)
+    result = track(args.freq, controllers=controllers, model=model, params=params,
+                   duration_s=args.duration)
+    print(f"tracking {args.freq:g} Hz on the control rig (500 g load), model: {source}")
+    for name, m in result["controllers"].items():
+        print(f"  {name:>3}: RMS error {1e3 * m['rms_error_m']:.3f} mm, max "
+              f"{1e3 * m['max_error_m']:.3f} mm, amplitude ratio {m['amplitude_ratio']:.3f}, "
+              f"phase lag {m['phase_lag_deg']:.1f} deg, overshoot {m['overshoot_pct']:.1f}%, "
+              f"in the dead zone {100 * m['dead_zone_fraction']:.0f}% of the time")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cmd_robustness(args: argparse.Namespace) -> int:
+    from pmabayes.plots import plot_robustness, plt  # matplotlib only where figures are made
+    from pmabayes.robustness import robustness_sweep, summarise_robustness, write_robustness
+
+    ds = robustness_sweep(args.fit, samples=args.samples, frequencies_hz=args.freqs,
+                          mode=args.mode, seed=args.seed, duration_s=args.duration,
+                          processes=args.processes, progress=not args.quiet)
+    paths = write_robustness(ds, args.out)
+    paths["figure"] = Path(args.out) / "robustness.png"
+    plt.close(plot_robustness(ds, path=paths["figure"]))
+    summary = summarise_robustness(ds)
+    print(f"{ds.sizes['sample']} samples, mode {args.mode}, in {ds.attrs['sweep_seconds']:.1f} s "
+          f"on {ds.attrs['runner']}")
+    for f in summary["frequency"].values:
+        med = summary["rms_error_m_median"].sel(frequency=f)
+        print(f"  {f:6.3f} Hz: median RMS error PID {1e3 * float(med.sel(controller='pid')):.3f}"
+              f" mm, CT {1e3 * float(med.sel(controller='ct')):.3f} mm; P(CT beats PID) "
+              f"{float(summary['p_ct_beats_pid'].sel(frequency=f)):.3f} (MC error "
+              f"{float(summary['p_ct_beats_pid_mc_error'].sel(frequency=f)):.3f})")
+    print(f"gains ({ds.attrs['gains_source']}): {ds.attrs['gains']}")
+    print("wrote " + ", ".join(str(p) for p in paths.values()))
+    return 0
+
+
+def _control_commands(sub) -> None:
+    """The closed-loop subcommands (``track``, ``robustness``)."""
+    tr = sub.add_parser("track", help="closed-loop tracking of the paper's sinusoid by PID "
+                        "and computed torque")
+    tr.add_argument("--freq", type=float, required=True, help="reference frequency in Hz")
+    tr.add_argument("--controller", help="pid or ct (both by default)")
+    tr.add_argument("--fit", help="a fit: use its posterior mean (the paper's values by "
+                    "default)")
+    tr.add_argument("--duration", type=float, default=10.0, help="run length in s (10)")
+    tr.add_argument("--json", help="write the metrics to this JSON file")
+    tr.set_defaults(func=_cmd_track)
+
+    rob = sub.add_parser("robustness", help="posterior samples through both controllers "
+                         "across tracking frequencies")
+    rob.add_argument("fit", help="a fit written by `pmabayes fit`")
+    rob.add_argument("--out", required=True, help="output folder")
+    rob.add_argument("--samples", type=int, default=500, help="posterior samples (500)")
+    rob.add_argument("--freqs", type=float, nargs="+", metavar="F",
+                     help="frequencies in Hz (8 from 0.25 to 3, geometric, by default)")
+    rob.add_argument("--mode", default="plant",
+                     help="plant (plant drawn, controller nominal; default) or model "
+                     "(controller's model drawn, plant nominal)")
+    rob.add_argument("--seed", type=int, default=0, help="chooses the samples (0)")
+    rob.add_argument("--duration", type=float, default=10.0, help="run length in s (10)")
+    rob.add_argument("--processes", type=int, help="local worker processes (all cores)")
+    rob.add_argument("--quiet", action="store_true", help="no progress bar")
+    rob.set_defaults(func=_cmd_robustness)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pmabayes",
@@ -376,6 +458,7 @@ def _parser() -> argparse.ArgumentParser:
 
     eff = sub.add_parser("effects", help="list the registered physical effects")
     eff.set_defaults(func=_cmd_effects)
+    _control_commands(sub)
     return parser
 
 

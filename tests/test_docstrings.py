@@ -20,6 +20,9 @@ MODULES = [
     "pmabayes.criticism",
     "pmabayes.plots",
     "pmabayes.report",
+    "pmabayes.control",
+    "pmabayes.robustness",
+    "pmabayes.reproduction",
     "pmabayes.cli",
 ]
 # missing docstring or summary, parameters undocumented or unknown, returns undocumented

@@ -1,0 +1,125 @@
+"""The paper's Fig. 5 reproduced in simulation, and a verdict on each of its claims.
+
+Stage 7 (control), beside :mod:`pmabayes.control` and :mod:`pmabayes.robustness`:
+:func:`figure5` runs PID and computed torque at 0.5, 1 and 2 Hz and checks the
+paper's three claims against the metrics; the figure itself is
+:func:`pmabayes.plots.plot_figure5`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from pmabayes.control import (
+    CONTROLLERS,
+    REFERENCE_MEAN_M,
+    closed_loop_batch,
+    loop_metrics,
+    nominal_gains,
+)
+from pmabayes.model import Model, Rig
+
+__all__ = ["PAPER_FREQUENCIES_HZ", "figure5", "paper_claims"]
+
+#: The frequencies of the paper's Fig. 5 panels.
+PAPER_FREQUENCIES_HZ = (0.5, 1.0, 2.0)
+
+
+def paper_claims(metrics: Mapping[float, Mapping[str, Mapping[str, float]]]) -> list[dict]:
+    """Check the paper's three claims about Fig. 5 against tracking metrics.
+
+    Parameters
+    ----------
+    metrics : mapping
+        ``{frequency_hz: {"pid": {...}, "ct": {...}}}`` with at least 0.5, 1 and 2 Hz,
+        each holding the metrics of :func:`pmabayes.control.loop_metrics`.
+
+    Returns
+    -------
+    list of dict
+        One ``{"claim", "reproduced", "evidence"}`` per claim: computed torque better
+        (lower RMS error) than PID at all three frequencies; at 2 Hz PID close to 180
+        degrees out of phase (150-210 taken as close) while computed torque stays
+        under 180; about 10% overshoot of computed torque at 1 Hz (5-15% taken as
+        about).
+    """
+    rms = {f: (metrics[f]["pid"]["rms_error_m"], metrics[f]["ct"]["rms_error_m"])
+           for f in PAPER_FREQUENCIES_HZ}
+    lag_pid = metrics[2.0]["pid"]["phase_lag_deg"]
+    lag_ct = metrics[2.0]["ct"]["phase_lag_deg"]
+    over = metrics[1.0]["ct"]["overshoot_pct"]
+    return [
+        {"claim": "computed torque tracks better (lower RMS error) than PID at 0.5, 1 and "
+                  "2 Hz",
+         "reproduced": all(ct < pid for pid, ct in rms.values()),
+         "evidence": "; ".join(f"{f:g} Hz: PID {1e3 * p:.2f} mm, CT {1e3 * c:.2f} mm"
+                               for f, (p, c) in rms.items())},
+        {"claim": "at 2 Hz PID is close to 180 degrees out of phase (150-210 taken as "
+                  "close) while computed torque stays under 180",
+         "reproduced": bool(150.0 <= lag_pid <= 210.0 and lag_ct < 180.0),
+         "evidence": f"phase lag at 2 Hz: PID {lag_pid:.0f} deg, CT {lag_ct:.0f} deg"},
+        {"claim": "computed torque overshoots by about 10% at 1 Hz (5-15% taken as about)",
+         "reproduced": bool(5.0 <= over <= 15.0),
+         "evidence": f"CT overshoot at 1 Hz: {over:.1f}% of the amplitude"},
+    ]
+
+
+def figure5(*, model: Model | None = None, params=None, plant_model: Model | None = None,
+            plant_params: Mapping[str, float] | None = None,
+            frequencies_hz: Sequence[float] = PAPER_FREQUENCIES_HZ,
+            duration_s: float = 10.0, reference_mean_m: float = REFERENCE_MEAN_M) -> dict:
+    """Run the paper's Fig. 5 experiment and check its claims.
+
+    Both controllers use the gains of the rule on the controller's model
+    (:func:`pmabayes.control.nominal_gains`).
+
+    Parameters
+    ----------
+    model : Model, optional
+        The controller's model (and the plant's unless ``plant_model`` is given); the
+        base model on :meth:`Rig.control` by default.
+    params : mapping or numpy.ndarray, optional
+        Its parameters; the paper's values by default.
+    plant_model : Model, optional
+        A plant that differs from the controller's model, e.g. with a regulator lag
+        the model lacks.
+    plant_params : mapping, optional
+        The plant's parameters (the model's defaults for those not given).
+    frequencies_hz : sequence of float
+        The panels' frequencies (the paper's 0.5, 1 and 2 Hz).
+    duration_s : float
+        Length of each run.
+    reference_mean_m : float
+        Mean of the reference.
+
+    Returns
+    -------
+    dict
+        ``run`` (the :class:`pmabayes.control.ClosedLoop`, one run per frequency and
+        controller, for :func:`pmabayes.plots.plot_figure5`), ``metrics`` (per
+        frequency and controller, those of :func:`pmabayes.control.loop_metrics`),
+        ``gains`` and ``claims`` (:func:`paper_claims`; empty unless the frequencies
+        include 0.5, 1 and 2 Hz).
+    """
+    model = Model(rig=Rig.control()) if model is None else model
+    theta = model.theta(params)
+    if plant_model is None:
+        plant_model, theta_p = model, theta
+    else:
+        theta_p = plant_model.theta(plant_params)
+    gains = nominal_gains(model, theta, reference_mean_m=reference_mean_m)
+    freqs = [float(f) for f in frequencies_hz]
+    names = [c for _ in freqs for c in CONTROLLERS]
+    fr = np.repeat(freqs, len(CONTROLLERS))
+    batch = len(names)
+    run = closed_loop_batch(plant_model, np.repeat(theta_p, batch, axis=0), model,
+                            np.repeat(theta, batch, axis=0), fr, names, duration_s=duration_s,
+                            gains=gains, reference_mean_m=reference_mean_m)
+    per_run = loop_metrics(run)
+    metrics: dict[float, dict[str, dict[str, float]]] = {}
+    for j, (f, c) in enumerate(zip(fr, names, strict=True)):
+        metrics.setdefault(float(f), {})[c] = {k: float(v[j]) for k, v in per_run.items()}
+    claims = paper_claims(metrics) if all(f in metrics for f in PAPER_FREQUENCIES_HZ) else []
+    return {"run": run, "metrics": metrics, "gains": gains, "claims": claims}

@@ -1,0 +1,467 @@
+"""Robustness of the controllers to identification uncertainty.
+
+Posterior samples are pushed through both controllers across tracking frequencies
+(:func:`robustness_sweep`), in one of two modes:
+
+``"plant"``
+    The plant is drawn from the posterior; the controller keeps the nominal model
+    (the posterior mean). How much does the uncertainty about the real muscle cost?
+``"model"``
+    The controller's model is drawn from the posterior; the plant is fixed at the
+    posterior mean. How much does a different, equally credible identification
+    change the tracking?
+
+Each run is a 10 s closed loop of :mod:`pmabayes.control` on :meth:`Rig.control`
+(the 500 g load), with the fit's effects in both plant and controller model. The
+result is an ``xarray.Dataset`` over ``(sample, frequency, controller)`` with the
+metrics of :func:`pmabayes.control.tracking_metrics`; :func:`summarise_robustness`
+reduces it to medians, 90% bands and the probability that computed torque beats
+PID, and :func:`pmabayes.plots.plot_robustness` draws the bands against frequency.
+
+Both controllers are tuned by the same rule, :func:`pmabayes.control.tune_gains`, on
+the sweep's nominal model (the fit's model at its posterior mean, with its effects;
+:func:`pmabayes.control.nominal_gains`, cached), unless ``gains`` are given. The
+gains are stored in the result's attributes.
+
+The samples are chosen by the seed alone, and every run is deterministic, so the
+same seed gives the same numbers however the runs are split into chunks and
+whoever runs them: the local process pool (default), this process
+(``processes=1``) or a ``dask.distributed`` client (the optional ``dask`` extra).
+"The same numbers" means bit for bit on one CPU and one set of numba, LLVM and
+numpy versions: the kernels' fastmath flags (``contract``, ``afn``) let another
+CPU or version round differently in the last bits.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_all_start_methods, get_context
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from pmabayes.control import (
+    CONTROLLERS,
+    METRICS,
+    REFERENCE_AMPLITUDE_M,
+    REFERENCE_MEAN_M,
+    ControlError,
+    Timing,
+    closed_loop_batch,
+    gain_array,
+    loop_metrics,
+    minimum_duration_s,
+    nominal_gains,
+)
+from pmabayes.model import Model, Rig
+from pmabayes.posterior import fit_info, load_fit
+
+__all__ = [
+    "DEFAULT_FREQUENCIES_HZ",
+    "METRICS",
+    "MODES",
+    "control_model_from_fit",
+    "posterior_mean",
+    "posterior_samples",
+    "robustness_sweep",
+    "summarise_robustness",
+    "write_robustness",
+]
+
+#: 8 frequencies, geometrically spaced from 0.25 to 3 Hz.
+DEFAULT_FREQUENCIES_HZ = tuple(float(f) for f in np.geomspace(0.25, 3.0, 8))
+#: The two sweep modes: which side is drawn from the posterior.
+MODES = ("plant", "model")
+
+
+def control_model_from_fit(tree: xr.DataTree) -> Model:
+    """The fit's model (effects and fixed values) moved onto the control rig.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit (:func:`pmabayes.posterior.load_fit`).
+
+    Returns
+    -------
+    Model
+        The same effects and fixings on :meth:`Rig.control` (500 g load).
+    """
+    info = fit_info(tree).get("model") or {}
+    model = Model(info.get("effects") or [], rig=Rig.control(),
+                  fixed=info.get("fixed") or {})
+    missing = [n for n in model.free_names if n not in tree["posterior"].data_vars]
+    if missing:
+        raise ControlError(f"the fit's posterior lacks {missing}; refit with `pmabayes fit`")
+    return model
+
+
+def posterior_mean(tree: xr.DataTree, model: Model) -> np.ndarray:
+    """The posterior mean of a fit as a full parameter array.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        The fit.
+    model : Model
+        The model whose free parameters to average (see :func:`control_model_from_fit`);
+        its fixed parameters keep their values.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n_parameters,)``, in ``model.parameter_names`` order.
+    """
+    post = tree["posterior"]
+    return model.theta({n: float(np.asarray(post[n].values, dtype=float).mean())
+                        for n in model.free_names})[0]
+
+
+def posterior_samples(tree: xr.DataTree, model: Model, samples: int,
+                      seed: int | np.random.Generator = 0) -> tuple[np.ndarray, np.ndarray,
+                                                                    np.ndarray]:
+    """Draw parameter sets from a fit's posterior.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        The fit.
+    model : Model
+        The model whose free parameters to take (see :func:`control_model_from_fit`).
+    samples : int
+        How many; without replacement when the posterior has enough draws.
+    seed : int or numpy.random.Generator
+        Chooses the draws.
+
+    Returns
+    -------
+    theta : numpy.ndarray
+        Full parameter arrays ``(samples, n_parameters)``.
+    mean : numpy.ndarray
+        The posterior mean (:func:`posterior_mean`), ``(n_parameters,)``.
+    where : numpy.ndarray
+        ``(samples, 2)``: the chain and draw of each sample.
+    """
+    if isinstance(samples, bool) or not (isinstance(samples, int | np.integer) and samples >= 1):
+        raise ControlError(f"samples must be an integer >= 1, got {samples!r}")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    post = tree["posterior"]
+    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
+    total = n_chain * n_draw
+    flat = rng.choice(total, size=int(samples), replace=samples > total)
+    values = {n: np.asarray(post[n].values, dtype=float).reshape(-1) for n in model.free_names}
+    theta = model.theta({n: v[flat] for n, v in values.items()})
+    where = np.column_stack([flat // n_draw, flat % n_draw])
+    return theta, posterior_mean(tree, model), where
+
+
+def _run_chunk(job: dict) -> tuple[int, dict]:
+    """Run one contiguous block of members (in a worker or here)."""
+    model = Model(job["effects"], rig=Rig.from_dict(job["rig"]), fixed=job["fixed"])
+    run = closed_loop_batch(model, job["theta_p"], model, job["theta_c"], job["freq"],
+                            [CONTROLLERS[k] for k in job["kind"]],
+                            duration_s=job["duration_s"], gains=job["gains"],
+                            timing=job["timing"], reference_mean_m=job["reference_mean_m"],
+                            record=False)
+    return job["start"], loop_metrics(run)
+
+
+class _Bar:
+    """A progress bar on stderr."""
+
+    def __init__(self, total: int, enabled: bool, label: str) -> None:
+        self.total, self.enabled, self.label = total, enabled, label
+        self.done = 0
+        self.t0 = time.perf_counter()
+        self._draw()
+
+    def update(self, n: int) -> None:
+        self.done += n
+        self._draw()
+
+    def _draw(self) -> None:
+        if not self.enabled:
+            return
+        frac = self.done / max(self.total, 1)
+        bar = "#" * int(round(30 * frac))
+        end = "\n" if self.done >= self.total else ""
+        print(f"\r[pmabayes robustness] [{bar:-<30}] {self.done}/{self.total} runs "
+              f"({time.perf_counter() - self.t0:.0f} s) {self.label}", end=end,
+              file=sys.stderr, flush=True)
+
+
+def _local_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))  # the cores this process may use
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
+
+
+def robustness_sweep(
+    fit,
+    *,
+    samples: int = 500,
+    frequencies_hz: Sequence[float] | None = None,
+    mode: str = "plant",
+    seed: int | np.random.Generator = 0,
+    duration_s: float = 10.0,
+    gains: dict | None = None,
+    reference_mean_m: float = REFERENCE_MEAN_M,
+    chunk_size: int = 400,
+    processes: int | None = None,
+    client=None,
+    progress: bool = True,
+    timing: Timing | None = None,
+) -> xr.Dataset:
+    """Push posterior samples through both controllers across tracking frequencies.
+
+    Parameters
+    ----------
+    fit : str, Path or xarray.DataTree
+        A fit file or a loaded fit.
+    samples : int
+        Number of posterior samples ``S`` (500).
+    frequencies_hz : sequence of float, optional
+        Reference frequencies; :data:`DEFAULT_FREQUENCIES_HZ` by default.
+    mode : str
+        ``"plant"`` (plant drawn, controller at the posterior mean) or ``"model"``
+        (controller's model drawn, plant at the posterior mean).
+    seed : int or numpy.random.Generator
+        Chooses the samples; nothing else is random.
+    duration_s : float
+        Length of each closed-loop run (10 s); at least one whole period after the
+        start-up at the lowest frequency.
+    gains : dict, optional
+        ``{"pid": {...}, "ct": {...}}`` to use instead of the gains tuned on the
+        nominal model (:func:`pmabayes.control.nominal_gains`); a controller left out
+        is tuned.
+    reference_mean_m : float
+        Mean of the reference (:data:`pmabayes.control.REFERENCE_MEAN_M`).
+    chunk_size : int
+        Runs per task.
+    processes : int, optional
+        Local worker processes, >= 1; by default the cores this process may use; 1
+        runs in this process. Ignored when ``client`` is given.
+    client : dask.distributed.Client, optional
+        Run the chunks on this Dask cluster instead.
+    progress : bool
+        Show a progress bar on stderr.
+    timing : Timing, optional
+        Rates, limits and sensor of the loop.
+
+    Returns
+    -------
+    xarray.Dataset
+        The metrics of :data:`pmabayes.control.METRICS` over ``(sample, frequency,
+        controller)``, the parameter values of every sample (``sample`` x
+        ``parameter``) and the nominal (mean) parameters, with the settings and the
+        gains (JSON) in the attributes.
+
+    Raises
+    ------
+    ControlError
+        On a bad mode, frequency, duration, sample count, chunk size or process count.
+    """
+    if mode not in MODES:
+        raise ControlError(f"unknown mode {mode!r}; choose 'plant' or 'model'")
+    freqs = np.asarray(DEFAULT_FREQUENCIES_HZ if frequencies_hz is None else frequencies_hz,
+                       dtype=float).ravel()
+    if freqs.size == 0 or not np.all(np.isfinite(freqs) & (freqs > 0)):
+        raise ControlError(f"frequencies must be > 0 Hz, got {freqs.tolist()}")
+    need = minimum_duration_s(float(freqs.min()))
+    if not duration_s >= need:
+        raise ControlError(f"duration_s={duration_s} holds no whole period of "
+                           f"{freqs.min():g} Hz after the start-up; use at least {need:.3g} s")
+    if isinstance(chunk_size, bool) or not (isinstance(chunk_size, int | np.integer)
+                                            and chunk_size >= 1):
+        raise ControlError(f"chunk_size must be an integer >= 1, got {chunk_size!r}")
+    if processes is not None and (isinstance(processes, bool) or not (
+            isinstance(processes, int | np.integer) and processes >= 1)):
+        raise ControlError(f"processes must be an integer >= 1 (or left out for every core), "
+                           f"got {processes!r}")
+    source = str(fit) if isinstance(fit, str | Path) else "(in memory)"
+    tree = load_fit(fit) if isinstance(fit, str | Path) else fit
+    model = control_model_from_fit(tree)
+    timing = Timing() if timing is None else timing
+    theta, mean, where = posterior_samples(tree, model, samples, seed)
+    given = dict(gains or {})
+    unknown = set(given) - set(CONTROLLERS)
+    if unknown:
+        raise ControlError(f"gains for unknown controllers {sorted(unknown)}; use "
+                           f"{', '.join(CONTROLLERS)}")
+    if set(given) != set(CONTROLLERS):
+        tuned = nominal_gains(model, mean, timing=timing, reference_mean_m=reference_mean_m)
+        gains_used = {c: dict(given.get(c) or tuned[c]) for c in CONTROLLERS}
+    else:
+        gains_used = {c: dict(given[c]) for c in CONTROLLERS}
+    gain_rows = gain_array(CONTROLLERS, gains_used)
+    n_s, n_f, n_c = theta.shape[0], freqs.size, len(CONTROLLERS)
+    # member (s, f, c) at (s * n_f + f) * n_c + c
+    s_idx, f_idx, c_idx = (a.ravel() for a in np.meshgrid(
+        np.arange(n_s), np.arange(n_f), np.arange(n_c), indexing="ij"))
+    drawn = theta[s_idx]
+    fixed_theta = np.repeat(mean[None, :], len(s_idx), axis=0)
+    theta_p, theta_c = (drawn, fixed_theta) if mode == "plant" else (fixed_theta, drawn)
+    spec = {"effects": list(model.effect_names), "rig": model.rig.to_dict(),
+            "fixed": dict(model.fixed), "duration_s": float(duration_s), "timing": timing,
+            "reference_mean_m": float(reference_mean_m)}
+    jobs = []
+    for lo in range(0, len(s_idx), int(chunk_size)):
+        sl = slice(lo, min(lo + int(chunk_size), len(s_idx)))
+        jobs.append({**spec, "start": lo, "theta_p": theta_p[sl], "theta_c": theta_c[sl],
+                     "freq": freqs[f_idx[sl]], "kind": c_idx[sl].copy(),
+                     "gains": gain_rows[c_idx[sl]]})
+    flat = {m: np.empty(len(s_idx)) for m in METRICS}
+    bar = _Bar(len(s_idx), progress, f"({n_s} samples x {n_f} frequencies x {n_c} controllers)")
+
+    def collect(start: int, out: dict) -> None:
+        n = len(out[METRICS[0]])
+        for m in METRICS:
+            flat[m][start:start + n] = out[m]
+        bar.update(n)
+
+    t0 = time.perf_counter()
+    if client is not None:
+        try:
+            from distributed import as_completed as dask_completed
+        except ImportError as exc:  # pragma: no cover - a client implies distributed
+            raise ControlError("a Dask client needs `pip install pmabayes[dask]`") from exc
+        futures = client.map(_run_chunk, jobs, pure=False)
+        for fut in dask_completed(futures):
+            collect(*fut.result())
+        runner = f"dask ({len(client.scheduler_info().get('workers', {}))} workers)"
+    else:
+        n_proc = _local_cores() if processes is None else int(processes)
+        n_proc = min(n_proc, len(jobs))
+        if n_proc == 1:
+            for job in jobs:
+                collect(*_run_chunk(job))
+        else:
+            # fork where there is one: workers inherit the loaded kernels, where spawn
+            # re-imports numba and xarray in each (seconds per worker)
+            method = "fork" if "fork" in get_all_start_methods() else "spawn"
+            with ProcessPoolExecutor(n_proc, mp_context=get_context(method)) as pool:
+                for fut in as_completed([pool.submit(_run_chunk, j) for j in jobs]):
+                    collect(*fut.result())
+        runner = f"{n_proc} local process{'es' if n_proc > 1 else ''}"
+    seconds = time.perf_counter() - t0
+    shape = (n_s, n_f, n_c)
+    names = list(model.parameter_names)
+    ds = xr.Dataset(
+        {m: (("sample", "frequency", "controller"), flat[m].reshape(shape)) for m in METRICS},
+        coords={"sample": np.arange(n_s), "frequency": freqs,
+                "controller": list(CONTROLLERS), "parameter": names,
+                "chain": ("sample", where[:, 0]), "draw": ("sample", where[:, 1])},
+    )
+    ds["sample_parameters"] = (("sample", "parameter"), theta)
+    ds["nominal_parameters"] = (("parameter",), mean)
+    units = {"rms_error_m": "m", "max_error_m": "m", "amplitude_ratio": "1",
+             "phase_lag_deg": "deg", "overshoot_pct": "%", "dead_zone_fraction": "1",
+             "saturated_fraction": "1"}
+    for m, u in units.items():
+        ds[m].attrs["units"] = u
+    ds["frequency"].attrs["units"] = "Hz"
+    seed_attr = (int(seed) if isinstance(seed, int | np.integer)
+                 else "a numpy Generator (its state is not stored)")
+    ds.attrs.update({
+        "mode": mode, "seed": seed_attr, "fit": source,
+        "effects": ",".join(model.effect_names) or "none",
+        "duration_s": float(duration_s), "reference_mean_m": float(reference_mean_m),
+        "reference_amplitude_m": REFERENCE_AMPLITUDE_M,
+        "gains": json.dumps(gains_used),
+        "gains_source": ("given" if set(given) == set(CONTROLLERS) else
+                         "tune_gains on the posterior mean" + (" (some given)" if given else "")),
+        "timing": repr(timing), "runner": runner, "sweep_seconds": seconds,
+    })
+    return ds
+
+
+def summarise_robustness(ds: xr.Dataset) -> xr.Dataset:
+    """Median and 90% band of the RMS error and phase lag, and P(CT beats PID).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A sweep from :func:`robustness_sweep`.
+
+    Returns
+    -------
+    xarray.Dataset
+        Over ``(frequency, controller)``: ``rms_error_m_median``, ``_q05``, ``_q95``
+        and the same for ``phase_lag_deg``, and the mean ``dead_zone_fraction``; over
+        ``frequency``: ``p_ct_beats_pid``, the fraction of samples where computed
+        torque has the smaller RMS error, and ``p_ct_beats_pid_mc_error``, its Monte
+        Carlo standard error ``sqrt(p (1 - p) / S)``, or ``1 / S`` when ``p`` is 0 or 1
+        (where the binomial error vanishes; the 95% bound on the other outcome's
+        probability is then about ``3 / S``).
+    """
+    out = xr.Dataset(coords={"frequency": ds["frequency"], "controller": ds["controller"]})
+    for m in ("rms_error_m", "phase_lag_deg"):
+        q = ds[m].quantile([0.05, 0.5, 0.95], dim="sample")
+        out[f"{m}_q05"] = q.sel(quantile=0.05, drop=True)
+        out[f"{m}_median"] = q.sel(quantile=0.5, drop=True)
+        out[f"{m}_q95"] = q.sel(quantile=0.95, drop=True)
+    if "dead_zone_fraction" in ds:
+        out["dead_zone_fraction_mean"] = ds["dead_zone_fraction"].mean("sample")
+    rms = ds["rms_error_m"]
+    beats = rms.sel(controller="ct") < rms.sel(controller="pid")
+    p = beats.mean("sample")
+    n = int(ds.sizes["sample"])
+    out["p_ct_beats_pid"] = p
+    out["p_ct_beats_pid_mc_error"] = np.maximum(np.sqrt(p * (1 - p) / n), 1.0 / n)
+    out.attrs.update({k: ds.attrs[k] for k in ("mode", "seed") if k in ds.attrs})
+    out.attrs["samples"] = n
+    return out
+
+
+def write_robustness(ds: xr.Dataset, out_dir) -> dict[str, Path]:
+    """Write a sweep and its summary (CSV and Markdown).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A sweep from :func:`robustness_sweep`.
+    out_dir : str or Path
+        Output folder (created).
+
+    Returns
+    -------
+    dict of str to Path
+        ``netcdf``, ``summary_csv`` and ``summary_md`` (the figure is
+        :func:`pmabayes.plots.plot_robustness`).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"netcdf": out / "robustness.nc", "summary_csv": out / "summary.csv",
+             "summary_md": out / "summary.md"}
+    ds.to_netcdf(paths["netcdf"], engine="h5netcdf")
+    summary = summarise_robustness(ds)
+    rows = []
+    for f in summary["frequency"].values:
+        for c in CONTROLLERS:
+            s = summary.sel(frequency=f, controller=c)
+            rows.append([f"{f:.3f}", c,
+                         *(f"{1e3 * float(s[f'rms_error_m_{q}']):.3f}"
+                           for q in ("median", "q05", "q95")),
+                         *(f"{float(s[f'phase_lag_deg_{q}']):.1f}"
+                           for q in ("median", "q05", "q95")),
+                         f"{float(s['dead_zone_fraction_mean']):.3f}",
+                         f"{float(summary['p_ct_beats_pid'].sel(frequency=f)):.3f}",
+                         f"{float(summary['p_ct_beats_pid_mc_error'].sel(frequency=f)):.3f}"])
+    head = ["frequency_hz", "controller", "rms_error_mm_median", "rms_error_mm_q05",
+            "rms_error_mm_q95", "phase_lag_deg_median", "phase_lag_deg_q05",
+            "phase_lag_deg_q95", "dead_zone_fraction_mean", "p_ct_beats_pid",
+            "p_ct_beats_pid_mc_error"]
+    paths["summary_csv"].write_text("\n".join(",".join(r) for r in [head, *rows]) + "\n")
+    md = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    md += ["| " + " | ".join(r) + " |" for r in rows]
+    paths["summary_md"].write_text(
+        f"Robustness sweep: {ds.sizes['sample']} samples, mode '{ds.attrs.get('mode')}', "
+        f"seed {ds.attrs.get('seed')}, fit {ds.attrs.get('fit')}\n\n" + "\n".join(md) + "\n")
+    return paths
