@@ -597,7 +597,8 @@ class Refit:
         the output with the effect switched off (its null values).
     next_effect : str or None
         The significant candidate that best explains what the refit leaves (score
-        test on the refit), if any.
+        test on the refit), if any; looked for only when the refit alone does not
+        account for the misfit.
     explained_with_next : float
         Fraction of the base model's excess removed by the refit and, to first
         order, by ``next_effect`` after it: near 1 when the two together account
@@ -950,6 +951,9 @@ def diagnose(
         raise ValueError(f"min_explained must be in [0, 1], got {min_explained}")
     if int(max_refits) < 0 or int(n_draws) < 50:
         raise ValueError("max_refits must be >= 0 and n_draws >= 50")
+    def is_adequate(sig: Signature) -> bool:
+        return bool(sig.energy <= 1.0 + energy_tolerance and sig.ljung_box_p >= level_adequate)
+
     rng = np.random.default_rng(seed)
     if candidates is not None:
         candidates = tuple(candidates)
@@ -997,11 +1001,13 @@ def diagnose(
         ext_sig = residual_signature(ext_lik, noise, ext_sim)
         explained = float(np.clip((signature.energy - ext_sig.energy) * n / base_excess,
                                   0.0, 1.0))
-        # one step of look-ahead: does another candidate account for what is left?
-        following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
-                                             candidates=candidates, level=level)
-                     if e.significant]
-        nxt = max(following, key=lambda e: e.explained) if following else None
+        nxt = None
+        if explained < min_explained and not is_adequate(ext_sig):
+            # one step of look-ahead: does another candidate account for what is left?
+            following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
+                                                 candidates=candidates, level=level)
+                         if e.significant]
+            nxt = max(following, key=lambda e: e.explained) if following else None
         diff = e_elpd_i - elpd_i
         refits[ev.effect] = Refit(
             effect=ev.effect, values=dict(ext_map.values), interval=interval,
@@ -1033,9 +1039,6 @@ def diagnose(
 
     # refitted candidates first, by how well they predict left-out trials
     findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
-    def is_adequate(sig: Signature) -> bool:
-        return bool(sig.energy <= 1.0 + energy_tolerance and sig.ljung_box_p >= level_adequate)
-
     adequate = is_adequate(signature)
     explaining = [r for r in refits.values()
                   if max(r.explained, r.explained_with_next) >= min_explained
