@@ -704,9 +704,10 @@ class Diagnosis:
         not significant (Ljung-Box at ``level_adequate``).
     missing : str or None
         The effect found missing: the refitted significant candidate with the best
-        ELPD, provided it removes at least ``min_explained`` of the excess
-        residual. None when nothing significant is missing, or when no candidate
-        explains the misfit (see ``verdict``).
+        ELPD among those that account for the misfit and improve the ELPD by more
+        than two standard errors (see :func:`diagnose`). None when nothing
+        significant is missing, or when no candidate explains the misfit (see
+        ``verdict``).
     ranking : list of Finding
         Every candidate, most evidence first: the refitted ones by ELPD, then the
         others by score statistic.
@@ -894,12 +895,14 @@ def diagnose(
        effect's size with an interval. This separates effects that the first-order
        score test cannot (a regulator lag and a transport delay).
     5. The missing effect is the refitted candidate with the best ELPD among
-       those that account for the misfit: the refit is adequate, or it removes
-       at least ``min_explained`` of the excess residual alone or together with
-       the candidate that the refit's own score test finds next (so that two
-       missing effects of similar size are found one after the other). If none
-       does, the misfit is reported as unexplained instead of naming the least
-       bad candidate.
+       those that account for the misfit and predict left-out trials better than
+       the diagnosed model by more than two standard errors of the ELPD
+       difference. Accounting for the misfit means: the refit is adequate, or it
+       removes at least ``min_explained`` of the excess residual alone or
+       together with the candidate that the refit's own score test finds next
+       (so that two missing effects of similar size are found one after the
+       other). If none qualifies, nothing is named: a misfit above the floor is
+       reported as unexplained instead of naming the least bad candidate.
 
     Parameters
     ----------
@@ -1004,8 +1007,9 @@ def diagnose(
         off.update({p.name: p.null for p in eff.parameters if p.vary})
         contribution = ext_sim.position_m[0] - run(ext, off).position_m[0]
         ext_sig = residual_signature(ext_lik, noise, ext_sim)
-        explained = float(np.clip((signature.energy - ext_sig.energy) * n / base_excess,
-                                  0.0, 1.0))
+        # with no excess over pure noise there is nothing to explain
+        explained = (float(np.clip((signature.energy - ext_sig.energy) * n / base_excess,
+                                   0.0, 1.0)) if signature.energy > 1.0 else 0.0)
         nxt = None
         if explained < min_explained and not is_adequate(ext_sig):
             # one step of look-ahead: does another candidate account for what is left?
@@ -1045,9 +1049,11 @@ def diagnose(
     # refitted candidates first, by how well they predict left-out trials
     findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
     adequate = is_adequate(signature)
+    # a refit must account for the misfit and predict left-out trials better
     explaining = [r for r in refits.values()
-                  if max(r.explained, r.explained_with_next) >= min_explained
-                  or is_adequate(r.signature)]
+                  if (max(r.explained, r.explained_with_next) >= min_explained
+                      or is_adequate(r.signature))
+                  and r.elpd_diff > 2.0 * r.elpd_diff_se]
     missing = max(explaining, key=lambda r: r.elpd).effect if explaining else None
     verdict = _verdict(name, model.effect_names, signature, adequate, missing, refits, findings,
                        min_explained)
@@ -1090,6 +1096,14 @@ def _verdict(name: str, effects: tuple, signature: Signature, adequate: bool,
                 "the library is significantly missing; something outside the library is. "
                 "See the residual signature figures, and register an effect that describes "
                 "it.")
+    if adequate:
+        named = ", ".join(f"{f.effect} (p = {f.p_value:.2g}" + (
+            f", refit ΔELPD {f.refit.elpd_diff:+.1f} ± {f.refit.elpd_diff_se:.1f})"
+            if f.refit else ")") for f in significant)
+        return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}). "
+                f"The score test flags {named}, but no refit predicts left-out trials "
+                "clearly better, so nothing is named; with a family-wise level of 5%, this "
+                "is what a false alarm looks like.")
     best = (max(refits.values(), key=lambda r: max(r.explained, r.explained_with_next))
             if refits else None)
     detail = ""
@@ -1098,8 +1112,9 @@ def _verdict(name: str, effects: tuple, signature: Signature, adequate: bool,
                   "excess residual")
         if best.next_effect:
             detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
-        detail += f", and at least {min_explained:.0%} is required"
-    return (f"{name}: the residual is {'consistent with' if adequate else 'above'} the noise "
+        detail += (f", and at least {min_explained:.0%} is required (ΔELPD "
+                   f"{best.elpd_diff:+.1f} ± {best.elpd_diff_se:.1f})")
+    return (f"{name}: the residual is above the noise "
             f"floor ({sig}); candidates are significant but none explains the misfit:"
             f"{detail}. Something outside the library is missing; no candidate is named.")
 
