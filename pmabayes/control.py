@@ -75,8 +75,13 @@ log grid, among those that are robustly stable: with every gain doubled (a 6 dB
 gain margin), and separately with an extra 20 ms transport delay in the plant (a
 delay margin), the loop must still reach a periodic steady state (the last two
 periods within 0.5 mm of each other) with an RMS error at most twice the
-nominal. ``tests/test_control.py`` checks that the rule reproduces
-:data:`DEFAULT_GAINS`.
+nominal; and so must its neighbours on the grid, so that the choice is not on the
+knife edge of the stable set. Computed torque's natural frequency is capped at
+``pi / (2 T_cmd)`` (31.4 rad/s), half the 20 Hz hold's Nyquist frequency (see
+:func:`tune_gains`). ``tests/test_control.py`` checks that the rule reproduces
+:data:`DEFAULT_GAINS`. With a fit, the operating point (:func:`operating_mean_m`)
+and the gains are those of the rule on the fit's nominal model
+(:func:`resolve_gains`).
 
 **Metrics** (:func:`tracking_metrics`, :func:`loop_metrics`) use whole periods after
 the start-up: the first ``max(2 s, one period)`` is dropped and the largest whole
@@ -334,7 +339,7 @@ def inverse_model_pressure_pa(frequency_hz: float, *, model: Model | None = None
 #: ``kd`` in 1/s.
 DEFAULT_GAINS: dict[str, dict[str, float]] = {
     "pid": {"kp": 5623413.251903491, "ki": 56234132.51903491, "kd": 0.0},
-    "ct": {"kp": 632.7816954219094, "kd": 100.62060985081808},
+    "ct": {"kp": 632.7816954219094, "kd": 125.7757623135226},
 }
 _GAIN_NAMES = {"pid": ("kp", "ki", "kd"), "ct": ("kp", "kd")}
 
@@ -1164,7 +1169,7 @@ def _default_grid(controller: str) -> dict[str, np.ndarray]:
         return {"kp": np.geomspace(1e5, 1e9, 17), "ki": np.geomspace(1e5, 1e10, 21),
                 "kd": np.concatenate([[0.0], np.geomspace(1e2, 1e8, 13)])}
     w = np.geomspace(1.0, 200.0, 24)
-    zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0, 2.5, 3.0])
+    zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0])
     ww, zz = np.meshgrid(w, zeta, indexing="ij")
     return {"kp": (ww**2).ravel(), "kd": (2 * zz * ww).ravel()}
 
@@ -1243,8 +1248,10 @@ def _on_edge(controller: str, cand: np.ndarray, best: np.ndarray) -> list[str]:
         with np.errstate(divide="ignore", invalid="ignore"):
             axes = {"kp": kp, "zeta": np.where(kp > 0, kd / (2 * np.sqrt(kp)), 0.0)}
         value = {"kp": best[0], "zeta": best[1] / (2 * math.sqrt(best[0])) if best[0] else 0.0}
-    return [k for k, a in axes.items()
-            if np.unique(a).size > 1 and value[k] != 0 and value[k] in (a.min(), a.max())]
+    return [k for k, a in axes.items()  # zeta from (kp, kd) pairs carries rounding
+            if np.unique(np.round(a, 9)).size > 1 and value[k] != 0
+            and (np.isclose(value[k], a.min(), rtol=1e-9, atol=0)
+                 or np.isclose(value[k], a.max(), rtol=1e-9, atol=0))]
 
 
 def _delayed_plant(model: Model, theta: np.ndarray, delay_s: float) -> tuple[Model, np.ndarray]:
@@ -1273,7 +1280,8 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
                duration_s: float = 10.0, grid: Mapping[str, Sequence[float]] | None = None,
                timing: Timing | None = None,
                reference_mean_m: float = REFERENCE_MEAN_M,
-               max_bandwidth_rad_s: float | None = None) -> dict[str, float]:
+               max_bandwidth_rad_s: float | None = None,
+               tie_rtol: float = 0.02) -> dict[str, float]:
     """The documented gain rule: best tracking at 0.5 Hz among robustly stable gains.
 
     Every gain set on the grid is simulated on the nominal model at ``frequency_hz``,
@@ -1286,8 +1294,10 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     It qualifies when, in addition, its neighbours on the grid (the next value on
     either side along each gain's axis; for computed torque along ``w`` and
     ``zeta``) are stable too, and, for computed torque, when its natural frequency
-    ``w = sqrt(kp)`` is at most ``max_bandwidth_rad_s``. The qualifying set with the
-    smallest nominal RMS error wins.
+    ``w = sqrt(kp)`` is at most ``max_bandwidth_rad_s`` (the cap is an edge of the
+    grid: points beyond it are not checked as neighbours). Among the qualifying sets
+    whose nominal RMS error is within ``tie_rtol`` (2%) of the smallest, the gentlest
+    wins: the smallest ``kp``, then ``ki``, then ``kd``.
 
     Why the two extra conditions: the smallest RMS error lies on the boundary of the
     stable set, so without them a model perturbed in the fourth digit can flip the
@@ -1327,7 +1337,7 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
         decade. For computed
         torque ``kp[j]`` goes with ``kd[j]`` (pairs; the lists must be of equal
         length); by default ``kp = w^2``, ``kd = 2 zeta w`` for ``w`` 1..200 rad/s (24
-        values, geometric) by ``zeta`` 0.4..3 (10 values).
+        values, geometric) by ``zeta`` 0.4..5 (12 values).
     timing : Timing, optional
         Rates, limits and sensor.
     reference_mean_m : float
@@ -1335,6 +1345,10 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     max_bandwidth_rad_s : float, optional
         Largest natural frequency ``sqrt(kp)`` of computed torque's error dynamics,
         in rad/s; ``pi / (2 command_period_s)`` by default (ignored for PID).
+    tie_rtol : float
+        RMS errors within this fraction of the smallest count as a tie, which the
+        smallest gains win (near the optimum the error is flat, and the exact
+        minimum would move with the model's last digits).
 
     Returns
     -------
@@ -1357,9 +1371,10 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     if max_bandwidth_rad_s is None:
         max_bandwidth_rad_s = math.pi / (2 * timing.command_period_s)
     if not (margin >= 1 and delay_margin_s >= 0 and rms_factor >= 1
-            and settle_tolerance_m > 0 and max_bandwidth_rad_s > 0):
+            and settle_tolerance_m > 0 and max_bandwidth_rad_s > 0 and tie_rtol >= 0):
         raise ControlError("need margin >= 1, delay_margin_s >= 0, rms_factor >= 1, "
-                           "settle_tolerance_m > 0 and max_bandwidth_rad_s > 0")
+                           "settle_tolerance_m > 0, max_bandwidth_rad_s > 0 and "
+                           "tie_rtol >= 0")
     frequency_hz = _check_frequency(frequency_hz)
     model = _nominal_model(model)
     grid = _default_grid(controller) if grid is None else grid
@@ -1390,18 +1405,23 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     stable = np.all([d <= settle_tolerance_m for d in diff], axis=0) & np.isfinite(rms[0])
     for r in rms[1:]:
         stable &= r <= rms_factor * rms[0]
-    ok = _neighbours_pass(stable, shape)
     capped = np.zeros(len(cand), dtype=bool)
     if controller == "ct":
         capped = np.sqrt(cand[:, 0]) > max_bandwidth_rad_s * (1 + 1e-12)
-        ok &= ~capped
+    # the cap is an edge of the grid: a point beyond it is no neighbour to be checked
+    ok = _neighbours_pass(stable | capped, shape) & stable & ~capped
     if not ok.any():
         raise ControlError(
             f"no {controller} gains on the grid keep a gain margin of {margin:g} and a delay "
             f"margin of {delay_margin_s:g} s with their grid neighbours"
             + (f" and w <= {max_bandwidth_rad_s:g} rad/s" if controller == "ct" else "")
             + "; widen the grid or relax the margins")
-    best = int(np.argmin(np.where(ok, rms[0], np.inf)))
+    # RMS errors within tie_rtol of the best are a tie (the grid's resolution and the
+    # model's uncertainty do not separate them): the gentlest of them wins, the
+    # smallest gains in the order of _GAIN_NAMES (for computed torque kp, then kd)
+    best_rms = float(np.min(np.where(ok, rms[0], np.inf)))
+    tied = np.flatnonzero(ok & (rms[0] <= (1.0 + tie_rtol) * best_rms))
+    best = int(tied[np.lexsort(cand[tied].T[::-1])[0]])
     edge = _on_edge(controller, cand[~capped], cand[best])
     if capped.any() and "kp" in edge and cand[best, 0] >= cand[~capped, 0].max():
         edge.remove("kp")  # stopped by the bandwidth cap, not by the grid
@@ -1411,7 +1431,7 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     return {k: float(v) for k, v in zip(names, cand[best], strict=True)}
 
 
-_RULE_VERSION = "4"  # bump when tune_gains' rule or its defaults change
+_RULE_VERSION = "6"  # bump when tune_gains' rule or its defaults change
 
 
 def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | None = None,

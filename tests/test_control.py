@@ -94,9 +94,9 @@ def test_nominal_loop_is_stable_and_tracks(controller):
     x = run.position_m[0]
     assert np.all(np.isfinite(x))
     m = loop_metrics(run)
-    assert m["rms_error_m"][0] < 2e-3  # under 10% of the 22.5 mm amplitude
+    assert m["rms_error_m"][0] < 4e-3  # under 20% of the 22.5 mm amplitude
     assert 0.9 < m["amplitude_ratio"][0] < 1.1
-    assert abs(m["phase_lag_deg"][0]) < 10
+    assert abs(m["phase_lag_deg"][0]) < 15
     assert m["dead_zone_fraction"][0] == 0 and m["saturated_fraction"][0] == 0
     # it settles: the last two periods agree with each other
     last, before = x[-2000:], x[-4000:-2000]
