@@ -20,8 +20,10 @@ PID, and :func:`pmabayes.plots.plot_robustness` draws the bands against frequenc
 
 Both controllers are tuned by the same rule, :func:`pmabayes.control.tune_gains`, on
 the sweep's nominal model (the fit's model at its posterior mean, with its effects;
-:func:`pmabayes.control.nominal_gains`, cached), unless ``gains`` are given. The
-gains are stored in the result's attributes.
+:func:`pmabayes.control.nominal_gains`, cached), unless ``gains`` are given, and
+the reference mean is that of the operating-point rule on the same nominal model
+(:func:`pmabayes.control.operating_mean_m`) unless ``reference_mean_m`` is given.
+The gains and the mean are stored in the result's attributes.
 
 The samples are chosen by the seed alone, and every run is deterministic, so the
 same seed gives the same numbers however the runs are split into chunks and
