@@ -798,8 +798,10 @@ def closed_loop_batch(
     record : bool
         Also record the reading and the controller output (the command always is).
     pressure_memory_s : float, optional
-        How far back the plant's pressure effects look (see the README); derived
-        from the built-in effects' parameters by default.
+        How far back the plant's pressure effects look (see the README), the same
+        for every run; by default each run's own, from its parameters (40
+        ``tau_reg`` for a regulator lag, ``t_delay`` for a delay, 2 s for another
+        pressure effect), so that no run depends on the batch it is in.
 
     Returns
     -------

@@ -355,8 +355,9 @@ def test_sweep_with_a_regulator_lag_same_numbers_however_chunked(tmp_path):
     """Each run's lag looks back over its own window, not its chunk's longest."""
     path = fake_fit(tmp_path / "fit.nc", spread=0.05, effects=["regulator_lag"],
                     values={"tau_reg": 0.045})
-    kw = {**SMALL, "samples": 4, "seed": 2, "processes": 1, "mode": "plant"}
-    full = robustness_sweep(path, chunk_size=16, **kw)
+    kw = {**SMALL, "samples": 6, "seed": 2, "processes": 1, "mode": "plant",
+          "frequencies_hz": (0.5, 1.0, 2.0)}
+    full = robustness_sweep(path, chunk_size=36, **kw)
     assert np.ptp(full["sample_parameters"].sel(parameter="tau_reg").values) > 1e-3
     for chunk_size in (1, 3, 5):
         part = robustness_sweep(path, chunk_size=chunk_size, **kw)
