@@ -437,7 +437,8 @@ def test_sweep_tunes_both_controllers_on_the_posterior_mean(tmp_path):
     model = robustness.control_model_from_fit(tree)
     mean = posterior_mean(tree, model)
     np.testing.assert_array_equal(ds["nominal_parameters"].values, mean)
-    tuned = nominal_gains(model, mean)
+    tuned = nominal_gains(model, mean, reference_mean_m=ds.attrs["reference_mean_m"])
+    assert ds.attrs["reference_mean_m"] == operating_mean_m(model, mean)
     assert json.loads(ds.attrs["gains"]) == tuned
     assert ds.attrs["gains_source"].startswith("tune_gains")
     assert tuned != DEFAULT_GAINS  # the lag changes the best gains
