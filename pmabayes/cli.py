@@ -302,12 +302,16 @@ def _cmd_track(args: argparse.Namespace) -> int:
     controllers = CONTROLLERS if args.controller is None else (args.controller,)
     result = track(args.freq, controllers=controllers, model=model, params=params,
                    duration_s=args.duration)
-    print(f"tracking {args.freq:g} Hz on the control rig (500 g load), model: {source}")
+    print(f"tracking {args.freq:g} Hz on the control rig (500 g load), model: {source}; "
+          f"reference mean {1e3 * result['reference_mean_m']:.1f} mm "
+          "(control.operating_mean_m on it)")
     for name, m in result["controllers"].items():
         print(f"  {name:>3}: RMS error {1e3 * m['rms_error_m']:.3f} mm, max "
               f"{1e3 * m['max_error_m']:.3f} mm, amplitude ratio {m['amplitude_ratio']:.3f}, "
               f"phase lag {m['phase_lag_deg']:.1f} deg, overshoot {m['overshoot_pct']:.1f}%, "
-              f"in the dead zone {100 * m['dead_zone_fraction']:.0f}% of the time")
+              f"in the dead zone {100 * m['dead_zone_fraction']:.0f}% of the time, last two "
+              f"periods {1e3 * m['period_difference_m']:.3f} mm apart; gains "
+              f"{result['gains'][name]}")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
         print(f"wrote {args.json}")
@@ -334,6 +338,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
               f"{float(summary['p_ct_beats_pid'].sel(frequency=f)):.3f} (MC error "
               f"{float(summary['p_ct_beats_pid_mc_error'].sel(frequency=f)):.3f})")
     print(f"gains ({ds.attrs['gains_source']}): {ds.attrs['gains']}")
+    print(f"reference mean {1e3 * ds.attrs['reference_mean_m']:.1f} mm "
+          f"({ds.attrs['reference_mean_source']})")
     print("wrote " + ", ".join(str(p) for p in paths.values()))
     return 0
 

@@ -75,8 +75,13 @@ log grid, among those that are robustly stable: with every gain doubled (a 6 dB
 gain margin), and separately with an extra 20 ms transport delay in the plant (a
 delay margin), the loop must still reach a periodic steady state (the last two
 periods within 0.5 mm of each other) with an RMS error at most twice the
-nominal. ``tests/test_control.py`` checks that the rule reproduces
-:data:`DEFAULT_GAINS`.
+nominal; and so must its neighbours on the grid, so that the choice is not on the
+knife edge of the stable set. Computed torque's natural frequency is capped at
+``pi / (2 T_cmd)`` (31.4 rad/s), half the 20 Hz hold's Nyquist frequency (see
+:func:`tune_gains`). ``tests/test_control.py`` checks that the rule reproduces
+:data:`DEFAULT_GAINS`. With a fit, the operating point (:func:`operating_mean_m`)
+and the gains are those of the rule on the fit's nominal model
+(:func:`resolve_gains`).
 
 **Metrics** (:func:`tracking_metrics`, :func:`loop_metrics`) use whole periods after
 the start-up: the first ``max(2 s, one period)`` is dropped and the largest whole
@@ -88,8 +93,10 @@ actuator force) or at the upper pressure limit.
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import math
+import sys
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -133,8 +140,10 @@ __all__ = [
     "gain_array",
     "period_difference_m",
     "loop_metrics",
+    "minimum_duration_s",
     "tune_gains",
     "nominal_gains",
+    "resolve_gains",
     "track",
 ]
 
@@ -142,7 +151,7 @@ __all__ = [
 CONTROLLERS = ("pid", "ct")
 #: Metrics of :func:`loop_metrics`, in the order used by datasets.
 METRICS = ("rms_error_m", "max_error_m", "amplitude_ratio", "phase_lag_deg", "overshoot_pct",
-           "dead_zone_fraction", "saturated_fraction")
+           "dead_zone_fraction", "saturated_fraction", "period_difference_m")
 _TRACKING = METRICS[:5]
 #: The paper's reference mean, in its own (unstated) origin.
 PAPER_REFERENCE_MEAN_M = 0.005
@@ -198,19 +207,33 @@ def _inverse_pressure(model: Model | None, params, frequency_hz: float, amplitud
     def pressure(mean: float) -> np.ndarray:
         x = mean + amplitude_m * s[sl]
         base = rig.moving_mass_kg * acc + v["d"] * vel + v["K_e"] * x + z + rig.gravity_force_n
-        p = p_dz + base / rig.area_m2
-        for k in range(p.size if force_effects else 0):  # an effect may depend on p
-            for _ in range(50):
-                extra = sum(e.physics(np.ascontiguousarray(q), x[k], vel[k], p[k])[0]
-                            for e, q in force_effects)
-                p_new = p_dz + (base[k] + extra) / rig.area_m2
-                done = abs(p_new - p[k]) <= 1e-9 * (1.0 + abs(p_new))
-                p[k] = p_new
-                if done:
-                    break
-        return p
+        return _pressure_with_forces([q for _, q in force_effects],
+                                     [e for e, _ in force_effects], np.full(x.size, p_dz),
+                                     base, x, vel, rig.area_m2)
 
     return pressure, p_dz
+
+
+def _pressure_with_forces(params: list, effects: list, p_dz: np.ndarray, base: np.ndarray,
+                          x: np.ndarray, v: np.ndarray, area_m2: float) -> np.ndarray:
+    """``p = p_dz + (base + f_effects(x, v, p)) / A`` per sample, by fixed point.
+
+    ``params`` holds each force effect's parameter row: one ``(n_params,)`` row for
+    all samples, or ``(n, n_params)`` rows, one per sample. An effect may depend on
+    ``p``, hence the iteration (50 at most, to a relative 1e-9).
+    """
+    p = p_dz + base / area_m2
+    for k in range(p.size if effects else 0):
+        rows = [np.ascontiguousarray(q if np.ndim(q) == 1 else q[k]) for q in params]
+        for _ in range(50):
+            extra = sum(e.physics(q, x[k], v[k], p[k])[0] for e, q in zip(effects, rows,
+                                                                          strict=True))
+            p_new = p_dz[k] + (base[k] + extra) / area_m2
+            done = abs(p_new - p[k]) <= 1e-9 * (1.0 + abs(p_new))
+            p[k] = p_new
+            if done:
+                break
+    return p
 
 
 def operating_mean_m(model: Model | None = None, params=None, *, frequency_hz: float = 2.0,
@@ -315,8 +338,8 @@ def inverse_model_pressure_pa(frequency_hz: float, *, model: Model | None = None
 #: in Pa/m, ``ki`` in Pa/(m s), ``kd`` in Pa s/m; computed torque: ``kp`` in 1/s^2,
 #: ``kd`` in 1/s.
 DEFAULT_GAINS: dict[str, dict[str, float]] = {
-    "pid": {"kp": 10000000.0, "ki": 177827941.00389227, "kd": 100.0},
-    "ct": {"kp": 3995.8775124988906, "kd": 69.53424904407653},
+    "pid": {"kp": 5623413.251903491, "ki": 56234132.51903491, "kd": 0.0},
+    "ct": {"kp": 632.7816954219094, "kd": 125.7757623135226},
 }
 _GAIN_NAMES = {"pid": ("kp", "ki", "kd"), "ct": ("kp", "kd")}
 
@@ -492,13 +515,23 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
         "ym = np.empty((1, batch))",
         "tt = np.empty(1)",
     ]
-    if lagged:  # raw command history with `window` rows of rest before the start
+    if lagged:
+        # raw command history with `wmax` rows of rest before the start. Run i looks
+        # back window[i] rows (from its own parameters): the rows of its look-back
+        # buffer before that repeat the value at its start, which a pressure effect
+        # starting settled there leaves unchanged, so no run depends on its batch.
         body += [
-            "hist = np.empty((window + n + n_cmd, batch))",
-            "for k in range(window):",
+            "wmax = 0",
+            "for i in range(batch):",
+            "    wmax = max(wmax, window[i])",
+            "off = np.empty(batch, dtype=np.int64)",
+            "for i in range(batch):",
+            "    off[i] = wmax - window[i]",
+            "hist = np.empty((wmax + n + n_cmd, batch))",
+            "for k in range(wmax):",
             "    hist[k, :] = p_init",
-            "wa = np.empty((window + n_cmd, batch))",
-            "wb = np.empty((window + n_cmd, batch))",
+            "wa = np.empty((wmax + n_cmd, batch))",
+            "wb = np.empty((wmax + n_cmd, batch))",
             "pw = np.empty((2, n_cmd, batch))",
         ]
     tick = [
@@ -567,19 +600,20 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
         loop += [
             "            for j in range(n_cmd):",
             "                for i in range(batch):",
-            "                    hist[window + k + j, i] = cs[5, i]",
-            "            for j in range(window + n_cmd):",
+            "                    hist[wmax + k + j, i] = cs[5, i]",
+            "            for j in range(wmax + n_cmd):",
             "                for i in range(batch):",
-            "                    wa[j, i] = hist[k + j, i]",
-            "                    wb[j, i] = hist[k + j, i]",
+            "                    jj = j if j > off[i] else off[i]",
+            "                    wa[j, i] = hist[k + jj, i]",
+            "                    wb[j, i] = hist[k + jj, i]",
         ]
         loop += [f"            {plant.name_of[e]}(theta_p[:, {s.start}:{s.stop}], wa, wb, dt)"
                  for e, s in plant.pressure]
         loop += [
             "            for j in range(n_cmd):",
             "                for i in range(batch):",
-            "                    pw[0, j, i] = wa[window + j, i]",
-            "                    pw[1, j, i] = wb[window + j, i]",
+            "                    pw[0, j, i] = wa[wmax + j, i]",
+            "                    pw[1, j, i] = wb[wmax + j, i]",
         ]
     loop += ["    for i in range(batch):", "        out_x[k, i] = st[0, i]"]
     if record:
@@ -604,7 +638,7 @@ def _generate(plant_model: Model, ctrl_model: Model, record: bool) -> tuple[str,
     text += (", ".join(plant_model.effect_names) or "none") + "; controller model effects: "
     text += (", ".join(ctrl_model.effect_names) or "none") + f"; recording: {record}\n"
     text += "import math\nimport numpy as np\nfrom numba import njit\n"
-    text += "from pmabayes.simulator import _discretise\n"
+    text += "from pmabayes.simulator import discretise as _discretise\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -660,6 +694,7 @@ def gain_array(controllers: Sequence[str], gains: Mapping | None = None) -> np.n
         On an unknown controller or gain name, or a gain that is negative or not finite.
     """
     names = tuple(controllers)
+    _controller_codes(names, len(names))  # unknown controllers
     table = {c: dict(DEFAULT_GAINS[c]) for c in CONTROLLERS}
     for c, g in (gains or {}).items():
         if c not in CONTROLLERS:
@@ -671,8 +706,6 @@ def gain_array(controllers: Sequence[str], gains: Mapping | None = None) -> np.n
         table[c].update({k: float(v) for k, v in g.items()})
     out = np.zeros((len(names), 3))
     for i, c in enumerate(names):
-        if c not in CONTROLLERS:
-            raise ControlError(f"unknown controller {c!r}; choose one of {', '.join(CONTROLLERS)}")
         row = [table[c][k] for k in _GAIN_NAMES[c]]
         out[i, :len(row)] = row
     if not np.all(np.isfinite(out)) or np.any(out < 0):
@@ -690,37 +723,35 @@ def _initial_pressure(model: Model, theta: np.ndarray, x_m: float) -> np.ndarray
     """Pressure holding ``model`` at rest at ``x_m`` with ``z = 0``."""
     rig = model.rig
     base = rig.gravity_force_n + theta[:, model.index("K_e")] * x_m
-    p_dz = _value(model, theta, "p_dz")
-    p = p_dz + base / rig.area_m2
     force = [(e, s) for e, s in model.effect_slices() if e.stage == "force"]
-    if not force:
-        return p
-    for i in range(theta.shape[0]):  # fixed point: a force effect may depend on p
-        for _ in range(50):
-            extra = sum(e.physics(np.ascontiguousarray(theta[i, s]), x_m, 0.0, p[i])[0]
-                        for e, s in force)
-            p_new = p_dz[i] + (base[i] + extra) / rig.area_m2
-            done = abs(p_new - p[i]) <= 1e-9 * (1.0 + abs(p_new))
-            p[i] = p_new
-            if done:
-                break
-    return p
+    n = theta.shape[0]
+    return _pressure_with_forces([theta[:, s] for _, s in force], [e for e, _ in force],
+                                 np.array(_value(model, theta, "p_dz"), dtype=float), base,
+                                 np.full(n, float(x_m)), np.zeros(n), rig.area_m2)
 
 
 def _pressure_memory_steps(model: Model, theta: np.ndarray, dt: float,
-                           memory_s: float | None) -> int:
-    if memory_s is None:
-        memory_s = 0.0
+                           memory_s: float | None) -> np.ndarray:
+    """Look-back of each run's pressure effects in plant steps, ``(batch,)``.
+
+    From each run's own parameters (never the batch's), so that a run's result does
+    not depend on the runs it shares a kernel call with.
+    """
+    batch = theta.shape[0]
+    if memory_s is not None:
+        mem = np.full(batch, float(memory_s))
+    else:
+        mem = np.zeros(batch)
         for eff, _ in model.effect_slices():
             if eff.stage != "pressure":
                 continue
             if eff.name == "regulator_lag":  # exp(-40) of the past remains
-                memory_s += 40.0 * float(np.max(_value(model, theta, "tau_reg")))
+                mem += 40.0 * _value(model, theta, "tau_reg")
             elif eff.name == "transport_delay":
-                memory_s += float(np.max(_value(model, theta, "t_delay")))
+                mem += np.maximum(_value(model, theta, "t_delay"), 0.0)
             else:  # a user's pressure effect: assume 2 s of memory
-                memory_s += 2.0
-    return int(math.ceil(memory_s / dt)) + 4
+                mem += 2.0
+    return np.ascontiguousarray(np.ceil(mem / dt).astype(np.int64) + 4)
 
 
 def closed_loop_batch(
@@ -767,8 +798,10 @@ def closed_loop_batch(
     record : bool
         Also record the reading and the controller output (the command always is).
     pressure_memory_s : float, optional
-        How far back the plant's pressure effects look (see the README); derived
-        from the built-in effects' parameters by default.
+        How far back the plant's pressure effects look (see the README), the same
+        for every run; by default each run's own, from its parameters (40
+        ``tau_reg`` for a regulator lag, ``t_delay`` for a delay, 2 s for another
+        pressure effect), so that no run depends on the batch it is in.
 
     Returns
     -------
@@ -931,7 +964,20 @@ def _analysis_window(time_s: np.ndarray, frequency_hz: float, settle_s: float) -
 
 
 def minimum_duration_s(frequency_hz: float, settle_s: float = 2.0) -> float:
-    """Shortest run whose metrics have one whole period after the start-up (internal)."""
+    """Shortest run whose metrics have one whole period after the start-up.
+
+    Parameters
+    ----------
+    frequency_hz : float
+        Reference frequency, > 0.
+    settle_s : float
+        Start-up the metrics drop (at least one period is dropped).
+
+    Returns
+    -------
+    float
+        ``max(settle_s, 1 / f) + 1 / f`` in s.
+    """
     return max(settle_s, 1.0 / frequency_hz) + 1.0 / frequency_hz
 
 
@@ -1095,8 +1141,9 @@ def loop_metrics(run: ClosedLoop, *, settle_s: float = 2.0) -> dict[str, np.ndar
     Returns
     -------
     dict of str to numpy.ndarray
-        The metrics of :func:`tracking_metrics` and :func:`command_fractions`,
-        each ``(batch,)``.
+        The metrics of :func:`tracking_metrics` and :func:`command_fractions`, and
+        ``period_difference_m`` (:func:`period_difference_m`: how far the loop is
+        from a periodic steady state), each ``(batch,)``.
     """
     batch = run.position_m.shape[0]
     out = {m: np.empty(batch) for m in METRICS}
@@ -1108,6 +1155,8 @@ def loop_metrics(run: ClosedLoop, *, settle_s: float = 2.0) -> dict[str, np.ndar
         met |= command_fractions(run.time_s, run.command_pa[sel], float(f),
                                  dead_zone_pa=run.dead_zone_pa[sel], pressure_max_pa=p_max,
                                  settle_s=settle_s)
+        met["period_difference_m"] = period_difference_m(run.time_s, run.position_m[sel],
+                                                         float(f))
         for m in METRICS:
             out[m][sel] = met[m]
     return out
@@ -1122,7 +1171,7 @@ def _default_grid(controller: str) -> dict[str, np.ndarray]:
         return {"kp": np.geomspace(1e5, 1e9, 17), "ki": np.geomspace(1e5, 1e10, 21),
                 "kd": np.concatenate([[0.0], np.geomspace(1e2, 1e8, 13)])}
     w = np.geomspace(1.0, 200.0, 24)
-    zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0])
+    zeta = np.array([0.4, 0.55, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0])
     ww, zz = np.meshgrid(w, zeta, indexing="ij")
     return {"kp": (ww**2).ravel(), "kd": (2 * zz * ww).ravel()}
 
@@ -1143,6 +1192,54 @@ def _candidates(controller: str, grid: Mapping[str, Sequence[float]]) -> np.ndar
     return np.column_stack(values)
 
 
+def _mesh_shape(controller: str, grid: Mapping[str, Sequence[float]],
+                cand: np.ndarray) -> tuple[int, ...] | None:
+    """Shape of the candidates as a mesh (C order), or None when they form none.
+
+    PID candidates are always the mesh of the ``kp``, ``ki``, ``kd`` lists. Computed
+    torque pairs form a mesh when they are every ``(w, zeta)`` combination of some
+    lists of natural frequencies and damping ratios, in ``w``-major order (as the
+    default grid).
+    """
+    if controller == "pid":
+        return tuple(np.asarray(grid[k], dtype=float).ravel().size for k in _GAIN_NAMES["pid"])
+    kp, kd = cand.T
+    if np.any(kp <= 0):
+        return None
+    w = np.sqrt(kp)
+    zeta = kd / (2 * w)
+    uw = np.unique(np.round(w, 9))
+    uz = np.unique(np.round(zeta, 9))
+    if uw.size * uz.size != cand.shape[0]:
+        return None
+    ww, zz = np.meshgrid(uw, uz, indexing="ij")
+    if not (np.allclose(ww.ravel(), w, rtol=1e-9) and np.allclose(zz.ravel(), zeta, rtol=1e-9)):
+        return None
+    return (uw.size, uz.size)
+
+
+def _neighbours_pass(ok: np.ndarray, shape: tuple[int, ...] | None) -> np.ndarray:
+    """``ok`` where the next grid point on either side along every axis is ok too.
+
+    A point at the grid's edge has no neighbour beyond it, which counts as passing
+    (the rule warns about a choice on the edge instead).
+    """
+    if shape is None:
+        return ok.copy()
+    mesh = ok.reshape(shape)
+    out = mesh.copy()
+    for ax in range(mesh.ndim):
+        n = mesh.shape[ax]
+        if n < 2:
+            continue
+        lo = [slice(None)] * mesh.ndim
+        hi = [slice(None)] * mesh.ndim
+        lo[ax], hi[ax] = slice(0, n - 1), slice(1, n)
+        out[tuple(lo)] &= mesh[tuple(hi)]  # the neighbour above
+        out[tuple(hi)] &= mesh[tuple(lo)]  # the neighbour below
+    return out.ravel()
+
+
 def _on_edge(controller: str, cand: np.ndarray, best: np.ndarray) -> list[str]:
     """Names of the best gains that sit on the grid's edge (a zero gain is no edge)."""
     if controller == "pid":
@@ -1153,18 +1250,30 @@ def _on_edge(controller: str, cand: np.ndarray, best: np.ndarray) -> list[str]:
         with np.errstate(divide="ignore", invalid="ignore"):
             axes = {"kp": kp, "zeta": np.where(kp > 0, kd / (2 * np.sqrt(kp)), 0.0)}
         value = {"kp": best[0], "zeta": best[1] / (2 * math.sqrt(best[0])) if best[0] else 0.0}
-    return [k for k, a in axes.items()
-            if np.unique(a).size > 1 and value[k] != 0 and value[k] in (a.min(), a.max())]
+    return [k for k, a in axes.items()  # zeta from (kp, kd) pairs carries rounding
+            if np.unique(np.round(a, 9)).size > 1 and value[k] != 0
+            and (np.isclose(value[k], a.min(), rtol=1e-9, atol=0)
+                 or np.isclose(value[k], a.max(), rtol=1e-9, atol=0))]
 
 
 def _delayed_plant(model: Model, theta: np.ndarray, delay_s: float) -> tuple[Model, np.ndarray]:
-    """The plant with ``delay_s`` more transport delay."""
-    values = dict(zip(model.parameter_names, theta[0], strict=True))
-    plant = model if "transport_delay" in model.effect_names else model.with_effects(
-        "transport_delay")
-    values["t_delay"] = values.get("t_delay", 0.0) + delay_s
-    return plant, plant.theta({k: v for k, v in values.items()
-                               if k in plant.parameter_names and k not in plant.fixed})
+    """The plant with ``delay_s`` more transport delay, whether ``t_delay`` is free or fixed.
+
+    The delay is added to the ``t_delay`` column of the full parameter array (which
+    the closed loop takes as given, fixed values included); a model without a delay
+    gets the ``transport_delay`` effect with ``t_delay = delay_s``.
+    """
+    if "transport_delay" in model.effect_names:
+        plant, out = model, np.array(theta, dtype=float, copy=True)
+    else:
+        plant = model.with_effects("transport_delay")
+        out = np.repeat(plant.theta(None), theta.shape[0], axis=0)
+        for j, name in enumerate(model.parameter_names):
+            out[:, plant.index(name)] = theta[:, j]
+        out[:, plant.index("t_delay")] = 0.0
+    out[:, plant.index("t_delay")] += delay_s
+    plant.check_bounds(out)
+    return plant, np.ascontiguousarray(out)
 
 
 def tune_gains(controller: str, *, model: Model | None = None, params=None,
@@ -1172,17 +1281,35 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
                rms_factor: float = 2.0, settle_tolerance_m: float = 5e-4,
                duration_s: float = 10.0, grid: Mapping[str, Sequence[float]] | None = None,
                timing: Timing | None = None,
-               reference_mean_m: float = REFERENCE_MEAN_M) -> dict[str, float]:
+               reference_mean_m: float = REFERENCE_MEAN_M,
+               max_bandwidth_rad_s: float | None = None,
+               tie_rtol: float = 0.02) -> dict[str, float]:
     """The documented gain rule: best tracking at 0.5 Hz among robustly stable gains.
 
     Every gain set on the grid is simulated on the nominal model at ``frequency_hz``,
     then again with every gain multiplied by ``margin`` (a gain margin), and again
     with the nominal gains and ``delay_margin_s`` of extra transport delay in the
     plant (a delay margin; the controller's model, and so its prediction, unchanged).
-    A gain set qualifies when all three runs reach a periodic steady state (the last
+    A gain set is stable when all three runs reach a periodic steady state (the last
     two periods within ``settle_tolerance_m``, :func:`period_difference_m`) and the
     two perturbed runs' RMS errors are at most ``rms_factor`` times the nominal run's.
-    The qualifying set with the smallest nominal RMS error wins.
+    It qualifies when, in addition, its neighbours on the grid (the next value on
+    either side along each gain's axis; for computed torque along ``w`` and
+    ``zeta``) are stable too, and, for computed torque, when its natural frequency
+    ``w = sqrt(kp)`` is at most ``max_bandwidth_rad_s`` (the cap is an edge of the
+    grid: points beyond it are not checked as neighbours). Among the qualifying sets
+    whose nominal RMS error is within ``tie_rtol`` (2%) of the smallest, the gentlest
+    wins: the smallest ``kp``, then ``ki``, then ``kd``.
+
+    Why the two extra conditions: the smallest RMS error lies on the boundary of the
+    stable set, so without them a model perturbed in the fourth digit can flip the
+    choice (the margins pass or fail by a hair). Requiring the neighbours keeps the
+    choice one grid step inside the boundary. And the command is held for
+    ``T = command_period_s`` (20 Hz): the hold delays it by ``T / 2`` on average, a
+    phase lag ``w T / 2`` at the error dynamics' frequency, which reaches 90 degrees
+    at the hold's Nyquist frequency ``pi / T`` (62.8 rad/s), where a sampled loop can
+    no longer shape the error at all. The default cap ``pi / (2 T)`` (31.4 rad/s)
+    keeps that lag at 45 degrees.
 
     Parameters
     ----------
@@ -1212,11 +1339,18 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
         decade. For computed
         torque ``kp[j]`` goes with ``kd[j]`` (pairs; the lists must be of equal
         length); by default ``kp = w^2``, ``kd = 2 zeta w`` for ``w`` 1..200 rad/s (24
-        values, geometric) by ``zeta`` 0.4..2 (8 values).
+        values, geometric) by ``zeta`` 0.4..5 (12 values).
     timing : Timing, optional
         Rates, limits and sensor.
     reference_mean_m : float
         Mean of the reference.
+    max_bandwidth_rad_s : float, optional
+        Largest natural frequency ``sqrt(kp)`` of computed torque's error dynamics,
+        in rad/s; ``pi / (2 command_period_s)`` by default (ignored for PID).
+    tie_rtol : float
+        RMS errors within this fraction of the smallest count as a tie, which the
+        smallest gains win (near the optimum the error is flat, and the exact
+        minimum would move with the model's last digits).
 
     Returns
     -------
@@ -1235,15 +1369,20 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
         the edge of the grid: the grid should be widened.
     """
     _controller_codes(controller, 1)
+    timing = Timing() if timing is None else timing
+    if max_bandwidth_rad_s is None:
+        max_bandwidth_rad_s = math.pi / (2 * timing.command_period_s)
     if not (margin >= 1 and delay_margin_s >= 0 and rms_factor >= 1
-            and settle_tolerance_m > 0):
-        raise ControlError("need margin >= 1, delay_margin_s >= 0, rms_factor >= 1 and "
-                           "settle_tolerance_m > 0")
+            and settle_tolerance_m > 0 and max_bandwidth_rad_s > 0 and tie_rtol >= 0):
+        raise ControlError("need margin >= 1, delay_margin_s >= 0, rms_factor >= 1, "
+                           "settle_tolerance_m > 0, max_bandwidth_rad_s > 0 and "
+                           "tie_rtol >= 0")
     frequency_hz = _check_frequency(frequency_hz)
     model = _nominal_model(model)
     grid = _default_grid(controller) if grid is None else grid
     names = _GAIN_NAMES[controller]
     cand = _candidates(controller, grid)
+    shape = _mesh_shape(controller, grid, cand)
     theta = _theta1(model, params)
     cases = [(model, theta, cand), (model, theta, margin * cand)]
     if delay_margin_s > 0:
@@ -1265,22 +1404,36 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
             d[sl] = period_difference_m(run.time_s, run.position_m, frequency_hz)
         rms.append(np.where(np.isfinite(r), r, np.inf))
         diff.append(d)
-    ok = np.all([d <= settle_tolerance_m for d in diff], axis=0) & np.isfinite(rms[0])
+    stable = np.all([d <= settle_tolerance_m for d in diff], axis=0) & np.isfinite(rms[0])
     for r in rms[1:]:
-        ok &= r <= rms_factor * rms[0]
+        stable &= r <= rms_factor * rms[0]
+    capped = np.zeros(len(cand), dtype=bool)
+    if controller == "ct":
+        capped = np.sqrt(cand[:, 0]) > max_bandwidth_rad_s * (1 + 1e-12)
+    # the cap is an edge of the grid: a point beyond it is no neighbour to be checked
+    ok = _neighbours_pass(stable | capped, shape) & stable & ~capped
     if not ok.any():
         raise ControlError(
             f"no {controller} gains on the grid keep a gain margin of {margin:g} and a delay "
-            f"margin of {delay_margin_s:g} s; widen the grid or relax the margins")
-    best = int(np.argmin(np.where(ok, rms[0], np.inf)))
-    edge = _on_edge(controller, cand, cand[best])
+            f"margin of {delay_margin_s:g} s with their grid neighbours"
+            + (f" and w <= {max_bandwidth_rad_s:g} rad/s" if controller == "ct" else "")
+            + "; widen the grid or relax the margins")
+    # RMS errors within tie_rtol of the best are a tie (the grid's resolution and the
+    # model's uncertainty do not separate them): the gentlest of them wins, the
+    # smallest gains in the order of _GAIN_NAMES (for computed torque kp, then kd)
+    best_rms = float(np.min(np.where(ok, rms[0], np.inf)))
+    tied = np.flatnonzero(ok & (rms[0] <= (1.0 + tie_rtol) * best_rms))
+    best = int(tied[np.lexsort(cand[tied].T[::-1])[0]])
+    edge = _on_edge(controller, cand[~capped], cand[best])
+    if capped.any() and "kp" in edge and cand[best, 0] >= cand[~capped, 0].max():
+        edge.remove("kp")  # stopped by the bandwidth cap, not by the grid
     if edge:
         warnings.warn(f"the best {controller} gains sit on the grid's edge in "
                       f"{', '.join(edge)}; widen the grid there", GainGridWarning, stacklevel=2)
     return {k: float(v) for k, v in zip(names, cand[best], strict=True)}
 
 
-_RULE_VERSION = "3"  # bump when tune_gains' rule or its defaults change
+_RULE_VERSION = "6"  # bump when tune_gains' rule or its defaults change
 
 
 def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | None = None,
@@ -1319,7 +1472,15 @@ def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | N
             and np.array_equal(theta, paper.theta(None)) and timing == Timing()
             and reference_mean_m == REFERENCE_MEAN_M):
         return {c: dict(g) for c, g in DEFAULT_GAINS.items()}
-    source = Path(__file__).read_text() + Path(_simulator.__file__).read_text()
+    # the code behind the rule: this module, the simulator, the model and the source
+    # of every effect of the model (a user's effect included)
+    source = "".join(Path(m.__file__).read_text() for m in (
+        sys.modules[__name__], _simulator, sys.modules[Model.__module__]))
+    for e in model.effects:
+        try:
+            source += inspect.getsource(sys.modules[e.__module__])
+        except (OSError, TypeError, KeyError):  # no source to read: the class's name only
+            source += f"{e.__module__}.{e.__qualname__}"
     key = json.dumps({"effects": [f"{e.__module__}.{e.__qualname__}" for e in model.effects],
                       "rig": model.rig.to_dict(), "theta": theta[0].tolist(),
                       "timing": repr(timing), "mean": float(reference_mean_m),
@@ -1341,10 +1502,57 @@ def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | N
     return gains
 
 
+def resolve_gains(controllers: Sequence[str], gains: Mapping | None = None, *,
+                  model: Model | None = None, params=None, timing: Timing | None = None,
+                  reference_mean_m: float = REFERENCE_MEAN_M) -> dict[str, dict[str, float]]:
+    """The gains each controller will use: the given ones over those of the rule.
+
+    A controller whose gains are given in full uses them; one left out, or given in
+    part, takes the rest from :func:`nominal_gains` on the nominal model (tuned only
+    when needed).
+
+    Parameters
+    ----------
+    controllers : sequence of str
+        The controllers that will run.
+    gains : mapping, optional
+        ``{"pid": {...}, "ct": {...}}``, in full or in part.
+    model : Model, optional
+        The nominal model; the base model on :meth:`Rig.control` by default.
+    params : mapping or numpy.ndarray, optional
+        Its parameters; the model's defaults by default.
+    timing : Timing, optional
+        Rates, limits and sensor.
+    reference_mean_m : float
+        Mean of the reference the rule tunes at.
+
+    Returns
+    -------
+    dict
+        ``{controller: {gain: value}}`` for each controller given, every gain filled in
+        (checked by :func:`gain_array`).
+
+    Raises
+    ------
+    ControlError
+        On an unknown controller or gain name, or a bad gain.
+    """
+    names = tuple(dict.fromkeys(controllers))
+    given = {c: dict(g) for c, g in (gains or {}).items()}
+    gain_array(names, given)  # checks names and values
+    need = [c for c in names if set(given.get(c, {})) != set(_GAIN_NAMES[c])]
+    tuned = nominal_gains(model, params, timing=timing,
+                          reference_mean_m=reference_mean_m) if need else {}
+    out = {c: {**tuned.get(c, {}), **given.get(c, {})} for c in names}
+    rows = gain_array(names, out)
+    return {c: {k: float(v) for k, v in zip(_GAIN_NAMES[c], rows[i], strict=False)}
+            for i, c in enumerate(names)}
+
+
 def track(frequency_hz: float, *, controllers: Sequence[str] = CONTROLLERS,
           model: Model | None = None, params=None, duration_s: float = 10.0,
           gains: Mapping[str, Mapping[str, float]] | None = None,
-          reference_mean_m: float = REFERENCE_MEAN_M) -> dict:
+          reference_mean_m: float | None = None) -> dict:
     """Metrics of each controller tracking one frequency (``pmabayes track``).
 
     Parameters
@@ -1360,33 +1568,39 @@ def track(frequency_hz: float, *, controllers: Sequence[str] = CONTROLLERS,
     duration_s : float
         Length of each run.
     gains : mapping, optional
-        Gains per controller; by default :func:`nominal_gains` on the model (the rule
-        run on it, :data:`DEFAULT_GAINS` for the paper's values).
-    reference_mean_m : float
-        Mean of the reference.
+        Gains per controller, in full or in part; the rest by :func:`nominal_gains` on
+        the model (:func:`resolve_gains`; :data:`DEFAULT_GAINS` for the paper's values).
+    reference_mean_m : float, optional
+        Mean of the reference; by default :func:`operating_mean_m` on the model
+        (0.100 m, :data:`REFERENCE_MEAN_M`, for the paper's values).
 
     Returns
     -------
     dict
-        ``{"frequency_hz": f, "controllers": {name: {"rms_error_m": ..., "max_error_m":
-        ..., "amplitude_ratio": ..., "phase_lag_deg": ..., "overshoot_pct": ...,
-        "dead_zone_fraction": ..., "saturated_fraction": ...}}, "gains": {...}}``.
+        ``{"frequency_hz": f, "reference_mean_m": mean, "controllers": {name:
+        {"rms_error_m": ..., "max_error_m": ..., "amplitude_ratio": ...,
+        "phase_lag_deg": ..., "overshoot_pct": ..., "dead_zone_fraction": ...,
+        "saturated_fraction": ..., "period_difference_m": ...}}, "gains": {...}}``,
+        the gains being those the runs used.
     """
     frequency_hz = _check_frequency(frequency_hz)
     model = _nominal_model(model)
     theta = _theta1(model, params)
     names = tuple(controllers)
     _controller_codes(names, len(names))
-    if gains is None:
-        gains = nominal_gains(model, theta, reference_mean_m=reference_mean_m)
+    if reference_mean_m is None:
+        reference_mean_m = operating_mean_m(model, theta)
+    used = resolve_gains(names, gains, model=model, params=theta,
+                         reference_mean_m=reference_mean_m)
     run = closed_loop_batch(model, np.repeat(theta, len(names), axis=0), model,
                             np.repeat(theta, len(names), axis=0),
                             np.full(len(names), frequency_hz), names,
-                            duration_s=duration_s, gains=gains,
+                            duration_s=duration_s, gains=gain_array(names, used),
                             reference_mean_m=reference_mean_m, record=False)
     m = loop_metrics(run)
-    return {"frequency_hz": frequency_hz,
+    rows = run.metadata["gains"]
+    return {"frequency_hz": frequency_hz, "reference_mean_m": float(reference_mean_m),
             "controllers": {c: {k: float(v[j]) for k, v in m.items()}
                             for j, c in enumerate(names)},
-            "gains": {c: {k: float(v) for k, v in gains[c].items()} for c in names
-                      if c in gains}}
+            "gains": {c: {k: float(rows[j, i]) for i, k in enumerate(_GAIN_NAMES[c])}
+                      for j, c in enumerate(names)}}

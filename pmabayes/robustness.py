@@ -20,8 +20,10 @@ PID, and :func:`pmabayes.plots.plot_robustness` draws the bands against frequenc
 
 Both controllers are tuned by the same rule, :func:`pmabayes.control.tune_gains`, on
 the sweep's nominal model (the fit's model at its posterior mean, with its effects;
-:func:`pmabayes.control.nominal_gains`, cached), unless ``gains`` are given. The
-gains are stored in the result's attributes.
+:func:`pmabayes.control.nominal_gains`, cached), unless ``gains`` are given, and
+the reference mean is that of the operating-point rule on the same nominal model
+(:func:`pmabayes.control.operating_mean_m`) unless ``reference_mean_m`` is given.
+The gains and the mean are stored in the result's attributes.
 
 The samples are chosen by the seed alone, and every run is deterministic, so the
 same seed gives the same numbers however the runs are split into chunks and
@@ -50,14 +52,14 @@ from pmabayes.control import (
     CONTROLLERS,
     METRICS,
     REFERENCE_AMPLITUDE_M,
-    REFERENCE_MEAN_M,
     ControlError,
     Timing,
     closed_loop_batch,
     gain_array,
     loop_metrics,
     minimum_duration_s,
-    nominal_gains,
+    operating_mean_m,
+    resolve_gains,
 )
 from pmabayes.model import Model, Rig
 from pmabayes.posterior import fit_info, load_fit
@@ -212,7 +214,7 @@ def robustness_sweep(
     seed: int | np.random.Generator = 0,
     duration_s: float = 10.0,
     gains: dict | None = None,
-    reference_mean_m: float = REFERENCE_MEAN_M,
+    reference_mean_m: float | None = None,
     chunk_size: int = 400,
     processes: int | None = None,
     client=None,
@@ -239,10 +241,12 @@ def robustness_sweep(
         start-up at the lowest frequency.
     gains : dict, optional
         ``{"pid": {...}, "ct": {...}}`` to use instead of the gains tuned on the
-        nominal model (:func:`pmabayes.control.nominal_gains`); a controller left out
-        is tuned.
-    reference_mean_m : float
-        Mean of the reference (:data:`pmabayes.control.REFERENCE_MEAN_M`).
+        nominal model (:func:`pmabayes.control.nominal_gains`); a controller left out,
+        or gains left out, are tuned (:func:`pmabayes.control.resolve_gains`).
+    reference_mean_m : float, optional
+        Mean of the reference; by default the operating-point rule
+        (:func:`pmabayes.control.operating_mean_m`) on the nominal model, the same for
+        every sample (stored in the attributes).
     chunk_size : int
         Runs per task.
     processes : int, optional
@@ -295,12 +299,14 @@ def robustness_sweep(
     if unknown:
         raise ControlError(f"gains for unknown controllers {sorted(unknown)}; use "
                            f"{', '.join(CONTROLLERS)}")
-    if set(given) != set(CONTROLLERS):
-        tuned = nominal_gains(model, mean, timing=timing, reference_mean_m=reference_mean_m)
-        gains_used = {c: dict(given.get(c) or tuned[c]) for c in CONTROLLERS}
-    else:
-        gains_used = {c: dict(given[c]) for c in CONTROLLERS}
+    mean_source = "given"
+    if reference_mean_m is None:
+        reference_mean_m = operating_mean_m(model, mean, pressure_max_pa=timing.pressure_max_pa)
+        mean_source = "control.operating_mean_m on the posterior mean"
+    gains_used = resolve_gains(CONTROLLERS, given, model=model, params=mean, timing=timing,
+                               reference_mean_m=reference_mean_m)
     gain_rows = gain_array(CONTROLLERS, gains_used)
+    all_given = all(set(given.get(c, {})) >= set(gains_used[c]) for c in CONTROLLERS)
     n_s, n_f, n_c = theta.shape[0], freqs.size, len(CONTROLLERS)
     # member (s, f, c) at (s * n_f + f) * n_c + c
     s_idx, f_idx, c_idx = (a.ravel() for a in np.meshgrid(
@@ -363,7 +369,7 @@ def robustness_sweep(
     ds["nominal_parameters"] = (("parameter",), mean)
     units = {"rms_error_m": "m", "max_error_m": "m", "amplitude_ratio": "1",
              "phase_lag_deg": "deg", "overshoot_pct": "%", "dead_zone_fraction": "1",
-             "saturated_fraction": "1"}
+             "saturated_fraction": "1", "period_difference_m": "m"}
     for m, u in units.items():
         ds[m].attrs["units"] = u
     ds["frequency"].attrs["units"] = "Hz"
@@ -373,9 +379,10 @@ def robustness_sweep(
         "mode": mode, "seed": seed_attr, "fit": source,
         "effects": ",".join(model.effect_names) or "none",
         "duration_s": float(duration_s), "reference_mean_m": float(reference_mean_m),
+        "reference_mean_source": mean_source,
         "reference_amplitude_m": REFERENCE_AMPLITUDE_M,
         "gains": json.dumps(gains_used),
-        "gains_source": ("given" if set(given) == set(CONTROLLERS) else
+        "gains_source": ("given" if all_given else
                          "tune_gains on the posterior mean" + (" (some given)" if given else "")),
         "timing": repr(timing), "runner": runner, "sweep_seconds": seconds,
     })
@@ -414,7 +421,8 @@ def summarise_robustness(ds: xr.Dataset) -> xr.Dataset:
     p = beats.mean("sample")
     n = int(ds.sizes["sample"])
     out["p_ct_beats_pid"] = p
-    out["p_ct_beats_pid_mc_error"] = np.maximum(np.sqrt(p * (1 - p) / n), 1.0 / n)
+    out["p_ct_beats_pid_mc_error"] = xr.where((p == 0) | (p == 1), 1.0 / n,
+                                              np.sqrt(p * (1 - p) / n))
     out.attrs.update({k: ds.attrs[k] for k in ("mode", "seed") if k in ds.attrs})
     out.attrs["samples"] = n
     return out

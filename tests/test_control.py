@@ -18,6 +18,7 @@ from pmabayes.control import (
     ControlError,
     GainGridWarning,
     closed_loop,
+    closed_loop_batch,
     inverse_model_pressure_pa,
     loop_metrics,
     nominal_gains,
@@ -29,7 +30,7 @@ from pmabayes.control import (
 )
 from pmabayes.plots import plot_figure5, plot_robustness, plt
 from pmabayes.posterior import save_fit
-from pmabayes.reproduction import figure5
+from pmabayes.reproduction import figure5, paper_claims
 from pmabayes.robustness import (
     posterior_mean,
     robustness_sweep,
@@ -93,9 +94,9 @@ def test_nominal_loop_is_stable_and_tracks(controller):
     x = run.position_m[0]
     assert np.all(np.isfinite(x))
     m = loop_metrics(run)
-    assert m["rms_error_m"][0] < 2e-3  # under 10% of the 22.5 mm amplitude
+    assert m["rms_error_m"][0] < 4e-3  # under 20% of the 22.5 mm amplitude
     assert 0.9 < m["amplitude_ratio"][0] < 1.1
-    assert abs(m["phase_lag_deg"][0]) < 10
+    assert abs(m["phase_lag_deg"][0]) < 15
     assert m["dead_zone_fraction"][0] == 0 and m["saturated_fraction"][0] == 0
     # it settles: the last two periods agree with each other
     last, before = x[-2000:], x[-4000:-2000]
@@ -151,6 +152,8 @@ def test_multirate_timing():
     k_cmd = np.nonzero(np.diff(cmd))[0] + 1
     k_u = np.nonzero(np.diff(u))[0] + 1
     assert len(k_cmd) > 30 and len(k_u) > 150  # both really move
+    # true by construction of the record (the held values repeated); that the plant
+    # really sees this held command is the replay test's job, below
     assert np.all(k_cmd % 50 == 0)  # 20 Hz regulator command, held
     assert np.all(k_u % 10 == 0)  # 100 Hz controller
     # the command is the controller output sampled at the 20 Hz instants
@@ -237,7 +240,8 @@ def test_gain_rule_reproduces_the_defaults(controller):
 def test_gain_rule_rejects_unstable_gains_and_warns_on_the_grid_edge():
     pid = DEFAULT_GAINS["pid"]
     with pytest.warns(GainGridWarning, match="kp"):
-        g = tune_gains("pid", grid={"kp": [pid["kp"], 3e7], "ki": [pid["ki"]], "kd": [pid["kd"]]})
+        g = tune_gains("pid", grid={"kp": [pid["kp"] / 1.7782794100389228, pid["kp"]],
+                                    "ki": [pid["ki"]], "kd": [pid["kd"]]})
     assert g == pid
     # the old rule's PID gains track with doubled gains but do not settle: refused
     with pytest.raises(ControlError, match="widen the grid"):
@@ -246,6 +250,60 @@ def test_gain_rule_rejects_unstable_gains_and_warns_on_the_grid_edge():
         tune_gains("ct", grid={"kp": [100.0, 400.0], "kd": [20.0]})
     with pytest.raises(ControlError, match="grid must give"):
         tune_gains("ct", grid={"kp": [100.0], "ki": [20.0]})
+
+
+def test_gain_rule_caps_the_bandwidth_below_the_hold_nyquist():
+    """Computed torque's w = sqrt(kp) stays under pi / (2 T_cmd) = 31.4 rad/s."""
+    w = np.array([20.0, 25.0, 40.0])
+    grid = {"kp": w**2, "kd": 2 * 1.0 * w}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GainGridWarning)
+        g = tune_gains("ct", grid=grid)
+        # with the cap lifted the faster gains are allowed, and (here) win
+        fast = tune_gains("ct", grid=grid, max_bandwidth_rad_s=100.0)
+    assert g["kp"] == 625.0
+    assert fast["kp"] == 1600.0
+
+
+def test_gain_rule_is_not_knife_edge():
+    """Nominal models a hair apart (1e-3 relative) get the same gains."""
+    rng = np.random.default_rng(4)
+    base = CONTROL.theta(None)
+    for _ in range(3):
+        theta = base * (1 + 1e-3 * rng.standard_normal(base.shape))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", GainGridWarning)
+            assert tune_gains("ct", params=theta) == DEFAULT_GAINS["ct"]
+
+
+def test_gain_rule_neighbours_must_be_stable_too():
+    from pmabayes.control import _neighbours_pass
+
+    ok = np.array([True, True, True, False, True])
+    np.testing.assert_array_equal(_neighbours_pass(ok, (5,)), [True, True, False, False, False])
+    mesh = np.ones((3, 3), dtype=bool)
+    mesh[1, 2] = False
+    out = _neighbours_pass(mesh.ravel(), (3, 3)).reshape(3, 3)
+    assert out.sum() == 9 - 4  # the point, its neighbours along each axis
+    assert not out[0, 2] and not out[2, 2] and not out[1, 1] and out[0, 0]
+
+
+@pytest.mark.parametrize("fixed", [None, 0.01])
+def test_delay_margin_adds_to_a_fixed_or_free_delay(fixed):
+    from pmabayes.control import _delayed_plant
+
+    model = Model(["transport_delay"], rig=Rig.control(),
+                  fixed={} if fixed is None else {"t_delay": fixed})
+    theta = model.theta(None if fixed is not None else {"t_delay": 0.005})
+    plant, th = _delayed_plant(model, theta, 0.02)
+    before = theta[0, model.index("t_delay")]
+    assert th[0, plant.index("t_delay")] == pytest.approx(before + 0.02)
+    # the closed loop really runs the delayed plant
+    run = closed_loop_batch(plant, th, model, theta, np.array([0.5]), "ct", duration_s=4.0)
+    same = closed_loop_batch(model, theta, model, theta, np.array([0.5]), "ct", duration_s=4.0)
+    assert not np.array_equal(run.position_m, same.position_m)
+    bare, th0 = _delayed_plant(CONTROL, CONTROL.theta(None), 0.02)
+    assert th0[0, bare.index("t_delay")] == 0.02
 
 
 # -- errors -------------------------------------------------------------------------
@@ -291,6 +349,35 @@ def test_sweep_same_seed_same_numbers_however_chunked(tmp_path):
     summary = summarise_robustness(a)
     assert summary["p_ct_beats_pid"].dims == ("frequency",)
     assert np.all(summary["rms_error_m_q05"] <= summary["rms_error_m_q95"])
+
+
+def test_sweep_with_a_regulator_lag_same_numbers_however_chunked(tmp_path):
+    """Each run's lag looks back over its own window, not its chunk's longest."""
+    path = fake_fit(tmp_path / "fit.nc", spread=0.05, effects=["regulator_lag"],
+                    values={"tau_reg": 0.045})
+    kw = {**SMALL, "samples": 6, "seed": 2, "processes": 1, "mode": "plant",
+          "frequencies_hz": (0.5, 1.0, 2.0)}
+    full = robustness_sweep(path, chunk_size=36, **kw)
+    assert np.ptp(full["sample_parameters"].sel(parameter="tau_reg").values) > 1e-3
+    for chunk_size in (1, 3, 5):
+        part = robustness_sweep(path, chunk_size=chunk_size, **kw)
+        for m in METRICS:
+            np.testing.assert_array_equal(full[m].values, part[m].values,
+                                          err_msg=f"{m}, chunk_size {chunk_size}")
+
+
+def test_sweep_uses_the_operating_point_of_its_nominal_model(tmp_path):
+    path = fake_fit(tmp_path / "fit.nc", values={"K_e": 0.8 * CONTROL.defaults["K_e"]})
+    from pmabayes.posterior import load_fit
+
+    tree = load_fit(path)
+    model = robustness.control_model_from_fit(tree)
+    expected = operating_mean_m(model, posterior_mean(tree, model))
+    assert expected != REFERENCE_MEAN_M
+    ds = robustness_sweep(path, processes=1, **{**SMALL, "samples": 1,
+                                                "frequencies_hz": (2.0,)})
+    assert ds.attrs["reference_mean_m"] == expected
+    assert "operating_mean_m" in ds.attrs["reference_mean_source"]
 
 
 def test_sweep_on_local_processes_equals_one_process(tmp_path):
@@ -350,7 +437,8 @@ def test_sweep_tunes_both_controllers_on_the_posterior_mean(tmp_path):
     model = robustness.control_model_from_fit(tree)
     mean = posterior_mean(tree, model)
     np.testing.assert_array_equal(ds["nominal_parameters"].values, mean)
-    tuned = nominal_gains(model, mean)
+    tuned = nominal_gains(model, mean, reference_mean_m=ds.attrs["reference_mean_m"])
+    assert ds.attrs["reference_mean_m"] == operating_mean_m(model, mean)
     assert json.loads(ds.attrs["gains"]) == tuned
     assert ds.attrs["gains_source"].startswith("tune_gains")
     assert tuned != DEFAULT_GAINS  # the lag changes the best gains
@@ -399,8 +487,17 @@ def test_sweep_output_files(tmp_path):
     back.close()
     head = paths["summary_csv"].read_text().splitlines()[0]
     assert "p_ct_beats_pid" in head and "p_ct_beats_pid_mc_error" in head
-    summary = summarise_robustness(ds)
-    assert np.all(summary["p_ct_beats_pid_mc_error"] >= 1 / 3 - 1e-12)
+    # the Monte-Carlo error on a hand-made sweep: CT wins 1 of 4, then 4 of 4
+    rms = np.array([[[2.0, 1.0]], [[1.0, 2.0]], [[1.0, 2.0]], [[1.0, 2.0]]])
+    hand = xr.Dataset({"rms_error_m": (("sample", "frequency", "controller"), rms),
+                       "phase_lag_deg": (("sample", "frequency", "controller"), 0 * rms)},
+                      coords={"frequency": [1.0], "controller": ["pid", "ct"]})
+    summary = summarise_robustness(hand)
+    assert float(summary["p_ct_beats_pid"][0]) == 0.25
+    assert float(summary["p_ct_beats_pid_mc_error"][0]) == pytest.approx(
+        np.sqrt(0.25 * 0.75 / 4))
+    hand["rms_error_m"][:, :, 0] = 3.0
+    assert float(summarise_robustness(hand)["p_ct_beats_pid_mc_error"][0]) == 0.25
     plt.close(plot_robustness(ds, path=tmp_path / "rob.png"))
     assert (tmp_path / "rob.png").stat().st_size > 10_000
 
@@ -416,6 +513,28 @@ def test_figure5_reports_each_claim(tmp_path):
     assert all(isinstance(c["reproduced"], bool) and c["evidence"] for c in result["claims"])
     assert set(result["metrics"]) == {0.5, 1.0, 2.0}
     assert set(result["metrics"][1.0]["ct"]) == set(METRICS)
+    assert result["reference_mean_m"] == REFERENCE_MEAN_M
+
+
+def _claim_metrics(rms_pid, rms_ct, lag_pid, lag_ct, over_ct, settle=0.0):
+    return {f: {"pid": {"rms_error_m": rms_pid, "phase_lag_deg": lag_pid,
+                        "overshoot_pct": 0.0, "period_difference_m": settle},
+                "ct": {"rms_error_m": rms_ct, "phase_lag_deg": lag_ct,
+                       "overshoot_pct": over_ct, "period_difference_m": 0.0}}
+            for f in (0.5, 1.0, 2.0)}
+
+
+def test_paper_claims_both_outcomes():
+    yes = paper_claims(_claim_metrics(2e-3, 1e-3, 175.0, 60.0, 10.0))
+    assert [c["reproduced"] for c in yes] == [True, True, True]
+    assert all(c["unsettled"] == [] for c in yes)
+    no = paper_claims(_claim_metrics(1e-3, 2e-3, 40.0, 60.0, 20.0))
+    assert [c["reproduced"] for c in no] == [False, False, False]
+    assert not paper_claims(_claim_metrics(2e-3, 1e-3, 175.0, 185.0, 4.0))[1]["reproduced"]
+    unsettled = paper_claims(_claim_metrics(2e-3, 1e-3, 175.0, 60.0, 10.0, settle=0.01))
+    assert unsettled[0]["unsettled"] == ["pid at 0.5 Hz", "pid at 1 Hz", "pid at 2 Hz"]
+    assert "not settled" in unsettled[0]["evidence"]
+    assert unsettled[2]["unsettled"] == []
 
 
 def test_cli_track_json(tmp_path, capsys):
