@@ -16,13 +16,15 @@ disturbance and encoder quantisation):
 Usage::
 
     python analyses/detection.py [--null 20] [--seeds 5] [--sizes 4] [--max-refits 3]
-                                 [--seed 0] [--out DIR] [--quick]
+                                 [--effects NAME ...] [--seed 0] [--out DIR] [--quick]
 
 Writes ``detection.csv``, ``detection.md`` and ``null.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``false_alarm_rate: <fraction>``.
 ``--quick`` runs 3 null data sets and 1 seed per size (the two largest sizes) on
 short data, for CI; ``--null``, ``--seeds`` and ``--sizes`` given explicitly override
-those counts (``--sizes k`` keeps the k largest sizes of each effect).
+those counts (``--sizes k`` keeps the k largest sizes of each effect); ``--effects``
+sweeps only the named effects (of ``regulator_lag``, ``coulomb_friction``,
+``position_offset``).
 """
 
 from __future__ import annotations
@@ -77,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="data sets per effect size (5)")
     parser.add_argument("--sizes", type=int, default=None,
                         help="sizes per effect, the largest kept (all 4)")
+    parser.add_argument("--effects", nargs="+", choices=[e for e, *_ in SWEEPS],
+                        default=None, help="effects to sweep (all three)")
     parser.add_argument("--max-refits", type=int, default=3,
                         help="refits per diagnosis (diagnose's max_refits, 3)")
     parser.add_argument("--seed", type=int, default=0)
@@ -94,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     n_sizes = n_sizes if args.sizes is None else args.sizes
     if n_null < 1 or n_seeds < 1 or n_sizes < 1:
         parser.error("--null, --seeds and --sizes must be at least 1")
-    sweeps = tuple((e, p, u, s, sizes[-n_sizes:]) for e, p, u, s, sizes in SWEEPS)
+    sweeps = tuple((e, p, u, s, sizes[-n_sizes:]) for e, p, u, s, sizes in SWEEPS
+                   if args.effects is None or e in args.effects)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
     rows = []

@@ -80,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
                 nums.add(f"pb{case}{cw}{fw}Lag", f"{m['phase_lag_deg']:.1f}")
                 nums.add(f"pb{case}{cw}{fw}Over", f"{m['overshoot_pct']:.1f}")
             body.append(f"{name} & {f:g} & " + " & ".join(cells) + r" \\")
+        nums.add(f"pb{case}ClaimsReproduced", sum(c["reproduced"] for c in result["claims"]))
         for cname, claim in zip(CLAIM_NAMES, result["claims"], strict=True):
             nums.add(f"pb{case}Claim{cname}",
                      "reproduced" if claim["reproduced"] else "not reproduced")
