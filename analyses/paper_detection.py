@@ -44,6 +44,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=None)
     p.add_argument("--sizes", type=int, default=None)
     p.add_argument("--max-refits", type=int, default=None)
+    p.add_argument("--reuse", action="store_true",
+                   help="redraw from an existing tables/detection.csv instead of rerunning "
+                        "the study (its sizes must match the other options)")
     args = p.parse_args(argv)
     import detection  # after _paper, which puts the checkout on the path
 
@@ -59,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
             det_argv += [f"--{k.replace('_', '-')}", str(v)]
     if args.quick:
         det_argv += ["--effects", *QUICK_EFFECTS]
-    detection.main(det_argv)
+    if not (args.reuse and (tables / "detection.csv").is_file()):
+        detection.main(det_argv)
 
     with open(tables / "detection.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -99,9 +103,13 @@ def main(argv: list[str] | None = None) -> int:
             at = [r for r in sel if float(r["size"]) == s]
             named = sum(r["missing"] == effect for r in at)
             cov = [_truthy(r["covered"]) for r in at if r["covered"] != ""]
+            other = sorted({r["missing"] for r in at if r["missing"] not in ("", effect)})
+            n_other = sum(r["missing"] not in ("", effect) for r in at)
             body.append(f"{tex_escape(effect)} & {s * scale:g} {tex_escape(unit)} & "
                         f"{sum(_truthy(r['flagged']) for r in at)}/{len(at)} & "
-                        f"{named}/{len(at)} & {sum(cov)}/{len(cov)} & "
+                        f"{named}/{len(at)} & {n_other}/{len(at)}"
+                        f"{' (' + tex_escape(', '.join(other)) + ')' if other else ''} & "
+                        f"{sum(cov)}/{len(cov)} & "
                         f"{np.median([float(r['ratio']) for r in at]):.3g} \\\\")
         ax.set_xscale("log")
         ax.set_xlabel(f"{effect} {param} [{unit}]", fontsize=8)
@@ -120,8 +128,9 @@ def main(argv: list[str] | None = None) -> int:
     fig.savefig(path, dpi=130)
     plt.close(fig)
 
-    table = [r"\begin{tabular}{llrrrr}", r"\toprule",
-             r"hidden effect & size & flagged & named & int. covers & base RMS/floor \\",
+    table = [r"\begin{tabular}{llrrlrr}", r"\toprule",
+             r"hidden effect & size & flagged & named & other named & int. covers & "
+             r"RMS/floor \\",
              r"\midrule", *body, r"\bottomrule", r"\end{tabular}"]
     (tables / "detection.tex").write_text("\n".join(table) + "\n")
     nums.add("pbDetNull", len(null))
@@ -135,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     nums.add("pbDetSizesPerEffect", per_size // max(len(swept), 1))
     nums.add("pbDetEffectsSwept", len(swept))
     nums.add("pbDetDiagnoses", len(rows))
+    nums.add("pbDetSized", len(sized))
+    nums.add("pbDetNamedRight", sum(r["missing"] == r["effect"] for r in sized))
+    nums.add("pbDetNamedWrong", sum(r["missing"] not in ("", r["effect"]) for r in sized))
     nums.add("pbDetMaxRefits", 3 if opts["max_refits"] is None else opts["max_refits"])
     nums.add("pbDetChirp", "5~s chirps (0.3--2~Hz), 4 trials" if args.quick
              else "8~s chirps (0.3--3~Hz), 6 trials")

@@ -59,6 +59,22 @@ def unbalanced(tex: str) -> list[str]:
     return problems + stack
 
 
+def brace_problems(tex: str) -> list[str]:
+    """Unbalanced braces or an odd number of ``$`` (empty when fine)."""
+    text = _strip_comments(tex).replace("\\{", "").replace("\\}", "").replace("\\$", "")
+    depth, problems = 0, []
+    for ch in text:
+        depth += (ch == "{") - (ch == "}")
+        if depth < 0:
+            problems.append("a } closes nothing")
+            depth = 0
+    if depth:
+        problems.append(f"{depth} unclosed {{")
+    if text.count("$") % 2:
+        problems.append("odd number of $")
+    return problems
+
+
 def missing_inputs(tex: str, out_root: Path) -> list[str]:
     """Included paths with no file under ``out_root``."""
     return [p for p in included_files(tex) if not (out_root / p).is_file()]
@@ -76,6 +92,8 @@ def test_the_checks_catch_missing_files_and_macros(tmp_path):
     assert missing_inputs(tex, tmp_path) == ["figures/b.png"]
     assert used_macros(tex) - set(defined_macros([tmp_path / "numbers.tex"])) == {"pbUnknown"}
     assert unbalanced(tex) != []
+    assert brace_problems("{a}$x$") == []
+    assert brace_problems("{a") and brace_problems("a}") and brace_problems("$x")
     assert unbalanced("\\begin{a}\\begin{b}\\end{b}\\end{a}") == []
 
 
@@ -118,9 +136,11 @@ def test_every_generated_macro_is_defined_once(quick_root):
 
 def test_latex_sources_are_balanced(quick_root):
     assert unbalanced(MAIN_TEX.read_text()) == []
+    assert brace_problems(MAIN_TEX.read_text()) == []
     for f in (quick_root / "tables").glob("*.tex"):
         text = f.read_text()
         assert unbalanced(text) == [], f
+        assert brace_problems(text) == [], f
         assert text.isascii(), f"{f.name} has non-ASCII characters"
 
 
