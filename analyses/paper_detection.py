@@ -112,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
                         f"{sum(cov)}/{len(cov)} & "
                         f"{np.median([float(r['ratio']) for r in at]):.3g} \\\\")
         ax.set_xscale("log")
+        ax.minorticks_off()
+        ax.set_xticks([v * scale for v in sizes], [f"{v * scale:g}" for v in sizes])
         ax.set_xlabel(f"{effect} {param} [{unit}]", fontsize=8)
         ax.set_ylim(-0.05, 1.05)
         ax.tick_params(labelsize=7)
