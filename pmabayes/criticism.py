@@ -489,8 +489,8 @@ class Signature:
         bands = [b for b in self.bands[:-1] if b.n_samples > 0]
         ratios = [b.ratio for b in bands]
         overall = self.bands[-1]
-        text = (f"The error is {overall.rms_m * 1e6:.3g} µm RMS against a noise floor of "
-                f"{overall.floor_m * 1e6:.3g} µm ({overall.ratio:.3g}x)")
+        text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS against a noise floor of "
+                f"{overall.floor_m * 1e6:.4g} µm ({overall.ratio:.3g}x)")
         if len(bands) >= 2:
             lo, hi = bands[0], bands[-1]
             span = (f"from {lo.ratio:.3g}x the floor at {_band_text(lo.band_hz)} to "
@@ -507,10 +507,15 @@ class Signature:
             name, value = max(self.correlations.items(), key=lambda kv: abs(kv[1]))
             text += f" The residual correlates most with the {name} (r = {value:+.2f})."
         if abs(self.ccf_peak) > self.ccf_bound and self.ccf_lag_s > 0:
-            text += (f" The whitened residual follows the rate of change of the command "
-                     f"{self.ccf_lag_s * 1e3:.0f} ms earlier (correlation {self.ccf_peak:+.2f}, "
-                     f"{abs(self.ccf_peak) / self.ccf_bound:.0f}x its 99% bound): the response "
-                     "lags the pressure more than the model allows.")
+            # residual = data - model; a response that trails the model's is
+            # x(t - tau) - x(t) ~ -tau dx/dt: negative against the command's rate
+            how = ("the measured response trails the model's, as if the pressure acted later "
+                   "than the model assumes" if self.ccf_peak < 0 else
+                   "the measured response runs ahead of the model's")
+            text += (f" The whitened residual still correlates with the rate of change of the "
+                     f"command {self.ccf_lag_s * 1e3:.0f} ms earlier (correlation "
+                     f"{self.ccf_peak:+.2f}, {abs(self.ccf_peak) / self.ccf_bound:.0f}x its 99% "
+                     f"bound): {how}.")
         if self.ljung_box_p < 0.01:
             text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
         return text
@@ -597,7 +602,8 @@ class Refit:
         the output with the effect switched off (its null values).
     next_effect : str or None
         The significant candidate that best explains what the refit leaves (score
-        test on the refit), if any.
+        test on the refit), if any; looked for only when the refit alone does not
+        account for the misfit.
     explained_with_next : float
         Fraction of the base model's excess removed by the refit and, to first
         order, by ``next_effect`` after it: near 1 when the two together account
@@ -818,7 +824,7 @@ def _contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
             if rms > best_rms:
                 best, best_rms = (lo, hi), rms
     return (f" Its contribution to the output correlates {corr:+.2f} with the base model's "
-            f"residual and is largest at {_band_text(best)} ({best_rms * 1e6:.3g} µm RMS).")
+            f"residual and is largest at {_band_text(best)} ({best_rms * 1e6:.4g} µm RMS).")
 
 
 def _explanation(eff, evidence: float, p_value: float, significant: bool,
@@ -837,7 +843,7 @@ def _explanation(eff, evidence: float, p_value: float, significant: bool,
             parts.append(f"{p.name} = {refit.values[p.name]:.4g} {p.unit} "
                          f"({ci_prob:.0%} interval {lo:.4g} to {hi:.4g})")
     text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
-             f"{refit.rms_m * 1e6:.3g} µm ({refit.signature.ratio:.3g}x the floor), "
+             f"{refit.rms_m * 1e6:.4g} µm ({refit.signature.ratio:.3g}x the floor), "
              f"{refit.explained:.0%} of the excess residual is removed, and the "
              f"leave-one-trial-out ELPD changes by {refit.elpd_diff:+.1f} "
              f"± {refit.elpd_diff_se:.1f}.")
@@ -950,6 +956,9 @@ def diagnose(
         raise ValueError(f"min_explained must be in [0, 1], got {min_explained}")
     if int(max_refits) < 0 or int(n_draws) < 50:
         raise ValueError("max_refits must be >= 0 and n_draws >= 50")
+    def is_adequate(sig: Signature) -> bool:
+        return bool(sig.energy <= 1.0 + energy_tolerance and sig.ljung_box_p >= level_adequate)
+
     rng = np.random.default_rng(seed)
     if candidates is not None:
         candidates = tuple(candidates)
@@ -997,11 +1006,13 @@ def diagnose(
         ext_sig = residual_signature(ext_lik, noise, ext_sim)
         explained = float(np.clip((signature.energy - ext_sig.energy) * n / base_excess,
                                   0.0, 1.0))
-        # one step of look-ahead: does another candidate account for what is left?
-        following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
-                                             candidates=candidates, level=level)
-                     if e.significant]
-        nxt = max(following, key=lambda e: e.explained) if following else None
+        nxt = None
+        if explained < min_explained and not is_adequate(ext_sig):
+            # one step of look-ahead: does another candidate account for what is left?
+            following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
+                                                 candidates=candidates, level=level)
+                         if e.significant]
+            nxt = max(following, key=lambda e: e.explained) if following else None
         diff = e_elpd_i - elpd_i
         refits[ev.effect] = Refit(
             effect=ev.effect, values=dict(ext_map.values), interval=interval,
@@ -1033,9 +1044,6 @@ def diagnose(
 
     # refitted candidates first, by how well they predict left-out trials
     findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
-    def is_adequate(sig: Signature) -> bool:
-        return bool(sig.energy <= 1.0 + energy_tolerance and sig.ljung_box_p >= level_adequate)
-
     adequate = is_adequate(signature)
     explaining = [r for r in refits.values()
                   if max(r.explained, r.explained_with_next) >= min_explained
@@ -1058,15 +1066,15 @@ def diagnose(
 
 def _verdict(name: str, effects: tuple, signature: Signature, adequate: bool,
              missing: str | None, refits: dict, findings: list, min_explained: float) -> str:
-    sig = (f"RMS error {signature.bands[-1].rms_m * 1e6:.3g} µm against a floor of "
-           f"{signature.bands[-1].floor_m * 1e6:.3g} µm; whitened residual energy "
+    sig = (f"RMS error {signature.bands[-1].rms_m * 1e6:.4g} µm against a floor of "
+           f"{signature.bands[-1].floor_m * 1e6:.4g} µm; whitened residual energy "
            f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
            f"p = {signature.ljung_box_p:.2g}")
     if missing is not None:
         r = refits[missing]
         others = [f.effect for f in findings if f.refit is not None and f.effect != missing]
         text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
-                f"{r.rms_m * 1e6:.3g} µm ({r.signature.ratio:.3g}x the floor) and removes "
+                f"{r.rms_m * 1e6:.4g} µm ({r.signature.ratio:.3g}x the floor) and removes "
                 f"{r.explained:.0%} of the excess residual.")
         if others:
             text += (f" It predicts left-out trials better than the other refitted "
