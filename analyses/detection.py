@@ -15,11 +15,16 @@ disturbance and encoder quantisation):
 
 Usage::
 
-    python analyses/detection.py [--null 20] [--seeds 5] [--seed 0] [--out DIR] [--quick]
+    python analyses/detection.py [--null 20] [--seeds 5] [--sizes 4] [--max-refits 3]
+                                 [--effects NAME ...] [--seed 0] [--out DIR] [--quick]
 
 Writes ``detection.csv``, ``detection.md`` and ``null.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``false_alarm_rate: <fraction>``.
-``--quick`` runs 3 null data sets and 1 seed per size on short data, for CI.
+``--quick`` runs 3 null data sets and 1 seed per size (the two largest sizes) on
+short data, for CI; ``--null``, ``--seeds`` and ``--sizes`` given explicitly override
+those counts (``--sizes k`` keeps the k largest sizes of each effect); ``--effects``
+sweeps only the named effects (of ``regulator_lag``, ``coulomb_friction``,
+``position_offset``).
 """
 
 from __future__ import annotations
@@ -47,13 +52,14 @@ SWEEPS = (
 )
 
 
-def _run(rng: np.random.Generator, chirp: Chirp, n_trials: int, effects: dict | None):
+def _run(rng: np.random.Generator, chirp: Chirp, n_trials: int, effects: dict | None,
+         max_refits: int = 3):
     truth = draw_plausible(rng)
     data_seed = int(rng.integers(2**31))
     ds = generate_chirp_dataset(n_trials=n_trials, seed=data_seed, chirp=chirp, params=truth,
                                 effects=effects)
     start = time.perf_counter()
-    d = diagnose(ds, candidates=CANDIDATES, seed=data_seed)
+    d = diagnose(ds, candidates=CANDIDATES, seed=data_seed, max_refits=max_refits)
     return data_seed, d, time.perf_counter() - start
 
 
@@ -68,23 +74,37 @@ def clopper_pearson(k: int, n: int, prob: float = 0.9) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> int:
     """Run the study, write the tables and print ``false_alarm_rate`` last."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--null", type=int, default=20, help="null data sets (20)")
-    parser.add_argument("--seeds", type=int, default=5, help="data sets per effect size (5)")
+    parser.add_argument("--null", type=int, default=None, help="null data sets (20)")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="data sets per effect size (5)")
+    parser.add_argument("--sizes", type=int, default=None,
+                        help="sizes per effect, the largest kept (all 4)")
+    parser.add_argument("--effects", nargs="+", choices=[e for e, *_ in SWEEPS],
+                        default=None, help="effects to sweep (all three)")
+    parser.add_argument("--max-refits", type=int, default=3,
+                        help="refits per diagnosis (diagnose's max_refits, 3)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
                         / "paper" / "tables")
     parser.add_argument("--quick", action="store_true", help="a small version for CI")
     args = parser.parse_args(argv)
     chirp, n_trials = Chirp(duration_s=8.0, f0_hz=0.3, f1_hz=3.0), 6
-    n_null, n_seeds, sweeps = args.null, args.seeds, SWEEPS
+    n_null, n_seeds, n_sizes = 20, 5, 4
     if args.quick:
-        chirp, n_trials, n_null, n_seeds = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=2.0), 4, 3, 1
-        sweeps = tuple((e, p, u, s, sizes[-2:]) for e, p, u, s, sizes in SWEEPS)
+        chirp, n_trials = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=2.0), 4
+        n_null, n_seeds, n_sizes = 3, 1, 2
+    n_null = n_null if args.null is None else args.null
+    n_seeds = n_seeds if args.seeds is None else args.seeds
+    n_sizes = n_sizes if args.sizes is None else args.sizes
+    if n_null < 1 or n_seeds < 1 or n_sizes < 1:
+        parser.error("--null, --seeds and --sizes must be at least 1")
+    sweeps = tuple((e, p, u, s, sizes[-n_sizes:]) for e, p, u, s, sizes in SWEEPS
+                   if args.effects is None or e in args.effects)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
     rows = []
     for i in range(n_null):
-        data_seed, d, secs = _run(rng, chirp, n_trials, None)
+        data_seed, d, secs = _run(rng, chirp, n_trials, None, args.max_refits)
         flagged = d.missing is not None or any(f.significant for f in d.ranking)
         rows.append({"effect": "none", "size": 0.0, "seed": data_seed, "flagged": flagged,
                      "missing": d.missing or "", "adequate": d.adequate, "covered": "",
@@ -95,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     for effect, param, unit, scale, sizes in sweeps:
         for size in sizes:
             for _ in range(n_seeds):
-                data_seed, d, secs = _run(rng, chirp, n_trials, {effect: size})
+                data_seed, d, secs = _run(rng, chirp, n_trials, {effect: size},
+                                          args.max_refits)
                 top = next((f for f in d.ranking if f.effect == effect), None)
                 covered = ""
                 if d.missing == effect and top is not None and param in top.interval:

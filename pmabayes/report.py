@@ -36,7 +36,7 @@ from pmabayes.data import Dataset
 from pmabayes.posterior import FitFileError, check_dataset, fit_info
 
 __all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
-           "write_comparison"]
+           "write_comparison", "pair_figure", "predictive_band"]
 
 #: Keys of a summary row, in CSV column order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -493,9 +493,10 @@ def _display_scale(values: np.ndarray, unit: str) -> tuple[float, str]:
     return 10.0**-e, rf"$\times 10^{{{e}}}$ {unit}".strip()
 
 
-def _pair_figure(tree: xr.DataTree, path: Path, rows: Sequence[Mapping]) -> int:
-    """Corner plot of all posterior variables; returns the number of draws shown."""
-    names = list(tree["posterior"].data_vars)
+def _pair_figure(tree: xr.DataTree, path: Path, rows: Sequence[Mapping],
+                 names: Sequence[str] | None = None) -> int:
+    """Corner plot of posterior variables (all by default); returns the draws shown."""
+    names = list(tree["posterior"].data_vars) if names is None else list(names)
     k = len(names)
     flat = np.stack([_draws(tree, n).ravel() for n in names])  # (k, chain*draw)
     n_total = flat.shape[1]
@@ -559,6 +560,75 @@ def _pair_figure(tree: xr.DataTree, path: Path, rows: Sequence[Mapping]) -> int:
     fig.legend(handles=handles, loc="upper right", fontsize=9, frameon=False)
     fig.savefig(path, dpi=_PNG_DPI)
     return int(keep.size)
+
+
+def pair_figure(tree: xr.DataTree, path: str | Path, *, names: Sequence[str] | None = None,
+                ci_prob: float = 0.9) -> int:
+    """Corner plot of the posterior draws with the MAP and the paper's values marked.
+
+    The figure of the report's pair plot, for any subset of the posterior's
+    variables. Values off the plotted range are marked by arrow-heads on the edge.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit (layout of :mod:`pmabayes.posterior`).
+    path : str or Path
+        Where to save the figure (format from the suffix).
+    names : sequence of str, optional
+        Posterior variables to show, in order; all by default.
+    ci_prob : float, optional
+        Interval probability of the summary the marks come from (0.9).
+
+    Returns
+    -------
+    int
+        The number of draws shown (at most 2000, evenly thinned).
+
+    Raises
+    ------
+    ValueError
+        If a name is not a posterior variable, or ``ci_prob`` is not in (0, 1).
+    FitFileError
+        If ``tree`` is not a pmabayes fit.
+    """
+    rows = summary_table(tree, ci_prob=ci_prob)
+    known = list(tree["posterior"].data_vars)
+    if names is not None:
+        bad = [n for n in names if n not in known]
+        if bad:
+            raise ValueError(f"not posterior variables: {bad}; the fit has {known}")
+    return _pair_figure(tree, Path(path), rows, names)
+
+
+def predictive_band(tree: xr.DataTree, *, ci_prob: float = 0.9) -> dict[str, np.ndarray]:
+    """The posterior predictive band of a fit, pooled over its stored draws.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit with ``observed_data`` and ``posterior_predictive`` groups.
+    ci_prob : float, optional
+        Central probability of the band (0.9).
+
+    Returns
+    -------
+    dict
+        ``time`` [s], ``trials``, ``data`` (``(n_trials, n_samples)`` in m),
+        ``median`` (the median noise-free model position in m), ``low`` and
+        ``high`` (the band's edges in m, with measurement noise) and ``coverage``
+        (fraction of all measured samples inside the band).
+
+    Raises
+    ------
+    ValueError
+        If ``ci_prob`` is not in (0, 1).
+    FitFileError
+        If ``tree`` lacks the groups.
+    """
+    ci_prob = _check_ci_prob(ci_prob)
+    _check_tree(tree, ["observed_data", "posterior_predictive"])
+    return _predictive(tree, ci_prob)
 
 
 def _predictive(tree: xr.DataTree, ci_prob: float) -> dict[str, np.ndarray]:
