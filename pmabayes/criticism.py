@@ -36,6 +36,7 @@ from pmabayes.simulator import Simulation, simulate
 __all__ = [
     "DEFAULT_BANDS_HZ",
     "BandError",
+    "band_label",
     "instantaneous_frequency",
     "band_errors",
     "innovations",
@@ -123,6 +124,34 @@ class BandError:
     def ratio(self) -> float:
         """``rms_m / floor_m``: about 1 for a model that describes the data."""
         return self.rms_m / self.floor_m
+
+    @property
+    def label(self) -> str:
+        """The band in words: ``"0.5-1 Hz"``, or ``"all"`` for the overall row."""
+        return band_label(self.band_hz)
+
+    def to_dict(self) -> dict:
+        """JSON-ready values (an open upper edge as None)."""
+        lo, hi = self.band_hz
+        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "rms_m": self.rms_m,
+                "nrms": self.nrms, "max_m": self.max_m, "floor_m": self.floor_m,
+                "ratio": self.ratio}
+
+
+def band_label(band: tuple[float, float]) -> str:
+    """A frequency band in words: ``"0.5-1 Hz"``, or ``"all"`` for ``(0, inf)``.
+
+    Parameters
+    ----------
+    band : tuple of float
+        ``(low, high)`` in Hz.
+
+    Returns
+    -------
+    str
+    """
+    lo, hi = band
+    return "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
 
 
 def band_errors(
@@ -493,8 +522,8 @@ class Signature:
                 f"{overall.floor_m * 1e6:.4g} µm ({overall.ratio:.3g}x)")
         if len(bands) >= 2:
             lo, hi = bands[0], bands[-1]
-            span = (f"from {lo.ratio:.3g}x the floor at {_band_text(lo.band_hz)} to "
-                    f"{hi.ratio:.3g}x at {_band_text(hi.band_hz)}")
+            span = (f"from {lo.ratio:.3g}x the floor at {band_label(lo.band_hz)} to "
+                    f"{hi.ratio:.3g}x at {band_label(hi.band_hz)}")
             if hi.ratio > 2.0 * lo.ratio:
                 text += f"; it grows with frequency, {span}"
             elif lo.ratio > 2.0 * hi.ratio:
@@ -519,11 +548,6 @@ class Signature:
         if self.ljung_box_p < 0.01:
             text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
         return text
-
-
-def _band_text(band: tuple[float, float]) -> str:
-    lo, hi = band
-    return f"{lo:g}-{hi:g} Hz" if math.isfinite(hi) else f"above {lo:g} Hz"
 
 
 def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
@@ -771,10 +795,7 @@ class Diagnosis:
             "whiteness": {"ljung_box_p": sig.ljung_box_p, "energy": sig.energy,
                           "energy_p": sig.energy_p},
             "signature": sig.describe(),
-            "bands": [{"band_hz": [b.band_hz[0], b.band_hz[1] if math.isfinite(b.band_hz[1])
-                                   else None],
-                       "rms_m": b.rms_m, "nrms": b.nrms, "max_m": b.max_m,
-                       "floor_m": b.floor_m, "ratio": b.ratio} for b in sig.bands],
+            "bands": [b.to_dict() for b in sig.bands],
             "settings": dict(self.settings),
         }
 
@@ -825,7 +846,7 @@ def _contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
             if rms > best_rms:
                 best, best_rms = (lo, hi), rms
     return (f" Its contribution to the output correlates {corr:+.2f} with the base model's "
-            f"residual and is largest at {_band_text(best)} ({best_rms * 1e6:.4g} µm RMS).")
+            f"residual and is largest at {band_label(best)} ({best_rms * 1e6:.4g} µm RMS).")
 
 
 def _explanation(eff, evidence: float, p_value: float, significant: bool,
@@ -1167,10 +1188,7 @@ class FitComparison:
                 {"label": k, "rms_m": self.bands[k][-1].rms_m,
                  "noise_floor_m": self.bands[k][-1].floor_m,
                  "ratio": self.bands[k][-1].ratio,
-                 "bands": [{"band_hz": [b.band_hz[0], b.band_hz[1]
-                                        if math.isfinite(b.band_hz[1]) else None],
-                            "rms_m": b.rms_m, "floor_m": b.floor_m, "ratio": b.ratio}
-                           for b in self.bands[k]],
+                 "bands": [b.to_dict() for b in self.bands[k]],
                  "whiteness": self.whiteness[k], "elpd": self.elpd[k]}
                 for k in self.labels
             ],

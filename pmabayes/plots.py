@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 from pmabayes.control import CONTROLLERS, ClosedLoop  # noqa: E402
 from pmabayes.criticism import (  # noqa: E402
     autocorrelation,
+    band_label,
     cross_correlation,
     instantaneous_frequency,
 )
@@ -103,11 +104,6 @@ def plot_comparison(
     return fig
 
 
-def _band_label(band: tuple[float, float]) -> str:
-    lo, hi = band
-    return "all" if lo == 0.0 and not np.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
-
-
 def plot_band_errors(
     errors: dict,
     *,
@@ -151,7 +147,7 @@ def plot_band_errors(
         ax.hlines(f, x - 0.45, x + 0.45, color="k", lw=2,
                   label="noise floor" if x == 0 else None)
     ax.set_yscale("log")
-    ax.set_xticks(xs, [_band_label(b) for b in bands])
+    ax.set_xticks(xs, [band_label(b) for b in bands])
     ax.set_xlabel("instantaneous frequency of the chirp")
     ax.set_ylabel("RMS error of the trial mean [µm]")
     ax.set_title(title or "error per frequency band (label: multiple of the floor)",

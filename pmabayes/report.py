@@ -1018,9 +1018,7 @@ def _synthetic_note(dataset: Dataset) -> str:
 def _band_rows(rows) -> list[list[Any]]:
     out = []
     for b in rows:
-        lo, hi = b.band_hz
-        name = "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
-        out.append([name, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, b.floor_m * 1e6, b.ratio])
+        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, b.floor_m * 1e6, b.ratio])
     return out
 
 
@@ -1163,9 +1161,7 @@ def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None
     fig.savefig(out_dir / "whiteness.png", dpi=_PNG_DPI)
     plt.close(fig)
     (out_dir / "comparison.json").write_text(json.dumps(c.to_dict(), indent=2) + "\n")
-    bands = [b.band_hz for b in c.bands[c.labels[0]]]
-    band_names = ["all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
-                  for lo, hi in bands]
+    band_names = [b.label for b in c.bands[c.labels[0]]]
     header = ["fit", *[f"RMS {b} [µm]" for b in band_names], "RMS / floor",
               "Ljung-Box p", "energy", "ELPD (LOO)", "ΔELPD vs best ± se"]
     rows = [[k, *[b.rms_m * 1e6 for b in c.bands[k]], c.bands[k][-1].ratio,
