@@ -38,7 +38,34 @@ function is compiled with numba (a plain Python function is compiled when the
 class is defined), so effects never fall back to a Python loop inside the
 simulator.
 
-Writing a new effect takes a dozen lines; see :class:`Effect` for an example.
+**What the closed loop needs** (:mod:`pmabayes.control`). An effect may tell the
+controller how to compensate it, through optional hooks whose defaults keep an
+effect without them working (simulated in the loop, not compensated). The
+classmethods take a batch of the effect's own parameter values, ``q`` of shape
+``(batch, n_params)`` in declared order, and return one value per row:
+
+``history_s(q)``
+    Seconds of past pressure command a pressure effect needs to start each
+    closed-loop update from (default: 2 s for a pressure effect, 0 otherwise).
+``lead_s(q)``
+    Seconds of lead the effect adds on the pressure path; computed torque
+    predicts the reference and the position that far ahead (default 0).
+``add_delay(q, delay_s)``
+    The parameter rows with ``delay_s`` more dead time, for the gain rule's delay
+    margin, or None when the effect cannot absorb a delay (the default). A model
+    without such an effect gains :func:`delay_effect` for the margin.
+
+A measurement effect may also set ``inverse``, the reading mapped back to the
+position, for one parameter set at one instant, with the inverse's slope (which
+maps the reading's increments, for the velocity estimate)::
+
+    inverse(q, time_s, reading_m) -> (position_m, dposition_dreading)
+
+with ``q`` of shape ``(n_params,)``; compiled like ``physics``. Computed torque
+applies the inverses of its model's measurement effects to the reading, the last
+effect's first; without ``inverse`` (None, the default) an effect is not inverted.
+
+Writing a new effect takes a dozen lines; see :class:`Effect` for examples.
 """
 
 from __future__ import annotations
@@ -67,6 +94,7 @@ __all__ = [
     "CubicStiffness",
     "PressureStiffness",
     "PositionOffset",
+    "delay_effect",
 ]
 
 STAGES = ("pressure", "force", "measurement")
@@ -96,13 +124,26 @@ class Effect:
         The stage's function (see the module docstring), wrapped in
         ``staticmethod``. Plain Python functions are compiled with
         ``numba.njit`` when the class is defined.
+    inverse : callable or None
+        Optional, measurement effects only: the reading mapped back to the position
+        and the slope of that map, ``inverse(q, time_s, reading_m) -> (position_m,
+        dposition_dreading)``, which computed torque applies to its reading.
+        Compiled like ``physics``.
+
+    Notes
+    -----
+    Three optional classmethods tell the closed loop (:mod:`pmabayes.control`)
+    how to compensate the effect: :meth:`history_s`, :meth:`lead_s` and
+    :meth:`add_delay`. Each takes the effect's own parameter values for a batch,
+    ``(batch, n_params)`` in declared order. Their defaults leave the effect
+    uncompensated, and give a pressure effect 2 s of command history.
 
     Examples
     --------
     A quadratic (turbulent) drag, written outside the package:
 
     >>> import numpy as np
-    >>> from pmabayes import Effect, Parameter, HalfNormal, register_effect
+    >>> from pmabayes import Effect, Parameter, HalfNormal, Normal, register_effect
     >>> def drag(q, x, v, p):
     ...     c = q[0]
     ...     return c * v * abs(v), 0.0, 2.0 * c * abs(v)
@@ -115,6 +156,49 @@ class Effect:
     ...     description = "Drag growing with the square of velocity."
     ...     physics = staticmethod(drag)
     >>> _ = register_effect(QuadraticDrag)
+
+    A first-order lag of the pressure, compensated by computed torque: it needs
+    about ``40 tau`` of command history and adds a lead of ``tau``:
+
+    >>> def lag(q, p_start, p_end, dt_s):
+    ...     n, batch = p_start.shape
+    ...     for i in range(batch):
+    ...         y, w = p_start[0, i], 1.0 - np.exp(-dt_s / q[i, 0])
+    ...         for k in range(n):
+    ...             p_start[k, i] = y
+    ...             y += w * (p_end[k, i] - y)
+    ...             p_end[k, i] = y
+    >>> class SlowValve(Effect):
+    ...     name = "slow_valve"
+    ...     stage = "pressure"
+    ...     parameters = (Parameter("tau_valve", "s", 0.03, HalfNormal(0.1),
+    ...                             bounds=(1e-6, 1.0)),)
+    ...     description = "First-order lag of the valve."
+    ...     physics = staticmethod(lag)
+    ...     @classmethod
+    ...     def history_s(cls, q):
+    ...         return 40.0 * q[:, 0]
+    ...     @classmethod
+    ...     def lead_s(cls, q):
+    ...         return q[:, 0]
+
+    A sensor with a gain and an offset, inverted by computed torque:
+
+    >>> def gain_offset(q, time_s, position_m):
+    ...     for k in range(position_m.shape[0]):
+    ...         for i in range(position_m.shape[1]):
+    ...             position_m[k, i] = q[i, 0] * position_m[k, i] + q[i, 1]
+    >>> def gain_offset_inverse(q, time_s, reading_m):
+    ...     return (reading_m - q[1]) / q[0], 1.0 / q[0]
+    >>> class ScaledSensor(Effect):
+    ...     name = "scaled_sensor"
+    ...     stage = "measurement"
+    ...     parameters = (
+    ...         Parameter("k_sensor", "1", 1.0, Normal(1.0, 0.1), bounds=(0.5, 2.0)),
+    ...         Parameter("b_sensor", "m", 0.0, Normal(0.0, 1e-3), bounds=(-0.01, 0.01)))
+    ...     description = "Sensor gain and offset."
+    ...     physics = staticmethod(gain_offset)
+    ...     inverse = staticmethod(gain_offset_inverse)
     """
 
     name: ClassVar[str] = ""
@@ -122,6 +206,7 @@ class Effect:
     parameters: ClassVar[tuple[Parameter, ...]] = ()
     description: ClassVar[str] = ""
     physics: ClassVar[object] = None
+    inverse: ClassVar[object] = None
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -146,9 +231,75 @@ class Effect:
             raise EffectError(
                 f"{where}: set `physics = staticmethod(function)`; see pmabayes.effects"
             )
-        if not isinstance(fn, numba.core.registry.CPUDispatcher):
-            fn = numba.njit(error_model="numpy")(fn)
-        cls.physics = staticmethod(fn)
+        cls.physics = staticmethod(_compiled(fn))
+        inv = cls.__dict__.get("inverse")
+        if isinstance(inv, staticmethod):
+            inv = inv.__func__
+        if inv is not None:
+            if cls.stage != "measurement" or not callable(inv):
+                raise EffectError(f"{where}: only a measurement effect may set `inverse = "
+                                  "staticmethod(function)`; see pmabayes.effects")
+            cls.inverse = staticmethod(_compiled(inv))
+
+    @classmethod
+    def history_s(cls, q: np.ndarray) -> np.ndarray:
+        """Seconds of pressure command history the effect needs, per parameter row.
+
+        The closed loop restarts a pressure effect at every command update from
+        this much of the past command, each run from its own parameters.
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            The effect's parameter values, ``(batch, n_params)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)``: 2 s for a pressure effect (a guess, for effects that do not
+            say), 0 for the other stages.
+        """
+        return np.full(np.shape(q)[0], 2.0 if cls.stage == "pressure" else 0.0)
+
+    @classmethod
+    def lead_s(cls, q: np.ndarray) -> np.ndarray:
+        """Lead time the effect adds on the pressure path, per parameter row.
+
+        Computed torque predicts the reference and the position this far ahead
+        (the leads of all its model's pressure effects added up).
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            The effect's parameter values, ``(batch, n_params)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)`` in s; zeros by default (nothing predicted).
+        """
+        return np.zeros(np.shape(q)[0])
+
+    @classmethod
+    def add_delay(cls, q: np.ndarray, delay_s: float) -> np.ndarray | None:
+        """The parameter rows with ``delay_s`` more dead time, if the effect can take it.
+
+        The gain rule's delay margin lengthens the plant's delay with this hook.
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            The effect's parameter values, ``(batch, n_params)``.
+        delay_s : float
+            Extra delay in s.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            New ``(batch, n_params)`` rows; None (the default) when the effect cannot
+            absorb a delay.
+        """
+        return None
 
     @classmethod
     def parameter_names(cls) -> tuple[str, ...]:
@@ -162,6 +313,12 @@ class Effect:
 
     def __repr__(self) -> str:
         return f"<effect {self.name} ({self.stage}): {', '.join(self.parameter_names())}>"
+
+
+def _compiled(fn):
+    if isinstance(fn, numba.core.registry.CPUDispatcher):
+        return fn
+    return numba.njit(error_model="numpy")(fn)
 
 
 _REGISTRY: dict[str, type[Effect]] = {}
@@ -422,6 +579,11 @@ def _position_offset(q, time_s, position_m):
             position_m[k, i] += q[i, 0]
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _position_offset_inverse(q, time_s, reading_m):
+    return reading_m - q[0], 1.0
+
+
 @register_effect
 class RegulatorLag(Effect):
     """First-order lag of the pressure regulator."""
@@ -445,6 +607,38 @@ class RegulatorLag(Effect):
     )
     physics = staticmethod(_regulator_lag)
 
+    @classmethod
+    def history_s(cls, q: np.ndarray) -> np.ndarray:
+        """``40 tau_reg``: exp(-40) of the older past remains (see :meth:`Effect.history_s`).
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            ``(batch, 1)``: ``tau_reg``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)`` in s.
+        """
+        return 40.0 * q[:, 0]
+
+    @classmethod
+    def lead_s(cls, q: np.ndarray) -> np.ndarray:
+        """``tau_reg``, the first-order lead ``1 + tau s ~ exp(tau s)`` (see :meth:`Effect.lead_s`).
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            ``(batch, 1)``: ``tau_reg``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)`` in s.
+        """
+        return q[:, 0]
+
 
 @register_effect
 class TransportDelay(Effect):
@@ -467,6 +661,58 @@ class TransportDelay(Effect):
         "frequency, and a peak of the input-residual cross-correlation at a positive lag."
     )
     physics = staticmethod(_transport_delay)
+
+    @classmethod
+    def history_s(cls, q: np.ndarray) -> np.ndarray:
+        """``t_delay`` (see :meth:`Effect.history_s`).
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            ``(batch, 1)``: ``t_delay``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)`` in s.
+        """
+        return np.maximum(q[:, 0], 0.0)
+
+    @classmethod
+    def lead_s(cls, q: np.ndarray) -> np.ndarray:
+        """``t_delay``: predicting that far ahead is exact in phase (see :meth:`Effect.lead_s`).
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            ``(batch, 1)``: ``t_delay``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)`` in s.
+        """
+        return q[:, 0]
+
+    @classmethod
+    def add_delay(cls, q: np.ndarray, delay_s: float) -> np.ndarray:
+        """``t_delay + delay_s`` (see :meth:`Effect.add_delay`).
+
+        Parameters
+        ----------
+        q : numpy.ndarray
+            ``(batch, 1)``: ``t_delay``.
+        delay_s : float
+            Extra delay in s.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch, 1)``.
+        """
+        out = np.array(q, dtype=float, copy=True)
+        out[:, 0] += delay_s
+        return out
 
 
 @register_effect
@@ -561,4 +807,19 @@ class PositionOffset(Effect):
         "every frequency, pressure and position."
     )
     physics = staticmethod(_position_offset)
+    inverse = staticmethod(_position_offset_inverse)
+
+
+def delay_effect() -> type[Effect]:
+    """The effect a model gains to lengthen its delay when none of its effects can.
+
+    The gain rule's delay margin (:func:`pmabayes.control.tune_gains`) adds it at its
+    null values, then lengthens its delay with :meth:`Effect.add_delay`.
+
+    Returns
+    -------
+    type
+        :class:`TransportDelay`.
+    """
+    return TransportDelay
 
