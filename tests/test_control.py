@@ -1,6 +1,9 @@
 """Closed-loop control: controllers, the multi-rate loop, metrics, sweeps and the CLI."""
 
 import json
+import math
+import subprocess
+import sys
 import warnings
 
 import numpy as np
@@ -8,7 +11,7 @@ import pytest
 import xarray as xr
 
 import pmabayes.robustness as robustness
-from pmabayes import Model, Rig, simulate
+from pmabayes import Effect, HalfNormal, Model, Normal, Parameter, Rig, simulate
 from pmabayes.cli import main
 from pmabayes.control import (
     DEFAULT_GAINS,
@@ -191,6 +194,146 @@ def test_controller_model_sets_the_prediction_of_computed_torque():
     assert a.metadata["prediction_s"][0] == pytest.approx(0.025)
     assert b.metadata["prediction_s"][0] == pytest.approx(0.025 + 0.045)
     assert not np.allclose(a.position_m, b.position_m)
+
+
+# -- effects the closed loop knows only through their hooks ------------------------------
+# Written here, outside the package, as a user would: the loop must compensate them
+# from their hooks alone.
+
+
+def first_order_lag(q, p_start, p_end, dt_s):
+    """A first-order lag, exact at the samples for a piecewise-linear command."""
+    n, batch = p_start.shape
+    for i in range(batch):
+        h = dt_s / q[i, 0]
+        e = math.exp(-h)
+        y = p_start[0, i]  # starts settled at the first command
+        for k in range(n):
+            a = p_start[k, i]
+            ramp = (p_end[k, i] - a) / h
+            y_end = p_end[k, i] - ramp + (y - a + ramp) * e
+            p_start[k, i] = y
+            p_end[k, i] = y_end
+            y = y_end
+
+
+class PlainLag(Effect):
+    """A user's lag without hooks: simulated in the loop, not compensated."""
+
+    name = "user_lag_plain"
+    stage = "pressure"
+    parameters = (Parameter("tau_user", "s", 0.045, HalfNormal(0.1), bounds=(1e-6, 1.0)),)
+    description = "A first-order lag of the pressure."
+    physics = staticmethod(first_order_lag)
+
+
+class UserLag(PlainLag):
+    """The same lag, telling the loop its history and its lead."""
+
+    name = "user_lag"
+    physics = staticmethod(first_order_lag)
+
+    @classmethod
+    def history_s(cls, q):
+        return 40.0 * q[:, 0]
+
+    @classmethod
+    def lead_s(cls, q):
+        return q[:, 0]
+
+    @classmethod
+    def add_delay(cls, q, delay_s):  # not physical, only to see the margin find it
+        return q + delay_s
+
+
+def gain_offset(q, time_s, position_m):
+    for k in range(position_m.shape[0]):
+        for i in range(position_m.shape[1]):
+            position_m[k, i] = q[i, 0] * position_m[k, i] + q[i, 1]
+
+
+def gain_offset_inverse(q, time_s, reading_m):
+    return (reading_m - q[1]) / q[0], 1.0 / q[0]
+
+
+class RawSensor(Effect):
+    """A sensor with a gain and an offset, without an inverse."""
+
+    name = "user_sensor_raw"
+    stage = "measurement"
+    parameters = (Parameter("k_user", "1", 1.05, Normal(1.0, 0.1), bounds=(0.5, 2.0)),
+                  Parameter("b_user", "m", 2e-3, Normal(0.0, 1e-3), bounds=(-0.01, 0.01)))
+    description = "Sensor gain and offset."
+    physics = staticmethod(gain_offset)
+
+
+class UserSensor(RawSensor):
+    """The same sensor with its inverse."""
+
+    name = "user_sensor"
+    physics = staticmethod(gain_offset)
+    inverse = staticmethod(gain_offset_inverse)
+
+
+def _ct_rms(effects, params=None, frequency_hz=0.5, controller="ct"):
+    run = closed_loop(controller, frequency_hz, model=Model(effects, rig=Rig.control()),
+                      params=params, duration_s=6.0)
+    return loop_metrics(run)["rms_error_m"][0], run
+
+
+def test_user_pressure_lag_is_compensated_as_well_as_the_builtin():
+    builtin, _ = _ct_rms(["regulator_lag"], {"tau_reg": 0.045})
+    user, run = _ct_rms([UserLag], {"tau_user": 0.045})
+    plain, _ = _ct_rms([PlainLag], {"tau_user": 0.045})
+    assert run.metadata["prediction_s"][0] == pytest.approx(0.025 + 0.045, rel=1e-12)
+    assert abs(user / builtin - 1) < 0.01
+    assert plain > 1.2 * user  # without its lead the same lag is tracked worse
+
+
+def test_user_sensor_with_an_inverse_is_inverted_by_computed_torque():
+    bare, _ = _ct_rms([])
+    inverted, run = _ct_rms([UserSensor])
+    raw, _ = _ct_rms([RawSensor])
+    assert not np.allclose(run.measured_m[0], run.position_m[0], atol=1e-3)  # it does act
+    assert inverted <= 1.02 * bare  # as good as with no sensor effect
+    assert raw > 1.5 * bare
+    # PID reads the sensor as it is: the inverse is computed torque's alone
+    pid_inv = _ct_rms([UserSensor], controller="pid")[1]
+    pid_raw = _ct_rms([RawSensor], controller="pid")[1]
+    np.testing.assert_array_equal(pid_inv.position_m, pid_raw.position_m)
+
+
+def test_effect_hooks_that_are_absent_keep_the_defaults():
+    q = np.array([[0.045], [0.01]])
+    np.testing.assert_array_equal(PlainLag.history_s(q), [2.0, 2.0])
+    np.testing.assert_array_equal(PlainLag.lead_s(q), [0.0, 0.0])
+    assert PlainLag.add_delay(q, 0.02) is None and RawSensor.inverse is None
+    run = closed_loop("ct", 1.0, model=Model([PlainLag], rig=Rig.control()), duration_s=3.0)
+    assert run.metadata["prediction_s"][0] == 0.025
+
+
+def test_delay_margin_goes_to_the_effect_that_offers_it():
+    from pmabayes.control import _delayed_plant
+
+    model = Model([UserLag], rig=Rig.control())
+    theta = model.theta({"tau_user": 0.03})
+    plant, th = _delayed_plant(model, theta, 0.02)
+    assert plant is model  # no delay effect added
+    assert th[0, model.index("tau_user")] == pytest.approx(0.05)
+    bare = Model([PlainLag], rig=Rig.control())
+    plant, th = _delayed_plant(bare, bare.theta(None), 0.02)
+    assert plant.effects[:-1] == (PlainLag,) and plant.effects[-1].add_delay is not None
+    np.testing.assert_array_equal(th[:, :-1], bare.theta(None))
+    assert plant.effects[-1].lead_s(th[:, -1:])[0] == pytest.approx(0.02)
+
+
+def test_import_computes_no_reference_mean():
+    code = ("import pmabayes.control as c, pmabayes.control.operating as o; "
+            "assert o._reference_mean.cache_info().currsize == 0; "
+            "from pmabayes.control import REFERENCE_MEAN_M; print(REFERENCE_MEAN_M)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert float(out.stdout) == REFERENCE_MEAN_M == operating_mean_m()
 
 
 # -- metrics on known signals ---------------------------------------------------------

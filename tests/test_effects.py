@@ -385,3 +385,70 @@ def test_missing_physics_raises_at_class_definition():
             name = "no_physics"
             stage = "force"
             parameters = (pb.Parameter("k_np", "N/m", 1.0, pb.HalfNormal(1.0)),)
+
+
+# -- what the closed loop asks of an effect ------------------------------------------
+
+
+def test_builtin_hooks_give_history_lead_and_delay():
+    q = np.array([[0.04], [0.0]])
+    lag, delay = pb.get_effect("regulator_lag"), pb.get_effect("transport_delay")
+    np.testing.assert_array_equal(lag.history_s(q), [1.6, 0.0])  # exp(-40) left
+    np.testing.assert_array_equal(lag.lead_s(q), q[:, 0])
+    np.testing.assert_array_equal(delay.history_s(np.array([[0.02], [-1e-3]])), [0.02, 0.0])
+    np.testing.assert_array_equal(delay.lead_s(q), q[:, 0])
+    longer = delay.add_delay(q, 0.02)
+    np.testing.assert_array_equal(longer[:, 0], q[:, 0] + 0.02)
+    assert q[0, 0] == 0.04  # the rows passed in are left alone
+    assert lag.add_delay(q, 0.02) is None
+    for name in ("coulomb_friction", "cubic_stiffness", "pressure_stiffness",
+                 "position_offset"):
+        eff = pb.get_effect(name)
+        rows = np.ones((2, len(eff.parameters)))
+        np.testing.assert_array_equal(eff.history_s(rows), [0.0, 0.0])
+        np.testing.assert_array_equal(eff.lead_s(rows), [0.0, 0.0])
+        assert eff.add_delay(rows, 0.02) is None
+
+
+def test_delay_effect_is_registered_and_takes_delay():
+    eff = pb.effects.delay_effect()
+    assert pb.get_effect(eff.name) is eff and eff.stage == "pressure"
+    q = np.array([[eff.null_values()[n] for n in eff.parameter_names()]])
+    assert eff.add_delay(q, 0.02) is not None
+    assert eff.lead_s(eff.add_delay(q, 0.02))[0] == pytest.approx(0.02)
+
+
+def test_position_offset_inverse_undoes_its_physics():
+    eff = pb.get_effect("position_offset")
+    q = np.array([[3e-4], [-1e-3]])
+    x = np.linspace(0.0, 0.05, 12).reshape(6, 2)
+    y = x.copy()
+    eff.physics(q, np.arange(6) * 1e-3, y)
+    for k in range(6):
+        for i in range(2):
+            back, slope = eff.inverse(q[i], k * 1e-3, y[k, i])
+            assert back == pytest.approx(x[k, i], abs=1e-15) and slope == 1.0
+    for name in ("regulator_lag", "transport_delay", "coulomb_friction"):
+        assert pb.get_effect(name).inverse is None
+
+
+def test_user_inverse_is_compiled_and_only_for_measurements():
+    def unwind(q, time_s, reading_m):
+        return reading_m - q[0], 1.0
+
+    class Offset2(pb.Effect):
+        name = "offset_two"
+        stage = "measurement"
+        parameters = (pb.Parameter("x_off2", "m", 0.0, pb.Normal(0.0, 1e-3)),)
+        physics = staticmethod(sensor_drift)
+        inverse = staticmethod(unwind)
+
+    assert isinstance(Offset2.inverse, numba.core.registry.CPUDispatcher)
+    assert Offset2.inverse(np.array([1e-3]), 0.0, 0.5) == (0.499, 1.0)
+    with pytest.raises(pb.EffectError, match="only a measurement effect may set"):
+        class ForceInverse(pb.Effect):
+            name = "force_inverse"
+            stage = "force"
+            parameters = (pb.Parameter("c_fi", "N s/m", 1.0, pb.HalfNormal(1.0)),)
+            physics = staticmethod(quadratic_drag)
+            inverse = staticmethod(unwind)
