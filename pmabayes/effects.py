@@ -107,7 +107,8 @@ class EffectError(ValueError):
 class Effect:
     """Base class of a physical effect.
 
-    Subclasses set four class attributes and one physics function:
+    Subclasses set four class attributes and one physics function (a measurement
+    effect may add its inverse):
 
     Attributes
     ----------

@@ -2,7 +2,7 @@
 
 The paper (Godage et al., section IV) tracks ``x_d = 0.005 + 0.0225 sin(2 pi f t)`` m
 with a 500 g load hanging so that gravity pulls toward extension, a joint-space PID
-and a computed-torque controller built on the identified Bouc-Wen model. This module
+and a computed-torque controller built on the identified Bouc-Wen model. This package
 simulates that rig as faithfully as the paper describes it:
 
 * **Plant**: the identified model (any composition of effects) on

@@ -246,7 +246,7 @@ def _reading_lines(inverses: list) -> tuple[list[str], str]:
         return lines, "y"
     lines += ["xm = y", "if kind[i] != 0:", "    gm = 1.0"]
     for name, _, _ in inverses:
-        lines += [f"    r = {name}(q{name}[i], t, xm)", "    xm = r[0]", "    gm *= r[1]"]
+        lines += [f"    ri = {name}(q{name}[i], t, xm)", "    xm = ri[0]", "    gm *= ri[1]"]
     lines += ["    dy = dy * gm"]
     return lines, "xm"
 
