@@ -650,8 +650,8 @@ class Adequacy:
         if self.energy is not None:
             text += (f"; the whitened residual's energy is {self.energy:.3g} (1 for pure "
                      f"noise, at most {1 + self.energy_tolerance:g} allowed) and its "
-                     f"Ljung-Box p = {self.ljung_box_p:.2g} (at least {self.level_adequate:g} "
-                     "needed)")
+                     f"Ljung-Box {_p_text(self.ljung_box_p)} (at least "
+                     f"{self.level_adequate:g} needed)")
         if self.coverage is not None:
             text += (f"; {self.coverage:.1%} of the data lie inside the {self.ci_prob:.0%} "
                      "posterior predictive band")
@@ -689,6 +689,10 @@ class Adequacy:
                 "coverage": self.coverage, "ci_prob": self.ci_prob,
                 "next_command": self.next_command, "energy_tolerance": self.energy_tolerance,
                 "level_adequate": self.level_adequate}
+
+
+def _p_text(p: float) -> str:
+    return "p < 1e-15" if p < 1e-15 else f"p = {p:.2g}"  # not "p = 0" after underflow
 
 
 def check_adequacy(
