@@ -484,7 +484,7 @@ def _adequacy(tree: xr.DataTree, info: dict, dataset: Dataset | None, pred: Mapp
     data = dataset if dataset is not None else _dataset_from_fit(tree, info)
     try:
         model = model_from_fit(tree)
-    except (ModelError, EffectError):  # e.g. a user effect not registered in this process
+    except (ModelError, EffectError, TypeError):  # an unregistered user effect, an odd rig
         model = Model.for_dataset(data)  # whitening needs the data and the noise only
     lik = Likelihood(model, data)
     nz = info.get("noise") or {}
