@@ -520,14 +520,10 @@ def _diagnose_command(info: dict, dataset: Dataset) -> str:
 
 
 def _adequacy_markdown(adequacy: Adequacy) -> list[str]:
-    first, *rest = adequacy.lines()
-    head, _, tail = first.partition(": ")
-    out = [f"> **{head}**: {tail}"]
-    for line in rest:
-        if line.startswith("Next: "):
-            line = f"Next: `{line[len('Next: '):]}`"
+    out = [f"> **{adequacy.headline}**: {adequacy.evidence()}."]
+    for line in adequacy.advice():
         out += [">", f"> {line}"]
-    return out
+    return out + ([">", f"> Next: `{adequacy.next_step}`"] if adequacy.next_step else [])
 
 
 # ----------------------------------------------------------------------------- HTML
@@ -713,16 +709,12 @@ def _report_figures(tree: xr.DataTree, rows: list, pred: Mapping, residual_m: np
 def _adequacy_box(adequacy: Adequacy) -> str:
     """The verdict on the model's fit, first on the page."""
     cls = {True: "ok", False: "bad", None: "unknown"}[adequacy.adequate]
-    first, *rest = adequacy.lines()
-    head, _, tail = first.partition(": ")
-    out = [f'<div class="verdict {cls}" id="adequacy"><strong>{html.escape(head)}</strong>: '
-           f"{html.escape(tail)}"]
-    for line in rest:
-        if line.startswith("Next: "):
-            out.append(f'<p class="next">Next: <code>{html.escape(line[6:])}</code> finds '
-                       "what the model is missing.</p>")
-        else:
-            out.append(f"<p>{html.escape(line)}</p>")
+    out = [f'<div class="verdict {cls}" id="adequacy"><strong>{html.escape(adequacy.headline)}'
+           f"</strong>: {html.escape(adequacy.evidence())}."]
+    out += [f"<p>{html.escape(line)}</p>" for line in adequacy.advice()]
+    if adequacy.next_step:
+        out.append(f'<p class="next">Next: <code>{html.escape(adequacy.next_step)}</code> '
+                   "finds what the model is missing.</p>")
     return "".join(out) + "</div>"
 
 

@@ -657,25 +657,37 @@ class Adequacy:
                      "posterior predictive band")
         return text
 
+    def advice(self) -> list[str]:
+        """What the verdict means, in sentences (none for an adequate model).
+
+        Returns
+        -------
+        list of str
+        """
+        if self.adequate is None:
+            return ["The fit holds no noise estimate, so the whitened residual cannot be "
+                    "judged."]
+        if self.adequate is False:
+            return ["The sampler's convergence is not the model's fit: the intervals are "
+                    "those of a model that the data reject."]
+        return []
+
+    @property
+    def next_step(self) -> str | None:
+        """The command to run next: ``next_command`` unless the model is adequate."""
+        return self.next_command if self.adequate is not True and self.next_command else None
+
     def lines(self) -> list[str]:
-        """The verdict as lines of text for a terminal or a Markdown file.
+        """The verdict as lines of text, for a terminal.
 
         Returns
         -------
         list of str
             The headline with the evidence; for an inadequate model, what it
-            means and the next command.
+            means and the next command (``Next: pmabayes diagnose DATA``).
         """
-        out = [f"{self.headline}: {self.evidence()}."]
-        if self.adequate is None:
-            out.append("The fit holds no noise estimate, so the whitened residual cannot "
-                       "be judged.")
-        if self.adequate is False:
-            out.append("The sampler's convergence is not the model's fit: the intervals "
-                       "are those of a model that the data reject.")
-        if self.adequate is not True and self.next_command:
-            out.append(f"Next: {self.next_command}")
-        return out
+        out = [f"{self.headline}: {self.evidence()}.", *self.advice()]
+        return out + ([f"Next: {self.next_step}"] if self.next_step else [])
 
     def to_dict(self) -> dict:
         """JSON-ready values.
