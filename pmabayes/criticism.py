@@ -445,25 +445,11 @@ class Diagnosis:
         """The score statistic above which a candidate is significant (1 dof)."""
         return significance_threshold(self.settings["level"], len(self.ranking))
 
-    def whiteness_curves(self, *, max_lag_s: float = 0.2, level: float = 0.99
-                         ) -> WhitenessCurves:
-        """Autocorrelation and cross-correlation of the whitened residual, for the figure.
-
-        Parameters
-        ----------
-        max_lag_s : float
-            Largest lag.
-        level : float
-            Confidence level of the bound.
-
-        Returns
-        -------
-        WhitenessCurves
-        """
+    def whiteness_curves(self) -> WhitenessCurves:
+        """The whiteness figure's curves of the whitened residual (lags to 0.2 s, 99% bound)."""
         label = " + ".join(["base", *self.model.effect_names])
         rate = np.gradient(self.dataset.input[0], self.dataset.time_s)
-        return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s,
-                                max_lag_s=max_lag_s, level=level)
+        return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the keys of ``pmabayes diagnose --json``)."""
@@ -930,23 +916,9 @@ class FitComparison:
     command_rate: np.ndarray
     dt_s: float
 
-    def whiteness_curves(self, *, max_lag_s: float = 0.2, level: float = 0.99
-                         ) -> WhitenessCurves:
-        """Autocorrelation and cross-correlation of each fit's whitened residual.
-
-        Parameters
-        ----------
-        max_lag_s : float
-            Largest lag.
-        level : float
-            Confidence level of the bound.
-
-        Returns
-        -------
-        WhitenessCurves
-        """
-        return whiteness_curves(self.innovations, self.command_rate, self.dt_s,
-                                max_lag_s=max_lag_s, level=level)
+    def whiteness_curves(self) -> WhitenessCurves:
+        """The whiteness figure's curves of each fit (lags to 0.2 s, 99% bound)."""
+        return whiteness_curves(self.innovations, self.command_rate, self.dt_s)
 
     def to_dict(self) -> dict:
         """JSON-ready summary."""

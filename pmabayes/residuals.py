@@ -715,8 +715,6 @@ def check_adequacy(
     coverage: float | None = None,
     ci_prob: float = 0.9,
     next_command: str = "",
-    energy_tolerance: float = ENERGY_TOLERANCE,
-    level_adequate: float = LEVEL_ADEQUATE,
 ) -> Adequacy:
     """Judge whether a model output describes the data (the rule of :func:`is_adequate`).
 
@@ -735,14 +733,12 @@ def check_adequacy(
         Probability of that band.
     next_command : str
         The command that diagnoses the model, to quote when it is not adequate.
-    energy_tolerance : float
-        See :data:`ENERGY_TOLERANCE`.
-    level_adequate : float
-        See :data:`LEVEL_ADEQUATE`.
 
     Returns
     -------
     Adequacy
+        With the default tolerance and level (:data:`ENERGY_TOLERANCE`,
+        :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnose` uses.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
     overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
@@ -750,9 +746,7 @@ def check_adequacy(
     if noise is not None:
         white = whiteness(innovations(likelihood, x, noise))
         energy, lb_p = white["energy"], white["ljung_box_p"]
-        adequate = is_adequate(energy, lb_p, energy_tolerance=energy_tolerance,
-                               level_adequate=level_adequate)
+        adequate = is_adequate(energy, lb_p)
     return Adequacy(adequate=adequate, rms_m=overall.rms_m, floor_m=overall.floor_m,
                     energy=energy, ljung_box_p=lb_p, coverage=coverage, ci_prob=ci_prob,
-                    next_command=next_command, energy_tolerance=energy_tolerance,
-                    level_adequate=level_adequate)
+                    next_command=next_command)
