@@ -101,9 +101,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{secs:.0f} s", flush=True)
         if d.missing is None or k == MAX_STEPS:
             break
-        plt.close(plot_residual_signature(ds, d.simulation, label=_label(effects),
+        plt.close(plot_residual_signature(ds, d.simulation, d.frequency_hz, label=_label(effects),
                                           path=figures / f"criticism_signature_{k}.png"))
-        plt.close(plot_ranking(d.ranking, path=figures / f"criticism_ranking_{k}.png"))
+        plt.close(plot_ranking(d.ranking, threshold=d.score_threshold,
+                               path=figures / f"criticism_ranking_{k}.png"))
         effects = [*effects, d.missing]
 
     trees, labels = [], []
@@ -117,8 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     comp = compare_fits(trees, ds, labels=labels)
     band_path = figures / "criticism_bands.png"
     plt.close(plot_band_errors(comp.bands, path=band_path))
-    plt.close(plot_whiteness(comp.innovations, comp.command_rate, comp.dt_s,
-                             path=figures / "criticism_whiteness.png"))
+    plt.close(plot_whiteness(comp.whiteness_curves(), path=figures / "criticism_whiteness.png"))
 
     # the table: one row per step, from the diagnosis (MAP) and the full fit
     head = (r"\begin{tabular}{lrrrl}" "\n" r"\toprule" "\n"

@@ -178,6 +178,9 @@ def _do_fit(args: argparse.Namespace, dataset: Dataset, out: Path):
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
+    from pmabayes.report import fit_adequacy  # the model's fit, not the sampler's convergence
+
+    print("\n".join(fit_adequacy(tree, dataset=dataset).lines()))
     print(f"wrote {out} (chains in {chains})")
     return tree
 
@@ -189,11 +192,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from pmabayes.report import write_report
+    from pmabayes.report import fit_adequacy, write_report
 
     tree = load_fit(args.fit)
     dataset = load(args.data) if args.data else None
     index = write_report(tree, Path(args.out), dataset=dataset)
+    print("\n".join(fit_adequacy(tree, dataset=dataset).lines()))
     print(f"wrote the report {index}")
     return 0
 

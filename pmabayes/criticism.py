@@ -1,29 +1,30 @@
-"""Model criticism: compare the model with the measurements and see where it fails.
+"""Model criticism: which effect is missing, with what evidence, and what adding it does.
 
-Stage 7 (diagnostics). Everything here takes a data set and a model output (and,
-for the whiteness tests, the identified noise) and measures how far the model is
-from the data relative to what repeatability allows:
+Stage 7 (diagnostics), above :mod:`pmabayes.residuals` (the residual statistics:
+band errors against the noise floor, whiteness and independence tests, the
+residual signature and the adequacy rule). Here the model is confronted with the
+candidate effects:
 
-* :func:`band_errors`: RMS, normalised RMS and maximum error of the trial mean in
-  bands of the chirp's instantaneous frequency, each beside the noise floor in
-  that band (the error a perfect model would have, from the spread between
-  repeated trials);
-* :func:`innovations`, :func:`autocorrelation`, :func:`cross_correlation` and
-  :func:`ljung_box`: the classic whiteness and independence tests of system
-  identification, applied to the residual whitened by the identified noise model.
-  That residual is independent N(0, 1) when the model describes the data.
+* :func:`rank_effects`: the score (Lagrange multiplier) test of every candidate
+  effect at the model's MAP, with no refit;
+* :func:`diagnose`: fit, criticise, rank, refit the significant candidates, judge
+  them by the residual they remove and by their leave-one-trial-out ELPD, and say
+  in words what is missing;
+* :func:`compare_fits`: fits of the same data side by side.
+
+The residual statistics are re-exported here, so ``from pmabayes.criticism import
+band_errors`` (and every other name that lived here) keeps working.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, stats
+from scipy import stats
 
 from pmabayes.data import Dataset
 from pmabayes.effects import get_effect, registered_effects
@@ -31,10 +32,31 @@ from pmabayes.fit import NoiseEstimate, Posterior, estimate_noise, find_map
 from pmabayes.likelihood import Likelihood
 from pmabayes.model import Model
 from pmabayes.posterior import check_dataset, fit_info, model_from_fit
+from pmabayes.residuals import (
+    DEFAULT_BANDS_HZ,
+    ENERGY_TOLERANCE,
+    LEVEL_ADEQUATE,
+    BandError,
+    BandErrors,
+    Signature,
+    WhitenessCurves,
+    autocorrelation,
+    band_errors,
+    band_label,
+    cross_correlation,
+    innovations,
+    instantaneous_frequency,
+    ljung_box,
+    residual_signature,
+    whiteness,
+    whiteness_curves,
+)
 from pmabayes.simulator import Simulation, simulate
+from pmabayes.util import Progress
 
 __all__ = [
     "DEFAULT_BANDS_HZ",
+    "BandErrors",
     "BandError",
     "band_label",
     "instantaneous_frequency",
@@ -51,273 +73,10 @@ __all__ = [
     "Finding",
     "Diagnosis",
     "diagnose",
+    "significance_threshold",
     "FitComparison",
     "compare_fits",
 ]
-
-#: Bands of the chirp's instantaneous frequency (Hz) for error tables.
-DEFAULT_BANDS_HZ: tuple[tuple[float, float], ...] = (
-    (0.1, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 3.0),
-)
-
-
-def instantaneous_frequency(dataset: Dataset) -> np.ndarray:
-    """Instantaneous frequency of the commanded input at each sample, in Hz.
-
-    From the generator's chirp settings when the data set records them (synthetic
-    data), otherwise from the phase of the analytic signal of the input (Hilbert
-    transform), which suits any slowly swept sinusoidal command.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        The data.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(n_samples,)``.
-    """
-    chirp = dataset.metadata.get("generator", {}).get("chirp") if dataset.metadata else None
-    t = dataset.time_s
-    if chirp:
-        f0, f1, dur = chirp["f0_hz"], chirp["f1_hz"], chirp["duration_s"]
-        return f0 + (f1 - f0) * (t - t[0]) / dur
-    u = dataset.input[0] - dataset.input[0].mean()
-    phase = np.unwrap(np.angle(signal.hilbert(u)))
-    freq = np.gradient(phase, t) / (2.0 * math.pi)
-    # smooth over ~0.5 s: the phase derivative is noisy where the amplitude is small
-    width = max(1, int(round(0.5 / dataset.dt_s)))
-    return np.convolve(freq, np.ones(width) / width, mode="same")
-
-
-@dataclass(frozen=True)
-class BandError:
-    """Error of the trial mean in one frequency band.
-
-    Parameters
-    ----------
-    band_hz : tuple of float
-        ``(low, high)`` instantaneous frequency.
-    n_samples : int
-        Samples in the band.
-    rms_m : float
-        RMS of trial mean minus model.
-    nrms : float
-        ``rms_m`` divided by the RMS of the trial mean's motion (about its mean)
-        in the band.
-    max_m : float
-        Largest absolute error.
-    floor_m : float
-        RMS a perfect model would have: the spread between trials in the band,
-        divided by the square root of the number of trials.
-    """
-
-    band_hz: tuple[float, float]
-    n_samples: int
-    rms_m: float
-    nrms: float
-    max_m: float
-    floor_m: float
-
-    @property
-    def ratio(self) -> float:
-        """``rms_m / floor_m``: about 1 for a model that describes the data."""
-        return self.rms_m / self.floor_m
-
-    @property
-    def label(self) -> str:
-        """The band in words: ``"0.5-1 Hz"``, or ``"all"`` for the overall row."""
-        return band_label(self.band_hz)
-
-    def to_dict(self) -> dict:
-        """JSON-ready values (an open upper edge as None)."""
-        lo, hi = self.band_hz
-        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "rms_m": self.rms_m,
-                "nrms": self.nrms, "max_m": self.max_m, "floor_m": self.floor_m,
-                "ratio": self.ratio}
-
-
-def band_label(band: tuple[float, float]) -> str:
-    """A frequency band in words: ``"0.5-1 Hz"``, or ``"all"`` for ``(0, inf)``.
-
-    Parameters
-    ----------
-    band : tuple of float
-        ``(low, high)`` in Hz.
-
-    Returns
-    -------
-    str
-    """
-    lo, hi = band
-    return "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
-
-
-def band_errors(
-    dataset: Dataset,
-    model_position_m: np.ndarray,
-    *,
-    bands_hz: tuple[tuple[float, float], ...] = DEFAULT_BANDS_HZ,
-) -> list[BandError]:
-    """Errors of the trial mean against the model, per band and overall.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        Repeated trials.
-    model_position_m : numpy.ndarray
-        Model output on the data's time grid, ``(n_samples,)``.
-    bands_hz : tuple of (low, high)
-        Frequency bands; a last row covers all samples.
-
-    Returns
-    -------
-    list of BandError
-        One per band that holds samples, then the overall one (band ``(0, inf)``).
-
-    Raises
-    ------
-    ValueError
-        If the model output does not match the data's length, or there is only
-        one trial (no floor without repeats).
-    """
-    x = np.asarray(model_position_m, dtype=float).reshape(-1)
-    if x.shape != (dataset.n_samples,):
-        raise ValueError(f"model output has {x.size} samples, the data {dataset.n_samples}")
-    if dataset.n_trials < 2:
-        raise ValueError("the noise floor needs at least 2 repeated trials")
-    freq = instantaneous_frequency(dataset)
-    mean = dataset.mean_position_m
-    resid = mean - x
-    spread = dataset.position_m.var(axis=0, ddof=1) / dataset.n_trials
-    rows = []
-    for lo, hi in (*bands_hz, (0.0, math.inf)):
-        sel = (freq >= lo) & (freq < hi)
-        if not sel.any():
-            continue
-        r = resid[sel]
-        motion = mean[sel] - mean[sel].mean()
-        rows.append(BandError(
-            band_hz=(lo, hi), n_samples=int(sel.sum()),
-            rms_m=float(np.sqrt(np.mean(r * r))),
-            nrms=float(np.sqrt(np.mean(r * r)) / max(np.sqrt(np.mean(motion**2)), 1e-300)),
-            max_m=float(np.max(np.abs(r))),
-            floor_m=float(np.sqrt(np.mean(spread[sel]))),
-        ))
-    return rows
-
-
-def innovations(likelihood: Likelihood, model_position_m: np.ndarray, noise) -> np.ndarray:
-    """The trial mean's residual whitened by the identified noise model.
-
-    Parameters
-    ----------
-    likelihood : Likelihood
-        Data and noise model.
-    model_position_m : numpy.ndarray
-        Model output ``(n_samples,)``.
-    noise : object
-        With attributes ``sigma``, ``rho`` and ``white`` (a
-        :class:`pmabayes.fit.NoiseEstimate`).
-
-    Returns
-    -------
-    numpy.ndarray
-        Standardised innovations, independent N(0, 1) for an adequate model.
-    """
-    return likelihood.innovations(model_position_m, noise.sigma, noise.rho, noise.white)
-
-
-def _corr(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
-    a = (a - a.mean()) / a.std()
-    b = (b - b.mean()) / b.std()
-    n = a.size
-    lags = np.arange(-max_lag, max_lag + 1)
-    # lag k pairs a[t] with b[t - k]
-    values = np.array([np.dot(a[max(0, k): n - max(0, -k)], b[max(0, -k): n - max(0, k)]) / n
-                       for k in lags])
-    return lags, values
-
-
-def autocorrelation(e: np.ndarray, *, max_lag: int = 50, level: float = 0.99):
-    """Autocorrelation of a series with its confidence bound for a white series.
-
-    Parameters
-    ----------
-    e : numpy.ndarray
-        The series (e.g. :func:`innovations`).
-    max_lag : int
-        Largest lag.
-    level : float
-        Confidence level of the bound.
-
-    Returns
-    -------
-    lags : numpy.ndarray
-        ``1 .. max_lag``.
-    acf : numpy.ndarray
-        Autocorrelation at those lags.
-    bound : float
-        ``z_{(1 + level) / 2} / sqrt(n)``: a white series stays within it at a
-        fraction ``level`` of the lags.
-    """
-    lags, values = _corr(np.asarray(e, float), np.asarray(e, float), max_lag)
-    keep = lags > 0
-    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(len(e))
-    return lags[keep], values[keep], float(bound)
-
-
-def cross_correlation(e: np.ndarray, u: np.ndarray, *, max_lag: int = 50,
-                      level: float = 0.99):
-    """Cross-correlation of a residual with an input, with a confidence bound.
-
-    ``ccf[k]`` correlates ``e[t]`` with ``u[t - k]``: peaks at positive lags mean
-    the residual still depends on past input, the signature of missing dynamics
-    (a lag or delay). The input is best passed prewhitened or differenced (for
-    example its rate of change), since a smooth input correlates with everything.
-
-    Parameters
-    ----------
-    e, u : numpy.ndarray
-        Residual and input, same length.
-    max_lag : int
-        Largest lag, both signs.
-    level : float
-        Confidence level of the bound (for independent series).
-
-    Returns
-    -------
-    lags, ccf : numpy.ndarray
-    bound : float
-    """
-    lags, values = _corr(np.asarray(e, float), np.asarray(u, float), max_lag)
-    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(len(e))
-    return lags, values, float(bound)
-
-
-def ljung_box(e: np.ndarray, *, max_lag: int = 25) -> tuple[float, float]:
-    """Ljung-Box test that a series is white.
-
-    Parameters
-    ----------
-    e : numpy.ndarray
-        The series.
-    max_lag : int
-        Number of lags in the statistic.
-
-    Returns
-    -------
-    statistic : float
-        ``n (n + 2) sum_k acf_k^2 / (n - k)``, chi-squared with ``max_lag`` degrees
-        of freedom for a white series.
-    p_value : float
-    """
-    e = np.asarray(e, float)
-    n = e.size
-    lags, acf, _ = autocorrelation(e, max_lag=max_lag)
-    q = float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
-    return q, float(stats.chi2.sf(q, max_lag))
 
 
 @dataclass(frozen=True)
@@ -405,193 +164,92 @@ def rank_effects(
     list of EffectEvidence
         Most evidence first.
     """
-
     model = likelihood.model
     present = set(model.effect_names)
     names = [n for n in (candidates or registered_effects()) if n not in present]
-
-    def whiten(v: np.ndarray) -> np.ndarray:
-        return likelihood.whiten(v, noise.sigma, noise.rho, noise.white)
-
-    out = []
-    for name in names:
-        ext = model.with_effects(name)
-        lik = Likelihood(ext, likelihood.dataset, substeps=likelihood.substeps)
-        eff = ext.effects[-1]
-        tested = [p.name for p in eff.parameters if p.vary]
-        point = dict(ext.defaults)
-        point.update({k: v for k, v in values.items() if k in point})  # not the noise
-        point.update({p.name: p.null for p in eff.parameters if p.vary})
-        free = list(ext.free_names)
-        base = ext.theta(point)[0]
-        steps, rows = [], [base]
-        for n in free:
-            j = ext.index(n)
-            p = ext.parameter(n)
-            h = 1e-6 * max(abs(base[j]), abs(p.default), 1e-12)
-            up = base.copy()
-            up[j] += h
-            rows.append(up)
-            steps.append(h)
-        x = lik.simulate(np.array(rows))
-        r_w = whiten(likelihood.y_mean - x[0])
-        w = np.stack([whiten((x[k + 1] - x[0]) / steps[k]) for k in range(len(free))], axis=1)
-        info = w.T @ w
-        score = w.T @ r_w
-        t_idx = [free.index(n) for n in tested]
-        o_idx = [k for k in range(len(free)) if k not in t_idx]
-        i_oo = info[np.ix_(o_idx, o_idx)]
-        i_to = info[np.ix_(t_idx, o_idx)]
-        eff_score = score[t_idx] - i_to @ np.linalg.solve(i_oo, score[o_idx])
-        var = info[np.ix_(t_idx, t_idx)] - i_to @ np.linalg.solve(i_oo, i_to.T)
-        step = np.linalg.solve(var, eff_score)
-        sd = np.sqrt(np.diag(np.linalg.inv(var)))
-        stat = float(eff_score @ step)
-        one_sided = [ext.parameter(n).bounds[0] == ext.parameter(n).null for n in tested]
-        if len(tested) == 1 and one_sided[0]:
-            z = float(eff_score[0] / math.sqrt(var[0, 0]))
-            stat = max(z, 0.0) ** 2
-            p_value = float(stats.norm.sf(z))
-        else:
-            p_value = float(stats.chi2.sf(stat, len(tested)))
-        estimate, interval = {}, {}
-        for i, n in enumerate(tested):
-            est = point[n] + step[i]
-            lo, hi = est - 1.645 * sd[i], est + 1.645 * sd[i]
-            if one_sided[i]:  # the constrained estimate: a bound is the smallest value
-                est, lo, hi = max(est, point[n]), max(lo, point[n]), max(hi, point[n])
-            estimate[n], interval[n] = float(est), (float(lo), float(hi))
-        excess = max(float(r_w @ r_w) - r_w.size, 1e-12)
-        out.append(EffectEvidence(name, stat, len(tested), p_value, False, estimate, interval,
-                                  float(min(stat / excess, 1.0))))
+    out = [_score_test(likelihood, noise, values, name) for name in names]
     threshold = level / max(len(out), 1)
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
     return sorted(out, key=lambda e: -e.statistic)
 
 
-# ---------------------------------------------------------------------------------
-# the diagnosis: fit, criticise, rank, refit the candidates, explain
+def _score_test(likelihood: Likelihood, noise, values: dict, name: str) -> EffectEvidence:
+    """The score test of one candidate effect (``significant`` is set by the caller)."""
+
+    def whiten(v: np.ndarray) -> np.ndarray:
+        return likelihood.whiten(v, noise.sigma, noise.rho, noise.white)
+
+    ext = likelihood.model.with_effects(name)
+    lik = Likelihood(ext, likelihood.dataset, substeps=likelihood.substeps)
+    eff = ext.effects[-1]
+    tested = [p.name for p in eff.parameters if p.vary]
+    point = dict(ext.defaults)
+    point.update({k: v for k, v in values.items() if k in point})  # not the noise
+    point.update({p.name: p.null for p in eff.parameters if p.vary})
+    free = list(ext.free_names)
+    base = ext.theta(point)[0]
+    steps, rows = [], [base]
+    for n in free:
+        j = ext.index(n)
+        p = ext.parameter(n)
+        h = 1e-6 * max(abs(base[j]), abs(p.default), 1e-12)
+        up = base.copy()
+        up[j] += h
+        rows.append(up)
+        steps.append(h)
+    x = lik.simulate(np.array(rows))
+    r_w = whiten(likelihood.y_mean - x[0])
+    w = np.stack([whiten((x[k + 1] - x[0]) / steps[k]) for k in range(len(free))], axis=1)
+    info = w.T @ w
+    score = w.T @ r_w
+    t_idx = [free.index(n) for n in tested]
+    o_idx = [k for k in range(len(free)) if k not in t_idx]
+    i_oo = info[np.ix_(o_idx, o_idx)]
+    i_to = info[np.ix_(t_idx, o_idx)]
+    eff_score = score[t_idx] - i_to @ np.linalg.solve(i_oo, score[o_idx])
+    var = info[np.ix_(t_idx, t_idx)] - i_to @ np.linalg.solve(i_oo, i_to.T)
+    step = np.linalg.solve(var, eff_score)
+    sd = np.sqrt(np.diag(np.linalg.inv(var)))
+    stat = float(eff_score @ step)
+    one_sided = [ext.parameter(n).bounds[0] == ext.parameter(n).null for n in tested]
+    if len(tested) == 1 and one_sided[0]:
+        z = float(eff_score[0] / math.sqrt(var[0, 0]))
+        stat = max(z, 0.0) ** 2
+        p_value = float(stats.norm.sf(z))
+    else:
+        p_value = float(stats.chi2.sf(stat, len(tested)))
+    estimate, interval = {}, {}
+    for i, n in enumerate(tested):
+        est = point[n] + step[i]
+        lo, hi = est - 1.645 * sd[i], est + 1.645 * sd[i]
+        if one_sided[i]:  # the constrained estimate: a bound is the smallest value
+            est, lo, hi = max(est, point[n]), max(lo, point[n]), max(hi, point[n])
+        estimate[n], interval[n] = float(est), (float(lo), float(hi))
+    excess = max(float(r_w @ r_w) - r_w.size, 1e-12)
+    return EffectEvidence(name, stat, len(tested), p_value, False, estimate, interval,
+                          float(min(stat / excess, 1.0)))
 
 
-@dataclass(frozen=True)
-class Signature:
-    """Where and how a model's trial-mean residual departs from the noise.
-
-    Parameters
-    ----------
-    bands : list of BandError
-        Errors per frequency band, the last one overall.
-    ljung_box_p : float
-        Ljung-Box p-value (25 lags) of the whitened residual.
-    energy : float
-        Mean square of the whitened residual: 1 for pure noise.
-    energy_p : float
-        p-value of ``energy`` against pure noise (chi-squared, one-sided).
-    correlations : dict
-        Correlation of the residual with the model's position, velocity and
-        pressure and with the rate of change of the command.
-    ccf_lag_s : float
-        Lag at which the whitened residual correlates most with the earlier rate
-        of change of the command (positive: the residual follows the command).
-    ccf_peak : float
-        That correlation.
-    ccf_bound : float
-        Its 99% bound for independent series.
-    """
-
-    bands: list
-    ljung_box_p: float
-    energy: float
-    energy_p: float
-    correlations: dict
-    ccf_lag_s: float
-    ccf_peak: float
-    ccf_bound: float
-
-    @property
-    def ratio(self) -> float:
-        """Overall RMS error over the noise floor."""
-        return self.bands[-1].ratio
-
-    def describe(self) -> str:
-        """The signature in one or two plain sentences, from the numbers."""
-        bands = [b for b in self.bands[:-1] if b.n_samples > 0]
-        ratios = [b.ratio for b in bands]
-        overall = self.bands[-1]
-        text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS against a noise floor of "
-                f"{overall.floor_m * 1e6:.4g} µm ({overall.ratio:.3g}x)")
-        if len(bands) >= 2:
-            lo, hi = bands[0], bands[-1]
-            span = (f"from {lo.ratio:.3g}x the floor at {band_label(lo.band_hz)} to "
-                    f"{hi.ratio:.3g}x at {band_label(hi.band_hz)}")
-            if hi.ratio > 2.0 * lo.ratio:
-                text += f"; it grows with frequency, {span}"
-            elif lo.ratio > 2.0 * hi.ratio:
-                text += f"; it is largest at low frequency, {span}"
-            else:
-                text += (f"; it is spread over the whole chirp ({min(ratios):.3g}x to "
-                         f"{max(ratios):.3g}x the floor per band)")
-        text += "."
-        if self.correlations:
-            name, value = max(self.correlations.items(), key=lambda kv: abs(kv[1]))
-            text += f" The residual correlates most with the {name} (r = {value:+.2f})."
-        if abs(self.ccf_peak) > self.ccf_bound and self.ccf_lag_s > 0:
-            # residual = data - model; a response that trails the model's is
-            # x(t - tau) - x(t) ~ -tau dx/dt: negative against the command's rate
-            how = ("the measured response trails the model's, as if the pressure acted later "
-                   "than the model assumes" if self.ccf_peak < 0 else
-                   "the measured response runs ahead of the model's")
-            text += (f" The whitened residual still correlates with the rate of change of the "
-                     f"command {self.ccf_lag_s * 1e3:.0f} ms earlier (correlation "
-                     f"{self.ccf_peak:+.2f}, {abs(self.ccf_peak) / self.ccf_bound:.0f}x its 99% "
-                     f"bound): {how}.")
-        if self.ljung_box_p < 0.01:
-            text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
-        return text
-
-
-def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
-                       ) -> Signature:
-    """Measure the signature of a model's residual on the data.
+def significance_threshold(level: float, n_candidates: int) -> float:
+    """The score statistic above which one candidate is significant (1 dof, Bonferroni).
 
     Parameters
     ----------
-    likelihood : Likelihood
-        Data and noise model.
-    noise : object
-        Identified noise (``sigma``, ``rho``, ``white``).
-    sim : pmabayes.simulator.Simulation
-        The model's simulation (batch of one) with its states.
-    max_lag_s : float
-        Largest lag of the cross-correlation with the command's rate.
+    level : float
+        Family-wise level.
+    n_candidates : int
+        Number of candidates tested.
 
     Returns
     -------
-    Signature
+    float
+        ``chi2.isf(level / n_candidates, 1)``: the line the ranking figure draws.
     """
-    ds = likelihood.dataset
-    x = sim.position_m[0]
-    r = likelihood.y_mean - x
-    e = innovations(likelihood, x, noise)
-    n = e.size
-    energy = float(np.mean(e * e))
-    rate = np.gradient(ds.input[0], ds.time_s)
-    signals = {"position": x, "velocity": sim.velocity_m_s[0], "pressure": sim.pressure_pa[0],
-               "pressure rate": rate}
-    corr = {}
-    for name, s in signals.items():
-        if np.std(s) > 0 and np.std(r) > 0:
-            corr[name] = float(np.corrcoef(r, s)[0, 1])
-    max_lag = max(1, int(round(max_lag_s / ds.dt_s)))
-    lags_r, ccf_r, bound = cross_correlation(e, rate, max_lag=max_lag)
-    pos = lags_r >= 0
-    k = int(np.argmax(np.abs(ccf_r[pos])))
-    return Signature(
-        bands=band_errors(ds, x), ljung_box_p=ljung_box(e)[1], energy=energy,
-        energy_p=float(stats.chi2.sf(energy * n, n)), correlations=corr,
-        ccf_lag_s=float(lags_r[pos][k] * ds.dt_s), ccf_peak=float(ccf_r[pos][k]),
-        ccf_bound=bound,
-    )
+    return float(stats.chi2.isf(level / max(n_candidates, 1), 1))
+
+
+# ---------------------------------------------------------------------------------
+# the diagnosis: fit, criticise, rank, refit the candidates, explain
 
 
 @dataclass(frozen=True)
@@ -777,6 +435,22 @@ class Diagnosis:
         lik = Likelihood(self.model, self.dataset)
         return innovations(lik, self.simulation.position_m[0], self.noise)
 
+    @property
+    def frequency_hz(self) -> np.ndarray:
+        """Instantaneous frequency of the command at each sample (for the figures)."""
+        return instantaneous_frequency(self.dataset)
+
+    @property
+    def score_threshold(self) -> float:
+        """The score statistic above which a candidate is significant (1 dof)."""
+        return significance_threshold(self.settings["level"], len(self.ranking))
+
+    def whiteness_curves(self) -> WhitenessCurves:
+        """The whiteness figure's curves of the whitened residual (lags to 0.2 s, 99% bound)."""
+        label = " + ".join(["base", *self.model.effect_names])
+        rate = np.gradient(self.dataset.input[0], self.dataset.time_s)
+        return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s)
+
     def to_dict(self) -> dict:
         """JSON-ready summary (the keys of ``pmabayes diagnose --json``)."""
         sig = self.signature
@@ -873,14 +547,160 @@ def _explanation(eff, evidence: float, p_value: float, significant: bool,
 
 
 def _fit_map(likelihood: Likelihood, noise, rng: np.random.Generator):
-
     posterior = Posterior(likelihood, noise)
     return posterior, find_map(posterior, rng=rng)
 
 
-def _say(progress: bool, text: str) -> None:
-    if progress:
-        print(f"diagnose: {text}", file=sys.stderr, flush=True)
+@dataclass(frozen=True)
+class _Settings:
+    """The settings of one diagnosis, checked."""
+
+    level: float
+    level_adequate: float
+    energy_tolerance: float
+    max_refits: int
+    min_explained: float
+    ci_prob: float
+    n_draws: int
+    substeps: int
+    candidates: tuple | None
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.level < 1.0 or not 0.0 < self.level_adequate < 1.0:
+            raise ValueError("level and level_adequate must be in (0, 1)")
+        if not 0.0 < self.ci_prob < 1.0:
+            raise ValueError(f"ci_prob must be in (0, 1), got {self.ci_prob}")
+        if not 0.0 <= self.min_explained <= 1.0:
+            raise ValueError(f"min_explained must be in [0, 1], got {self.min_explained}")
+        if int(self.max_refits) < 0 or int(self.n_draws) < 50:
+            raise ValueError("max_refits must be >= 0 and n_draws >= 50")
+        for c in self.candidates or ():
+            get_effect(c)  # unknown names fail here, before any fitting
+
+    def adequate(self, signature: Signature) -> bool:
+        return signature.is_adequate(self.energy_tolerance, self.level_adequate)
+
+
+@dataclass(frozen=True)
+class _Base:
+    """The diagnosed model at its MAP: what each refit is measured against."""
+
+    likelihood: Likelihood
+    noise: NoiseEstimate
+    values: dict
+    simulation: Simulation
+    signature: Signature
+    elpd: float
+    elpd_i: np.ndarray
+
+    @property
+    def excess(self) -> float:
+        """The whitened residual's energy above pure noise, summed over the samples."""
+        n = self.likelihood.n_samples
+        return max(self.signature.energy * n - n, 1e-12)
+
+
+def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int) -> Simulation:
+    return simulate(model, _model_values(model, values), likelihood.input,
+                    time_s=likelihood.dataset.time_s, substeps=substeps, states=True)
+
+
+def _fit_base(model: Model, dataset: Dataset, s: _Settings, rng: np.random.Generator) -> _Base:
+    """Noise from the spread between trials, the MAP, its signature and its ELPD."""
+    lik = Likelihood(model, dataset, substeps=s.substeps)
+    noise = estimate_noise(lik)
+    posterior, best = _fit_map(lik, noise, rng)
+    values = dict(best.values)
+    sim = _simulate(model, values, lik, s.substeps)
+    signature = residual_signature(lik, noise, sim)
+    elpd, elpd_i, _ = _laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
+    return _Base(lik, noise, values, sim, signature, elpd, elpd_i)
+
+
+def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> Refit:
+    """Add one effect, refit, and measure what it explains and how it predicts."""
+    model, dataset, noise = base.likelihood.model, base.likelihood.dataset, base.noise
+    ext = model.with_effects(effect)
+    ext_lik = Likelihood(ext, dataset, substeps=s.substeps)
+    ext_post, ext_map = _fit_map(ext_lik, noise, rng)
+    eff = ext.effects[-1]
+    tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
+    e_elpd, e_elpd_i, interval = _laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob,
+                                              tested)
+    ext_sim = _simulate(ext, ext_map.values, base.likelihood, s.substeps)
+    off = dict(ext_map.values)
+    off.update({p.name: p.null for p in eff.parameters if p.vary})
+    contribution = (ext_sim.position_m[0]
+                    - _simulate(ext, off, base.likelihood, s.substeps).position_m[0])
+    ext_sig = residual_signature(ext_lik, noise, ext_sim)
+    energy, n = base.signature.energy, dataset.n_samples
+    # with no excess over pure noise there is nothing to explain
+    explained = (float(np.clip((energy - ext_sig.energy) * n / base.excess, 0.0, 1.0))
+                 if energy > 1.0 else 0.0)
+    nxt = None
+    if explained < s.min_explained and not s.adequate(ext_sig):
+        # one step of look-ahead: does another candidate account for what is left?
+        following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
+                                             candidates=s.candidates, level=s.level)
+                     if e.significant]
+        nxt = max(following, key=lambda e: e.explained) if following else None
+    diff = e_elpd_i - base.elpd_i
+    return Refit(
+        effect=effect, values=dict(ext_map.values), interval=interval,
+        rms_m=ext_sig.bands[-1].rms_m, signature=ext_sig, explained=explained,
+        elpd=e_elpd, elpd_diff=float(diff.sum()),
+        elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
+        contribution_m=contribution, next_effect=nxt.effect if nxt else None,
+        explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
+    )
+
+
+def _refit_significant(base: _Base, ranked: list, s: _Settings, rng: np.random.Generator,
+                       progress: Progress) -> dict[str, Refit]:
+    """Refit the strongest significant candidates, at most ``max_refits`` of them."""
+    refits: dict[str, Refit] = {}
+    for ev in [e for e in ranked if e.significant][: int(s.max_refits)]:
+        progress.say(f"refitting with {ev.effect} ({len(refits) + 1} of at most "
+                     f"{s.max_refits})")
+        refits[ev.effect] = _refit(base, ev.effect, s, rng)
+    return refits
+
+
+def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[Finding]:
+    """Every candidate with its estimate and explanation; the refitted ones first, by ELPD."""
+    dataset = base.likelihood.dataset
+    base_resid = base.likelihood.y_mean - base.simulation.position_m[0]
+    freq = instantaneous_frequency(dataset)
+    findings = []
+    for ev in ranked:
+        eff = get_effect(ev.effect)
+        refit = refits.get(ev.effect)
+        if refit is not None:
+            estimate = {k: refit.values[k] for k in refit.interval}
+            interval, explained = refit.interval, refit.explained
+            contrib = _contribution_text(refit.contribution_m, base_resid, freq,
+                                         DEFAULT_BANDS_HZ)
+        else:
+            estimate, interval, explained, contrib = ev.estimate, ev.interval, ev.explained, ""
+        findings.append(Finding(
+            effect=ev.effect, evidence=ev.statistic, p_value=ev.p_value,
+            significant=ev.significant, estimate=estimate, interval=interval,
+            explained=explained, refit=refit,
+            explanation=_explanation(eff, ev.statistic, ev.p_value, ev.significant,
+                                     base.signature, refit, contrib, ci_prob),
+        ))
+    # refitted candidates first, by how well they predict left-out trials
+    findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
+    return findings
+
+
+def _missing(refits: dict, s: _Settings) -> str | None:
+    """The refit that accounts for the misfit and predicts left-out trials best, if any."""
+    explaining = [r for r in refits.values()
+                  if (max(r.explained, r.explained_with_next) >= s.min_explained
+                      or s.adequate(r.signature))
+                  and r.elpd_diff > 2.0 * r.elpd_diff_se]
+    return max(explaining, key=lambda r: r.elpd).effect if explaining else None
 
 
 def diagnose(
@@ -890,8 +710,8 @@ def diagnose(
     effects: Iterable[str] = (),
     candidates: Iterable[str] | None = None,
     level: float = 0.05,
-    level_adequate: float = 0.01,
-    energy_tolerance: float = 0.1,
+    level_adequate: float = LEVEL_ADEQUATE,
+    energy_tolerance: float = ENERGY_TOLERANCE,
     max_refits: int = 3,
     min_explained: float = 0.9,
     ci_prob: float = 0.9,
@@ -972,117 +792,32 @@ def diagnose(
         On settings out of range.
     """
 
-    if not 0.0 < level < 1.0 or not 0.0 < level_adequate < 1.0:
-        raise ValueError("level and level_adequate must be in (0, 1)")
-    if not 0.0 < ci_prob < 1.0:
-        raise ValueError(f"ci_prob must be in (0, 1), got {ci_prob}")
-    if not 0.0 <= min_explained <= 1.0:
-        raise ValueError(f"min_explained must be in [0, 1], got {min_explained}")
-    if int(max_refits) < 0 or int(n_draws) < 50:
-        raise ValueError("max_refits must be >= 0 and n_draws >= 50")
-    def is_adequate(sig: Signature) -> bool:
-        return bool(sig.energy <= 1.0 + energy_tolerance and sig.ljung_box_p >= level_adequate)
-
+    s = _Settings(level=level, level_adequate=level_adequate,
+                  energy_tolerance=energy_tolerance, max_refits=max_refits,
+                  min_explained=min_explained, ci_prob=ci_prob, n_draws=n_draws,
+                  substeps=substeps, candidates=None if candidates is None else tuple(candidates))
+    say = Progress("diagnose", progress)
     rng = np.random.default_rng(seed)
-    if candidates is not None:
-        candidates = tuple(candidates)
-        for c in candidates:
-            get_effect(c)  # unknown names fail here, before any fitting
     model = Model.for_dataset(dataset) if model is None else model
     if effects:
         model = model.with_effects(*[e for e in effects if e not in model.effect_names])
-    lik = Likelihood(model, dataset, substeps=substeps)
     name = " + ".join(["base", *model.effect_names])
-    _say(progress, f"fitting {name} to {dataset.source or 'the data'} (MAP)")
-    noise = estimate_noise(lik)
-    posterior, best = _fit_map(lik, noise, rng)
-    values = dict(best.values)
-
-    def run(m, vals):
-        return simulate(m, _model_values(m, vals), lik.input, time_s=dataset.time_s,
-                        substeps=substeps, states=True)
-
-    sim = run(model, values)
-    signature = residual_signature(lik, noise, sim)
-    elpd, elpd_i, _ = _laplace_loo(posterior, best, rng, n_draws, ci_prob)
-    n = dataset.n_samples
-    base_excess = max(signature.energy * n - n, 1e-12)
-    base_resid = lik.y_mean - sim.position_m[0]
-    freq = instantaneous_frequency(dataset)
-
-    _say(progress, "ranking the candidate effects (score test)")
-    ranked = rank_effects(lik, noise, values, candidates=candidates, level=level)
-    refits: dict[str, Refit] = {}
-    for ev in [e for e in ranked if e.significant][: int(max_refits)]:
-        _say(progress, f"refitting with {ev.effect} ({len(refits) + 1} of at most "
-             f"{max_refits})")
-        ext = model.with_effects(ev.effect)
-        ext_lik = Likelihood(ext, dataset, substeps=substeps)
-        ext_post, ext_map = _fit_map(ext_lik, noise, rng)
-        eff = ext.effects[-1]
-        tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
-        e_elpd, e_elpd_i, interval = _laplace_loo(ext_post, ext_map, rng, n_draws, ci_prob,
-                                                  tested)
-        ext_sim = run(ext, ext_map.values)
-        off = dict(ext_map.values)
-        off.update({p.name: p.null for p in eff.parameters if p.vary})
-        contribution = ext_sim.position_m[0] - run(ext, off).position_m[0]
-        ext_sig = residual_signature(ext_lik, noise, ext_sim)
-        # with no excess over pure noise there is nothing to explain
-        explained = (float(np.clip((signature.energy - ext_sig.energy) * n / base_excess,
-                                   0.0, 1.0)) if signature.energy > 1.0 else 0.0)
-        nxt = None
-        if explained < min_explained and not is_adequate(ext_sig):
-            # one step of look-ahead: does another candidate account for what is left?
-            following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
-                                                 candidates=candidates, level=level)
-                         if e.significant]
-            nxt = max(following, key=lambda e: e.explained) if following else None
-        diff = e_elpd_i - elpd_i
-        refits[ev.effect] = Refit(
-            effect=ev.effect, values=dict(ext_map.values), interval=interval,
-            rms_m=ext_sig.bands[-1].rms_m, signature=ext_sig, explained=explained,
-            elpd=e_elpd, elpd_diff=float(diff.sum()),
-            elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
-            contribution_m=contribution, next_effect=nxt.effect if nxt else None,
-            explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
-        )
-
-    findings = []
-    for ev in ranked:
-        eff = get_effect(ev.effect)
-        refit = refits.get(ev.effect)
-        if refit is not None:
-            estimate = {k: refit.values[k] for k in refit.interval}
-            interval, explained = refit.interval, refit.explained
-            contrib = _contribution_text(refit.contribution_m, base_resid, freq,
-                                         DEFAULT_BANDS_HZ)
-        else:
-            estimate, interval, explained, contrib = ev.estimate, ev.interval, ev.explained, ""
-        findings.append(Finding(
-            effect=ev.effect, evidence=ev.statistic, p_value=ev.p_value,
-            significant=ev.significant, estimate=estimate, interval=interval,
-            explained=explained, refit=refit,
-            explanation=_explanation(eff, ev.statistic, ev.p_value, ev.significant, signature,
-                                     refit, contrib, ci_prob),
-        ))
-
-    # refitted candidates first, by how well they predict left-out trials
-    findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
-    adequate = is_adequate(signature)
-    # a refit must account for the misfit and predict left-out trials better
-    explaining = [r for r in refits.values()
-                  if (max(r.explained, r.explained_with_next) >= min_explained
-                      or is_adequate(r.signature))
-                  and r.elpd_diff > 2.0 * r.elpd_diff_se]
-    missing = max(explaining, key=lambda r: r.elpd).effect if explaining else None
-    verdict = _verdict(name, model.effect_names, signature, adequate, missing, refits, findings,
-                       min_explained)
-    _say(progress, verdict)
+    say.say(f"fitting {name} to {dataset.source or 'the data'} (MAP)")
+    base = _fit_base(model, dataset, s, rng)
+    say.say("ranking the candidate effects (score test)")
+    ranked = rank_effects(base.likelihood, base.noise, base.values, candidates=s.candidates,
+                          level=level)
+    refits = _refit_significant(base, ranked, s, rng, say)
+    findings = _findings(ranked, refits, base, ci_prob)
+    adequate = s.adequate(base.signature)
+    missing = _missing(refits, s)
+    verdict = _verdict(name, model.effect_names, base.signature, adequate, missing, refits,
+                       findings, min_explained)
+    say.say(verdict)
     return Diagnosis(
-        dataset=dataset, model=model, values=values, noise=noise, simulation=sim,
-        signature=signature, adequate=adequate, missing=missing, ranking=findings,
-        elpd=elpd, verdict=verdict,
+        dataset=dataset, model=model, values=base.values, noise=base.noise,
+        simulation=base.simulation, signature=base.signature, adequate=adequate,
+        missing=missing, ranking=findings, elpd=base.elpd, verdict=verdict,
         settings={"level": level, "level_adequate": level_adequate,
                   "energy_tolerance": energy_tolerance, "max_refits": max_refits,
                   "min_explained": min_explained, "ci_prob": ci_prob, "n_draws": n_draws,
@@ -1181,6 +916,10 @@ class FitComparison:
     command_rate: np.ndarray
     dt_s: float
 
+    def whiteness_curves(self) -> WhitenessCurves:
+        """The whiteness figure's curves of each fit (lags to 0.2 s, 99% bound)."""
+        return whiteness_curves(self.innovations, self.command_rate, self.dt_s)
+
     def to_dict(self) -> dict:
         """JSON-ready summary."""
         return {
@@ -1218,9 +957,6 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
         With fewer than two fits, labels that do not match, or a fit made from
         other data.
     """
-    import arviz as az
-
-
     fits = list(fits)
     if len(fits) < 2:
         raise ValueError("compare needs at least two fits of the same data")
@@ -1230,26 +966,37 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
     labels = list(labels)
     if len(labels) != len(fits) or len(set(labels)) != len(labels):
         raise ValueError(f"need {len(fits)} distinct labels, got {labels}")
-    bands, white, innov, elpd_i = {}, {}, {}, {}
+    bands, white, innov = {}, {}, {}
     for label, tree, model in zip(labels, fits, models, strict=True):
         check_dataset(tree, dataset)
-        info = fit_info(tree)
-        lik = Likelihood(model, dataset)
-        vals = _model_values(model, info["map"]["values"])
-        x = simulate(model, vals, lik.input, time_s=dataset.time_s)[0]
-        nz = info["noise"]
-        e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
-        energy = float(np.mean(e * e))
-        bands[label] = band_errors(dataset, x)
-        white[label] = {"ljung_box_p": ljung_box(e)[1], "energy": energy,
-                        "energy_p": float(stats.chi2.sf(energy * e.size, e.size))}
-        innov[label] = e
+        bands[label], white[label], innov[label] = _map_residual(tree, model, dataset)
+    elpd, steps = _loo_table(fits, labels)
+    return FitComparison(labels=labels, bands=bands, whiteness=white, innovations=innov,
+                         elpd=elpd, elpd_steps=steps,
+                         command_rate=np.gradient(dataset.input[0], dataset.time_s),
+                         dt_s=dataset.dt_s)
+
+
+def _map_residual(tree, model: Model, dataset: Dataset):
+    """Band errors, whiteness and whitened residual of a fit's MAP model."""
+    info = fit_info(tree)
+    lik = Likelihood(model, dataset)
+    vals = _model_values(model, info["map"]["values"])
+    x = simulate(model, vals, lik.input, time_s=dataset.time_s)[0]
+    nz = info["noise"]
+    e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
+    return band_errors(dataset, x), whiteness(e), e
+
+
+def _loo_table(fits: list, labels: list) -> tuple[dict, list]:
+    """Leave-one-trial-out ELPD of each fit against the best, and of each step."""
+    import arviz as az
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the largest Pareto k is kept in the table
         loos = {label: az.loo(tree, var_name="position_m")
                 for label, tree in zip(labels, fits, strict=True)}
-    for label in labels:
-        elpd_i[label] = np.asarray(loos[label].elpd_i).reshape(-1)
+    elpd_i = {label: np.asarray(loos[label].elpd_i).reshape(-1) for label in labels}
     best = max(labels, key=lambda k: float(loos[k].elpd))
     order = sorted(labels, key=lambda k: -float(loos[k].elpd))
     elpd = {}
@@ -1264,7 +1011,4 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
         d = elpd_i[b] - elpd_i[a]
         steps.append({"from": a, "to": b, "elpd_diff": float(d.sum()),
                       "se": float(math.sqrt(d.size * np.var(d)))})
-    return FitComparison(labels=labels, bands=bands, whiteness=white, innovations=innov,
-                         elpd=elpd, elpd_steps=steps,
-                         command_rate=np.gradient(dataset.input[0], dataset.time_s),
-                         dt_s=dataset.dt_s)
+    return elpd, steps

@@ -3,6 +3,12 @@
 The input is a fit as laid out in :mod:`pmabayes.posterior` (an ArviZ 1.x
 :class:`xarray.DataTree`, usually read back with :func:`pmabayes.posterior.load_fit`).
 Nothing here simulates or samples: every number and curve comes from the fit file.
+The figures are drawn by :mod:`pmabayes.plots` from what is computed here.
+
+:func:`fit_adequacy`
+    Whether the fitted model describes the data (error against the noise floor,
+    whiteness of the residual, predictive coverage) and the next command when it
+    does not: the verdict every report shows first, for the command line too.
 
 :func:`summary_table`
     One row per posterior variable: posterior mean, sd and HDI, diagnostics, the
@@ -20,23 +26,27 @@ from __future__ import annotations
 import base64
 import csv
 import html
+import json
 import math
-from collections.abc import Callable, Mapping, Sequence
+import shlex
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import arviz as az
 import numpy as np
 import xarray as xr
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.ticker import MaxNLocator
 
 from pmabayes.data import Dataset
-from pmabayes.posterior import FitFileError, check_dataset, fit_info
+from pmabayes.effects import EffectError
+from pmabayes.likelihood import Likelihood
+from pmabayes.model import Model, ModelError
+from pmabayes.posterior import FitFileError, check_dataset, fit_info, model_from_fit
+from pmabayes.residuals import Adequacy, check_adequacy
 
 __all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
-           "write_comparison", "pair_figure", "predictive_band"]
+           "write_comparison", "pair_figure", "predictive_band", "fit_adequacy"]
 
 #: Keys of a summary row, in CSV column order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -72,10 +82,6 @@ _DISPLAY = (
     ("paper", "paper"),
     ("map", "MAP"),
 )
-_PNG_DPI = 100
-_PAIR_MAX_DRAWS = 2000
-_RANK_MAX_DRAWS = 100  # per chain: the multi-chain rank test costs O(chains x draws)
-_ZOOM_S = 1.0
 _QUANTILE_BLOCK = 4_000_000  # values per block when taking quantiles of the predictive
 
 
@@ -131,11 +137,6 @@ def _check_tree(tree: xr.DataTree, groups: Sequence[str]) -> dict:
                 f"posterior variable {name!r} has dims {var.dims}; expected (chain, draw)"
             )
     return info
-
-
-def _draws(tree: xr.DataTree, name: str) -> np.ndarray:
-    """A posterior variable as a ``(chain, draw)`` float array."""
-    return np.asarray(tree["posterior"][name].transpose("chain", "draw").values, dtype=float)
 
 
 def _quantiles_over_samples(
@@ -273,7 +274,8 @@ def _display_headers(rows: Sequence[Mapping]) -> list[str]:
     ]
 
 
-def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path) -> tuple[Path, Path]:
+def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path, *,
+                  adequacy: Adequacy | None = None) -> tuple[Path, Path]:
     """Write summary rows as ``summary.csv`` and ``summary.md``.
 
     Parameters
@@ -283,6 +285,9 @@ def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path) -> tup
         a missing key is written as empty).
     out_dir : str or Path
         Destination folder, created if needed; existing files are overwritten.
+    adequacy : Adequacy, optional
+        The model's adequacy verdict (:func:`fit_adequacy`), written as a quote
+        above the Markdown table.
 
     Returns
     -------
@@ -317,7 +322,8 @@ def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path) -> tup
     def cell(text: str) -> str:
         return text.replace("|", "\\|")
 
-    lines = [
+    lines = [] if adequacy is None else [*_adequacy_markdown(adequacy), ""]
+    lines += [
         "| " + " | ".join(_display_headers(rows)) + " |",
         "|" + "|".join("---" if k in ("name", "unit") else "---:" for k, _ in _DISPLAY) + "|",
     ]
@@ -330,236 +336,6 @@ def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path) -> tup
 
 
 # ----------------------------------------------------------------------------- figures
-
-
-def _save_arviz(make: Callable[[], Any], path: Path) -> None:
-    """Draw an ArviZ plot (matplotlib backend), save it and close its pyplot figures.
-
-    Figures the call opened are closed even when it fails, and only those.
-    """
-    import matplotlib.pyplot as plt  # ArviZ draws through pyplot
-
-    before = set(plt.get_fignums())
-    try:
-        fig = make().get_viz("figure")
-        fig = fig.item() if hasattr(fig, "item") else fig
-        fig.savefig(path, dpi=_PNG_DPI)
-    finally:
-        for num in set(plt.get_fignums()) - before:
-            plt.close(num)
-
-
-def _display_posterior(tree: xr.DataTree, units: Mapping[str, str]) -> xr.DataTree:
-    """The posterior with variables scaled and renamed for short tick labels.
-
-    A variable needing a scale (see :func:`_display_scale`) is renamed, e.g.
-    ``sigma_noise_m [µm]``, so that no offset text crowds the figure.
-    """
-    post = tree["posterior"].to_dataset()
-    renamed = {}
-    for name in list(post.data_vars):
-        values = post[name].values
-        unit = units.get(name, "")
-        factor, shown = _display_scale(values, unit)
-        if factor != 1.0:
-            shown = shown if shown == "µm" else f"1e{-round(math.log10(factor))} {unit}"
-            renamed[name] = f"{name} [{shown.replace('/', '∕')}]"
-            post[name] = post[name] * factor
-    return xr.DataTree.from_dict({"posterior": post.rename(renamed)})
-
-
-def _trace_figure(tree: xr.DataTree, path: Path, units: Mapping[str, str]) -> str | None:
-    """Trace and marginal of every variable; returns a note if the fallback was used."""
-    tree = _display_posterior(tree, units)
-    names = list(tree["posterior"].data_vars)
-    n_chain = tree["posterior"].sizes["chain"]
-    alpha = float(np.clip(12.0 / n_chain, 0.1, 0.8))
-    width = 0.3 if n_chain > 16 else 0.6
-    figsize = (11, 1.5 * len(names) + 0.8)
-    try:
-        _save_arviz(
-            lambda: az.plot_trace_dist(
-                tree,
-                var_names=names,
-                sample_dims=["chain", "draw"],
-                compact=True,
-                combined=True,
-                backend="matplotlib",
-                visuals={"trace": {"alpha": alpha, "width": width}},
-                figure_kwargs={"figsize": figsize, "layout": "constrained"},
-            ),
-            path,
-        )
-        return None
-    except Exception as exc:  # ArviZ plotting is outside our control
-        # Fallback: plain matplotlib traces if arviz_plots fails on this tree/version.
-        note = f"ArviZ plot_trace_dist failed ({type(exc).__name__}: {exc}); matplotlib fallback."
-    fig = Figure(figsize=figsize, layout="constrained")
-    axes = fig.subplots(len(names), 2, squeeze=False, width_ratios=(1, 2.5))
-    for i, name in enumerate(names):
-        x = _draws(tree, name)
-        axes[i, 0].hist(x.ravel(), bins=40, color=f"C{i % 10}", alpha=0.8)
-        axes[i, 0].set_yticks([])
-        axes[i, 0].set_xlabel(name, fontsize=8)
-        axes[i, 1].plot(x.T, color=f"C{i % 10}", alpha=alpha, lw=width)
-        axes[i, 1].set_ylabel(name, fontsize=8)
-    axes[-1, 1].set_xlabel("draw")
-    fig.savefig(path, dpi=_PNG_DPI)
-    return note
-
-
-def _rank_figure(tree: xr.DataTree, path: Path) -> tuple[int, str | None]:
-    """Rank (fractional-rank Δ-ECDF) plots; returns the thinning factor and a note."""
-    post = tree["posterior"]
-    names = list(post.data_vars)
-    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
-    factor = max(1, math.ceil(n_draw / _RANK_MAX_DRAWS))
-    ncols = min(4, len(names))
-    nrows = math.ceil(len(names) / ncols)
-    figsize = (3.2 * ncols, 2.6 * nrows)
-    alpha = float(np.clip(10.0 / n_chain, 0.15, 0.9))
-    try:
-        _save_arviz(
-            lambda: az.plot_rank(
-                tree,
-                var_names=names,
-                sample_dims=["chain", "draw"],  # emcee walkers are the chains
-                thin=factor > 1,
-                stats={"thin": {"factor": factor}} if factor > 1 else None,
-                backend="matplotlib",
-                visuals={"ecdf_lines": {"alpha": alpha, "width": 0.7}},
-                col_wrap=ncols,
-                figure_kwargs={"figsize": figsize, "layout": "constrained"},
-            ),
-            path,
-        )
-        return factor, None
-    except Exception as exc:  # ArviZ plotting is outside our control
-        # Fallback: per-walker rank histograms in plain matplotlib.
-        note = f"ArviZ plot_rank failed ({type(exc).__name__}: {exc}); matplotlib fallback."
-    fig = Figure(figsize=figsize, layout="constrained")
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
-    for ax, name in zip(axes, names, strict=False):
-        x = _draws(tree, name)[:, ::factor]
-        ranks = x.ravel().argsort().argsort().reshape(x.shape) / x.size
-        bins = np.linspace(0, 1, 21)
-        for c in range(n_chain):
-            h, _ = np.histogram(ranks[c], bins=bins)
-            ax.stairs(h / ranks.shape[1] * 20, bins, alpha=alpha, lw=0.7)  # 1 = uniform
-        ax.axhline(1.0, color="k", lw=0.8)
-        ax.set_title(name, fontsize=9)
-        ax.set_xlabel("fractional rank", fontsize=8)
-    for ax in axes[len(names):]:
-        ax.set_visible(False)
-    fig.savefig(path, dpi=_PNG_DPI)
-    return factor, note
-
-
-def _edge_mark(ax: Any, x: float | None, y: float | None, **style: Any) -> None:
-    """Mark a point, or a triangle at the edge pointing towards it when it is outside."""
-    if x is None or y is None or not (math.isfinite(x) and math.isfinite(y)):
-        return
-    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-    cx, cy = min(max(x, x0), x1), min(max(y, y0), y1)
-    if (cx, cy) == (x, y):
-        ax.plot(x, y, **style)
-        return
-    marker = ">" if x > x1 else "<" if x < x0 else "^" if y > y1 else "v"
-    ax.plot(cx, cy, **{**style, "marker": marker, "mfc": style.get("color"), "clip_on": False})
-
-
-def _edge_vline(ax: Any, x: float | None, **style: Any) -> None:
-    """A vertical line at ``x``, or an arrow-head at the edge when ``x`` is outside."""
-    if x is None or not math.isfinite(x):
-        return
-    x0, x1 = ax.get_xlim()
-    if x0 <= x <= x1:
-        ax.axvline(x, **style)
-    else:
-        ax.plot(x1 if x > x1 else x0, 0.5, transform=ax.get_xaxis_transform(),
-                marker=">" if x > x1 else "<", color=style.get("color"), ms=8, clip_on=False)
-
-
-def _display_scale(values: np.ndarray, unit: str) -> tuple[float, str]:
-    """A factor and unit label that keep tick labels short (µm for small lengths)."""
-    big = float(np.max(np.abs(values))) if values.size else 0.0
-    if big == 0.0 or not math.isfinite(big):
-        return 1.0, unit
-    if unit == "m" and big < 1e-3:
-        return 1e6, "µm"
-    e = math.floor(math.log10(big))
-    if -3 < e < 5:
-        return 1.0, unit
-    return 10.0**-e, rf"$\times 10^{{{e}}}$ {unit}".strip()
-
-
-def _pair_figure(tree: xr.DataTree, path: Path, rows: Sequence[Mapping],
-                 names: Sequence[str] | None = None) -> int:
-    """Corner plot of posterior variables (all by default); returns the draws shown."""
-    names = list(tree["posterior"].data_vars) if names is None else list(names)
-    k = len(names)
-    flat = np.stack([_draws(tree, n).ravel() for n in names])  # (k, chain*draw)
-    n_total = flat.shape[1]
-    keep = np.unique(np.linspace(0, n_total - 1, min(n_total, _PAIR_MAX_DRAWS)).astype(int))
-    flat = flat[:, keep]
-    by_name = {r["name"]: r for r in rows}
-    labels, paper, mapv, lims = [], [], [], []
-    for i, n in enumerate(names):
-        unit = by_name[n].get("unit") or ""
-        factor, shown_unit = _display_scale(flat[i], unit)
-        flat[i] *= factor
-        labels.append(f"{n} [{shown_unit}]" if shown_unit else n)
-        for out, key in ((paper, "paper"), (mapv, "map")):
-            v = by_name[n].get(key)
-            out.append(None if v is None else v * factor)
-        lo, hi = float(flat[i].min()), float(flat[i].max())
-        pad = 0.06 * (hi - lo) if hi > lo else max(abs(lo) * 1e-3, 1e-12)
-        lims.append((lo - pad, hi + pad))
-
-    size = min(1.55 * k + 1.0, 18.0)
-    fig = Figure(figsize=(size, size), layout="constrained")
-    axes = fig.subplots(k, k, squeeze=False)
-    map_style = {"color": "k", "marker": "x", "ms": 7, "mew": 1.5, "ls": "none", "zorder": 4}
-    paper_style = {"color": "tab:red", "marker": "o", "ms": 6, "mfc": "none", "mew": 1.5,
-                   "ls": "none", "zorder": 4}
-    for i in range(k):
-        for j in range(k):
-            ax = axes[i, j]
-            if j > i:
-                ax.set_visible(False)
-                continue
-            ax.tick_params(labelsize=6)
-            ax.xaxis.set_major_locator(MaxNLocator(3))
-            if i == j:
-                ax.hist(flat[i], bins=30, range=lims[i], color="tab:blue", alpha=0.7)
-                ax.set_xlim(lims[i])
-                ax.set_yticks([])
-                _edge_vline(ax, mapv[i], color="k", lw=1.2)
-                _edge_vline(ax, paper[i], color="tab:red", lw=1.2, ls="--")
-            else:
-                ax.scatter(flat[j], flat[i], s=1.5, alpha=0.25, color="tab:blue",
-                           rasterized=True, linewidths=0)
-                ax.set_xlim(lims[j])
-                ax.set_ylim(lims[i])
-                ax.yaxis.set_major_locator(MaxNLocator(3))
-                _edge_mark(ax, mapv[j], mapv[i], **map_style)
-                _edge_mark(ax, paper[j], paper[i], **paper_style)
-                if j == 0:
-                    ax.set_ylabel(labels[i], fontsize=8)
-                else:
-                    ax.set_yticklabels([])
-            if i < k - 1:
-                ax.set_xticklabels([])
-            else:
-                ax.set_xlabel(labels[j], fontsize=8)
-                ax.tick_params(axis="x", labelrotation=45)
-    handles = [
-        Line2D([], [], **map_style, label="MAP"),
-        Line2D([], [], **paper_style, label="paper (arrow-head: off scale)"),
-    ]
-    fig.legend(handles=handles, loc="upper right", fontsize=9, frameon=False)
-    fig.savefig(path, dpi=_PNG_DPI)
-    return int(keep.size)
 
 
 def pair_figure(tree: xr.DataTree, path: str | Path, *, names: Sequence[str] | None = None,
@@ -598,7 +374,9 @@ def pair_figure(tree: xr.DataTree, path: str | Path, *, names: Sequence[str] | N
         bad = [n for n in names if n not in known]
         if bad:
             raise ValueError(f"not posterior variables: {bad}; the fit has {known}")
-    return _pair_figure(tree, Path(path), rows, names)
+    from pmabayes.plots import plot_pair
+
+    return plot_pair(tree, Path(path), rows, names)
 
 
 def predictive_band(tree: xr.DataTree, *, ci_prob: float = 0.9) -> dict[str, np.ndarray]:
@@ -650,86 +428,102 @@ def _predictive(tree: xr.DataTree, ci_prob: float) -> dict[str, np.ndarray]:
     }
 
 
-def _zoom_slice(t: np.ndarray) -> slice:
-    """The last ``_ZOOM_S`` seconds (the chirp's fast end), at most a quarter of the run."""
-    span = float(t[-1] - t[0])
-    width = min(_ZOOM_S, 0.25 * span)
-    return slice(int(np.searchsorted(t, t[-1] - width)), None)
+# ----------------------------------------------------------------------------- adequacy
 
 
-def _ppc_figure(pred: dict[str, np.ndarray], path: Path, ci_prob: float) -> None:
-    """Posterior predictive check: one pair of panels per trial, residual-scale panels."""
-    t, data, med, lo, hi = (pred[k] for k in ("time", "data", "median", "low", "high"))
-    n_trial = data.shape[0]
-    z = _zoom_slice(t)
-    pairs = 2 if n_trial > 1 else 1
-    nrows = math.ceil(n_trial / pairs)
-    fig = Figure(figsize=(13, 2.1 * nrows + 3.2), layout="constrained")
-    grid = fig.add_gridspec(nrows + 1, 2 * pairs, width_ratios=(3, 1) * pairs,
-                            height_ratios=(1,) * nrows + (1.5,))
-    pct = f"{100 * ci_prob:.4g}%"
-    for r in range(n_trial):
-        row, col = divmod(r, pairs)
-        ax = fig.add_subplot(grid[row, 2 * col])
-        axz = fig.add_subplot(grid[row, 2 * col + 1])
-        for a, s in ((ax, slice(None)), (axz, z)):
-            a.fill_between(t[s], lo[s] * 1e3, hi[s] * 1e3, color="tab:blue", alpha=0.35,
-                           lw=0, label=f"{pct} predictive")
-            a.plot(t[s], data[r, s] * 1e3, color="k", lw=0.5, label="data")
-            a.plot(t[s], med[s] * 1e3, color="tab:red", lw=0.7, ls="--",
-                   label="median model")
-            a.tick_params(labelsize=7)
-        ax.set_title(f"trial {pred['trials'][r]}", fontsize=8, loc="left")
-        axz.set_title(f"last {t[-1] - t[z][0]:.2g} s", fontsize=8, loc="left")
-        ax.set_ylabel("x [mm]", fontsize=8)
-        if r == 0:
-            ax.legend(fontsize=6, loc="upper left", ncols=3)
-    axr = fig.add_subplot(grid[nrows, : 2 * pairs - 1])
-    axrz = fig.add_subplot(grid[nrows, 2 * pairs - 1])
-    alpha = float(np.clip(2.0 / n_trial, 0.15, 0.6))
-    for a, s in ((axr, slice(None)), (axrz, z)):
-        a.fill_between(t[s], (lo[s] - med[s]) * 1e6, (hi[s] - med[s]) * 1e6,
-                       color="tab:blue", alpha=0.3, lw=0, label=f"{pct} predictive − median")
-        for r in range(n_trial):
-            a.plot(t[s], (data[r, s] - med[s]) * 1e6, lw=0.4, alpha=alpha, color="0.2",
-                   label="data − median model" if r == 0 else None)
-        for edge in (lo, hi):  # band edges drawn over the data, so the band stays visible
-            a.plot(t[s], (edge[s] - med[s]) * 1e6, color="tab:blue", lw=0.8)
-        a.axhline(0.0, color="tab:red", lw=0.7, ls="--")
-        a.set_xlabel("time [s]", fontsize=8)
-        a.tick_params(labelsize=7)
-    axr.set_ylabel("residual [µm]", fontsize=8)
-    axr.legend(fontsize=7, loc="upper left", ncols=2)
-    axr.set_title(
-        f"residual scale, every trial: {100 * pred['coverage']:.1f}% of the data inside the "
-        f"{pct} band", fontsize=8, loc="left",
-    )
-    fig.savefig(path, dpi=_PNG_DPI)
+def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
+                 ci_prob: float = 0.9) -> Adequacy:
+    """Whether a fitted model describes its data: the verdict every report opens with.
+
+    The sampler's convergence says that the posterior of the model is well sampled,
+    not that the model fits. This judges the posterior median model (from the
+    fit's posterior predictive draws) against the trials with the rule of
+    :func:`pmabayes.residuals.is_adequate`: its residual, whitened by the fit's
+    noise estimate, must be as small and as white as pure noise. The error against
+    the noise floor and the fraction of the data inside the predictive band are
+    quoted beside it, and for a model that fails, the command that finds what is
+    missing (``pmabayes diagnose DATA``).
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit (layout of :mod:`pmabayes.posterior`).
+    dataset : Dataset, optional
+        The data the fit was made from (checked against it); its source names the
+        data in the next command. Rebuilt from the fit's observed data if not given.
+    ci_prob : float, optional
+        Probability of the predictive band (0.9).
+
+    Returns
+    -------
+    Adequacy
+        Print its :meth:`~pmabayes.residuals.Adequacy.lines`.
+
+    Raises
+    ------
+    ValueError
+        If ``dataset`` does not match the fit, or ``ci_prob`` is not in (0, 1).
+    FitFileError
+        If ``tree`` is not a pmabayes fit with a posterior predictive group.
+
+    Examples
+    --------
+    >>> from pmabayes.posterior import load_fit
+    >>> tree = load_fit("results/lab/fit.nc")  # doctest: +SKIP
+    >>> print("\\n".join(fit_adequacy(tree).lines()))  # doctest: +SKIP
+    """
+    ci_prob = _check_ci_prob(ci_prob)
+    info = _check_tree(tree, ["observed_data", "posterior_predictive"])
+    if dataset is not None:
+        check_dataset(tree, dataset)
+    return _adequacy(tree, info, dataset, _predictive(tree, ci_prob), ci_prob)
 
 
-def _residual_figure(
-    pred: dict[str, np.ndarray], noise_floor_m: float | None, path: Path
-) -> float:
-    """Trial-mean residual against the median model with the noise floor; returns its RMS."""
-    t = pred["time"]
-    resid = (pred["data"].mean(axis=0) - pred["median"]) * 1e6
-    rms = float(np.sqrt(np.mean(resid**2)))
-    z = _zoom_slice(t)
-    fig = Figure(figsize=(12, 3.4), layout="constrained")
-    ax, axz = fig.subplots(1, 2, width_ratios=(3, 1), sharey=True)
-    for a, s in ((ax, slice(None)), (axz, z)):
-        if noise_floor_m is not None and math.isfinite(noise_floor_m):
-            a.axhspan(-noise_floor_m * 1e6, noise_floor_m * 1e6, color="tab:green", alpha=0.25,
-                      label=f"trial-mean noise floor ±{noise_floor_m * 1e6:.3g} µm")
-        a.plot(t[s], resid[s], color="k", lw=0.6, label=f"trial mean − median model "
-               f"(RMS {rms:.3g} µm)")
-        a.axhline(0.0, color="tab:red", lw=0.6, ls="--")
-        a.set_xlabel("time [s]")
-    ax.set_ylabel("residual [µm]")
-    ax.legend(fontsize=8, loc="upper left")
-    axz.set_title(f"last {t[-1] - t[z][0]:.2g} s", fontsize=9, loc="left")
-    fig.savefig(path, dpi=_PNG_DPI)
-    return rms
+def _adequacy(tree: xr.DataTree, info: dict, dataset: Dataset | None, pred: Mapping,
+              ci_prob: float) -> Adequacy:
+    data = dataset if dataset is not None else _dataset_from_fit(tree, info)
+    try:
+        model = model_from_fit(tree)
+    except (ModelError, EffectError, TypeError):  # an unregistered user effect, an odd rig
+        model = Model.for_dataset(data)  # whitening needs the data and the noise only
+    lik = Likelihood(model, data)
+    nz = info.get("noise") or {}
+    keys = ("sigma_noise_m", "rho_noise", "sigma_white_m")
+    noise = (SimpleNamespace(sigma=nz[keys[0]], rho=nz[keys[1]], white=nz[keys[2]])
+             if all(nz.get(k) is not None for k in keys) else None)
+    return check_adequacy(lik, pred["median"], noise, coverage=pred["coverage"],
+                          ci_prob=ci_prob, next_command=_diagnose_command(info, data))
+
+
+def _dataset_from_fit(tree: xr.DataTree, info: dict) -> Dataset:
+    """The trials of a fit as a Dataset (the input only where the fit stores it)."""
+    obs = tree["observed_data"]["position_m"].transpose("trial", "time")
+    d = info.get("data") or {}
+    name = d.get("input_name") or "pressure_pa"
+    const = tree["constant_data"] if "constant_data" in tree.children else None
+    # without the stored input, zeros: the whitened residual does not depend on it
+    u = (np.asarray(const[name].values, dtype=float)
+         if const is not None and name in const.data_vars else np.zeros(obs.sizes["time"]))
+    return Dataset(time_s=np.asarray(obs["time"].values, dtype=float),
+                   input=np.tile(u, (obs.sizes["trial"], 1)),
+                   position_m=np.asarray(obs.values, dtype=float),
+                   trial_ids=np.asarray(obs["trial"].values), input_name=name,
+                   metadata={"synthetic": bool(d.get("synthetic", False))},
+                   source=d.get("source"))
+
+
+def _diagnose_command(info: dict, dataset: Dataset) -> str:
+    source = dataset.source or (info.get("data") or {}).get("source") or "DATA.csv"
+    effects = (info.get("model") or {}).get("effects") or []
+    command = f"pmabayes diagnose {shlex.quote(str(source))}"
+    return command + (f" --effects {','.join(effects)}" if effects else "")
+
+
+def _adequacy_markdown(adequacy: Adequacy) -> list[str]:
+    out = [f"> **{adequacy.headline}**: {adequacy.evidence()}."]
+    for line in adequacy.advice():
+        out += [">", f"> {line}"]
+    return out + ([">", f"> Next: `{adequacy.next_step}`"] if adequacy.next_step else [])
 
 
 # ----------------------------------------------------------------------------- HTML
@@ -743,6 +537,13 @@ h1{font-size:1.6em;margin-bottom:.2em} h2{border-bottom:1px solid #ccc;padding-b
 .banner.bad{background:#fde2e1;border:3px solid #c62828;color:#7f0000}
 .banner.bad strong{font-size:1.3em}
 .banner.ok{background:#e6f4ea;border:1px solid #2e7d32;color:#1b5e20}
+.verdict{padding:.9em 1.2em;border-radius:6px;margin:1em 0;font-size:1.1em}
+.verdict p{margin:.5em 0 0}
+.verdict.bad{background:#fde2e1;border:4px solid #c62828;color:#7f0000}
+.verdict.bad strong{font-size:1.4em}
+.verdict.ok{background:#e6f4ea;border:2px solid #2e7d32;color:#1b5e20}
+.verdict.unknown{background:#fff8e1;border:3px solid #f9a825}
+.verdict .next code{font-size:1.05em;background:#fff;border:1px solid #c62828;padding:.1em .4em}
 .note{background:#fff8e1;border:1px solid #f9a825;padding:.6em 1em;border-radius:6px}
 table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
 th,td{border:1px solid #ccc;padding:.25em .55em} th{background:#f2f2f2}
@@ -828,33 +629,56 @@ def write_report(
         check_dataset(tree, dataset)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-
     rows = summary_table(tree, ci_prob=ci_prob)
-    write_summary(rows, out_dir)
-
-    data_info = info.get("data") or {}
-    conv = info.get("convergence") or {}
-    point = info.get("map") or {}
-    noise_floor = data_info.get("noise_floor_m")
-    noise_floor = float(noise_floor) if noise_floor is not None else None
-    if dataset is not None and dataset.n_trials > 1:
-        noise_floor = dataset.noise_floor_m
-
-    paths = {name: out_dir / f"{name}.png" for name in ("trace", "rank", "pair", "ppc",
-                                                          "residual")}
-    trace_note = _trace_figure(tree, paths["trace"], {r["name"]: r["unit"] for r in rows})
-    rank_thin, rank_note = _rank_figure(tree, paths["rank"])
-    n_pair = _pair_figure(tree, paths["pair"], rows)
     pred = _predictive(tree, ci_prob)
-    _ppc_figure(pred, paths["ppc"], ci_prob)
-    rms_median = _residual_figure(pred, noise_floor, paths["residual"])
-    coverage = pred["coverage"]
-    del pred
+    adequacy = _adequacy(tree, info, dataset, pred, ci_prob)
+    write_summary(rows, out_dir, adequacy=adequacy)
+    residual_m = pred["data"].mean(axis=0) - pred["median"]
+    quality = {"floor_m": _noise_floor(info, dataset), "coverage": pred["coverage"],
+               "rms_median_m": float(np.sqrt(np.mean(residual_m**2)))}
+    captions = _report_figures(tree, rows, pred, residual_m, quality, out_dir, ci_prob)
+    body = [
+        _meta_block(info, _source_name(info, dataset)),
+        _adequacy_box(adequacy),
+        _banner(info.get("convergence") or {}),
+        _synthetic_note_of(info),
+        *_parameter_section(rows, info, ci_prob),
+        *_quality_section(info, quality, adequacy, ci_prob),
+        *_convergence_section(info, tree),
+        *_timings_section(info),
+        "<h2>Figures</h2>",
+        *[_img(out_dir / f"{name}.png", f"{name} plot", text) for name, text in captions.items()],
+    ]
+    index = out_dir / "index.html"
+    title = f"pmabayes fit report: {Path(_source_name(info, dataset)).name}"
+    index.write_text(_page(title, body), encoding="utf-8")
+    return index
 
+
+def _noise_floor(info: dict, dataset: Dataset | None) -> float | None:
+    """The trial-mean noise floor: from the data when given, else from the fit."""
+    if dataset is not None and dataset.n_trials > 1:
+        return dataset.noise_floor_m
+    floor = (info.get("data") or {}).get("noise_floor_m")
+    return float(floor) if floor is not None else None
+
+
+def _report_figures(tree: xr.DataTree, rows: list, pred: Mapping, residual_m: np.ndarray,
+                    quality: Mapping, out_dir: Path, ci_prob: float) -> dict[str, str]:
+    """Draw the five figures of a fit report; returns each one's caption."""
+    from pmabayes import plots
+
+    trace_note = plots.plot_trace(tree, out_dir / "trace.png",
+                                  units={r["name"]: r["unit"] for r in rows})
+    rank_thin, rank_note = plots.plot_rank(tree, out_dir / "rank.png")
+    n_pair = plots.plot_pair(tree, out_dir / "pair.png", rows)
+    plots.plot_predictive(pred, out_dir / "ppc.png", ci_prob=ci_prob)
+    plots.plot_residual(pred["time"], residual_m, quality["rms_median_m"], quality["floor_m"],
+                        out_dir / "residual.png")
     post = tree["posterior"]
     n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
     pct = f"{100 * ci_prob:.4g}%"
-    captions = {
+    return {
         "trace": (
             f"Trace of every walker ({n_chain} chains × {n_draw} draws after burn-in and "
             "thinning) and the pooled marginal density."
@@ -876,94 +700,105 @@ def write_report(
             "bottom: the same on the residual scale."
         ),
         "residual": (
-            f"Trial-mean residual against the posterior median model (RMS {rms_median:.3g} "
-            "µm) and the trial-mean noise floor (green)."
+            f"Trial-mean residual against the posterior median model (RMS "
+            f"{quality['rms_median_m'] * 1e6:.3g} µm) and the trial-mean noise floor (green)."
         ),
     }
 
-    source = _source_name(info, dataset)
-    title = f"pmabayes fit report: {Path(source).name}"
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        f"<title>{html.escape(title)}</title>",
-        f"<style>{_CSS}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        _meta_block(info, source),
-        _banner(conv),
-    ]
-    if data_info.get("synthetic"):
-        parts.append(
-            '<p class="note"><strong>Synthetic data.</strong> These measurements were '
+
+def _adequacy_box(adequacy: Adequacy) -> str:
+    """The verdict on the model's fit, first on the page."""
+    cls = {True: "ok", False: "bad", None: "unknown"}[adequacy.adequate]
+    out = [f'<div class="verdict {cls}" id="adequacy"><strong>{html.escape(adequacy.headline)}'
+           f"</strong>: {html.escape(adequacy.evidence())}."]
+    out += [f"<p>{html.escape(line)}</p>" for line in adequacy.advice()]
+    if adequacy.next_step:
+        out.append(f'<p class="next">Next: <code>{html.escape(adequacy.next_step)}</code> '
+                   "finds what the model is missing.</p>")
+    return "".join(out) + "</div>"
+
+
+def _synthetic_note_of(info: dict) -> str:
+    if not (info.get("data") or {}).get("synthetic"):
+        return ""
+    return ('<p class="note"><strong>Synthetic data.</strong> These measurements were '
             "simulated, not measured on hardware; the estimates say nothing about a "
-            "real actuator.</p>"
-        )
-    parts.append(f"<h2>Parameters</h2><p>Posterior mean, sd and {pct} highest density "
-                 "interval over all walkers; R-hat is ArviZ's rank-normalised split R-hat "
-                 "over walkers; ESS (tau) is the autocorrelation-time ESS used for the "
-                 "convergence decision.</p>")
-    parts.append(_table(
-        _display_headers(rows),
-        [[r["name"], r.get("unit") or "\u2014"] + [r.get(k) for k, _ in _DISPLAY[2:]]
-         for r in rows],
-        num_from=2,
-    ))
+            "real actuator.</p>")
+
+
+def _parameter_section(rows: list, info: dict, ci_prob: float) -> list[str]:
+    pct = f"{100 * ci_prob:.4g}%"
+    out = [f"<h2>Parameters</h2><p>Posterior mean, sd and {pct} highest density "
+           "interval over all walkers; R-hat is ArviZ's rank-normalised split R-hat "
+           "over walkers; ESS (tau) is the autocorrelation-time ESS used for the "
+           "convergence decision.</p>",
+           _table(_display_headers(rows),
+                  [[r["name"], r.get("unit") or "\u2014"] + [r.get(k) for k, _ in _DISPLAY[2:]]
+                   for r in rows], num_from=2)]
     fixed = (info.get("model") or {}).get("fixed") or {}
     if fixed:
         units = _units(info)
-        parts.append("<p>Fixed: " + ", ".join(
+        out.append("<p>Fixed: " + ", ".join(
             f"<code>{html.escape(k)}</code> = {html.escape(_fmt(v))} "
             f"{html.escape(units.get(k, ''))}" for k, v in fixed.items()) + "</p>")
+    return out
 
-    parts.append("<h2>Fit quality</h2>")
+
+def _quality_section(info: dict, quality: Mapping, adequacy: Adequacy,
+                     ci_prob: float) -> list[str]:
+    point = info.get("map") or {}
     gs = point.get("global_search") or {}
+    floor = quality["floor_m"]
     map_cost = _opt_float(point, "rms_cost_m")
-    ratio = (
-        f"{map_cost / noise_floor:.3g}"
-        if map_cost is not None and noise_floor and math.isfinite(noise_floor)
-        else None
-    )
-    quality = [
+    ratio = (f"{map_cost / floor:.3g}"
+             if map_cost is not None and floor and math.isfinite(floor) else None)
+    verdict = {True: "yes", False: "NO", None: "unknown (no noise estimate)"}
+    rows = [
         ["the paper's cost (RMS of trial mean − model) at the MAP", _um(map_cost)],
-        ["trial-mean noise floor (a perfect model's RMS cost)", _um(noise_floor)],
+        ["trial-mean noise floor (a perfect model's RMS cost)", _um(floor)],
         ["MAP cost / noise floor", ratio],
         ["the paper's cost at the paper-style global search optimum",
          _um(_opt_float(gs, "rms_cost_m"))],
-        ["RMS of trial mean − posterior median model", _um(rms_median * 1e-6)],
-        [f"data inside the {pct} posterior predictive band", f"{100 * coverage:.1f}%"],
+        ["RMS of trial mean − posterior median model", _um(quality["rms_median_m"])],
+        [f"data inside the {100 * ci_prob:.4g}% posterior predictive band",
+         f"{100 * quality['coverage']:.1f}%"],
+        ["whitened residual energy (1 for pure noise)", adequacy.energy],
+        ["Ljung-Box p of the whitened residual", adequacy.ljung_box_p],
+        ["model adequate (energy ≤ "
+         f"{1 + adequacy.energy_tolerance:g}, Ljung-Box p ≥ {adequacy.level_adequate:g})",
+         verdict[adequacy.adequate]],
         ["log posterior at the MAP", _opt_float(point, "log_posterior")],
     ]
-    parts.append(_table(["quantity", "value"], quality))
+    return ["<h2>Fit quality</h2>", _table(["quantity", "value"], rows)]
 
-    parts.append("<h2>Convergence</h2>")
-    parts.append(_table(["setting", "value"], [
+
+def _convergence_section(info: dict, tree: xr.DataTree) -> list[str]:
+    conv = info.get("convergence") or {}
+    post = tree["posterior"]
+    settings = _table(["setting", "value"], [
         ["independent ensembles", conv.get("n_ensembles")],
         ["walkers per ensemble", conv.get("n_walkers")],
         ["steps per ensemble", conv.get("n_steps")],
         ["burn-in (steps)", conv.get("burn")],
         ["thin", conv.get("thin")],
-        ["chains × draws kept", f"{n_chain} × {n_draw}"],
+        ["chains × draws kept", f"{post.sizes['chain']} × {post.sizes['draw']}"],
         ["required steps / tau (tau multiple)", conv.get("tau_multiple")],
         ["required ESS (min ESS)", conv.get("min_ess")],
-    ]))
-    parts.append(_table(
+    ])
+    per_parameter = _table(
         ["parameter", "tau [steps]", "ESS (tau)", "R-hat (fit)", "R-hat (ensembles)"],
         [[n, _opt_float(conv.get("tau"), n), _opt_float(conv.get("ess"), n),
           _opt_float(conv.get("rhat"), n), _opt_float(conv.get("rhat_ensembles"), n)]
          for n in post.data_vars],
-    ))
-    timings = info.get("timings_s") or {}
-    if timings:
-        parts.append("<h2>Timings</h2>")
-        parts.append(_table(["stage", "time [s]"], [[k, v] for k, v in timings.items()]))
+    )
+    return ["<h2>Convergence</h2>", settings, per_parameter]
 
-    parts.append("<h2>Figures</h2>")
-    for name, path in paths.items():
-        parts.append(_img(path, f"{name} plot", captions[name]))
-    parts.append("</body></html>")
-    index = out_dir / "index.html"
-    index.write_text("\n".join(parts) + "\n", encoding="utf-8")
-    return index
+
+def _timings_section(info: dict) -> list[str]:
+    timings = info.get("timings_s") or {}
+    if not timings:
+        return []
+    return ["<h2>Timings</h2>", _table(["stage", "time [s]"], [[k, v] for k, v in timings.items()])]
 
 
 def _meta_block(info: dict, source: str) -> str:
@@ -989,7 +824,9 @@ def _banner(conv: Mapping) -> str:
     listed = "".join(f"<li>{html.escape(m)}</li>" for m in messages)
     listed = f"<ul>{listed}</ul>" if listed else ""
     if conv.get("converged") is True:
-        return f'<div class="banner ok">Sampling converged.{listed}</div>'
+        return (f'<div class="banner ok">Sampling converged: the posterior of this model is '
+                "well sampled. Whether the model fits the data is the verdict above."
+                f"{listed}</div>")
     return (
         '<div class="banner bad" id="not-converged"><strong>NOT CONVERGED.</strong> '
         "The sampler did not meet its convergence criteria; the intervals below are not "
@@ -1042,47 +879,12 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     Path
         The path of ``index.html`` (self-contained: figures embedded).
     """
-    import json
-
-    import matplotlib.pyplot as plt
-
-    from pmabayes.plots import (
-        plot_band_errors,
-        plot_comparison,
-        plot_ranking,
-        plot_residual_signature,
-        plot_whiteness,
-    )
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     d = diagnosis
     ds = d.dataset
     label = " + ".join(["base", *d.model.effect_names])
-    x = d.simulation.position_m[0]
-    e = d.innovations
-    rate = np.gradient(ds.input[0], ds.time_s)
-    figs = {
-        "comparison": (plot_comparison(ds, x, label=f"{label} (MAP)"),
-                       "Trials, their mean and the model at its MAP; the residual beside the "
-                       "noise floor; the hysteresis loop."),
-        "bands": (plot_band_errors({label: d.signature.bands}),
-                  "RMS error of the trial mean per band of the chirp's instantaneous "
-                  "frequency, with the noise floor (black): the error a perfect model would "
-                  "have, from the spread between the trials."),
-        "signature": (plot_residual_signature(ds, d.simulation, label=label),
-                      "Where the model fails: the residual against time, frequency, velocity, "
-                      "pressure and position."),
-        "whiteness": (plot_whiteness({label: e}, rate, ds.dt_s),
-                      "Whiteness and independence tests: the residual whitened by the noise "
-                      "model should stay inside the bounds at almost every lag."),
-        "ranking": (plot_ranking(d.ranking, level=d.settings["level"]),
-                    "Score-test evidence that each candidate effect is missing (red: "
-                    "significant)."),
-    }
-    for name, (fig, _) in figs.items():
-        fig.savefig(out_dir / f"{name}.png", dpi=_PNG_DPI)
-        plt.close(fig)
+    figs = _diagnosis_figures(d, label, out_dir)
     summary = d.to_dict()
     (out_dir / "diagnosis.json").write_text(json.dumps(summary, indent=2) + "\n")
     sig = d.signature
@@ -1117,12 +919,43 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
         if f.significant:
             body.append(f"<h3>{html.escape(f.effect)}</h3><p>{html.escape(f.explanation)}</p>")
     body.append("<h2>Figures</h2>")
-    for name, (_, caption) in figs.items():
+    for name, caption in figs.items():
         body.append(_img(out_dir / f"{name}.png", f"{name} plot", caption))
     index = out_dir / "index.html"
     index.write_text(_page(f"pmabayes diagnosis: {Path(ds.source or 'data').name}", body),
                      encoding="utf-8")
     return index
+
+
+def _diagnosis_figures(d, label: str, out_dir: Path) -> dict[str, str]:
+    """Draw the five figures of a diagnosis; returns each one's caption."""
+    from pmabayes import plots
+
+    ds = d.dataset
+    figs = {
+        "comparison": (plots.plot_comparison(ds, d.simulation.position_m[0],
+                                             label=f"{label} (MAP)"),
+                       "Trials, their mean and the model at its MAP; the residual beside the "
+                       "noise floor; the hysteresis loop."),
+        "bands": (plots.plot_band_errors({label: d.signature.bands}),
+                  "RMS error of the trial mean per band of the chirp's instantaneous "
+                  "frequency, with the noise floor (black): the error a perfect model would "
+                  "have, from the spread between the trials."),
+        "signature": (plots.plot_residual_signature(ds, d.simulation, d.frequency_hz,
+                                                    label=label),
+                      "Where the model fails: the residual against time, frequency, velocity, "
+                      "pressure and position."),
+        "whiteness": (plots.plot_whiteness(d.whiteness_curves()),
+                      "Whiteness and independence tests: the residual whitened by the noise "
+                      "model should stay inside the bounds at almost every lag."),
+        "ranking": (plots.plot_ranking(d.ranking, threshold=d.score_threshold,
+                                       level=d.settings["level"]),
+                    "Score-test evidence that each candidate effect is missing (red: "
+                    "significant)."),
+    }
+    for name, (fig, _) in figs.items():
+        fig.savefig(out_dir / f"{name}.png", dpi=plots.REPORT_DPI)
+    return {name: caption for name, (_, caption) in figs.items()}
 
 
 def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None = None
@@ -1144,22 +977,16 @@ def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None
     Path
         The path of ``index.html``.
     """
-    import json
-
-    import matplotlib.pyplot as plt
-
-    from pmabayes.plots import plot_band_errors, plot_whiteness
+    from pmabayes import plots
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     c = comparison
-    fig = plot_band_errors(c.bands, title="the error falls as effects are added "
-                                           "(label: multiple of the noise floor)")
-    fig.savefig(out_dir / "error_falling.png", dpi=_PNG_DPI)
-    plt.close(fig)
-    fig = plot_whiteness(c.innovations, c.command_rate, c.dt_s)
-    fig.savefig(out_dir / "whiteness.png", dpi=_PNG_DPI)
-    plt.close(fig)
+    plots.plot_band_errors(c.bands, title="the error falls as effects are added "
+                                          "(label: multiple of the noise floor)"
+                           ).savefig(out_dir / "error_falling.png", dpi=plots.REPORT_DPI)
+    plots.plot_whiteness(c.whiteness_curves()).savefig(out_dir / "whiteness.png",
+                                                       dpi=plots.REPORT_DPI)
     (out_dir / "comparison.json").write_text(json.dumps(c.to_dict(), indent=2) + "\n")
     band_names = [b.label for b in c.bands[c.labels[0]]]
     header = ["fit", *[f"RMS {b} [µm]" for b in band_names], "RMS / floor",

@@ -71,6 +71,23 @@ def test_a_missing_lag_is_above_the_floor_and_not_white(lagged):
     assert np.max(np.abs(ccf)) > 3 * bound
 
 
+def test_the_adequacy_rule_and_its_verdict(perfect, lagged):
+    from pmabayes.residuals import check_adequacy, is_adequate
+
+    for case, expected in ((perfect, True), (lagged, False)):
+        ds, lik, x, _ = judge(case)
+        a = check_adequacy(lik, x, estimate_noise(lik), next_command="pmabayes diagnose d.csv")
+        assert a.adequate is expected
+        assert a.ratio == pytest.approx(band_errors(ds, x)[-1].ratio, rel=1e-12)
+        assert a.next_step == (None if expected else "pmabayes diagnose d.csv")
+        assert a.lines()[0].startswith("Model adequate" if expected else "MODEL INADEQUATE")
+    unknown = check_adequacy(lik, x)  # no noise estimate: no whitening, no verdict
+    assert unknown.adequate is None and unknown.energy is None
+    assert "cannot be judged" in unknown.lines()[1]
+    assert is_adequate(1.1, 0.01) and not is_adequate(1.1001, 0.5)
+    assert not is_adequate(1.0, 0.0099)
+
+
 def test_autocorrelation_bound_and_ljung_box_on_white_noise():
     rng = np.random.default_rng(0)
     w = rng.standard_normal(20000)

@@ -17,6 +17,7 @@ MODULES = [
     "pmabayes.likelihood",
     "pmabayes.fit",
     "pmabayes.posterior",
+    "pmabayes.residuals",
     "pmabayes.criticism",
     "pmabayes.plots",
     "pmabayes.report",

@@ -128,7 +128,8 @@ def make_fit(
         "pmabayes_version": "0.1.0",
         "model": {"effects": ["regulator_lag"], "rig": {"name": "characterisation"},
                   "free": names[:-2], "fixed": {"v_c": 0.002}, "parameters": params},
-        "noise": {"model": "AR(1) per trial", "parameters": ["sigma_noise_m", "rho_noise"]},
+        "noise": {"model": "AR(1) per trial", "parameters": ["sigma_noise_m", "rho_noise"],
+                  "sigma_noise_m": sigma, "rho_noise": rho, "sigma_white_m": 1e-7},
         "data": {"source": "data/pma_chirp_fake.csv", "n_trials": n_trial,
                  "n_samples": n_time, "dt_s": dt_s, "input_name": "pressure_pa",
                  "synthetic": synthetic, "noise_floor_m": noise_floor},
@@ -364,19 +365,154 @@ def test_predictive_quantiles_blockwise(monkeypatch):
 def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    import pmabayes.report as report
+    import pmabayes.plots as plots
 
     def boom(*args, **kwargs):
         plt.figure()  # a half-made figure must not leak
         raise RuntimeError("simulated ArviZ failure")
 
-    monkeypatch.setattr(report.az, "plot_trace_dist", boom)
-    monkeypatch.setattr(report.az, "plot_rank", boom)
+    monkeypatch.setattr(plots.az, "plot_trace_dist", boom)
+    monkeypatch.setattr(plots.az, "plot_rank", boom)
     before = plt.get_fignums()
-    note = report._trace_figure(bad_fit, tmp_path / "t.png", {"sigma_noise_m": "m"})
+    note = plots.plot_trace(bad_fit, tmp_path / "t.png", units={"sigma_noise_m": "m"})
     assert "fallback" in note and "simulated ArviZ failure" in note
-    factor, note = report._rank_figure(bad_fit, tmp_path / "r.png")
+    factor, note = plots.plot_rank(bad_fit, tmp_path / "r.png")
     assert factor == 1 and "fallback" in note
     assert plt.get_fignums() == before
     for name in ("t.png", "r.png"):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
+
+
+# ----------------------------------------------------------------------------- adequacy
+# "Sampling converged" is not "the model fits": every report opens with the verdict.
+
+
+def _fit_of(dataset: Dataset, model_m: np.ndarray, seed: int = 0) -> xr.DataTree:
+    """A converged fake fit of ``dataset`` whose posterior predictive model is ``model_m``.
+
+    The noise is identified from the data as ``pmabayes fit`` does; the predictive draws
+    are the model plus that noise, so only the model decides whether the data fit.
+    """
+    from pmabayes.fit import estimate_noise
+    from pmabayes.likelihood import Likelihood
+    from pmabayes.model import Model
+
+    rng = np.random.default_rng(seed)
+    noise = estimate_noise(Likelihood(Model(), dataset))
+    n_trial, n_time = dataset.position_m.shape
+    tree = make_fit(n_trial=n_trial, n_time=n_time, dt_s=dataset.dt_s, converged=True,
+                    seed=seed)
+    n_pp = 12
+    model_pp = np.repeat(model_m[None], n_pp, axis=0)
+    pred = model_pp[:, None, :] + _ar1(rng, (n_pp, n_trial, n_time), noise.sigma, noise.rho)
+    coords = {"trial": dataset.trial_ids, "time": dataset.time_s}
+    tree["observed_data"] = xr.DataTree(xr.Dataset(
+        {"position_m": (("trial", "time"), dataset.position_m)}, coords=coords))
+    tree["constant_data"] = xr.DataTree(xr.Dataset(
+        {"pressure_pa": (("time",), dataset.input[0])}, coords={"time": dataset.time_s}))
+    tree["posterior_predictive"] = xr.DataTree(xr.Dataset(
+        {"position_m": (("chain", "draw", "trial", "time"), pred[None].astype(np.float32)),
+         "model_position_m": (("chain", "draw", "time"), model_pp[None].astype(np.float32))},
+        coords={"chain": [0], "draw": np.arange(n_pp), **coords}))
+    info = json.loads(tree.attrs["pmabayes"])
+    info["model"]["effects"] = []
+    info["model"]["rig"] = None
+    info["noise"].update(sigma_noise_m=noise.sigma, rho_noise=noise.rho,
+                         sigma_white_m=noise.white)
+    info["data"].update(source=dataset.source, noise_floor_m=dataset.noise_floor_m,
+                        synthetic=True)
+    tree.attrs["pmabayes"] = json.dumps(info)
+    return tree
+
+
+def _chirp_data(effects, source: str, seed: int):
+    """Chirp trials from the paper's model (with ``effects`` hidden) and the base model."""
+    from dataclasses import replace
+
+    import pmabayes as pb
+    from pmabayes.synthetic import Chirp, generate_chirp_dataset
+
+    ds = generate_chirp_dataset(n_trials=4, seed=seed, effects=effects,
+                                chirp=Chirp(duration_s=4.0, f0_hz=0.3, f1_hz=2.0))
+    ds = replace(ds, source=source)
+    base = pb.simulate(pb.Model(), {}, ds.input[0], time_s=ds.time_s)[0]
+    return ds, base
+
+
+@pytest.fixture(scope="module")
+def hidden_lag(tmp_path_factory):
+    """The base model's report on data with a hidden 45 ms regulator lag."""
+    ds, base = _chirp_data({"regulator_lag": 0.045}, "data/hidden_lag.csv", seed=31)
+    tree = load_fit(save_fit(_fit_of(ds, base), tmp_path_factory.mktemp("fit") / "lag.nc"))
+    index = write_report(tree, tmp_path_factory.mktemp("report_lag"), dataset=ds)
+    return ds, base, tree, index
+
+
+@pytest.fixture(scope="module")
+def no_hidden(tmp_path_factory):
+    """The base model's report on data from the base model itself."""
+    ds, base = _chirp_data(None, "data/no_hidden.csv", seed=32)
+    tree = load_fit(save_fit(_fit_of(ds, base), tmp_path_factory.mktemp("fit") / "ok.nc"))
+    index = write_report(tree, tmp_path_factory.mktemp("report_ok"), dataset=ds)
+    return ds, base, tree, index
+
+
+def _ratio_in(text: str) -> float:
+    match = re.search(r"the error of the trial mean is ([0-9.e+]+)x the noise floor", text)
+    assert match, "no error-to-floor ratio in the verdict"
+    return float(match.group(1))
+
+
+def test_a_wrong_model_is_called_inadequate_first_with_the_next_command(hidden_lag):
+    from pmabayes.report import fit_adequacy
+
+    ds, base, tree, index = hidden_lag
+    text = _html(index)
+    # the verdict comes first: before the convergence banner and every table
+    assert 'class="verdict bad"' in text and "MODEL INADEQUATE" in text
+    assert text.index('id="adequacy"') < text.index('class="banner ok"') < text.index("<table")
+    # the ratio quoted is the data's: RMS of trial mean minus model over the noise floor
+    ratio = np.sqrt(np.mean((ds.mean_position_m - base) ** 2)) / ds.noise_floor_m
+    assert ratio > 20
+    assert _ratio_in(text) == pytest.approx(ratio, rel=0.01)
+    assert "pmabayes diagnose data/hidden_lag.csv" in text
+    md = (index.parent / "summary.md").read_text(encoding="utf-8")
+    assert "**MODEL INADEQUATE**" in md and "`pmabayes diagnose data/hidden_lag.csv`" in md
+    assert _ratio_in(md) == pytest.approx(ratio, rel=0.01)
+    # the same verdict for the command line
+    verdict = fit_adequacy(tree, dataset=ds)
+    assert verdict.adequate is False and verdict.energy > 2.0
+    assert verdict.ratio == pytest.approx(ratio, rel=0.01)
+    lines = verdict.lines()
+    assert lines[0].startswith("MODEL INADEQUATE") and "noise floor" in lines[0]
+    assert lines[-1] == "Next: pmabayes diagnose data/hidden_lag.csv"
+    assert "inside the 90% posterior predictive band" in lines[0]
+
+
+def test_a_right_model_is_called_adequate(no_hidden):
+    from pmabayes.report import fit_adequacy
+
+    ds, base, tree, index = no_hidden
+    text = _html(index)
+    assert 'class="verdict ok"' in text and "Model adequate" in text
+    assert "MODEL INADEQUATE" not in text and "pmabayes diagnose" not in text
+    ratio = np.sqrt(np.mean((ds.mean_position_m - base) ** 2)) / ds.noise_floor_m
+    assert ratio < 1.5 and _ratio_in(text) == pytest.approx(ratio, rel=0.01)
+    md = (index.parent / "summary.md").read_text(encoding="utf-8")
+    assert "**Model adequate**" in md and "diagnose" not in md
+    verdict = fit_adequacy(tree)  # without the data set: rebuilt from the fit
+    assert verdict.adequate is True and verdict.energy < 1.1
+    assert not any(line.startswith("Next:") for line in verdict.lines())
+
+
+def test_the_verdict_names_the_effects_to_diagnose_with(hidden_lag):
+    from pmabayes.report import fit_adequacy
+
+    ds, _, tree, _ = hidden_lag
+    info = json.loads(tree.attrs["pmabayes"])
+    info["model"]["effects"] = ["coulomb_friction"]
+    tree = tree.copy()
+    tree.attrs["pmabayes"] = json.dumps(info)
+    lines = fit_adequacy(tree, dataset=ds).lines()
+    assert lines[-1] == ("Next: pmabayes diagnose data/hidden_lag.csv "
+                         "--effects coulomb_friction")

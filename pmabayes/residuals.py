@@ -1,0 +1,752 @@
+"""Residual statistics: how far a model's output is from repeated trials, and how.
+
+Stage 7 (diagnostics), below :mod:`pmabayes.criticism`. Everything here takes a
+data set and a model output (and, for the whiteness tests, the identified noise)
+and measures the misfit against what repeatability allows; nothing fits or
+samples:
+
+* :func:`band_errors`: RMS, normalised RMS and maximum error of the trial mean in
+  bands of the chirp's instantaneous frequency (:func:`instantaneous_frequency`),
+  each beside the noise floor in that band (the error a perfect model would have,
+  from the spread between repeated trials);
+* :func:`innovations`, :func:`autocorrelation`, :func:`cross_correlation`,
+  :func:`ljung_box` and :func:`whiteness`: the classic whiteness and independence
+  tests of system identification, applied to the residual whitened by the
+  identified noise model. That residual is independent N(0, 1) when the model
+  describes the data;
+* :func:`residual_signature`: all of these for one model, with the correlations
+  that say where it fails;
+* :func:`is_adequate` and :func:`check_adequacy`: the one adequacy rule (the
+  whitened residual's energy within a tolerance of pure noise, and white), and a
+  verdict with the numbers and the next command, for reports and the command line;
+* :func:`whiteness_curves`: the correlation curves that the whiteness figure draws.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal, stats
+
+from pmabayes.data import Dataset
+from pmabayes.likelihood import Likelihood
+
+__all__ = [
+    "DEFAULT_BANDS_HZ",
+    "ENERGY_TOLERANCE",
+    "LEVEL_ADEQUATE",
+    "BandErrors",
+    "BandError",
+    "band_label",
+    "instantaneous_frequency",
+    "band_errors",
+    "innovations",
+    "autocorrelation",
+    "cross_correlation",
+    "ljung_box",
+    "whiteness",
+    "is_adequate",
+    "Signature",
+    "residual_signature",
+    "WhitenessCurves",
+    "whiteness_curves",
+    "Adequacy",
+    "check_adequacy",
+]
+
+#: Bands of the chirp's instantaneous frequency (Hz) for error tables.
+DEFAULT_BANDS_HZ: tuple[tuple[float, float], ...] = (
+    (0.1, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 3.0),
+)
+
+#: Largest excess of the whitened residual's mean square over pure noise (1) for an
+#: adequate model. A tolerance, not a chi-squared test: with the noise parameters
+#: estimated from a few trials the energy of pure noise scatters by about 0.03
+#: around 1 (measured), twice the chi-squared spread. 0.1 means a model error below
+#: about a third of the noise level.
+ENERGY_TOLERANCE = 0.1
+
+#: Level of the Ljung-Box test of an adequate model's whitened residual.
+LEVEL_ADEQUATE = 0.01
+
+
+def instantaneous_frequency(dataset: Dataset) -> np.ndarray:
+    """Instantaneous frequency of the commanded input at each sample, in Hz.
+
+    From the generator's chirp settings when the data set records them (synthetic
+    data), otherwise from the phase of the analytic signal of the input (Hilbert
+    transform), which suits any slowly swept sinusoidal command.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n_samples,)``.
+    """
+    chirp = dataset.metadata.get("generator", {}).get("chirp") if dataset.metadata else None
+    t = dataset.time_s
+    if chirp:
+        f0, f1, dur = chirp["f0_hz"], chirp["f1_hz"], chirp["duration_s"]
+        return f0 + (f1 - f0) * (t - t[0]) / dur
+    u = dataset.input[0] - dataset.input[0].mean()
+    phase = np.unwrap(np.angle(signal.hilbert(u)))
+    freq = np.gradient(phase, t) / (2.0 * math.pi)
+    # smooth over ~0.5 s: the phase derivative is noisy where the amplitude is small
+    width = max(1, int(round(0.5 / dataset.dt_s)))
+    return np.convolve(freq, np.ones(width) / width, mode="same")
+
+
+@dataclass(frozen=True)
+class BandErrors:
+    """Errors of the trial mean in one frequency band: a result row of :func:`band_errors`.
+
+    ``BandError`` is a deprecated alias of this class (the same class under its old
+    name, which read like an exception's).
+
+    Parameters
+    ----------
+    band_hz : tuple of float
+        ``(low, high)`` instantaneous frequency.
+    n_samples : int
+        Samples in the band.
+    rms_m : float
+        RMS of trial mean minus model.
+    nrms : float
+        ``rms_m`` divided by the RMS of the trial mean's motion (about its mean)
+        in the band.
+    max_m : float
+        Largest absolute error.
+    floor_m : float
+        RMS a perfect model would have: the spread between trials in the band,
+        divided by the square root of the number of trials.
+    """
+
+    band_hz: tuple[float, float]
+    n_samples: int
+    rms_m: float
+    nrms: float
+    max_m: float
+    floor_m: float
+
+    @property
+    def ratio(self) -> float:
+        """``rms_m / floor_m``: about 1 for a model that describes the data."""
+        return self.rms_m / self.floor_m
+
+    @property
+    def label(self) -> str:
+        """The band in words: ``"0.5-1 Hz"``, or ``"all"`` for the overall row."""
+        return band_label(self.band_hz)
+
+    def to_dict(self) -> dict:
+        """JSON-ready values (an open upper edge as None)."""
+        lo, hi = self.band_hz
+        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "rms_m": self.rms_m,
+                "nrms": self.nrms, "max_m": self.max_m, "floor_m": self.floor_m,
+                "ratio": self.ratio}
+
+
+#: Deprecated alias of :class:`BandErrors` (a result, not an exception); kept so that
+#: ``from pmabayes.criticism import BandError`` goes on working.
+BandError = BandErrors
+
+
+def band_label(band: tuple[float, float]) -> str:
+    """A frequency band in words: ``"0.5-1 Hz"``, or ``"all"`` for ``(0, inf)``.
+
+    Parameters
+    ----------
+    band : tuple of float
+        ``(low, high)`` in Hz.
+
+    Returns
+    -------
+    str
+    """
+    lo, hi = band
+    return "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
+
+
+def band_errors(
+    dataset: Dataset,
+    model_position_m: np.ndarray,
+    *,
+    bands_hz: tuple[tuple[float, float], ...] = DEFAULT_BANDS_HZ,
+) -> list[BandErrors]:
+    """Errors of the trial mean against the model, per band and overall.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Repeated trials.
+    model_position_m : numpy.ndarray
+        Model output on the data's time grid, ``(n_samples,)``.
+    bands_hz : tuple of (low, high)
+        Frequency bands; a last row covers all samples.
+
+    Returns
+    -------
+    list of BandErrors
+        One per band that holds samples, then the overall one (band ``(0, inf)``).
+
+    Raises
+    ------
+    ValueError
+        If the model output does not match the data's length, or there is only
+        one trial (no floor without repeats).
+    """
+    x = np.asarray(model_position_m, dtype=float).reshape(-1)
+    if x.shape != (dataset.n_samples,):
+        raise ValueError(f"model output has {x.size} samples, the data {dataset.n_samples}")
+    if dataset.n_trials < 2:
+        raise ValueError("the noise floor needs at least 2 repeated trials")
+    freq = instantaneous_frequency(dataset)
+    mean = dataset.mean_position_m
+    resid = mean - x
+    spread = dataset.position_m.var(axis=0, ddof=1) / dataset.n_trials
+    rows = []
+    for lo, hi in (*bands_hz, (0.0, math.inf)):
+        sel = (freq >= lo) & (freq < hi)
+        if not sel.any():
+            continue
+        r = resid[sel]
+        motion = mean[sel] - mean[sel].mean()
+        rows.append(BandErrors(
+            band_hz=(lo, hi), n_samples=int(sel.sum()),
+            rms_m=float(np.sqrt(np.mean(r * r))),
+            nrms=float(np.sqrt(np.mean(r * r)) / max(np.sqrt(np.mean(motion**2)), 1e-300)),
+            max_m=float(np.max(np.abs(r))),
+            floor_m=float(np.sqrt(np.mean(spread[sel]))),
+        ))
+    return rows
+
+
+def innovations(likelihood: Likelihood, model_position_m: np.ndarray, noise) -> np.ndarray:
+    """The trial mean's residual whitened by the identified noise model.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        Data and noise model.
+    model_position_m : numpy.ndarray
+        Model output ``(n_samples,)``.
+    noise : object
+        With attributes ``sigma``, ``rho`` and ``white`` (a
+        :class:`pmabayes.fit.NoiseEstimate`).
+
+    Returns
+    -------
+    numpy.ndarray
+        Standardised innovations, independent N(0, 1) for an adequate model.
+    """
+    return likelihood.innovations(model_position_m, noise.sigma, noise.rho, noise.white)
+
+
+def _corr(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    a = (a - a.mean()) / a.std()
+    b = (b - b.mean()) / b.std()
+    n = a.size
+    lags = np.arange(-max_lag, max_lag + 1)
+    # lag k pairs a[t] with b[t - k]
+    values = np.array([np.dot(a[max(0, k): n - max(0, -k)], b[max(0, -k): n - max(0, k)]) / n
+                       for k in lags])
+    return lags, values
+
+
+def autocorrelation(e: np.ndarray, *, max_lag: int = 50, level: float = 0.99):
+    """Autocorrelation of a series with its confidence bound for a white series.
+
+    Parameters
+    ----------
+    e : numpy.ndarray
+        The series (e.g. :func:`innovations`).
+    max_lag : int
+        Largest lag.
+    level : float
+        Confidence level of the bound.
+
+    Returns
+    -------
+    lags : numpy.ndarray
+        ``1 .. max_lag``.
+    acf : numpy.ndarray
+        Autocorrelation at those lags.
+    bound : float
+        ``z_{(1 + level) / 2} / sqrt(n)``: a white series stays within it at a
+        fraction ``level`` of the lags.
+    """
+    lags, values = _corr(np.asarray(e, float), np.asarray(e, float), max_lag)
+    keep = lags > 0
+    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(len(e))
+    return lags[keep], values[keep], float(bound)
+
+
+def cross_correlation(e: np.ndarray, u: np.ndarray, *, max_lag: int = 50,
+                      level: float = 0.99):
+    """Cross-correlation of a residual with an input, with a confidence bound.
+
+    ``ccf[k]`` correlates ``e[t]`` with ``u[t - k]``: peaks at positive lags mean
+    the residual still depends on past input, the signature of missing dynamics
+    (a lag or delay). The input is best passed prewhitened or differenced (for
+    example its rate of change), since a smooth input correlates with everything.
+
+    Parameters
+    ----------
+    e, u : numpy.ndarray
+        Residual and input, same length.
+    max_lag : int
+        Largest lag, both signs.
+    level : float
+        Confidence level of the bound (for independent series).
+
+    Returns
+    -------
+    lags, ccf : numpy.ndarray
+    bound : float
+    """
+    lags, values = _corr(np.asarray(e, float), np.asarray(u, float), max_lag)
+    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(len(e))
+    return lags, values, float(bound)
+
+
+def ljung_box(e: np.ndarray, *, max_lag: int = 25) -> tuple[float, float]:
+    """Ljung-Box test that a series is white.
+
+    Parameters
+    ----------
+    e : numpy.ndarray
+        The series.
+    max_lag : int
+        Number of lags in the statistic.
+
+    Returns
+    -------
+    statistic : float
+        ``n (n + 2) sum_k acf_k^2 / (n - k)``, chi-squared with ``max_lag`` degrees
+        of freedom for a white series.
+    p_value : float
+    """
+    e = np.asarray(e, float)
+    n = e.size
+    lags, acf, _ = autocorrelation(e, max_lag=max_lag)
+    q = float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
+    return q, float(stats.chi2.sf(q, max_lag))
+
+
+@dataclass(frozen=True)
+class Signature:
+    """Where and how a model's trial-mean residual departs from the noise.
+
+    Parameters
+    ----------
+    bands : list of BandErrors
+        Errors per frequency band, the last one overall.
+    ljung_box_p : float
+        Ljung-Box p-value (25 lags) of the whitened residual.
+    energy : float
+        Mean square of the whitened residual: 1 for pure noise.
+    energy_p : float
+        p-value of ``energy`` against pure noise (chi-squared, one-sided).
+    correlations : dict
+        Correlation of the residual with the model's position, velocity and
+        pressure and with the rate of change of the command.
+    ccf_lag_s : float
+        Lag at which the whitened residual correlates most with the earlier rate
+        of change of the command (positive: the residual follows the command).
+    ccf_peak : float
+        That correlation.
+    ccf_bound : float
+        Its 99% bound for independent series.
+    """
+
+    bands: list
+    ljung_box_p: float
+    energy: float
+    energy_p: float
+    correlations: dict
+    ccf_lag_s: float
+    ccf_peak: float
+    ccf_bound: float
+
+    @property
+    def ratio(self) -> float:
+        """Overall RMS error over the noise floor."""
+        return self.bands[-1].ratio
+
+    def is_adequate(self, energy_tolerance: float = ENERGY_TOLERANCE,
+                    level_adequate: float = LEVEL_ADEQUATE) -> bool:
+        """Whether the residual is consistent with the noise (see :func:`is_adequate`).
+
+        Parameters
+        ----------
+        energy_tolerance : float
+            Largest excess of the whitened residual's mean square over 1.
+        level_adequate : float
+            Level of the Ljung-Box test.
+
+        Returns
+        -------
+        bool
+        """
+        return is_adequate(self.energy, self.ljung_box_p, energy_tolerance=energy_tolerance,
+                           level_adequate=level_adequate)
+
+    def describe(self) -> str:
+        """The signature in one or two plain sentences, from the numbers."""
+        bands = [b for b in self.bands[:-1] if b.n_samples > 0]
+        ratios = [b.ratio for b in bands]
+        overall = self.bands[-1]
+        text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS against a noise floor of "
+                f"{overall.floor_m * 1e6:.4g} µm ({overall.ratio:.3g}x)")
+        if len(bands) >= 2:
+            lo, hi = bands[0], bands[-1]
+            span = (f"from {lo.ratio:.3g}x the floor at {band_label(lo.band_hz)} to "
+                    f"{hi.ratio:.3g}x at {band_label(hi.band_hz)}")
+            if hi.ratio > 2.0 * lo.ratio:
+                text += f"; it grows with frequency, {span}"
+            elif lo.ratio > 2.0 * hi.ratio:
+                text += f"; it is largest at low frequency, {span}"
+            else:
+                text += (f"; it is spread over the whole chirp ({min(ratios):.3g}x to "
+                         f"{max(ratios):.3g}x the floor per band)")
+        text += "."
+        if self.correlations:
+            name, value = max(self.correlations.items(), key=lambda kv: abs(kv[1]))
+            text += f" The residual correlates most with the {name} (r = {value:+.2f})."
+        if abs(self.ccf_peak) > self.ccf_bound and self.ccf_lag_s > 0:
+            # residual = data - model; a response that trails the model's is
+            # x(t - tau) - x(t) ~ -tau dx/dt: negative against the command's rate
+            how = ("the measured response trails the model's, as if the pressure acted later "
+                   "than the model assumes" if self.ccf_peak < 0 else
+                   "the measured response runs ahead of the model's")
+            text += (f" The whitened residual still correlates with the rate of change of the "
+                     f"command {self.ccf_lag_s * 1e3:.0f} ms earlier (correlation "
+                     f"{self.ccf_peak:+.2f}, {abs(self.ccf_peak) / self.ccf_bound:.0f}x its 99% "
+                     f"bound): {how}.")
+        if self.ljung_box_p < 0.01:
+            text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
+        return text
+
+
+def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
+                       ) -> Signature:
+    """Measure the signature of a model's residual on the data.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        Data and noise model.
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+    sim : pmabayes.simulator.Simulation
+        The model's simulation (batch of one) with its states.
+    max_lag_s : float
+        Largest lag of the cross-correlation with the command's rate.
+
+    Returns
+    -------
+    Signature
+    """
+    ds = likelihood.dataset
+    x = sim.position_m[0]
+    r = likelihood.y_mean - x
+    e = innovations(likelihood, x, noise)
+    white = whiteness(e)
+    rate = np.gradient(ds.input[0], ds.time_s)
+    signals = {"position": x, "velocity": sim.velocity_m_s[0], "pressure": sim.pressure_pa[0],
+               "pressure rate": rate}
+    corr = {}
+    for name, s in signals.items():
+        if np.std(s) > 0 and np.std(r) > 0:
+            corr[name] = float(np.corrcoef(r, s)[0, 1])
+    max_lag = max(1, int(round(max_lag_s / ds.dt_s)))
+    lags_r, ccf_r, bound = cross_correlation(e, rate, max_lag=max_lag)
+    pos = lags_r >= 0
+    k = int(np.argmax(np.abs(ccf_r[pos])))
+    return Signature(
+        bands=band_errors(ds, x), ljung_box_p=white["ljung_box_p"], energy=white["energy"],
+        energy_p=white["energy_p"], correlations=corr,
+        ccf_lag_s=float(lags_r[pos][k] * ds.dt_s), ccf_peak=float(ccf_r[pos][k]),
+        ccf_bound=bound,
+    )
+
+
+def whiteness(e: np.ndarray) -> dict:
+    """Whiteness statistics of a whitened residual.
+
+    Parameters
+    ----------
+    e : numpy.ndarray
+        The whitened residual (:func:`innovations`).
+
+    Returns
+    -------
+    dict
+        ``ljung_box_p`` (Ljung-Box p-value, 25 lags), ``energy`` (mean square: 1
+        for pure noise) and ``energy_p`` (p-value of the energy against pure noise,
+        chi-squared, one-sided).
+    """
+    e = np.asarray(e, dtype=float)
+    energy = float(np.mean(e * e))
+    return {"ljung_box_p": ljung_box(e)[1], "energy": energy,
+            "energy_p": float(stats.chi2.sf(energy * e.size, e.size))}
+
+
+def is_adequate(energy: float, ljung_box_p: float, *,
+                energy_tolerance: float = ENERGY_TOLERANCE,
+                level_adequate: float = LEVEL_ADEQUATE) -> bool:
+    """The adequacy rule: the whitened residual is consistent with the noise.
+
+    Its mean square is within ``1 + energy_tolerance`` of pure noise and its
+    autocorrelation is not significant (Ljung-Box p at least ``level_adequate``).
+
+    Parameters
+    ----------
+    energy : float
+        Mean square of the whitened residual.
+    ljung_box_p : float
+        Its Ljung-Box p-value.
+    energy_tolerance : float
+        See :data:`ENERGY_TOLERANCE`.
+    level_adequate : float
+        See :data:`LEVEL_ADEQUATE`.
+
+    Returns
+    -------
+    bool
+    """
+    return bool(energy <= 1.0 + energy_tolerance and ljung_box_p >= level_adequate)
+
+
+@dataclass(frozen=True)
+class WhitenessCurves:
+    """Correlation curves of whitened residuals, one per model, for the whiteness figure.
+
+    Parameters
+    ----------
+    acf_lags_s : numpy.ndarray
+        Positive lags of the autocorrelation, in s.
+    acf : dict
+        Label to the autocorrelation at those lags.
+    ccf_lags_s : numpy.ndarray
+        Lags of the cross-correlation with the command's rate (both signs), in s.
+    ccf : dict
+        Label to the cross-correlation at those lags.
+    bound : float
+        Bound that a white, independent residual stays within at a fraction
+        ``level`` of the lags.
+    level : float
+        Confidence level of ``bound``.
+    """
+
+    acf_lags_s: np.ndarray
+    acf: dict
+    ccf_lags_s: np.ndarray
+    ccf: dict
+    bound: float
+    level: float
+
+
+def whiteness_curves(innovations: dict, command_rate: np.ndarray, dt_s: float, *,
+                     max_lag_s: float = 0.2, level: float = 0.99) -> WhitenessCurves:
+    """Autocorrelation and cross-correlation with the command's rate of whitened residuals.
+
+    Parameters
+    ----------
+    innovations : dict
+        Label to whitened residual (:func:`innovations`), one per model; all of one
+        length.
+    command_rate : numpy.ndarray
+        Rate of change of the commanded input.
+    dt_s : float
+        Sample interval.
+    max_lag_s : float
+        Largest lag.
+    level : float
+        Confidence level of the bound.
+
+    Returns
+    -------
+    WhitenessCurves
+    """
+    max_lag = max(1, int(round(max_lag_s / dt_s)))
+    acf, ccf = {}, {}
+    lags = lags_c = np.arange(1, max_lag + 1)
+    bound = 0.0
+    for label, e in innovations.items():
+        lags, acf[label], bound = autocorrelation(e, max_lag=max_lag, level=level)
+        lags_c, ccf[label], _ = cross_correlation(e, command_rate, max_lag=max_lag, level=level)
+    return WhitenessCurves(acf_lags_s=lags * dt_s, acf=acf, ccf_lags_s=lags_c * dt_s, ccf=ccf,
+                           bound=float(bound), level=float(level))
+
+
+@dataclass(frozen=True)
+class Adequacy:
+    """Whether a fitted model describes the data, in numbers and words.
+
+    Convergence of a sampler says that the posterior of the model is well
+    sampled; this says whether the model itself fits. A report or a command prints
+    :meth:`lines` beside the convergence check.
+
+    Parameters
+    ----------
+    adequate : bool or None
+        The rule of :func:`is_adequate`; None when the whitened residual could not
+        be computed (no noise estimate).
+    rms_m : float
+        RMS of the trial mean minus the model.
+    floor_m : float
+        Noise floor: the RMS a perfect model would have.
+    energy : float or None
+        Mean square of the whitened residual (1 for pure noise).
+    ljung_box_p : float or None
+        Ljung-Box p-value of the whitened residual.
+    coverage : float or None
+        Fraction of the measured samples inside the central posterior predictive
+        band of probability ``ci_prob``, when known.
+    ci_prob : float
+        Probability of that band.
+    next_command : str
+        The command that diagnoses what is missing (``pmabayes diagnose DATA``).
+    energy_tolerance : float
+        Tolerance used for ``adequate``.
+    level_adequate : float
+        Ljung-Box level used for ``adequate``.
+    """
+
+    adequate: bool | None
+    rms_m: float
+    floor_m: float
+    energy: float | None
+    ljung_box_p: float | None
+    coverage: float | None = None
+    ci_prob: float = 0.9
+    next_command: str = ""
+    energy_tolerance: float = ENERGY_TOLERANCE
+    level_adequate: float = LEVEL_ADEQUATE
+
+    @property
+    def ratio(self) -> float:
+        """``rms_m / floor_m``: about 1 for a model that describes the data."""
+        return self.rms_m / self.floor_m if self.floor_m > 0 else math.inf
+
+    @property
+    def headline(self) -> str:
+        """``MODEL INADEQUATE``, ``Model adequate`` or ``Model adequacy unknown``."""
+        if self.adequate is None:
+            return "Model adequacy unknown"
+        return "Model adequate" if self.adequate else "MODEL INADEQUATE"
+
+    def evidence(self) -> str:
+        """The numbers behind the verdict in one sentence."""
+        text = (f"the error of the trial mean is {self.ratio:.3g}x the noise floor (RMS "
+                f"{self.rms_m * 1e6:.4g} µm against {self.floor_m * 1e6:.4g} µm)")
+        if self.energy is not None:
+            text += (f"; the whitened residual's energy is {self.energy:.3g} (1 for pure "
+                     f"noise, at most {1 + self.energy_tolerance:g} allowed) and its "
+                     f"Ljung-Box {_p_text(self.ljung_box_p)} (at least "
+                     f"{self.level_adequate:g} needed)")
+        if self.coverage is not None:
+            text += (f"; {self.coverage:.1%} of the data lie inside the {self.ci_prob:.0%} "
+                     "posterior predictive band")
+        return text
+
+    def advice(self) -> list[str]:
+        """What the verdict means, in sentences (none for an adequate model).
+
+        Returns
+        -------
+        list of str
+        """
+        if self.adequate is None:
+            return ["The fit holds no noise estimate, so the whitened residual cannot be "
+                    "judged."]
+        if self.adequate is False:
+            return ["The sampler's convergence is not the model's fit: the intervals are "
+                    "those of a model that the data reject."]
+        return []
+
+    @property
+    def next_step(self) -> str | None:
+        """The command to run next: ``next_command`` unless the model is adequate."""
+        return self.next_command if self.adequate is not True and self.next_command else None
+
+    def lines(self) -> list[str]:
+        """The verdict as lines of text, for a terminal.
+
+        Returns
+        -------
+        list of str
+            The headline with the evidence; for an inadequate model, what it
+            means and the next command (``Next: pmabayes diagnose DATA``).
+        """
+        out = [f"{self.headline}: {self.evidence()}.", *self.advice()]
+        return out + ([f"Next: {self.next_step}"] if self.next_step else [])
+
+    def to_dict(self) -> dict:
+        """JSON-ready values.
+
+        Returns
+        -------
+        dict
+        """
+        return {"adequate": self.adequate, "rms_m": self.rms_m, "floor_m": self.floor_m,
+                "ratio": self.ratio, "energy": self.energy, "ljung_box_p": self.ljung_box_p,
+                "coverage": self.coverage, "ci_prob": self.ci_prob,
+                "next_command": self.next_command, "energy_tolerance": self.energy_tolerance,
+                "level_adequate": self.level_adequate}
+
+
+def _p_text(p: float) -> str:
+    return "p < 1e-15" if p < 1e-15 else f"p = {p:.2g}"  # not "p = 0" after underflow
+
+
+def check_adequacy(
+    likelihood: Likelihood,
+    model_position_m: np.ndarray,
+    noise=None,
+    *,
+    coverage: float | None = None,
+    ci_prob: float = 0.9,
+    next_command: str = "",
+) -> Adequacy:
+    """Judge whether a model output describes the data (the rule of :func:`is_adequate`).
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        The data and its noise model.
+    model_position_m : numpy.ndarray
+        Model output on the data's time grid, ``(n_samples,)``.
+    noise : object, optional
+        Identified noise (``sigma``, ``rho``, ``white``); without it the whitened
+        residual is not computed and the verdict is unknown.
+    coverage : float, optional
+        Fraction of the data inside the posterior predictive band, to quote.
+    ci_prob : float
+        Probability of that band.
+    next_command : str
+        The command that diagnoses the model, to quote when it is not adequate.
+
+    Returns
+    -------
+    Adequacy
+        With the default tolerance and level (:data:`ENERGY_TOLERANCE`,
+        :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnose` uses.
+    """
+    x = np.asarray(model_position_m, dtype=float).reshape(-1)
+    overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
+    energy = lb_p = adequate = None
+    if noise is not None:
+        white = whiteness(innovations(likelihood, x, noise))
+        energy, lb_p = white["energy"], white["ljung_box_p"]
+        adequate = is_adequate(energy, lb_p)
+    return Adequacy(adequate=adequate, rms_m=overall.rms_m, floor_m=overall.floor_m,
+                    energy=energy, ljung_box_p=lb_p, coverage=coverage, ci_prob=ci_prob,
+                    next_command=next_command)
