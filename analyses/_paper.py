@@ -28,8 +28,9 @@ if str(ROOT) not in sys.path:  # run from a checkout without installing the pack
 import xarray as xr  # noqa: E402
 
 from pmabayes.data import Dataset, load  # noqa: E402
+from pmabayes.effects import registered_effects  # noqa: E402
 from pmabayes.fit import FitSettings, fit  # noqa: E402
-from pmabayes.model import Model  # noqa: E402
+from pmabayes.model import BASE_PARAMETERS, Model  # noqa: E402
 from pmabayes.posterior import load_fit, save_fit  # noqa: E402
 from pmabayes.synthetic import Chirp, generate_chirp_dataset  # noqa: E402
 
@@ -92,9 +93,25 @@ def tex_escape(text: str) -> str:
             out.append(r"\textbackslash{}")
         elif ch == "µ":
             out.append(r"\textmu{}")
+        elif ch == "³":
+            out.append(r"\textthreesuperior{}")
         else:
             out.append(ch)
     return "".join(out)
+
+
+def symbol(name: str) -> str:
+    """LaTeX symbol of a base or effect parameter, in math mode without the ``$``.
+
+    Taken from the parameter's :attr:`pmabayes.Parameter.latex`, so the paper shows
+    the symbols the package declares (the name, escaped, where none is declared).
+    """
+    params = [*BASE_PARAMETERS, *(q for e in registered_effects().values()
+                                  for q in e.parameters)]
+    for q in params:
+        if q.name == name:
+            return q.latex or r"\mathrm{" + tex_escape(q.name) + "}"
+    raise KeyError(f"no base or registered effect parameter is called {name!r}")
 
 
 def sig(value: float, digits: int = 3) -> str:
