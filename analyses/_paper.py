@@ -30,6 +30,7 @@ import xarray as xr  # noqa: E402
 from pmabayes.data import Dataset, load  # noqa: E402
 from pmabayes.effects import registered_effects  # noqa: E402
 from pmabayes.fit import FitSettings, fit  # noqa: E402
+from pmabayes.likelihood import NOISE_PARAMETERS  # noqa: E402
 from pmabayes.model import BASE_PARAMETERS, Model  # noqa: E402
 from pmabayes.posterior import load_fit, save_fit  # noqa: E402
 from pmabayes.synthetic import Chirp, generate_chirp_dataset  # noqa: E402
@@ -101,17 +102,17 @@ def tex_escape(text: str) -> str:
 
 
 def symbol(name: str) -> str:
-    """LaTeX symbol of a base or effect parameter, in math mode without the ``$``.
+    """LaTeX symbol of a base, effect or noise parameter, in math mode without the ``$``.
 
     Taken from the parameter's :attr:`pmabayes.Parameter.latex`, so the paper shows
     the symbols the package declares (the name, escaped, where none is declared).
     """
-    params = [*BASE_PARAMETERS, *(q for e in registered_effects().values()
-                                  for q in e.parameters)]
+    params = [*BASE_PARAMETERS, *NOISE_PARAMETERS,
+              *(q for e in registered_effects().values() for q in e.parameters)]
     for q in params:
         if q.name == name:
             return q.latex or r"\mathrm{" + tex_escape(q.name) + "}"
-    raise KeyError(f"no base or registered effect parameter is called {name!r}")
+    raise KeyError(f"no base, noise or registered effect parameter is called {name!r}")
 
 
 def sig(value: float, digits: int = 3) -> str:

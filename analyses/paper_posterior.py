@@ -26,22 +26,16 @@ from pmabayes.model import PAPER_VALUES
 from pmabayes.posterior import fit_info
 from pmabayes.report import pair_figure, summary_table
 
-#: display unit and factor from SI of each model parameter (symbols: Parameter.latex)
+#: display unit and factor from SI of each posterior variable (symbols: Parameter.latex)
 UNITS = {"alpha": ("N/m", 1.0), "beta": ("1/m", 1.0), "gamma": ("1/m", 1.0),
-         "d": ("N\\,s/m", 1.0), "K_e": ("N/m", 1.0), "p_dz": ("kPa", 1e-3)}
-#: symbol, display unit and factor from SI of the noise (not model parameters)
-NOISE = {
-    "sigma_noise_m": (r"$\sigma_{\mathrm{AR}}$", "\\textmu m", 1e6),
-    "rho_noise": (r"$\rho$", "--", 1.0),
-    "sigma_white_m": (r"$\sigma_{\mathrm{w}}$", "\\textmu m", 1e6),
-}
+         "d": ("N\\,s/m", 1.0), "K_e": ("N/m", 1.0), "p_dz": ("kPa", 1e-3),
+         "sigma_noise_m": ("\\textmu m", 1e6), "rho_noise": ("--", 1.0),
+         "sigma_white_m": ("\\textmu m", 1e6)}
 
 
 def _display(row: dict) -> tuple[str, str, float]:
     """Symbol, unit and factor from SI of one summary row."""
     name = row["name"]
-    if name in NOISE:
-        return NOISE[name]
     unit, k = UNITS.get(name, (row["unit"], 1.0))
     try:
         return f"${symbol(name)}$", unit, k
