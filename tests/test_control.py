@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 import pytest
 import xarray as xr
+from conftest import fake_fit
 
 import pmabayes.robustness as robustness
 from pmabayes import Model, Rig, simulate
@@ -29,7 +30,6 @@ from pmabayes.control import (
     tune_gains,
 )
 from pmabayes.plots import plot_figure5, plot_robustness, plt
-from pmabayes.posterior import save_fit
 from pmabayes.reproduction import figure5, paper_claims
 from pmabayes.robustness import (
     posterior_mean,
@@ -39,21 +39,6 @@ from pmabayes.robustness import (
 )
 
 CONTROL = Model(rig=Rig.control())
-
-
-def fake_fit(path, *, spread=0.01, n_chain=4, n_draw=25, seed=0, effects=(), values=None):
-    """A fit file with the layout of `pmabayes fit`, draws scattered around the paper's values."""
-    rng = np.random.default_rng(seed)
-    model = Model(list(effects))
-    centre = {**model.defaults, **(values or {})}
-    post = {n: (("chain", "draw"), centre[n] * (1 + spread * rng.standard_normal(
-        (n_chain, n_draw)))) for n in model.free_names}
-    post["sigma_noise_m"] = (("chain", "draw"), np.full((n_chain, n_draw), 5e-5))
-    tree = xr.DataTree.from_dict({"posterior": xr.Dataset(post)})
-    tree.attrs["pmabayes"] = json.dumps({"model": {
-        "effects": list(effects), "rig": Rig.characterisation().to_dict(),
-        "free": list(model.free_names), "fixed": dict(model.fixed)}})
-    return save_fit(tree, path)
 
 
 # -- the operating point ------------------------------------------------------------
