@@ -123,7 +123,7 @@ def sig(value: float, digits: int = 3) -> str:
     if value == 0.0:
         return "0"
     e = math.floor(math.log10(abs(value)))
-    if -4 <= e < 6:
+    if -4 <= e < 5:  # up to 99 999: larger values read better beside their 10^k peers
         decimals = max(digits - 1 - e, 0)
         return f"{value:.{decimals}f}"
     mant = value / 10.0**e
