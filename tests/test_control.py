@@ -151,6 +151,7 @@ def test_multirate_timing():
     assert np.all(np.nonzero(np.diff(run.measured_m[0]))[0] % 10 == 9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effects,params", [
     ([], {}),
     (["regulator_lag", "coulomb_friction", "position_offset"],
@@ -168,6 +169,7 @@ def test_closed_loop_plant_equals_open_loop_replay(effects, params, controller):
                                atol=1e-12)
 
 
+@pytest.mark.slow
 def test_controller_model_sets_the_prediction_of_computed_torque():
     plant = Model(["regulator_lag"], rig=Rig.control())
     a = closed_loop("ct", 1.0, model=plant, params={"tau_reg": 0.045}, controller_model=CONTROL,
@@ -215,6 +217,7 @@ def test_metrics_window_is_whole_periods_after_startup():
 # -- gains --------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["ct", "pid"])
 def test_gain_rule_reproduces_the_defaults(controller):
     with warnings.catch_warnings():
@@ -373,6 +376,7 @@ def test_sweep_on_local_processes_equals_one_process(tmp_path):
         np.testing.assert_array_equal(a[m].values, b[m].values)
 
 
+@pytest.mark.slow
 def test_sweep_on_dask_equals_local(tmp_path):
     distributed = pytest.importorskip("distributed")
     path = fake_fit(tmp_path / "fit.nc")
@@ -411,6 +415,7 @@ def test_sweep_modes_draw_the_right_side(tmp_path, monkeypatch, mode):
         np.testing.assert_array_equal(theta_controller, drawn)
 
 
+@pytest.mark.slow
 def test_sweep_tunes_both_controllers_on_the_posterior_mean(tmp_path):
     from pmabayes.posterior import load_fit
 
@@ -549,6 +554,7 @@ def test_cli_errors(argv, message, capsys):
     assert len(err) == 1 and message in err[0]
 
 
+@pytest.mark.slow
 def test_cli_robustness_and_track_with_a_fit(tmp_path, capsys):
     path = fake_fit(tmp_path / "fit.nc")
     assert main(["robustness", str(path), "--samples", "2", "--freqs", "0.5", "1",

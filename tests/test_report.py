@@ -207,6 +207,7 @@ def test_report_html_content_not_converged(bad_report, bad_fit):
     assert "23.7" in text  # paper's alpha (%.4g)
 
 
+@pytest.mark.slow
 def test_report_html_content_converged(good_report):
     text = _html(good_report)
     assert "NOT CONVERGED" not in text and "not-converged" not in text
@@ -245,6 +246,7 @@ def test_predictive_quantiles_blockwise(monkeypatch):
     np.testing.assert_allclose(got, want, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
