@@ -28,8 +28,10 @@ if str(ROOT) not in sys.path:  # run from a checkout without installing the pack
 import xarray as xr  # noqa: E402
 
 from pmabayes.data import Dataset, load  # noqa: E402
+from pmabayes.effects import registered_effects  # noqa: E402
 from pmabayes.fit import FitSettings, fit  # noqa: E402
-from pmabayes.model import Model  # noqa: E402
+from pmabayes.likelihood import NOISE_PARAMETERS  # noqa: E402
+from pmabayes.model import BASE_PARAMETERS, Model  # noqa: E402
 from pmabayes.posterior import load_fit, save_fit  # noqa: E402
 from pmabayes.synthetic import Chirp, generate_chirp_dataset  # noqa: E402
 
@@ -92,9 +94,25 @@ def tex_escape(text: str) -> str:
             out.append(r"\textbackslash{}")
         elif ch == "µ":
             out.append(r"\textmu{}")
+        elif ch == "³":
+            out.append(r"\textthreesuperior{}")
         else:
             out.append(ch)
     return "".join(out)
+
+
+def symbol(name: str) -> str:
+    """LaTeX symbol of a base, effect or noise parameter, in math mode without the ``$``.
+
+    Taken from the parameter's :attr:`pmabayes.Parameter.latex`, so the paper shows
+    the symbols the package declares (the name, escaped, where none is declared).
+    """
+    params = [*BASE_PARAMETERS, *NOISE_PARAMETERS,
+              *(q for e in registered_effects().values() for q in e.parameters)]
+    for q in params:
+        if q.name == name:
+            return q.latex or r"\mathrm{" + tex_escape(q.name) + "}"
+    raise KeyError(f"no base, noise or registered effect parameter is called {name!r}")
 
 
 def sig(value: float, digits: int = 3) -> str:
@@ -105,7 +123,7 @@ def sig(value: float, digits: int = 3) -> str:
     if value == 0.0:
         return "0"
     e = math.floor(math.log10(abs(value)))
-    if -4 <= e < 6:
+    if -4 <= e < 5:  # up to 99 999: larger values read better beside their 10^k peers
         decimals = max(digits - 1 - e, 0)
         return f"{value:.{decimals}f}"
     mant = value / 10.0**e

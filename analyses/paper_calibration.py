@@ -24,12 +24,34 @@ import csv
 import sys
 import time
 
-from _paper import QUICK_SETTINGS, Numbers, out_dirs, parser, sig
+from _paper import QUICK_SETTINGS, Numbers, out_dirs, parser, sig, symbol
 
 from pmabayes.synthetic import Chirp
 
-SYMBOL = {"alpha": r"$\alpha$", "beta": r"$\beta$", "gamma": r"$\gamma$", "d": r"$d$",
-          "K_e": r"$K_e$", "p_dz": r"$p_{dz}$"}
+
+def calibration_table(coverage: dict[str, float], z_rms: dict[str, float], n: int) -> str:
+    """The booktabs ``tabular`` of the coverage and RMS of ``z`` per parameter.
+
+    Parameters
+    ----------
+    coverage : dict
+        Fraction of the ``n`` data sets whose 90% HDI covers the truth, per parameter.
+    z_rms : dict
+        RMS over the data sets of the standardised error, per parameter.
+    n : int
+        Number of data sets.
+
+    Returns
+    -------
+    str
+        LaTeX source of the ``tabular``.
+    """
+    body = [f"${symbol(k)}$ & {round(c * n)}/{n} ({100 * c:.0f}\\%) & {z_rms[k]:.2f} \\\\"
+            for k, c in coverage.items()]
+    table = [r"\begin{tabular}{lrr}", r"\toprule",
+             r"parameter & 90\% HDI covers truth & RMS of $z$ \\", r"\midrule", *body,
+             r"\bottomrule", r"\end{tabular}"]
+    return "\n".join(table) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,13 +80,8 @@ def main(argv: list[str] | None = None) -> int:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    body = [f"{SYMBOL[k]} & {round(c * n)}/{n} ({100 * c:.0f}\\%) & {spread[k]:.2f} \\\\"
-            for k, c in cov.items()]
-    table = [r"\begin{tabular}{lrr}", r"\toprule",
-             r"parameter & 90\% HDI covers truth & RMS of $z$ \\", r"\midrule", *body,
-             r"\bottomrule", r"\end{tabular}"]
     path = tables / "calibration.tex"
-    path.write_text("\n".join(table) + "\n")
+    path.write_text(calibration_table(cov, spread, n))
     n_conv = len({r["dataset"] for r in rows if r["converged"]})
     nums = Numbers("calibration", args.quick)
     nums.add("pbCalDatasets", n)

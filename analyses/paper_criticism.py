@@ -37,6 +37,7 @@ from _paper import (
     parser,
     pval,
     sig,
+    symbol,
     tex_escape,
 )
 
@@ -52,10 +53,10 @@ from pmabayes.posterior import fit_info
 
 #: at most this many effects are added (the library could in principle keep going)
 MAX_STEPS = 3
-#: how each parameter of an effect is shown: LaTeX name, unit, factor from SI, digits
-SHOWN = {"tau_reg": (r"\tau_{\mathrm{reg}}", "ms", 1e3, 4), "F_c": ("F_c", "N", 1.0, 3),
-         "t_delay": (r"t_{\mathrm{delay}}", "ms", 1e3, 3), "x_offset": ("x_0", "µm", 1e6, 3),
-         "K3": ("K_3", "N/m$^3$", 1.0, 3), "K_p": ("K_p", "N/(m Pa)", 1.0, 3)}
+#: how each parameter of an effect is shown: unit, factor from SI, digits (the symbol
+#: is the parameter's own, Parameter.latex)
+SHOWN = {"tau_reg": ("ms", 1e3, 4), "F_c": ("N", 1.0, 3), "t_delay": ("ms", 1e3, 3),
+         "x_offset": ("µm", 1e6, 3), "K3": ("N/m³", 1.0, 3), "K_p": ("N/(m Pa)", 1.0, 3)}
 WORDS = ("Zero", "One", "Two", "Three")
 #: quick mode: one refit per step and fewer Laplace draws (the defaults are 3 and 400)
 QUICK_DIAGNOSE = {"max_refits": 1, "n_draws": 100}
@@ -75,9 +76,9 @@ def _estimate_text(finding) -> str:
     for name, value in finding.estimate.items():
         if name not in SHOWN or name not in finding.interval:
             continue
-        sym, unit, k, digits = SHOWN[name]
+        unit, k, digits = SHOWN[name]
         lo, hi = finding.interval[name]
-        parts.append(f"${sym} = {sig(value * k, digits)}$ {tex_escape(unit)} "
+        parts.append(f"${symbol(name)} = {sig(value * k, digits)}$ {tex_escape(unit)} "
                      f"[{sig(lo * k, digits)}, {sig(hi * k, digits)}]")
     return "; ".join(parts)
 
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     final = trees[-1]
     post = final["posterior"]
     for name in ("tau_reg", "F_c"):  # the two the text discusses; n/a if not in the model
-        _sym, _unit, k, digits = SHOWN[name]
+        _unit, k, digits = SHOWN[name]
         macro = "".join(ch for ch in name.title() if ch.isalpha())
         if name in post:
             hdi = az.hdi(final, prob=0.9)[name].values

@@ -19,25 +19,28 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from _paper import Numbers, cached_fit, out_dirs, paper_dataset, parser, sig
+from _paper import Numbers, cached_fit, out_dirs, paper_dataset, parser, sig, symbol, tex_escape
 
 from pmabayes.fit import FitSettings
 from pmabayes.model import PAPER_VALUES
 from pmabayes.posterior import fit_info
 from pmabayes.report import pair_figure, summary_table
 
-#: LaTeX symbol, display unit and factor from SI for each posterior variable
-DISPLAY = {
-    "alpha": (r"$\alpha$", "N/m", 1.0),
-    "beta": (r"$\beta$", "1/m", 1.0),
-    "gamma": (r"$\gamma$", "1/m", 1.0),
-    "d": (r"$d$", "N\\,s/m", 1.0),
-    "K_e": (r"$K_e$", "N/m", 1.0),
-    "p_dz": (r"$p_{dz}$", "kPa", 1e-3),
-    "sigma_noise_m": (r"$\sigma_{\mathrm{AR}}$", "\\textmu m", 1e6),
-    "rho_noise": (r"$\rho$", "--", 1.0),
-    "sigma_white_m": (r"$\sigma_{\mathrm{w}}$", "\\textmu m", 1e6),
-}
+#: display unit and factor from SI of each posterior variable (symbols: Parameter.latex)
+UNITS = {"alpha": ("N/m", 1.0), "beta": ("1/m", 1.0), "gamma": ("1/m", 1.0),
+         "d": ("N\\,s/m", 1.0), "K_e": ("N/m", 1.0), "p_dz": ("kPa", 1e-3),
+         "sigma_noise_m": ("\\textmu m", 1e6), "rho_noise": ("--", 1.0),
+         "sigma_white_m": ("\\textmu m", 1e6)}
+
+
+def _display(row: dict) -> tuple[str, str, float]:
+    """Symbol, unit and factor from SI of one summary row."""
+    name = row["name"]
+    unit, k = UNITS.get(name, (row["unit"], 1.0))
+    try:
+        return f"${symbol(name)}$", unit, k
+    except KeyError:  # not a parameter of the package: its name
+        return tex_escape(name), unit, k
 
 
 def _fmt(value: float | None, digits: int = 5) -> str:
@@ -63,7 +66,7 @@ def posterior_table(rows: list[dict]) -> str:
            r"par. & unit & paper & mean & sd & 90\% HDI & $\hat R_{\mathrm{ens}}$ \\",
            r"\midrule"]
     for r in rows:
-        sym, unit, k = DISPLAY.get(r["name"], (r["name"].replace("_", r"\_"), r["unit"], 1.0))
+        sym, unit, k = _display(r)
         paper = None if r["paper"] is None else r["paper"] * k
         hdi = f"[{sig(r['hdi_low'] * k, 5)}, {sig(r['hdi_high'] * k, 5)}]"
         rhat = r["r_hat_ensembles"]
@@ -111,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     nums.add("pbPostPaperInside", inside)
     nums.add("pbPostRelSdMin", sig(100 * min(rel.values()), 2))
     nums.add("pbPostRelSdMax", sig(100 * max(rel.values()), 2))
-    nums.add("pbPostRelSdMaxName", DISPLAY[max(rel, key=rel.get)][0])
+    nums.add("pbPostRelSdMaxName", f"${symbol(max(rel, key=rel.get))}$")
     nums.add("pbPostCorrAlphaGamma", f"{corr_ag:.3f}")
     nums.add("pbPostCorrKePdz", f"{corr_kp:.2f}")
     nums.add("pbPostBetaGammaMean", sig(bg.mean(), 4))

@@ -10,6 +10,7 @@ from pmabayes.cli import main
 from pmabayes.data import read_csv
 
 
+@pytest.mark.slow
 def test_simulate_noise_none_is_exact(tmp_path):
     out = tmp_path / "sim.csv"
     assert main(["simulate", str(out), "--trials", "2", "--noise", "none",
@@ -20,6 +21,7 @@ def test_simulate_noise_none_is_exact(tmp_path):
     assert ds.metadata["synthetic"] is True
 
 
+@pytest.mark.slow
 def test_simulate_with_effects_and_seed(tmp_path):
     args = ["--trials", "2", "--duration", "2", "--seed", "3",
             "--effect", "regulator_lag=0.03", "--effect", "coulomb_friction.F_c=0.5"]
@@ -91,6 +93,7 @@ pb.register_effect(CliStiction)
 '''
 
 
+@pytest.mark.slow
 def test_plugin_effect_works_like_a_builtin(tmp_path):
     plugin = tmp_path / "my_effects.py"
     plugin.write_text(PLUGIN)
@@ -107,6 +110,7 @@ def test_plugin_effect_works_like_a_builtin(tmp_path):
     assert summary["rms_m"] < 1e-9  # the right model on noise-free data
 
 
+@pytest.mark.slow
 def test_fit_then_report_then_resume(tmp_path, capsys):
     data = tmp_path / "d.csv"
     main(["simulate", str(data), "--trials", "3", "--duration", "3", "--seed", "4"])
@@ -129,6 +133,7 @@ def test_fit_then_report_then_resume(tmp_path, capsys):
     assert fit_info(load_fit(fit_path))["convergence"]["resumed"] is True
 
 
+@pytest.mark.slow
 def test_run_is_fit_plus_report(tmp_path):
     data = tmp_path / "d.csv"
     main(["simulate", str(data), "--trials", "3", "--duration", "3", "--seed", "5"])
@@ -178,6 +183,7 @@ def offset_data(tmp_path_factory):
     return data
 
 
+@pytest.mark.slow
 def test_diagnose_writes_json_and_page(offset_data, tmp_path, capsys):
     out, js = tmp_path / "diag", tmp_path / "diag.json"
     assert main(["diagnose", str(offset_data), "--out", str(out), "--json", str(js),
@@ -200,6 +206,7 @@ def test_diagnose_writes_json_and_page(offset_data, tmp_path, capsys):
     assert summary["adequate"] is True and summary["missing"] is None
 
 
+@pytest.mark.slow
 def test_compare_two_fits(offset_data, tmp_path, capsys):
     fits = []
     for effects in ("", "position_offset"):

@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 import pytest
 import xarray as xr
+from conftest import fake_fit
 
 import pmabayes.robustness as robustness
 from pmabayes import Effect, HalfNormal, Model, Normal, Parameter, Rig, simulate
@@ -32,7 +33,6 @@ from pmabayes.control import (
     tune_gains,
 )
 from pmabayes.plots import plot_figure5, plot_robustness, plt
-from pmabayes.posterior import save_fit
 from pmabayes.reproduction import figure5, paper_claims
 from pmabayes.robustness import (
     posterior_mean,
@@ -42,21 +42,6 @@ from pmabayes.robustness import (
 )
 
 CONTROL = Model(rig=Rig.control())
-
-
-def fake_fit(path, *, spread=0.01, n_chain=4, n_draw=25, seed=0, effects=(), values=None):
-    """A fit file with the layout of `pmabayes fit`, draws scattered around the paper's values."""
-    rng = np.random.default_rng(seed)
-    model = Model(list(effects))
-    centre = {**model.defaults, **(values or {})}
-    post = {n: (("chain", "draw"), centre[n] * (1 + spread * rng.standard_normal(
-        (n_chain, n_draw)))) for n in model.free_names}
-    post["sigma_noise_m"] = (("chain", "draw"), np.full((n_chain, n_draw), 5e-5))
-    tree = xr.DataTree.from_dict({"posterior": xr.Dataset(post)})
-    tree.attrs["pmabayes"] = json.dumps({"model": {
-        "effects": list(effects), "rig": Rig.characterisation().to_dict(),
-        "free": list(model.free_names), "fixed": dict(model.fixed)}})
-    return save_fit(tree, path)
 
 
 # -- the operating point ------------------------------------------------------------
@@ -169,6 +154,7 @@ def test_multirate_timing():
     assert np.all(np.nonzero(np.diff(run.measured_m[0]))[0] % 10 == 9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effects,params", [
     ([], {}),
     (["regulator_lag", "coulomb_friction", "position_offset"],
@@ -186,6 +172,7 @@ def test_closed_loop_plant_equals_open_loop_replay(effects, params, controller):
                                atol=1e-12)
 
 
+@pytest.mark.slow
 def test_controller_model_sets_the_prediction_of_computed_torque():
     plant = Model(["regulator_lag"], rig=Rig.control())
     a = closed_loop("ct", 1.0, model=plant, params={"tau_reg": 0.045}, controller_model=CONTROL,
@@ -373,6 +360,7 @@ def test_metrics_window_is_whole_periods_after_startup():
 # -- gains --------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("controller", ["ct", "pid"])
 def test_gain_rule_reproduces_the_defaults(controller):
     with warnings.catch_warnings():
@@ -531,6 +519,7 @@ def test_sweep_on_local_processes_equals_one_process(tmp_path):
         np.testing.assert_array_equal(a[m].values, b[m].values)
 
 
+@pytest.mark.slow
 def test_sweep_on_dask_equals_local(tmp_path):
     distributed = pytest.importorskip("distributed")
     path = fake_fit(tmp_path / "fit.nc")
@@ -569,6 +558,7 @@ def test_sweep_modes_draw_the_right_side(tmp_path, monkeypatch, mode):
         np.testing.assert_array_equal(theta_controller, drawn)
 
 
+@pytest.mark.slow
 def test_sweep_tunes_both_controllers_on_the_posterior_mean(tmp_path):
     from pmabayes.posterior import load_fit
 
@@ -707,6 +697,7 @@ def test_cli_errors(argv, message, capsys):
     assert len(err) == 1 and message in err[0]
 
 
+@pytest.mark.slow
 def test_cli_robustness_and_track_with_a_fit(tmp_path, capsys):
     path = fake_fit(tmp_path / "fit.nc")
     assert main(["robustness", str(path), "--samples", "2", "--freqs", "0.5", "1",

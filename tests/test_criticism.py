@@ -141,6 +141,7 @@ def test_nothing_flagged_without_a_hidden_effect():
     assert {e.effect for e in ranked} == set(BUILTINS)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("hidden", "name", "truth"),
     [
@@ -159,6 +160,7 @@ def test_a_hidden_effect_ranks_first_and_is_significant(hidden, name, truth):
         assert top.estimate[param] == pytest.approx(value, rel=0.1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("hidden", [{"regulator_lag": 0.045}, {"transport_delay": 0.02}])
 def test_lag_and_delay_are_flagged_together(hidden):
     """Same first-order signature: both top the ranking, nearly tied (documented)."""
@@ -187,6 +189,7 @@ class CritQuadraticDrag(pb.Effect):
 pb.register_effect(CritQuadraticDrag)
 
 
+@pytest.mark.slow
 def test_a_hidden_user_effect_is_found():
     from pmabayes.criticism import rank_effects
     from pmabayes.fit import Posterior, find_map
@@ -224,6 +227,7 @@ def diagnosis(ds, effects=(), candidates=BUILTINS, **kw):
     return diagnose(ds, effects=effects, candidates=candidates, seed=0, **kw)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "value", "param"), HIDDEN)
 def test_a_hidden_effect_is_found_added_and_the_error_falls_to_the_floor(name, value, param):
     ds = generate_chirp_dataset(n_trials=6, seed=3, chirp=RANK_CHIRP, effects={name: value})
@@ -243,6 +247,7 @@ def test_a_hidden_effect_is_found_added_and_the_error_falls_to_the_floor(name, v
     assert after.rms_m < 0.5 * before.rms_m
 
 
+@pytest.mark.slow
 def test_two_hidden_effects_are_found_one_after_the_other_then_the_loop_stops():
     ds = generate_chirp_dataset(n_trials=6, seed=7, chirp=RANK_CHIRP,
                                 effects={"regulator_lag": 0.045, "coulomb_friction": 0.8})
@@ -258,6 +263,7 @@ def test_two_hidden_effects_are_found_one_after_the_other_then_the_loop_stops():
     assert rms[0] > rms[1] > rms[2]
 
 
+@pytest.mark.slow
 def test_no_hidden_effect_nothing_flagged():
     ds = generate_chirp_dataset(n_trials=6, seed=8, chirp=RANK_CHIRP)
     d = diagnosis(ds)
@@ -287,6 +293,7 @@ class TestRailRipple(pb.Effect):
     physics = staticmethod(_ripple)
 
 
+@pytest.mark.slow
 def test_an_effect_outside_the_library_is_flagged_but_not_attributed():
     from pmabayes.synthetic import MeasurementNoise
 
@@ -304,6 +311,7 @@ def test_an_effect_outside_the_library_is_flagged_but_not_attributed():
     assert "no candidate is named" in d.verdict
 
 
+@pytest.mark.slow
 def test_a_hidden_user_effect_is_diagnosed():
     ds = generate_chirp_dataset(n_trials=6, seed=4, chirp=RANK_CHIRP,
                                 effects={"crit_quadratic_drag": 300.0})

@@ -117,6 +117,7 @@ def test_noise_estimate_recovers_the_generator():
     assert abs(np.log(noise.white / 5e-6)) < 3 * sd[2]
 
 
+@pytest.mark.slow
 def test_noise_comes_from_repeatability_not_model_error():
     """A model that cannot describe the data does not get its error called noise."""
     lab = generate_chirp_dataset(n_trials=4, seed=4, chirp=CHIRP,
@@ -134,6 +135,7 @@ def test_noise_comes_from_repeatability_not_model_error():
     assert gen["disturbance_std_m"] == 60e-6
 
 
+@pytest.mark.slow
 def test_recovery_on_the_bundled_data():
     """The 90% HDI of every base parameter covers the value that generated the
     bundled data set (10 trials of the paper's 15 s chirp)."""
@@ -151,6 +153,7 @@ def test_recovery_on_the_bundled_data():
         assert lo <= truth[name] <= hi, (name, lo, hi, truth[name])
 
 
+@pytest.mark.slow
 def test_same_seed_same_numbers_to_the_bit(small_data, small_fit):
     again = fit(small_data, pb.Model(), seed=1, settings=QUICK)
     for name in small_fit["posterior"].data_vars:
@@ -161,6 +164,7 @@ def test_same_seed_same_numbers_to_the_bit(small_data, small_fit):
                               small_fit["posterior"]["alpha"].values)
 
 
+@pytest.mark.slow
 def test_resumed_run_equals_uninterrupted(small_data, tmp_path):
     never = FitSettings(n_walkers=16, n_ensembles=2, max_steps=300, check_every=100,
                         min_ess=1e12)  # never converges: runs to the budget
@@ -181,6 +185,7 @@ def test_resumed_run_equals_uninterrupted(small_data, tmp_path):
         fit(small_data, pb.Model(), seed=6, chains_dir=tmp_path / "c", settings=never)
 
 
+@pytest.mark.slow
 def test_not_converged_says_so_and_still_returns(small_data):
     with pytest.warns(RuntimeWarning, match="did NOT converge"):
         tree = fit(small_data, pb.Model(), seed=3,
@@ -190,6 +195,7 @@ def test_not_converged_says_so_and_still_returns(small_data):
     assert "posterior" in tree.children
 
 
+@pytest.mark.slow
 def test_data_the_model_cannot_describe(small_data):
     flipped = Dataset(time_s=small_data.time_s, input=small_data.input,
                       position_m=-small_data.position_m, trial_ids=small_data.trial_ids,
@@ -202,6 +208,7 @@ def test_data_the_model_cannot_describe(small_data):
         fit(small_data, pb.Model(), settings=FitSettings(n_walkers=8))
 
 
+@pytest.mark.slow
 def test_small_calibration():
     """A small version of analyses/calibration.py on short data.
 

@@ -11,6 +11,7 @@ import arviz as az
 import numpy as np
 import pytest
 import xarray as xr
+from conftest import _ar1, fake_fit
 
 from pmabayes.data import Dataset
 from pmabayes.model import PAPER_VALUES
@@ -31,126 +32,8 @@ PARAMS = {  # name: (unit, posterior mean, posterior sd)
 FIGURES = ("trace.png", "rank.png", "pair.png", "ppc.png", "residual.png")
 
 
-def _chirp_pressure(t: np.ndarray) -> np.ndarray:
-    """0.1 -> 3 Hz linear chirp around 0.2 MPa."""
-    f0, f1, span = 0.1, 3.0, t[-1] - t[0]
-    phase = 2 * np.pi * (f0 * t + 0.5 * (f1 - f0) / span * t**2)
-    return 0.2e6 + 0.15e6 * np.sin(phase)
-
-
-def _response(p: np.ndarray, t: np.ndarray, gain: float, lag: float) -> np.ndarray:
-    """A smooth stand-in for the model: delayed, scaled pressure (about 80 mm of motion)."""
-    return gain * (np.interp(t - lag, t, p) - 0.05e6) / 0.3e6 * 0.08
-
-
-def _ar1(rng: np.random.Generator, shape: tuple[int, ...], sigma: float, rho: float):
-    """Stationary AR(1) noise along the last axis."""
-    w = rng.standard_normal(shape)
-    e = np.empty(shape)
-    e[..., 0] = sigma * w[..., 0]
-    c = sigma * np.sqrt(1 - rho**2)
-    for k in range(1, shape[-1]):
-        e[..., k] = rho * e[..., k - 1] + c * w[..., k]
-    return e
-
-
-def make_fit(
-    *,
-    n_chain: int = 8,
-    n_draw: int = 100,
-    n_trial: int = 3,
-    n_time: int = 500,
-    n_pp: int = 12,
-    dt_s: float = 0.02,
-    converged: bool = True,
-    synthetic: bool = True,
-    seed: int = 1,
-) -> xr.DataTree:
-    """A fake fit with the layout of :mod:`pmabayes.posterior` (and ``fit.py``)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_time) * dt_s
-    p = _chirp_pressure(t)
-    names = list(PARAMS)
-    # correlated posterior (d and K_e trade off), a few walkers slightly shifted
-    z = rng.standard_normal((n_chain, n_draw, len(names)))
-    z[..., 4] = 0.8 * z[..., 3] + 0.6 * z[..., 4]
-    posterior = {
-        n: PARAMS[n][1] + PARAMS[n][2] * z[..., j] for j, n in enumerate(names)
-    }
-    sigma = PARAMS["sigma_noise_m"][1]
-    truth = _response(p, t, 1.0, 0.05)
-    rho = PARAMS["rho_noise"][1]
-    observed = truth + _ar1(rng, (n_trial, n_time), sigma, rho)
-    gains = 1.0 + 1e-4 * rng.standard_normal(n_pp)
-    model_pp = np.stack([_response(p, t, g, 0.05) for g in gains])  # (n_pp, time)
-    pred = model_pp[:, None, :] + _ar1(rng, (n_pp, n_trial, n_time), sigma, rho)
-    trials = np.arange(1, n_trial + 1)
-    tree = az.from_dict(
-        {
-            "posterior": posterior,
-            "sample_stats": {"lp": -0.5 * (z**2).sum(axis=-1)},
-            "observed_data": {"position_m": observed},
-            "constant_data": {"pressure_pa": p},
-            "posterior_predictive": {
-                "position_m": pred[None].astype(np.float32),
-                "model_position_m": model_pp[None].astype(np.float32),
-            },
-        },
-        dims={"position_m": ["trial", "time"], "model_position_m": ["time"],
-              "pressure_pa": ["time"]},
-        coords={"trial": trials, "time": t},
-    )
-    ll = xr.Dataset(
-        {"position_m": (("chain", "draw", "trial"), rng.normal(-100, 1, (n_chain, n_draw,
-                                                                         n_trial)))},
-        coords={"chain": np.arange(n_chain), "draw": np.arange(n_draw), "trial": trials},
-    )
-    tree["log_likelihood"] = xr.DataTree(ll)
-    ss = tree["sample_stats"].to_dataset()
-    ss["ensemble"] = ("chain", np.repeat([0, 1], n_chain // 2))
-    tree["sample_stats"] = xr.DataTree(ss)
-
-    noise_floor = float(np.sqrt(observed.var(axis=0, ddof=1).mean() / n_trial))
-    map_values = {n: PARAMS[n][1] + 0.1 * PARAMS[n][2] for n in names}
-    params = [
-        {"name": n, "unit": PARAMS[n][0], "default": PARAMS[n][1], "prior": "Normal(0, 1)",
-         "bounds": [-1e9, 1e9], "fixed": False, "description": f"parameter {n}",
-         "source": "noise" if n in ("sigma_noise_m", "rho_noise") else "base"}
-        for n in names
-    ]
-    params.append({"name": "v_c", "unit": "m/s", "default": 0.002, "prior": "Normal(0, 1)",
-                   "bounds": [0.0, 1.0], "fixed": True, "description": "fixed", "source": "x"})
-    messages = (
-        ["all checks passed"] if converged
-        else ["R-hat over walkers 1.07 > 1.01 for alpha", "ESS 212 < 400 for beta"]
-    )
-    info = {
-        "pmabayes_version": "0.1.0",
-        "model": {"effects": ["regulator_lag"], "rig": {"name": "characterisation"},
-                  "free": names[:-2], "fixed": {"v_c": 0.002}, "parameters": params},
-        "noise": {"model": "AR(1) per trial", "parameters": ["sigma_noise_m", "rho_noise"],
-                  "sigma_noise_m": sigma, "rho_noise": rho, "sigma_white_m": 1e-7},
-        "data": {"source": "data/pma_chirp_fake.csv", "n_trials": n_trial,
-                 "n_samples": n_time, "dt_s": dt_s, "input_name": "pressure_pa",
-                 "synthetic": synthetic, "noise_floor_m": noise_floor},
-        "paper_values": dict(PAPER_VALUES),
-        "map": {"values": map_values, "log_posterior": 1234.5, "rms_cost_m": 3.1e-5,
-                "global_search": {"values": {n: map_values[n] for n in names[:6]},
-                                  "rms_cost_m": 2.9e-5}},
-        "convergence": {
-            "converged": converged, "messages": messages, "n_ensembles": 2,
-            "n_walkers": n_chain // 2, "n_steps": 4000, "burn": 1000, "thin": 30,
-            "tau": {n: 40.0 + j for j, n in enumerate(names)},
-            "ess": {n: 900.0 + 10 * j for j, n in enumerate(names)},
-            "rhat": {n: 1.001 for n in names},
-            "rhat_ensembles": {n: 1.002 + 0.001 * j for j, n in enumerate(names)},
-            "min_ess": 400.0, "tau_multiple": 50.0,
-        },
-        "seed": seed,
-        "timings_s": {"map": 12.5, "sampling": 340.0, "total": 360.2},
-    }
-    tree.attrs["pmabayes"] = json.dumps(info)
-    return tree
+#: the report's fake fit: PARAMS with a regulator lag (conftest.fake_fit)
+FIT = {"params": PARAMS, "effects": ["regulator_lag"], "n_chain": 8, "n_draw": 100}
 
 
 def _dataset_of(tree: xr.DataTree, source: str) -> Dataset:
@@ -169,7 +52,8 @@ def _dataset_of(tree: xr.DataTree, source: str) -> Dataset:
 @pytest.fixture(scope="module")
 def bad_fit(tmp_path_factory):
     """The fake fit (not converged, synthetic data), read back from NetCDF."""
-    path = save_fit(make_fit(converged=False), tmp_path_factory.mktemp("fit") / "fit.nc")
+    path = save_fit(fake_fit(**FIT, converged=False, seed=1),
+                    tmp_path_factory.mktemp("fit") / "fit.nc")
     return load_fit(path)
 
 
@@ -182,7 +66,7 @@ def bad_report(bad_fit, tmp_path_factory):
 @pytest.fixture(scope="module")
 def good_report(tmp_path_factory):
     """Converged, non-synthetic, reported with its matching data set."""
-    tree = make_fit(converged=True, synthetic=False, seed=2)
+    tree = fake_fit(**FIT, converged=True, synthetic=False, seed=2)
     tree = load_fit(save_fit(tree, tmp_path_factory.mktemp("fit") / "good.nc"))
     out = tmp_path_factory.mktemp("report_good")
     return write_report(tree, out, dataset=_dataset_of(tree, "lab/run_42.csv"))
@@ -324,6 +208,7 @@ def test_report_html_content_not_converged(bad_report, bad_fit):
     assert "23.7" in text  # paper's alpha (%.4g)
 
 
+@pytest.mark.slow
 def test_report_html_content_converged(good_report):
     text = _html(good_report)
     assert "NOT CONVERGED" not in text and "not-converged" not in text
@@ -362,6 +247,7 @@ def test_predictive_quantiles_blockwise(monkeypatch):
     np.testing.assert_allclose(got, want, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
@@ -400,8 +286,8 @@ def _fit_of(dataset: Dataset, model_m: np.ndarray, seed: int = 0) -> xr.DataTree
     rng = np.random.default_rng(seed)
     noise = estimate_noise(Likelihood(Model(), dataset))
     n_trial, n_time = dataset.position_m.shape
-    tree = make_fit(n_trial=n_trial, n_time=n_time, dt_s=dataset.dt_s, converged=True,
-                    seed=seed)
+    tree = fake_fit(**FIT, n_trial=n_trial, n_time=n_time, dt_s=dataset.dt_s,
+                    converged=True, seed=seed)
     n_pp = 12
     model_pp = np.repeat(model_m[None], n_pp, axis=0)
     pred = model_pp[:, None, :] + _ar1(rng, (n_pp, n_trial, n_time), noise.sigma, noise.rho)
