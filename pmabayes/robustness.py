@@ -37,12 +37,8 @@ CPU or version round differently in the last bits.
 from __future__ import annotations
 
 import json
-import os
-import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_all_start_methods, get_context
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +58,9 @@ from pmabayes.control import (
     resolve_gains,
 )
 from pmabayes.model import Model, Rig
+from pmabayes.parallel import Runner
 from pmabayes.posterior import fit_info, load_fit
+from pmabayes.util import Progress
 
 __all__ = [
     "DEFAULT_FREQUENCIES_HZ",
@@ -172,37 +170,6 @@ def _run_chunk(job: dict) -> tuple[int, dict]:
                             timing=job["timing"], reference_mean_m=job["reference_mean_m"],
                             record=False)
     return job["start"], loop_metrics(run)
-
-
-class _Bar:
-    """A progress bar on stderr."""
-
-    def __init__(self, total: int, enabled: bool, label: str) -> None:
-        self.total, self.enabled, self.label = total, enabled, label
-        self.done = 0
-        self.t0 = time.perf_counter()
-        self._draw()
-
-    def update(self, n: int) -> None:
-        self.done += n
-        self._draw()
-
-    def _draw(self) -> None:
-        if not self.enabled:
-            return
-        frac = self.done / max(self.total, 1)
-        bar = "#" * int(round(30 * frac))
-        end = "\n" if self.done >= self.total else ""
-        print(f"\r[pmabayes robustness] [{bar:-<30}] {self.done}/{self.total} runs "
-              f"({time.perf_counter() - self.t0:.0f} s) {self.label}", end=end,
-              file=sys.stderr, flush=True)
-
-
-def _local_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))  # the cores this process may use
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
 
 
 def robustness_sweep(
@@ -324,38 +291,16 @@ def robustness_sweep(
                      "freq": freqs[f_idx[sl]], "kind": c_idx[sl].copy(),
                      "gains": gain_rows[c_idx[sl]]})
     flat = {m: np.empty(len(s_idx)) for m in METRICS}
-    bar = _Bar(len(s_idx), progress, f"({n_s} samples x {n_f} frequencies x {n_c} controllers)")
-
-    def collect(start: int, out: dict) -> None:
-        n = len(out[METRICS[0]])
-        for m in METRICS:
-            flat[m][start:start + n] = out[m]
-        bar.update(n)
-
+    bar = Progress("robustness", progress)
+    bar.start(len(s_idx), "runs", f"({n_s} samples x {n_f} frequencies x {n_c} controllers)")
     t0 = time.perf_counter()
-    if client is not None:
-        try:
-            from distributed import as_completed as dask_completed
-        except ImportError as exc:  # pragma: no cover - a client implies distributed
-            raise ControlError("a Dask client needs `pip install pmabayes[dask]`") from exc
-        futures = client.map(_run_chunk, jobs, pure=False)
-        for fut in dask_completed(futures):
-            collect(*fut.result())
-        runner = f"dask ({len(client.scheduler_info().get('workers', {}))} workers)"
-    else:
-        n_proc = _local_cores() if processes is None else int(processes)
-        n_proc = min(n_proc, len(jobs))
-        if n_proc == 1:
-            for job in jobs:
-                collect(*_run_chunk(job))
-        else:
-            # fork where there is one: workers inherit the loaded kernels, where spawn
-            # re-imports numba and xarray in each (seconds per worker)
-            method = "fork" if "fork" in get_all_start_methods() else "spawn"
-            with ProcessPoolExecutor(n_proc, mp_context=get_context(method)) as pool:
-                for fut in as_completed([pool.submit(_run_chunk, j) for j in jobs]):
-                    collect(*fut.result())
-        runner = f"{n_proc} local process{'es' if n_proc > 1 else ''}"
+    with Runner(processes, client=client, tasks=len(jobs)) as runner:
+        for start, out in runner.map(_run_chunk, jobs, ordered=False):
+            n = len(out[METRICS[0]])
+            for m in METRICS:
+                flat[m][start:start + n] = out[m]
+            bar.advance(n)
+        runner_name = runner.description
     seconds = time.perf_counter() - t0
     shape = (n_s, n_f, n_c)
     names = list(model.parameter_names)
@@ -384,7 +329,7 @@ def robustness_sweep(
         "gains": json.dumps(gains_used),
         "gains_source": ("given" if all_given else
                          "tune_gains on the posterior mean" + (" (some given)" if given else "")),
-        "timing": repr(timing), "runner": runner, "sweep_seconds": seconds,
+        "timing": repr(timing), "runner": runner_name, "sweep_seconds": seconds,
     })
     return ds
 
