@@ -35,9 +35,7 @@ call of a new composition compiles for a few seconds and later processes load it
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
-import inspect
 import os
 import sys
 import tempfile
@@ -49,6 +47,7 @@ import numba
 import numpy as np
 
 from pmabayes.model import Model
+from pmabayes.util import fingerprint, source_text
 
 __all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError"]
 
@@ -56,7 +55,6 @@ __all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError
 #: and ``afn`` (approximate functions) let results differ in the last bits between
 #: CPUs and numba/LLVM versions, never between runs on one machine and install.
 FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
-_NEWTON_ITERATIONS = 2  # with force effects; the base model needs one plus a z polish
 
 
 class SimulationError(ValueError):
@@ -437,15 +435,6 @@ def cache_dir() -> Path:
     return Path(base) / "pmabayes"
 
 
-def _source_fingerprint(obj) -> str:
-    # the whole defining file, so helpers the physics calls are covered too
-    fn = getattr(obj, "py_func", obj)
-    try:
-        return Path(inspect.getsourcefile(fn)).read_text()
-    except (OSError, TypeError):
-        return f"{fn.__module__}.{fn.__qualname__}:{id(fn)}"  # no source: never reused
-
-
 _KERNELS: dict[tuple, object] = {}
 _LOCK = threading.Lock()
 
@@ -503,10 +492,9 @@ def compile_kernel(key: tuple, text: str, inject: dict, name: str = "kernel"):
     with _LOCK:
         if key in _KERNELS:
             return _KERNELS[key]
-        fingerprint = text + _source_fingerprint(_discretise)
-        fingerprint += "".join(_source_fingerprint(f) for f in inject.values())
-        fingerprint += numba.__version__ + np.__version__ + sys.version
-        digest = hashlib.sha256(fingerprint.encode()).hexdigest()[:20]
+        digest = fingerprint(text, source_text(_discretise),
+                             *(source_text(f) for f in inject.values()),
+                             numba.__version__, np.__version__, sys.version, length=20)
         modname = f"pmabayes_kernel_{digest}"
         folder = cache_dir() / "kernels"
         try:
