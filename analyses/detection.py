@@ -17,6 +17,7 @@ Usage::
 
     python analyses/detection.py [--null 20] [--seeds 5] [--sizes 4] [--max-refits 3]
                                  [--effects NAME ...] [--seed 0] [--out DIR] [--quick]
+                                 [--processes N]
 
 Writes ``detection.csv``, ``detection.md`` and ``null.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``false_alarm_rate: <fraction>``.
@@ -39,6 +40,7 @@ import numpy as np
 from scipy import stats
 
 from pmabayes.criticism import diagnose
+from pmabayes.parallel import Runner
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
 
 #: the built-in library (a user's plugins would join the candidates otherwise)
@@ -52,15 +54,26 @@ SWEEPS = (
 )
 
 
-def _run(rng: np.random.Generator, chirp: Chirp, n_trials: int, effects: dict | None,
-         max_refits: int = 3):
+def _draw(rng: np.random.Generator, chirp: Chirp, n_trials: int, effects: dict | None,
+          max_refits: int) -> dict:
+    """One data set's recipe, drawn in order from the study's seed."""
     truth = draw_plausible(rng)
-    data_seed = int(rng.integers(2**31))
-    ds = generate_chirp_dataset(n_trials=n_trials, seed=data_seed, chirp=chirp, params=truth,
-                                effects=effects)
+    return {"truth": truth, "seed": int(rng.integers(2**31)), "chirp": chirp,
+            "n_trials": n_trials, "effects": effects, "max_refits": max_refits}
+
+
+def _run(job: dict) -> tuple[int, dict, float]:
+    """Diagnose one data set (in a worker); its seed, what the study reads of the
+    diagnosis (plain values, cheap to send back) and the seconds."""
+    ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"], chirp=job["chirp"],
+                                params=job["truth"], effects=job["effects"])
     start = time.perf_counter()
-    d = diagnose(ds, candidates=CANDIDATES, seed=data_seed, max_refits=max_refits)
-    return data_seed, d, time.perf_counter() - start
+    d = diagnose(ds, candidates=CANDIDATES, seed=job["seed"], max_refits=job["max_refits"])
+    found = {"missing": d.missing, "adequate": d.adequate, "ratio": d.signature.ratio,
+             "ranking": [{"effect": f.effect, "significant": f.significant,
+                          "p_value": f.p_value, "interval": dict(f.interval)}
+                         for f in d.ranking]}
+    return job["seed"], found, time.perf_counter() - start
 
 
 def clopper_pearson(k: int, n: int, prob: float = 0.9) -> tuple[float, float]:
@@ -69,6 +82,29 @@ def clopper_pearson(k: int, n: int, prob: float = 0.9) -> tuple[float, float]:
     lo = 0.0 if k == 0 else float(stats.beta.ppf(a, k, n - k + 1))
     hi = 1.0 if k == n else float(stats.beta.ppf(1.0 - a, k + 1, n - k))
     return lo, hi
+
+
+def _row(what: dict, data_seed: int, d: dict, secs: float, n_null: int) -> dict:
+    """One data set's row of detection.csv, printed as it comes."""
+    effect, size = what["effect"], what["size"]
+    flagged = d["missing"] is not None or any(f["significant"] for f in d["ranking"])
+    covered = ""
+    if effect == "none":
+        top = d["ranking"][0]
+        print(f"null {what['i'] + 1}/{n_null} (seed {data_seed}): flagged={flagged}, "
+              f"adequate={d['adequate']}, top {top['effect']} p={top['p_value']:.2g}, "
+              f"{secs:.0f} s", flush=True)
+    else:
+        top = next((f for f in d["ranking"] if f["effect"] == effect), None)
+        if d["missing"] == effect and top is not None and what["param"] in top["interval"]:
+            lo, hi = top["interval"][what["param"]]
+            covered = bool(lo <= size <= hi)
+        print(f"{effect} {what['param']}={size * what['scale']:g} {what['unit']} (seed "
+              f"{data_seed}): missing {d['missing']}, covered {covered}, RMS/floor "
+              f"{d['ratio']:.3g}, {secs:.0f} s", flush=True)
+    return {"effect": effect, "size": size, "seed": data_seed, "flagged": flagged,
+            "missing": d["missing"] or "", "adequate": d["adequate"], "covered": covered,
+            "ratio": d["ratio"], "seconds": secs}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
                         / "paper" / "tables")
     parser.add_argument("--quick", action="store_true", help="a small version for CI")
+    parser.add_argument("--processes", type=int, default=None,
+                        help="local worker processes (every core by default)")
     args = parser.parse_args(argv)
     chirp, n_trials = Chirp(duration_s=8.0, f0_hz=0.3, f1_hz=3.0), 6
     n_null, n_seeds, n_sizes = 20, 5, 4
@@ -102,34 +140,20 @@ def main(argv: list[str] | None = None) -> int:
                    if args.effects is None or e in args.effects)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
-    rows = []
-    for i in range(n_null):
-        data_seed, d, secs = _run(rng, chirp, n_trials, None, args.max_refits)
-        flagged = d.missing is not None or any(f.significant for f in d.ranking)
-        rows.append({"effect": "none", "size": 0.0, "seed": data_seed, "flagged": flagged,
-                     "missing": d.missing or "", "adequate": d.adequate, "covered": "",
-                     "ratio": d.signature.ratio, "seconds": secs})
-        print(f"null {i + 1}/{n_null} (seed {data_seed}): flagged={flagged}, "
-              f"adequate={d.adequate}, top {d.ranking[0].effect} p={d.ranking[0].p_value:.2g}, "
-              f"{secs:.0f} s", flush=True)
+    # every recipe is drawn first, in order, so the rows do not depend on who runs them
+    jobs = [({"effect": "none", "size": 0.0, "i": i},
+             _draw(rng, chirp, n_trials, None, args.max_refits)) for i in range(n_null)]
     for effect, param, unit, scale, sizes in sweeps:
         for size in sizes:
             for _ in range(n_seeds):
-                data_seed, d, secs = _run(rng, chirp, n_trials, {effect: size},
-                                          args.max_refits)
-                top = next((f for f in d.ranking if f.effect == effect), None)
-                covered = ""
-                if d.missing == effect and top is not None and param in top.interval:
-                    lo, hi = top.interval[param]
-                    covered = bool(lo <= size <= hi)
-                rows.append({"effect": effect, "size": size, "seed": data_seed,
-                             "flagged": d.missing is not None or any(f.significant
-                                                                     for f in d.ranking),
-                             "missing": d.missing or "", "adequate": d.adequate,
-                             "covered": covered, "ratio": d.signature.ratio, "seconds": secs})
-                print(f"{effect} {param}={size * scale:g} {unit} (seed {data_seed}): missing "
-                      f"{d.missing}, covered {covered}, RMS/floor {d.signature.ratio:.3g}, "
-                      f"{secs:.0f} s", flush=True)
+                jobs.append(({"effect": effect, "param": param, "unit": unit, "scale": scale,
+                              "size": size},
+                             _draw(rng, chirp, n_trials, {effect: size}, args.max_refits)))
+    rows = []
+    with Runner(args.processes, tasks=len(jobs)) as runner:
+        for (what, _), (data_seed, d, secs) in zip(
+                jobs, runner.map(_run, [job for _, job in jobs]), strict=True):
+            rows.append(_row(what, data_seed, d, secs, n_null))
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "detection.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
