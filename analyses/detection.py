@@ -107,6 +107,46 @@ def _row(what: dict, data_seed: int, d: dict, secs: float, n_null: int) -> dict:
             "ratio": d["ratio"], "seconds": secs}
 
 
+def _write_tables(rows: list[dict], sweeps, out: Path) -> float:
+    """Write detection.csv, null.md and detection.md, print the tables; the false-alarm rate."""
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "detection.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+    null = [r for r in rows if r["effect"] == "none"]
+    k_flag = sum(r["flagged"] for r in null)
+    k_inad = sum(not r["adequate"] for r in null)
+    lo, hi = clopper_pearson(k_flag, len(null))
+    null_md = [
+        "| null data sets | anything flagged | judged inadequate |", "|---|---|---|",
+        f"| {len(null)} | {k_flag}/{len(null)} = {k_flag / len(null):.0%} (90% CI "
+        f"{lo:.0%}-{hi:.0%}) | {k_inad}/{len(null)} |",
+    ]
+    lines = ["| hidden effect | size | flagged | named missing: the hidden one | named: another "
+             "| 90% interval covers | base RMS / floor (median) |",
+             "|---|---|---|---|---|---|---|"]
+    for effect, _param, unit, scale, sizes in sweeps:
+        for size in sizes:
+            sel = [r for r in rows if r["effect"] == effect and r["size"] == size]
+            flagged = sum(r["flagged"] for r in sel)
+            hit = sum(r["missing"] == effect for r in sel)
+            others = sorted({r["missing"] for r in sel if r["missing"] not in ("", effect)})
+            other_n = sum(r["missing"] not in ("", effect) for r in sel)
+            cov = [r["covered"] for r in sel if r["covered"] != ""]
+            lines.append(f"| {effect} | {size * scale:g} {unit} | {flagged}/{len(sel)} | "
+                         f"{hit}/{len(sel)} | {other_n}/{len(sel)}"
+                         f"{' (' + ', '.join(others) + ')' if others else ''} | "
+                         f"{sum(cov)}/{len(cov)} | "
+                         f"{np.median([r['ratio'] for r in sel]):.3g} |")
+    (out / "null.md").write_text("\n".join(null_md) + "\n")
+    (out / "detection.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(null_md))
+    print("\n".join(lines))
+    return k_flag / len(null)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the study, write the tables and print ``false_alarm_rate`` last."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -154,43 +194,9 @@ def main(argv: list[str] | None = None) -> int:
         for (what, _), (data_seed, d, secs) in zip(
                 jobs, runner.map(_run, [job for _, job in jobs]), strict=True):
             rows.append(_row(what, data_seed, d, secs, n_null))
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "detection.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-    null = [r for r in rows if r["effect"] == "none"]
-    k_flag = sum(r["flagged"] for r in null)
-    k_inad = sum(not r["adequate"] for r in null)
-    lo, hi = clopper_pearson(k_flag, len(null))
-    null_md = [
-        "| null data sets | anything flagged | judged inadequate |", "|---|---|---|",
-        f"| {len(null)} | {k_flag}/{len(null)} = {k_flag / len(null):.0%} (90% CI "
-        f"{lo:.0%}-{hi:.0%}) | {k_inad}/{len(null)} |",
-    ]
-    lines = ["| hidden effect | size | flagged | named missing: the hidden one | named: another "
-             "| 90% interval covers | base RMS / floor (median) |",
-             "|---|---|---|---|---|---|---|"]
-    for effect, _param, unit, scale, sizes in sweeps:
-        for size in sizes:
-            sel = [r for r in rows if r["effect"] == effect and r["size"] == size]
-            flagged = sum(r["flagged"] for r in sel)
-            hit = sum(r["missing"] == effect for r in sel)
-            others = sorted({r["missing"] for r in sel if r["missing"] not in ("", effect)})
-            other_n = sum(r["missing"] not in ("", effect) for r in sel)
-            cov = [r["covered"] for r in sel if r["covered"] != ""]
-            lines.append(f"| {effect} | {size * scale:g} {unit} | {flagged}/{len(sel)} | "
-                         f"{hit}/{len(sel)} | {other_n}/{len(sel)}"
-                         f"{' (' + ', '.join(others) + ')' if others else ''} | "
-                         f"{sum(cov)}/{len(cov)} | "
-                         f"{np.median([r['ratio'] for r in sel]):.3g} |")
-    (args.out / "null.md").write_text("\n".join(null_md) + "\n")
-    (args.out / "detection.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(null_md))
-    print("\n".join(lines))
+    false_alarm = _write_tables(rows, sweeps, args.out)
     print(f"{len(rows)} diagnoses in {time.perf_counter() - start:.0f} s")
-    print(f"false_alarm_rate: {k_flag / len(null):.3f}")
+    print(f"false_alarm_rate: {false_alarm:.3f}")
     return 0
 
 
