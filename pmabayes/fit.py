@@ -720,12 +720,12 @@ def _round_line(diag: _Diagnostics, settings: FitSettings, seconds: float) -> st
     ess_min = float(np.nanmin(diag.ess)) if np.isfinite(diag.ess).any() else 0.0
     frac = min(1.0, kept / (settings.tau_multiple * tau_max), ess_min / settings.min_ess)
     bar = "#" * int(round(20 * frac)) if np.isfinite(frac) else ""
-    needed = (f"{settings.tau_multiple * tau_max:.0f} steps needed ({settings.tau_multiple:g} "
-              f"x tau {tau_max:.0f})" if tau.size == diag.tau.size
-              else "tau not yet estimable")
+    needed = (f"{kept} of {settings.tau_multiple * tau_max:.0f} steps needed "
+              f"({settings.tau_multiple:g} x tau {tau_max:.0f})" if tau.size == diag.tau.size
+              else f"{kept} steps (tau cannot be estimated yet)")
     return (f"[{bar:-<20}] step {diag.n_steps} (budget {settings.max_steps}) x "
             f"{settings.n_ensembles} ensembles x {settings.n_walkers} walkers: kept "
-            f"{kept} of {needed}, ESS min {ess_min:.0f}"
+            f"{needed}, ESS min {ess_min:.0f}"
             + (f", R-hat across ensembles max {diag.rhat_ensembles.max():.4f}"
                if diag.rhat_ensembles is not None else "")
             + f", {seconds:.0f} s")
