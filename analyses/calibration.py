@@ -9,6 +9,7 @@ for every parameter (20 data sets give a binomial standard error of 6.7%).
 Usage::
 
     python analyses/calibration.py [--datasets 20] [--seed 0] [--out DIR] [--quick]
+                                   [--processes N]
 
 Writes ``calibration.csv`` and ``calibration.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``coverage_min: <fraction>``. ``--quick``
@@ -21,6 +22,7 @@ import argparse
 import csv
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import arviz as az
@@ -28,6 +30,7 @@ import numpy as np
 
 from pmabayes import Model
 from pmabayes.fit import FitSettings, fit
+from pmabayes.parallel import Runner
 from pmabayes.posterior import fit_info
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
 
@@ -35,33 +38,57 @@ PARAMS = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")  # the noise has no sing
 
 
 def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trials: int = 10,
-              settings: FitSettings | None = None, verbose: bool = True) -> list[dict]:
-    """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter."""
+              settings: FitSettings | None = None, verbose: bool = True,
+              processes: int | None = None) -> list[dict]:
+    """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter.
+
+    The data sets are drawn here, in order, from ``seed``; their fits run on
+    :class:`pmabayes.parallel.Runner` (``processes`` local workers, every core by
+    default), each fit in one process, so the rows do not depend on how they ran.
+    """
     rng = np.random.default_rng(seed)
-    rows = []
+    jobs = []
     for i in range(n_datasets):
         truth = draw_plausible(rng)
-        data_seed = int(rng.integers(2**31))
-        ds = generate_chirp_dataset(n_trials=n_trials, seed=data_seed, chirp=chirp,
-                                    params=truth)
-        start = time.perf_counter()
-        tree = fit(ds, Model(), seed=data_seed, settings=settings)
-        info = fit_info(tree)
-        hdi = az.hdi(tree, prob=0.9)
-        for name in PARAMS:
-            lo, hi = (float(v) for v in hdi[name].values)
-            draws = tree["posterior"][name].values
-            rows.append({"dataset": i, "seed": data_seed, "parameter": name,
-                         "truth": truth[name], "hdi90_low": lo, "hdi90_high": hi,
-                         "covered": bool(lo <= truth[name] <= hi),
-                         "z": float((truth[name] - draws.mean()) / draws.std()),
-                         "converged": info["convergence"]["converged"]})
-        if verbose:
-            covered = sum(r["covered"] for r in rows[-len(PARAMS):])
-            print(f"data set {i + 1}/{n_datasets} (seed {data_seed}): {covered}/{len(PARAMS)} "
-                  f"covered, converged={info['convergence']['converged']}, "
-                  f"{time.perf_counter() - start:.0f} s", flush=True)
+        jobs.append({"index": i, "truth": truth, "seed": int(rng.integers(2**31)),
+                     "chirp": chirp, "n_trials": n_trials})
+    runner = Runner(processes, tasks=n_datasets)
+    settings = FitSettings() if settings is None else settings
+    if not runner.local:  # the data sets share the cores; a fit needs no pool of its own
+        settings = replace(settings, processes=1)
+    rows = []
+    with runner:
+        for job_rows, seconds in runner.map(_calibrate_one,
+                                            [{**j, "settings": settings} for j in jobs]):
+            rows += job_rows
+            if verbose:
+                first = job_rows[0]
+                covered = sum(r["covered"] for r in job_rows)
+                print(f"data set {first['dataset'] + 1}/{n_datasets} (seed {first['seed']}): "
+                      f"{covered}/{len(PARAMS)} covered, converged={first['converged']}, "
+                      f"{seconds:.0f} s", flush=True)
     return rows
+
+
+def _calibrate_one(job: dict) -> tuple[list[dict], float]:
+    """Fit one data set; its rows and the seconds it took."""
+    truth, data_seed = job["truth"], job["seed"]
+    ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed, chirp=job["chirp"],
+                                params=truth)
+    start = time.perf_counter()
+    tree = fit(ds, Model(), seed=data_seed, settings=job["settings"])
+    info = fit_info(tree)
+    hdi = az.hdi(tree, prob=0.9)
+    rows = []
+    for name in PARAMS:
+        lo, hi = (float(v) for v in hdi[name].values)
+        draws = tree["posterior"][name].values
+        rows.append({"dataset": job["index"], "seed": data_seed, "parameter": name,
+                     "truth": truth[name], "hdi90_low": lo, "hdi90_high": hi,
+                     "covered": bool(lo <= truth[name] <= hi),
+                     "z": float((truth[name] - draws.mean()) / draws.std()),
+                     "converged": info["convergence"]["converged"]})
+    return rows, time.perf_counter() - start
 
 
 def coverage(rows: list[dict]) -> dict[str, float]:
@@ -88,12 +115,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
                         / "paper" / "tables")
     parser.add_argument("--quick", action="store_true", help="4 short data sets")
+    parser.add_argument("--processes", type=int, default=None,
+                        help="local worker processes (every core by default)")
     args = parser.parse_args(argv)
     chirp, n_trials, n = None, 10, args.datasets
     if args.quick:
         chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, 4
     start = time.perf_counter()
-    rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials)
+    rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials, processes=args.processes)
     cov = coverage(rows)
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)

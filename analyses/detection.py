@@ -17,6 +17,7 @@ Usage::
 
     python analyses/detection.py [--null 20] [--seeds 5] [--sizes 4] [--max-refits 3]
                                  [--effects NAME ...] [--seed 0] [--out DIR] [--quick]
+                                 [--processes N]
 
 Writes ``detection.csv``, ``detection.md`` and ``null.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``false_alarm_rate: <fraction>``.
@@ -39,6 +40,7 @@ import numpy as np
 from scipy import stats
 
 from pmabayes.criticism import diagnose
+from pmabayes.parallel import Runner
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
 
 #: the built-in library (a user's plugins would join the candidates otherwise)
@@ -52,15 +54,26 @@ SWEEPS = (
 )
 
 
-def _run(rng: np.random.Generator, chirp: Chirp, n_trials: int, effects: dict | None,
-         max_refits: int = 3):
+def _draw(rng: np.random.Generator, chirp: Chirp, n_trials: int, effects: dict | None,
+          max_refits: int) -> dict:
+    """One data set's recipe, drawn in order from the study's seed."""
     truth = draw_plausible(rng)
-    data_seed = int(rng.integers(2**31))
-    ds = generate_chirp_dataset(n_trials=n_trials, seed=data_seed, chirp=chirp, params=truth,
-                                effects=effects)
+    return {"truth": truth, "seed": int(rng.integers(2**31)), "chirp": chirp,
+            "n_trials": n_trials, "effects": effects, "max_refits": max_refits}
+
+
+def _run(job: dict) -> tuple[int, dict, float]:
+    """Diagnose one data set (in a worker); its seed, what the study reads of the
+    diagnosis (plain values, cheap to send back) and the seconds."""
+    ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"], chirp=job["chirp"],
+                                params=job["truth"], effects=job["effects"])
     start = time.perf_counter()
-    d = diagnose(ds, candidates=CANDIDATES, seed=data_seed, max_refits=max_refits)
-    return data_seed, d, time.perf_counter() - start
+    d = diagnose(ds, candidates=CANDIDATES, seed=job["seed"], max_refits=job["max_refits"])
+    found = {"missing": d.missing, "adequate": d.adequate, "ratio": d.signature.ratio,
+             "ranking": [{"effect": f.effect, "significant": f.significant,
+                          "p_value": f.p_value, "interval": dict(f.interval)}
+                         for f in d.ranking]}
+    return job["seed"], found, time.perf_counter() - start
 
 
 def clopper_pearson(k: int, n: int, prob: float = 0.9) -> tuple[float, float]:
@@ -71,67 +84,33 @@ def clopper_pearson(k: int, n: int, prob: float = 0.9) -> tuple[float, float]:
     return lo, hi
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the study, write the tables and print ``false_alarm_rate`` last."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--null", type=int, default=None, help="null data sets (20)")
-    parser.add_argument("--seeds", type=int, default=None,
-                        help="data sets per effect size (5)")
-    parser.add_argument("--sizes", type=int, default=None,
-                        help="sizes per effect, the largest kept (all 4)")
-    parser.add_argument("--effects", nargs="+", choices=[e for e, *_ in SWEEPS],
-                        default=None, help="effects to sweep (all three)")
-    parser.add_argument("--max-refits", type=int, default=3,
-                        help="refits per diagnosis (diagnose's max_refits, 3)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
-                        / "paper" / "tables")
-    parser.add_argument("--quick", action="store_true", help="a small version for CI")
-    args = parser.parse_args(argv)
-    chirp, n_trials = Chirp(duration_s=8.0, f0_hz=0.3, f1_hz=3.0), 6
-    n_null, n_seeds, n_sizes = 20, 5, 4
-    if args.quick:
-        chirp, n_trials = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=2.0), 4
-        n_null, n_seeds, n_sizes = 3, 1, 2
-    n_null = n_null if args.null is None else args.null
-    n_seeds = n_seeds if args.seeds is None else args.seeds
-    n_sizes = n_sizes if args.sizes is None else args.sizes
-    if n_null < 1 or n_seeds < 1 or n_sizes < 1:
-        parser.error("--null, --seeds and --sizes must be at least 1")
-    sweeps = tuple((e, p, u, s, sizes[-n_sizes:]) for e, p, u, s, sizes in SWEEPS
-                   if args.effects is None or e in args.effects)
-    rng = np.random.default_rng(args.seed)
-    start = time.perf_counter()
-    rows = []
-    for i in range(n_null):
-        data_seed, d, secs = _run(rng, chirp, n_trials, None, args.max_refits)
-        flagged = d.missing is not None or any(f.significant for f in d.ranking)
-        rows.append({"effect": "none", "size": 0.0, "seed": data_seed, "flagged": flagged,
-                     "missing": d.missing or "", "adequate": d.adequate, "covered": "",
-                     "ratio": d.signature.ratio, "seconds": secs})
-        print(f"null {i + 1}/{n_null} (seed {data_seed}): flagged={flagged}, "
-              f"adequate={d.adequate}, top {d.ranking[0].effect} p={d.ranking[0].p_value:.2g}, "
+def _row(what: dict, data_seed: int, d: dict, secs: float, n_null: int) -> dict:
+    """One data set's row of detection.csv, printed as it comes."""
+    effect, size = what["effect"], what["size"]
+    flagged = d["missing"] is not None or any(f["significant"] for f in d["ranking"])
+    covered = ""
+    if effect == "none":
+        top = d["ranking"][0]
+        print(f"null {what['i'] + 1}/{n_null} (seed {data_seed}): flagged={flagged}, "
+              f"adequate={d['adequate']}, top {top['effect']} p={top['p_value']:.2g}, "
               f"{secs:.0f} s", flush=True)
-    for effect, param, unit, scale, sizes in sweeps:
-        for size in sizes:
-            for _ in range(n_seeds):
-                data_seed, d, secs = _run(rng, chirp, n_trials, {effect: size},
-                                          args.max_refits)
-                top = next((f for f in d.ranking if f.effect == effect), None)
-                covered = ""
-                if d.missing == effect and top is not None and param in top.interval:
-                    lo, hi = top.interval[param]
-                    covered = bool(lo <= size <= hi)
-                rows.append({"effect": effect, "size": size, "seed": data_seed,
-                             "flagged": d.missing is not None or any(f.significant
-                                                                     for f in d.ranking),
-                             "missing": d.missing or "", "adequate": d.adequate,
-                             "covered": covered, "ratio": d.signature.ratio, "seconds": secs})
-                print(f"{effect} {param}={size * scale:g} {unit} (seed {data_seed}): missing "
-                      f"{d.missing}, covered {covered}, RMS/floor {d.signature.ratio:.3g}, "
-                      f"{secs:.0f} s", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "detection.csv", "w", newline="") as fh:
+    else:
+        top = next((f for f in d["ranking"] if f["effect"] == effect), None)
+        if d["missing"] == effect and top is not None and what["param"] in top["interval"]:
+            lo, hi = top["interval"][what["param"]]
+            covered = bool(lo <= size <= hi)
+        print(f"{effect} {what['param']}={size * what['scale']:g} {what['unit']} (seed "
+              f"{data_seed}): missing {d['missing']}, covered {covered}, RMS/floor "
+              f"{d['ratio']:.3g}, {secs:.0f} s", flush=True)
+    return {"effect": effect, "size": size, "seed": data_seed, "flagged": flagged,
+            "missing": d["missing"] or "", "adequate": d["adequate"], "covered": covered,
+            "ratio": d["ratio"], "seconds": secs}
+
+
+def _write_tables(rows: list[dict], sweeps, out: Path) -> float:
+    """Write detection.csv, null.md and detection.md, print the tables; the false-alarm rate."""
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "detection.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
@@ -161,12 +140,63 @@ def main(argv: list[str] | None = None) -> int:
                          f"{' (' + ', '.join(others) + ')' if others else ''} | "
                          f"{sum(cov)}/{len(cov)} | "
                          f"{np.median([r['ratio'] for r in sel]):.3g} |")
-    (args.out / "null.md").write_text("\n".join(null_md) + "\n")
-    (args.out / "detection.md").write_text("\n".join(lines) + "\n")
+    (out / "null.md").write_text("\n".join(null_md) + "\n")
+    (out / "detection.md").write_text("\n".join(lines) + "\n")
     print("\n".join(null_md))
     print("\n".join(lines))
+    return k_flag / len(null)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the study, write the tables and print ``false_alarm_rate`` last."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--null", type=int, default=None, help="null data sets (20)")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="data sets per effect size (5)")
+    parser.add_argument("--sizes", type=int, default=None,
+                        help="sizes per effect, the largest kept (all 4)")
+    parser.add_argument("--effects", nargs="+", choices=[e for e, *_ in SWEEPS],
+                        default=None, help="effects to sweep (all three)")
+    parser.add_argument("--max-refits", type=int, default=3,
+                        help="refits per diagnosis (diagnose's max_refits, 3)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
+                        / "paper" / "tables")
+    parser.add_argument("--quick", action="store_true", help="a small version for CI")
+    parser.add_argument("--processes", type=int, default=None,
+                        help="local worker processes (every core by default)")
+    args = parser.parse_args(argv)
+    chirp, n_trials = Chirp(duration_s=8.0, f0_hz=0.3, f1_hz=3.0), 6
+    n_null, n_seeds, n_sizes = 20, 5, 4
+    if args.quick:
+        chirp, n_trials = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=2.0), 4
+        n_null, n_seeds, n_sizes = 3, 1, 2
+    n_null = n_null if args.null is None else args.null
+    n_seeds = n_seeds if args.seeds is None else args.seeds
+    n_sizes = n_sizes if args.sizes is None else args.sizes
+    if n_null < 1 or n_seeds < 1 or n_sizes < 1:
+        parser.error("--null, --seeds and --sizes must be at least 1")
+    sweeps = tuple((e, p, u, s, sizes[-n_sizes:]) for e, p, u, s, sizes in SWEEPS
+                   if args.effects is None or e in args.effects)
+    rng = np.random.default_rng(args.seed)
+    start = time.perf_counter()
+    # every recipe is drawn first, in order, so the rows do not depend on who runs them
+    jobs = [({"effect": "none", "size": 0.0, "i": i},
+             _draw(rng, chirp, n_trials, None, args.max_refits)) for i in range(n_null)]
+    for effect, param, unit, scale, sizes in sweeps:
+        for size in sizes:
+            for _ in range(n_seeds):
+                jobs.append(({"effect": effect, "param": param, "unit": unit, "scale": scale,
+                              "size": size},
+                             _draw(rng, chirp, n_trials, {effect: size}, args.max_refits)))
+    rows = []
+    with Runner(args.processes, tasks=len(jobs)) as runner:
+        for (what, _), (data_seed, d, secs) in zip(
+                jobs, runner.map(_run, [job for _, job in jobs]), strict=True):
+            rows.append(_row(what, data_seed, d, secs, n_null))
+    false_alarm = _write_tables(rows, sweeps, args.out)
     print(f"{len(rows)} diagnoses in {time.perf_counter() - start:.0f} s")
-    print(f"false_alarm_rate: {k_flag / len(null):.3f}")
+    print(f"false_alarm_rate: {false_alarm:.3f}")
     return 0
 
 

@@ -37,6 +37,7 @@ import importlib.util
 import json
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -44,7 +45,7 @@ import numpy as np
 
 from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
-from pmabayes.fit import FitError, FitSettings, fit
+from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
 from pmabayes.model import Model, ModelError
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate
@@ -164,8 +165,10 @@ def _fit_settings(args: argparse.Namespace) -> FitSettings:
 def _do_fit(args: argparse.Namespace, dataset: Dataset, out: Path):
     model = model_for(dataset, args.effects)
     chains = out.with_name(out.name + ".chains")
-    tree = fit(dataset, model, seed=args.seed, settings=_fit_settings(args),
-               chains_dir=chains, restart=args.restart)
+    with warnings.catch_warnings():  # the banner below says it once
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        tree = fit(dataset, model, seed=args.seed, settings=_fit_settings(args),
+                   chains_dir=chains, restart=args.restart)
     save_fit(tree, out)
     info = fit_info(tree)
     conv = info["convergence"]

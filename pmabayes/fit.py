@@ -17,49 +17,57 @@ The pipeline of :func:`fit`:
 3. **Sampling**: emcee's ``EnsembleSampler``, vectorised over walkers through the
    batched simulator. Walkers start from the Laplace approximation at the MAP.
    Several independent ensembles run in parallel processes (one per core by
-   default), each writing an HDF5 backend so a killed run resumes where it stopped.
+   default, :class:`pmabayes.parallel.Runner`), each writing an HDF5 backend so a
+   killed run resumes where it stopped. A round of steps is written to a copy of
+   the ensemble's file that replaces it only when complete, so a resumed run never
+   reads half a round.
 4. **Convergence**, judged after every round of steps. The kept chain (after
    burn-in) must be at least ``tau_multiple`` (50) integrated autocorrelation
    times long. The ESS of every parameter (walkers x kept steps / tau, summed
    over ensembles) must reach ``min_ess``. With two or more ensembles, the
    rank-normalised split R-hat across the independent ensembles must be below
-   1.01. R-hat over walkers is also reported, as indicative only: emcee's walkers
-   are coupled by the moves, so they are not independent chains. A run that
-   spends its budget first warns loudly and still returns (and saves) what it
-   has.
+   1.01. An autocorrelation time that cannot be estimated yet (a walker that has
+   not moved, in a short run) counts as not converged. R-hat over walkers is also
+   reported, as indicative only: emcee's walkers are coupled by the moves, so they
+   are not independent chains; it is computed on the stored draws, as ArviZ
+   computes it from the fit file. A run that spends its budget warns once
+   (:class:`ConvergenceWarning`) and still returns what it has.
 
 Sampling uses unconstrained coordinates: log for positive scale parameters and
-atanh for the noise correlation, with the Jacobian in the density. Results are
-reported in natural units.
+atanh for the noise correlation, with the Jacobian in the density
+(:class:`pmabayes.posterior.Posterior`). Results are reported in natural units.
 """
 
 from __future__ import annotations
 
-import hashlib
+import contextlib
 import json
 import math
-import multiprocessing as mp
 import os
-import sys
+import shutil
+import tempfile
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import arviz as az
 import emcee
 import numpy as np
 import xarray as xr
 from scipy.optimize import differential_evolution, minimize
 
-from pmabayes import __version__
 from pmabayes.data import Dataset
 from pmabayes.likelihood import NOISE_PARAMETERS, Likelihood, LikelihoodError
-from pmabayes.model import PAPER_VALUES, Model
-from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior
+from pmabayes.model import Model
+from pmabayes.parallel import Runner
+from pmabayes.posterior import NoiseEstimate, Posterior, _log_sech2, fit_tree, set_fit_info
+from pmabayes.util import Progress, fingerprint, local_cores
 
 __all__ = [
     "FitError",
+    "ConvergenceWarning",
     "FitSettings",
     "NoiseEstimate",
     "estimate_noise",
@@ -74,49 +82,12 @@ class FitError(RuntimeError):
     """A fit cannot proceed or produced nonsense (the data does not fit the model)."""
 
 
+class ConvergenceWarning(RuntimeWarning):
+    """A fit spent its budget before the sampler converged (its result is still returned)."""
+
+
 # ---------------------------------------------------------------------------------
-# the posterior in unconstrained coordinates
-
-
-def _log_sech2(z: np.ndarray) -> np.ndarray:
-    """``log(1 - tanh(z)^2) = -2 log cosh z``, without overflow: the log Jacobian of
-    the atanh coordinate."""
-    a = np.abs(z)
-    return -2.0 * (a + np.log1p(np.exp(-2.0 * a)) - math.log(2.0))
-
-
-def _transform_kind(p: Parameter, prior: Prior) -> str:
-    if p.name == "rho_noise":
-        return "atanh"
-    if p.bounds[0] >= 0.0 and isinstance(prior, LogNormal | HalfNormal):
-        return "log"
-    return "identity"
-
-
-@dataclass(frozen=True)
-class NoiseEstimate:
-    """The noise parameters' posterior from the spread between repeated trials.
-
-    Parameters
-    ----------
-    sigma, rho, white : float
-        Posterior mode of ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``.
-    mean_u : numpy.ndarray
-        Mode in ``(log sigma, atanh rho, log white)``.
-    cov_u : numpy.ndarray
-        Laplace covariance there.
-    """
-
-    sigma: float
-    rho: float
-    white: float
-    mean_u: np.ndarray
-    cov_u: np.ndarray
-
-    def draws(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
-        """``n`` independent posterior draws of ``(sigma, rho, white)``."""
-        u = rng.multivariate_normal(self.mean_u, self.cov_u, size=n, method="eigh")
-        return np.exp(u[:, 0]), np.tanh(u[:, 1]), np.exp(u[:, 2])
+# the noise, from repeatability
 
 
 def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
@@ -176,166 +147,6 @@ def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
     return NoiseEstimate(float(np.exp(u[0])), float(np.tanh(u[1])), float(np.exp(u[2])), u, cov)
 
 
-class Posterior:
-    """Log posterior of a model's free parameters, given the noise.
-
-    Parameters
-    ----------
-    likelihood : Likelihood
-        Data, model and noise model.
-    noise : NoiseEstimate
-        The noise parameters (from :func:`estimate_noise`); the trial mean's
-        likelihood is evaluated at their mode.
-
-    Attributes
-    ----------
-    names : tuple of str
-        Identified model parameters (the model's free parameters).
-    """
-
-    def __init__(self, likelihood: Likelihood, noise: NoiseEstimate) -> None:
-        self.likelihood = likelihood
-        self.noise = noise
-        self.model = likelihood.model
-        model = self.model
-        self.parameters: tuple[Parameter, ...] = tuple(
-            model.parameter(n) for n in model.free_names
-        )
-        self.names: tuple[str, ...] = tuple(p.name for p in self.parameters)
-        self.priors: tuple[Prior, ...] = tuple(model.priors[n] for n in model.free_names)
-        self.kinds = tuple(
-            _transform_kind(p, pr) for p, pr in zip(self.parameters, self.priors, strict=True)
-        )
-        self._free_cols = np.array([model.index(n) for n in model.free_names], dtype=int)
-        self._template = model.theta(model.defaults)[0]
-        self.lower = np.array([p.bounds[0] for p in self.parameters])
-        self.upper = np.array([p.bounds[1] for p in self.parameters])
-
-    @property
-    def ndim(self) -> int:
-        """Number of identified parameters."""
-        return len(self.names)
-
-    # -- coordinates ------------------------------------------------------------
-    def to_natural(self, z: np.ndarray) -> np.ndarray:
-        """Natural parameter values from unconstrained coordinates ``(batch, ndim)``."""
-        z = np.atleast_2d(np.asarray(z, dtype=float))
-        out = z.copy()
-        with np.errstate(over="ignore"):
-            for j, kind in enumerate(self.kinds):
-                if kind == "log":
-                    out[:, j] = np.exp(z[:, j])
-                elif kind == "atanh":
-                    out[:, j] = np.tanh(z[:, j])
-        return out
-
-    def to_unconstrained(self, theta: np.ndarray) -> np.ndarray:
-        """Unconstrained coordinates from natural values ``(batch, ndim)``."""
-        theta = np.atleast_2d(np.asarray(theta, dtype=float))
-        out = theta.copy()
-        with np.errstate(divide="ignore"):
-            for j, kind in enumerate(self.kinds):
-                if kind == "log":
-                    out[:, j] = np.log(theta[:, j])
-                elif kind == "atanh":
-                    out[:, j] = np.arctanh(theta[:, j])
-        return out
-
-    def log_jacobian(self, z: np.ndarray) -> np.ndarray:
-        """``log |d theta / d z|`` per batch member."""
-        z = np.atleast_2d(z)
-        total = np.zeros(z.shape[0])
-        for j, kind in enumerate(self.kinds):
-            if kind == "log":
-                total += z[:, j]
-            elif kind == "atanh":
-                total += _log_sech2(z[:, j])
-        return total
-
-    def full_theta(self, theta: np.ndarray) -> np.ndarray:
-        """The model's full parameter array for identified values ``(batch, ndim)``."""
-        theta = np.atleast_2d(theta)
-        full = np.repeat(self._template[None, :], theta.shape[0], axis=0)
-        full[:, self._free_cols] = theta
-        return full
-
-    # -- densities ----------------------------------------------------------------
-    def log_prior(self, theta: np.ndarray) -> np.ndarray:
-        """Log prior density in natural coordinates, ``-inf`` outside the bounds."""
-        theta = np.atleast_2d(theta)
-        inside = np.all((theta >= self.lower) & (theta <= self.upper), axis=1)
-        total = np.where(inside, 0.0, -np.inf)
-        for j, prior in enumerate(self.priors):
-            with np.errstate(all="ignore"):
-                total = total + np.where(inside, prior.logpdf(theta[:, j]), 0.0)
-        return total
-
-    def evaluate(
-        self, theta: np.ndarray, *, return_x: bool = True
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Log prior, log likelihood and model output for natural values.
-
-        Parameters
-        ----------
-        theta : numpy.ndarray
-            ``(batch, ndim)`` natural values.
-        return_x : bool
-            Whether to return the model output (the sampler does not need it).
-
-        Returns
-        -------
-        log_prior, log_likelihood : numpy.ndarray
-            ``(batch,)``; ``-inf`` where out of bounds or the simulation failed. The
-            likelihood is that of the trial mean given the noise (the deviations'
-            part does not depend on the model).
-        x : numpy.ndarray or None
-            Model positions of the valid members (NaN rows elsewhere), or None if no
-            member was valid or ``return_x`` is false.
-        """
-        theta = np.atleast_2d(theta)
-        lp = self.log_prior(theta)
-        ll = np.full(theta.shape[0], -np.inf)
-        ok = np.isfinite(lp)
-        if not ok.any():
-            return lp, ll, None
-        sub = theta[ok]
-        x_ok = self.likelihood.simulate(self.full_theta(sub))
-        finite = np.all(np.isfinite(x_ok), axis=1)
-        ll_ok = np.full(sub.shape[0], -np.inf)
-        if finite.any():
-            ll_ok[finite] = self.likelihood.mean_log_likelihood(
-                x_ok[finite], self.noise.sigma, self.noise.rho, self.noise.white
-            )
-        ll[ok] = ll_ok
-        if not return_x:
-            return lp, ll, None
-        x = np.full((theta.shape[0], self.likelihood.n_samples), np.nan)
-        x[ok] = x_ok
-        return lp, ll, x
-
-    def log_prob_z(self, z: np.ndarray) -> np.ndarray:
-        """Log posterior density in unconstrained coordinates (what emcee samples)."""
-        z = np.atleast_2d(z)
-        theta = self.to_natural(z)
-        lp, ll, _ = self.evaluate(theta, return_x=False)
-        out = lp + ll + self.log_jacobian(z)
-        return np.where(np.isfinite(out), out, -np.inf)
-
-    def plausible_box(self, rng: np.random.Generator, names: tuple[str, ...]) -> np.ndarray:
-        """Unconstrained ``(lower, upper)`` of the 0.5-99.5% prior range of ``names``."""
-        idx = [self.names.index(n) for n in names]
-        box = np.empty((len(idx), 2))
-        for row, j in enumerate(idx):
-            draws = self.priors[j].sample(rng, 20000)
-            lo, hi = np.quantile(draws, [0.005, 0.995])
-            lo = max(lo, self.lower[j] + 1e-12 * max(1.0, abs(self.lower[j])))
-            hi = min(hi, self.upper[j])
-            ends = np.ones((2, self.ndim))
-            ends[:, j] = lo, hi
-            box[row] = self.to_unconstrained(ends)[:, j]
-        return box
-
-
 # ---------------------------------------------------------------------------------
 # point estimates
 
@@ -371,6 +182,26 @@ class MapResult:
     global_rms_cost_m: float
     z: np.ndarray
     covariance_z: np.ndarray
+
+    def record(self) -> dict:
+        """Everything, JSON-ready (arrays as lists), for the chains folder's stamp."""
+        out = dict(self.__dict__)
+        out["z"] = self.z.tolist()
+        out["covariance_z"] = self.covariance_z.tolist()
+        return out
+
+    @classmethod
+    def from_record(cls, record: dict) -> MapResult:
+        """The inverse of :meth:`record`."""
+        return cls(**{**record, "z": np.array(record["z"]),
+                      "covariance_z": np.array(record["covariance_z"])})
+
+    def summary(self) -> dict:
+        """The ``map`` entry of a fit's metadata."""
+        return {"values": self.values, "log_posterior": self.log_posterior,
+                "rms_cost_m": self.rms_cost_m,
+                "global_search": {"values": self.global_values,
+                                  "rms_cost_m": self.global_rms_cost_m}}
 
 
 def _fd_hessian(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -434,8 +265,36 @@ def find_map(
         the best model still explains the data so badly that the data cannot be
         what the model describes (wrong units, wrong rig, wrong column).
     """
-    lik = posterior.likelihood
     box = posterior.plausible_box(rng, posterior.names)
+    z_global, global_cost = _global_search(posterior, box, rng, popsize, maxiter)
+    # optimise in coordinates scaled to the plausible box
+    scale = box[:, 1] - box[:, 0]
+    neg_logpost = _scaled_neg_log_posterior(posterior, z_global, scale)
+    u, hess = _polish(neg_logpost, posterior.ndim)
+    z_map = z_global + u * scale
+    cov_z = _laplace_covariance(hess) * np.outer(scale, scale)
+    theta_map = posterior.to_natural(z_map[None])
+    lp, ll, x = posterior.evaluate(theta_map)
+    cost = _check_fit_quality(posterior.likelihood, x[0])
+    values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
+    values.update(sigma_noise_m=posterior.noise.sigma, rho_noise=posterior.noise.rho,
+                  sigma_white_m=posterior.noise.white)
+    return MapResult(
+        values=values,
+        log_posterior=float(lp[0] + ll[0]),
+        rms_cost_m=cost,
+        global_values=dict(zip(posterior.names, map(float, posterior.to_natural(
+            z_global[None])[0]), strict=True)),
+        global_rms_cost_m=global_cost,
+        z=z_map,
+        covariance_z=cov_z,
+    )
+
+
+def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generator,
+                   popsize: int, maxiter: int) -> tuple[np.ndarray, float]:
+    """Differential evolution on the paper's RMS cost; the optimum and its cost."""
+    lik = posterior.likelihood
 
     def rms(z: np.ndarray) -> np.ndarray:
         theta = posterior.to_natural(z)
@@ -460,15 +319,15 @@ def find_map(
         )
         if best is None or de.fun < best.fun:
             best = de
-    z_global = best.x
-    global_cost = float(rms(z_global[None])[0])
+    global_cost = float(rms(best.x[None])[0])
     if global_cost >= 1.0:
         raise FitError("no parameter set in the prior's plausible region gives a finite "
                        "simulation of this data; check the data's units and the rig")
-    z0 = z_global
+    return best.x, global_cost
 
-    # optimise in coordinates scaled to the plausible box
-    scale = box[:, 1] - box[:, 0]
+
+def _scaled_neg_log_posterior(posterior: Posterior, z0: np.ndarray, scale: np.ndarray):
+    """The negative log posterior of ``z0 + u * scale``, batched over rows of ``u``."""
 
     def neg_logpost(u: np.ndarray) -> np.ndarray:
         z = z0 + np.atleast_2d(u) * scale
@@ -477,16 +336,20 @@ def find_map(
         v = -(lp + ll)
         return np.where(np.isfinite(v), v, 1e300)
 
-    h = np.full(posterior.ndim, 1e-7)
+    return neg_logpost
+
+
+def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
+    """L-BFGS-B from ``u = 0``, then Newton steps; the optimum and the Hessian there."""
+    h = np.full(ndim, 1e-7)
 
     def fun_and_grad(u: np.ndarray) -> tuple[float, np.ndarray]:
         pts = np.vstack([u, u + np.diag(h), u - np.diag(h)])
         vals = neg_logpost(pts)
-        n = posterior.ndim
-        grad = (vals[1: n + 1] - vals[n + 1:]) / (2 * h)
+        grad = (vals[1: ndim + 1] - vals[ndim + 1:]) / (2 * h)
         return float(vals[0]), np.where(np.isfinite(grad), grad, 0.0)
 
-    u = np.zeros(posterior.ndim)
+    u = np.zeros(ndim)
     for _ in range(3):  # restart: the first pass also learns the curvature's scale
         res = minimize(fun_and_grad, u, jac=True, method="L-BFGS-B",
                        options={"maxiter": 2000, "ftol": 1e-15, "gtol": 1e-9})
@@ -496,9 +359,7 @@ def find_map(
     # Newton polish with the finite-difference Hessian, whose inverse is the
     # Laplace covariance
     for _ in range(5):
-        hd = np.abs(np.diag(_fd_hessian(neg_logpost, u, np.full(posterior.ndim, 1e-6))))
-        step_h = 0.2 / np.sqrt(np.where(hd > 0, hd, 1.0))
-        hess = _fd_hessian(neg_logpost, u, step_h)
+        hess = _scaled_hessian(neg_logpost, u)
         f0, g0 = fun_and_grad(u)
         try:
             step = -np.linalg.solve(hess, g0)
@@ -512,18 +373,28 @@ def find_map(
         u = u + t * step
         if np.max(np.abs(t * step) * np.sqrt(np.abs(np.diag(hess)))) < 1e-3:
             break
-    hd = np.abs(np.diag(_fd_hessian(neg_logpost, u, np.full(posterior.ndim, 1e-6))))
-    hess = _fd_hessian(neg_logpost, u, 0.2 / np.sqrt(np.where(hd > 0, hd, 1.0)))
-    z_map = z0 + u * scale
+    return u, _scaled_hessian(neg_logpost, u)
+
+
+def _scaled_hessian(neg_logpost, u: np.ndarray) -> np.ndarray:
+    """The Hessian at ``u``, with steps of 0.2 of the curvature's length scale."""
+    hd = np.abs(np.diag(_fd_hessian(neg_logpost, u, np.full(u.size, 1e-6))))
+    return _fd_hessian(neg_logpost, u, 0.2 / np.sqrt(np.where(hd > 0, hd, 1.0)))
+
+
+def _laplace_covariance(hess: np.ndarray) -> np.ndarray:
+    """The inverse Hessian, or a diagonal stand-in where that is not a covariance."""
     try:
-        cov_u = np.linalg.inv(hess)
-        np.linalg.cholesky(cov_u)
+        cov = np.linalg.inv(hess)
+        np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        cov_u = np.diag(1.0 / np.where(np.diag(hess) > 0, np.diag(hess), 1e6))
-    cov_z = cov_u * np.outer(scale, scale)
-    theta_map = posterior.to_natural(z_map[None])
-    lp, ll, x = posterior.evaluate(theta_map)
-    cost = float(lik.rms_cost(x[0])[0])
+        cov = np.diag(1.0 / np.where(np.diag(hess) > 0, np.diag(hess), 1e6))
+    return cov
+
+
+def _check_fit_quality(lik: Likelihood, x: np.ndarray) -> float:
+    """The RMS cost of the MAP's output ``x``, refused when the data cannot be this model's."""
+    cost = float(lik.rms_cost(x)[0])
     if not np.isfinite(cost) or cost > 0.25 * np.ptp(lik.y_mean):
         raise FitError(
             f"{lik.dataset.source or 'the data'}: the best fit leaves an RMS error of "
@@ -532,23 +403,11 @@ def find_map(
             "in Pa), that the input column is the commanded input, and the rig (masses, "
             "gravity direction)."
         )
-    values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
-    values.update(sigma_noise_m=posterior.noise.sigma, rho_noise=posterior.noise.rho,
-                  sigma_white_m=posterior.noise.white)
-    return MapResult(
-        values=values,
-        log_posterior=float(lp[0] + ll[0]),
-        rms_cost_m=cost,
-        global_values=dict(zip(posterior.names, map(float, posterior.to_natural(
-            z_global[None])[0]), strict=True)),
-        global_rms_cost_m=global_cost,
-        z=z_map,
-        covariance_z=cov_z,
-    )
+    return cost
 
 
 # ---------------------------------------------------------------------------------
-# sampling
+# sampling: the ensembles, one HDF5 file each
 
 
 @dataclass(frozen=True)
@@ -616,24 +475,35 @@ def _moves(kind: str):
     raise FitError(f"unknown moves {kind!r}; use 'de' or 'stretch'")
 
 
-def _advance(path: str, n_steps: int, initial: np.ndarray | None, seed: int | None,
-             moves: str) -> int:
+def _advance(job: tuple) -> int:
     """Advance one ensemble by ``n_steps`` and append them to its HDF5 file.
 
-    The file has emcee's ``HDFBackend`` layout (readable with
-    ``emcee.backends.HDFBackend(path, name="mcmc")``) and records the random state
-    after every chunk, so a run resumed from it continues exactly as an
-    uninterrupted one. Steps run in memory and are written once per chunk:
-    emcee's backend reopens the file at every step, which costs more than a step.
+    ``job`` is ``(path, n_steps, initial, seed, moves)``. The file has emcee's
+    ``HDFBackend`` layout (readable with ``emcee.backends.HDFBackend(path,
+    name="mcmc")``) and records the random state after every round, so a run
+    resumed from it continues exactly as an uninterrupted one. Steps run in
+    memory and are written once per round: emcee's backend reopens the file at
+    every step, which costs more than a step. The round is written to a copy that
+    replaces the file only when complete: a process killed mid-write leaves the
+    last complete round behind, never half of one.
     """
+    path, n_steps, initial, seed, moves = job
     posterior = _WORKER_POSTERIOR
-    store = emcee.backends.HDFBackend(path, name="mcmc")
+    tmp = path + ".tmp"
+    if os.path.exists(path):
+        shutil.copyfile(path, tmp)
+    elif os.path.exists(tmp):
+        os.remove(tmp)  # the debris of a round that never completed
+    store = emcee.backends.HDFBackend(tmp, name="mcmc")
     if store.initialized and store.iteration > 0:
         state = store.get_last_sample()
     else:
         # emcee has no seed argument: its RandomState comes from our seed
         state = emcee.State(initial, random_state=np.random.RandomState(seed).get_state())
         store.reset(initial.shape[0], posterior.ndim)
+    if n_steps <= 0:  # already ahead (another ensemble's round was cut short)
+        os.remove(tmp)
+        return store.iteration
     sampler = emcee.EnsembleSampler(state.coords.shape[0], posterior.ndim,
                                     posterior.log_prob_z, vectorize=True, moves=_moves(moves))
     final = sampler.run_mcmc(state, n_steps, progress=False)
@@ -646,8 +516,94 @@ def _advance(path: str, n_steps: int, initial: np.ndarray | None, seed: int | No
         g["accepted"][:] += sampler.backend.accepted
         for i, v in enumerate(final.random_state):
             g.attrs[f"random_state_{i}"] = v
-        g.attrs["iteration"] = it + n_steps  # last: a kill before this keeps the old state
+        g.attrs["iteration"] = it + n_steps
+    os.replace(tmp, path)  # the commit
     return it + n_steps
+
+
+class _Chains:
+    """A chains folder: the stamp ``fit.json`` (fingerprint and MAP) and one HDF5
+    file per ensemble. The folder is made only when the MAP is there to stamp."""
+
+    def __init__(self, folder: Path, n_ensembles: int, key: str) -> None:
+        self.folder = folder
+        self.key = key
+        self.stamp = folder / "fit.json"
+        self.paths = [str(folder / f"ensemble_{e}.h5") for e in range(n_ensembles)]
+
+    def _files(self) -> list[str]:
+        return [p + s for p in self.paths for s in ("", ".tmp")]
+
+    def clear(self) -> None:
+        """Discard the chains and the stamp (a restart)."""
+        for p in [*self._files(), str(self.stamp)]:
+            if os.path.exists(p):
+                os.remove(p)
+
+    def saved_map(self) -> tuple[MapResult, float] | None:
+        """The stamped MAP and its time, or None for a fresh start."""
+        if not self.stamp.exists():
+            return None
+        saved = json.loads(self.stamp.read_text())
+        if saved.get("fingerprint") != self.key:
+            raise FitError(
+                f"{self.folder} holds chains of a different fit (other data, model, seed or "
+                "sampler settings); pass restart=True (--restart) or choose another output"
+            )
+        return MapResult.from_record(saved["map"]), saved["timings_s"]["map"]
+
+    def start(self, map_result: MapResult, t_map: float) -> None:
+        """Stamp a fresh start (atomically), discarding chains of any earlier one."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        for p in self._files():
+            if os.path.exists(p):
+                os.remove(p)
+        tmp = self.stamp.with_name(self.stamp.name + ".tmp")
+        tmp.write_text(json.dumps({"fingerprint": self.key, "map": map_result.record(),
+                                   "timings_s": {"map": t_map}}, indent=1))
+        os.replace(tmp, self.stamp)
+
+    def iterations(self) -> list[int]:
+        """Completed steps of each ensemble."""
+        return [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).iteration
+                if os.path.exists(p) else 0 for p in self.paths]
+
+    def read(self) -> list[np.ndarray]:
+        """Every ensemble's chain ``(steps, walkers, ndim)``."""
+        return [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
+                for p in self.paths]
+
+    def kept(self, diag: _Diagnostics) -> tuple[np.ndarray, np.ndarray]:
+        """Kept draws ``(chain, draw, ndim)`` and their log density ``(chain, draw)``:
+        burn-in dropped, thinned, a chain per walker, ensemble after ensemble."""
+        zs, lps = [], []
+        for p in self.paths:
+            b = emcee.backends.HDFBackend(p, name="mcmc", read_only=True)
+            zs.append(b.get_chain(discard=diag.burn, thin=diag.thin)[
+                : (diag.n_steps - diag.burn) // diag.thin])
+            lps.append(b.get_log_prob(discard=diag.burn, thin=diag.thin)[: zs[-1].shape[0]])
+        n_draw = min(z.shape[0] for z in zs)
+        z = np.concatenate([zz[:n_draw].transpose(1, 0, 2) for zz in zs])
+        lp_z = np.concatenate([ll[:n_draw].T for ll in lps])
+        return z, lp_z
+
+
+@contextlib.contextmanager
+def _chains_folder(chains_dir: str | Path | None) -> Iterator[Path]:
+    """The folder for the chains: a temporary one when none is given. A failure
+    before any chain is written leaves no folder this call made."""
+    if chains_dir is None:
+        with tempfile.TemporaryDirectory(prefix="pmabayes-chains-") as tmp:
+            yield Path(tmp)
+        return
+    folder = Path(chains_dir)
+    existed = folder.exists()
+    try:
+        yield folder
+    except BaseException:
+        if not existed and folder.is_dir() and not any(folder.glob("ensemble_*.h5")):
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
 
 
 @dataclass
@@ -658,55 +614,68 @@ class _Diagnostics:
     thin: int
     tau: np.ndarray
     ess: np.ndarray
-    rhat: np.ndarray
     rhat_ensembles: np.ndarray | None
     n_steps: int
 
+    def record(self, settings: FitSettings, names, rhat: np.ndarray, resumed: bool) -> dict:
+        """The ``convergence`` entry of a fit's metadata (undefined values as None)."""
 
-def _diagnose(chains: list[np.ndarray], names, settings: FitSettings, *,
-              final: bool = False) -> _Diagnostics:
-    """Convergence of ensembles' chains ``(steps, walkers, ndim)`` (unconstrained).
+        def named(values):
+            return None if values is None else {
+                n: (float(v) if np.isfinite(v) else None)
+                for n, v in zip(names, values, strict=True)}
 
-    The indicative R-hat over walkers is computed only when ``final``.
-    """
-    import arviz as az
+        return {"converged": self.converged, "messages": self.messages,
+                "n_ensembles": settings.n_ensembles, "n_walkers": settings.n_walkers,
+                "n_steps": self.n_steps, "burn": self.burn, "thin": self.thin,
+                "tau": named(self.tau), "ess": named(self.ess), "rhat": named(rhat),
+                "rhat_ensembles": named(self.rhat_ensembles),
+                "min_ess": settings.min_ess, "tau_multiple": settings.tau_multiple,
+                "resumed": resumed}
 
+
+def _convergence(chains: list[np.ndarray], names, settings: FitSettings) -> _Diagnostics:
+    """Convergence of ensembles' chains ``(steps, walkers, ndim)`` (unconstrained)."""
     n = min(c.shape[0] for c in chains)
     ndim = chains[0].shape[2]
-    # tau from the second half (past any transient), per ensemble and parameter
-    taus = np.array([
-        emcee.autocorr.integrated_time(c[n // 2: n], tol=0, quiet=True) for c in chains
-    ])
+    names = np.array(names)
+    # tau from the second half (past any transient), per ensemble and parameter; NaN
+    # where a walker has not moved there (nothing to estimate it from yet)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        taus = np.array([
+            emcee.autocorr.integrated_time(c[n // 2: n], tol=0, quiet=True) for c in chains
+        ])
     tau = taus.max(axis=0)
-    tau_max = float(tau.max())
-    burn = min(int(math.ceil(3 * tau_max)), n // 2)
+    undefined = ~np.isfinite(tau)
+    tau_max = float(tau[~undefined].max()) if not undefined.all() else float(n)
+    burn = n // 2 if undefined.any() else min(int(math.ceil(3 * tau_max)), n // 2)
     kept = n - burn
     ess = np.sum([c.shape[1] * kept / t for c, t in zip(chains, taus, strict=True)], axis=0)
     kept_chains = [c[burn:n] for c in chains]
-    rhat = np.full(ndim, np.nan)
-    if final:
-        walkers = np.concatenate([k.transpose(1, 0, 2) for k in kept_chains], axis=0)
-        rhat = np.array([float(az.rhat(walkers[:, :, j], method="rank"))
-                         for j in range(ndim)])
     rhat_ens = None
     if len(chains) > 1:
         per_ens = np.stack([k.reshape(-1, ndim) for k in kept_chains])  # step-major
         rhat_ens = np.array([float(az.rhat(per_ens[:, :, j], method="rank"))
                              for j in range(ndim)])
     messages = []
-    short = kept < settings.tau_multiple * tau
+    if undefined.any():
+        messages.append(
+            f"the autocorrelation time of {', '.join(names[undefined])} cannot be estimated "
+            f"yet (a walker has not moved in the last {n - n // 2} of {n} steps); the run is "
+            "too short to judge"
+        )
+    short = kept < settings.tau_multiple * tau  # False where tau is undefined
     if short.any():
         messages.append(
             f"kept chain of {kept} steps is shorter than {settings.tau_multiple:g} "
-            f"autocorrelation times for {', '.join(np.array(names)[short])} "
+            f"autocorrelation times for {', '.join(names[short])} "
             f"(tau up to {tau_max:.0f} steps)"
         )
     low = ess < settings.min_ess
     if low.any():
         messages.append(
             f"ESS below {settings.min_ess:g} for "
-            + ", ".join(f"{nm} ({e:.0f})" for nm, e in zip(np.array(names)[low], ess[low],
-                                                          strict=True))
+            + ", ".join(f"{nm} ({e:.0f})" for nm, e in zip(names[low], ess[low], strict=True))
         )
     # R-hat is defined across independent ensembles; emcee's walkers are coupled
     # by the moves, so their R-hat is reported as indicative only
@@ -714,43 +683,62 @@ def _diagnose(chains: list[np.ndarray], names, settings: FitSettings, *,
         bad = rhat_ens >= settings.max_rhat
         messages.append(
             f"R-hat across ensembles at or above {settings.max_rhat} for "
-            + ", ".join(f"{nm} ({r:.4f})" for nm, r in zip(np.array(names)[bad],
-                                                           rhat_ens[bad], strict=True))
+            + ", ".join(f"{nm} ({r:.4f})" for nm, r in zip(names[bad], rhat_ens[bad],
+                                                           strict=True))
         )
     # stored draws: thinned by at least tau/2 and to about 8000 in all (convergence
     # and ESS are judged on the full chain; the store feeds summaries and LOO)
     n_chains = sum(c.shape[1] for c in chains)
     thin = max(1, int(tau_max // 2), math.ceil(kept * n_chains / 8000))
-    return _Diagnostics(not messages, messages, burn, thin, tau, ess, rhat, rhat_ens, n)
+    return _Diagnostics(not messages, messages, burn, thin, tau, ess, rhat_ens, n)
+
+
+def _walker_rhat(theta: np.ndarray) -> np.ndarray:
+    """Rank-normalised split R-hat over walkers of stored draws ``(chain, draw, ndim)``
+    in natural units: the value ArviZ computes from the fit file."""
+    return np.array([float(az.rhat(theta[:, :, j], method="rank"))
+                     for j in range(theta.shape[2])])
 
 
 def _fingerprint(likelihood: Likelihood, settings: FitSettings, seed) -> str:
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(likelihood.dataset.position_m).tobytes())
-    h.update(np.ascontiguousarray(likelihood.input).tobytes())
-    desc = {
-        "model": likelihood.model.describe(), "rig": likelihood.model.rig.to_dict(),
-        "effects": likelihood.model.effect_names, "seed": seed,
-        "n_walkers": settings.n_walkers, "n_ensembles": settings.n_ensembles,
-        "substeps": likelihood.substeps,
-    }
-    h.update(json.dumps(desc, sort_keys=True, default=str).encode())
-    return h.hexdigest()[:16]
+    """What makes chains resumable: the data, the model, the seed and the ensembles."""
+    model = likelihood.model
+    return fingerprint(
+        likelihood.dataset.position_m, likelihood.input,
+        {"model": model.describe(), "rig": model.rig.to_dict(),
+         "effects": model.effect_names, "seed": seed, "n_walkers": settings.n_walkers,
+         "n_ensembles": settings.n_ensembles, "substeps": likelihood.substeps},
+    )
 
 
-def _progress(settings: FitSettings, text: str) -> None:
-    if settings.progress:
-        print(f"[pmabayes fit] {text}", file=sys.stderr, flush=True)
+def _round_line(diag: _Diagnostics, settings: FitSettings, seconds: float) -> str:
+    """One progress line: a bar towards convergence (the run stops when the chain is
+    long enough, not at a known step count) and where the run stands."""
+    tau = diag.tau[np.isfinite(diag.tau)]
+    tau_max = float(tau.max()) if tau.size else math.nan
+    kept = diag.n_steps - diag.burn
+    ess_min = float(np.nanmin(diag.ess)) if np.isfinite(diag.ess).any() else 0.0
+    frac = min(1.0, kept / (settings.tau_multiple * tau_max), ess_min / settings.min_ess)
+    bar = "#" * int(round(20 * frac)) if np.isfinite(frac) else ""
+    needed = (f"{kept} of {settings.tau_multiple * tau_max:.0f} steps needed "
+              f"({settings.tau_multiple:g} x tau {tau_max:.0f})" if tau.size == diag.tau.size
+              else f"{kept} steps (tau cannot be estimated yet)")
+    return (f"[{bar:-<20}] step {diag.n_steps} (budget {settings.max_steps}) x "
+            f"{settings.n_ensembles} ensembles x {settings.n_walkers} walkers: kept "
+            f"{needed}, ESS min {ess_min:.0f}"
+            + (f", R-hat across ensembles max {diag.rhat_ensembles.max():.4f}"
+               if diag.rhat_ensembles is not None else "")
+            + f", {seconds:.0f} s")
 
 
-def _sample_rounds(posterior: Posterior, paths: list[str], initials: list[np.ndarray],
-                   ens_seeds: list[int], settings: FitSettings, pool,
-                   t_sample: float) -> _Diagnostics:
+def _sample_rounds(posterior: Posterior, chains: _Chains, initials: list[np.ndarray],
+                   ens_seeds: list[int], settings: FitSettings, runner: Runner,
+                   say: Progress) -> _Diagnostics:
     """Advance all ensembles round by round until converged or out of budget."""
+    t_sample = time.perf_counter()
     diag = None
     while True:
-        done = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).iteration
-                if os.path.exists(p) else 0 for p in paths]
+        done = chains.iterations()
         n_done = min(done)
         budget_left = settings.max_steps - n_done
         if diag is not None and (diag.converged or budget_left <= 0):
@@ -762,33 +750,14 @@ def _sample_rounds(posterior: Posterior, paths: list[str], initials: list[np.nda
         if step > 0:
             jobs = [(p, step - (d - n_done), initials[e] if d == 0 else None, ens_seeds[e],
                      settings.moves)
-                    for e, (p, d) in enumerate(zip(paths, done, strict=True))]
-            if pool is None:
-                for job in jobs:
-                    _advance(*job)
-            else:
-                list(pool.map(_advance, *zip(*jobs, strict=True)))
-        chains = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
-                  for p in paths]
-        if min(c.shape[0] for c in chains) < 20:
+                    for e, (p, d) in enumerate(zip(chains.paths, done, strict=True))]
+            for _ in runner.map(_advance, jobs):
+                pass
+        current = chains.read()
+        if min(c.shape[0] for c in current) < 20:
             continue
-        diag = _diagnose(chains, posterior.names, settings)
-        # a bar towards convergence: the run stops when the chain is long
-        # enough, not at a known step count
-        done_frac = min(1.0, (diag.n_steps - diag.burn) / (settings.tau_multiple
-                                                          * diag.tau.max()),
-                        diag.ess.min() / settings.min_ess)
-        bar = "#" * int(round(20 * done_frac))
-        _progress(settings, (
-            f"[{bar:-<20}] step {diag.n_steps} (budget {settings.max_steps}) x "
-            f"{settings.n_ensembles} ensembles x {settings.n_walkers} walkers: kept "
-            f"{diag.n_steps - diag.burn} of {settings.tau_multiple * diag.tau.max():.0f} "
-            f"steps needed ({settings.tau_multiple:g} x tau {diag.tau.max():.0f}), "
-            f"ESS min {diag.ess.min():.0f}"
-            + (f", R-hat across ensembles max {diag.rhat_ensembles.max():.4f}"
-               if diag.rhat_ensembles is not None else "")
-            + f", {time.perf_counter() - t_sample:.0f} s"
-        ))
+        diag = _convergence(current, posterior.names, settings)
+        say.say(_round_line(diag, settings, time.perf_counter() - t_sample))
         if step == 0:
             break
     return diag
@@ -820,7 +789,8 @@ def fit(
     chains_dir : str or Path, optional
         Where the ensembles' HDF5 chains live. A run pointed at the chains of an
         interrupted run with the same data, model, seed and settings resumes them;
-        without it a temporary folder is used.
+        without it a temporary folder is used. It is made once the MAP is found,
+        and a failure before any chain is written removes it again.
     restart : bool
         Discard existing chains in ``chains_dir`` instead of resuming.
     substeps : int
@@ -835,73 +805,89 @@ def fit(
     ------
     FitError
         When the data cannot be fitted or the chains belong to another fit.
-    """
-    import tempfile
 
+    Warns
+    -----
+    ConvergenceWarning
+        Once, when the budget ran out before the sampler converged.
+    """
     start = time.perf_counter()
     settings = FitSettings() if settings is None else settings
     model = Model() if model is None else model
+    posterior = _posterior(model, dataset, substeps)
+    _check_settings(settings, posterior)
+    s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
+    ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
+    say = Progress("fit", settings.progress)
+    with _chains_folder(chains_dir) as folder:
+        chains = _Chains(folder, settings.n_ensembles,
+                         _fingerprint(posterior.likelihood, settings, seed))
+        if restart:
+            chains.clear()
+        map_result, t_map, resumed = _map_or_resume(chains, posterior, s_map, say, start)
+        initials = _initial_walkers(posterior, map_result, ens_seeds, settings.n_walkers)
+        t_sample = time.perf_counter()
+        n_proc = settings.processes or min(settings.n_ensembles, local_cores())
+        with Runner(n_proc, initializer=_init_worker, initargs=(posterior,),
+                    tasks=settings.n_ensembles) as runner:
+            _sample_rounds(posterior, chains, initials, ens_seeds, settings, runner, say)
+        t_sampling = time.perf_counter() - t_sample
+        diag = _convergence(chains.read(), posterior.names, settings)
+        z, lp_z = chains.kept(diag)
+    _warn_if_not_converged(diag)
+    ensemble = np.repeat(np.arange(settings.n_ensembles), settings.n_walkers)
+    tree = fit_tree(posterior, z, lp_z, ensemble, ppc_draws=settings.ppc_draws,
+                    rng=np.random.default_rng(s_ppc))
+    rhat = _walker_rhat(posterior.to_natural(z.reshape(-1, posterior.ndim)).reshape(z.shape))
+    set_fit_info(tree, posterior, map_record=map_result.summary(),
+                 convergence=diag.record(settings, posterior.names, rhat, resumed), seed=seed,
+                 timings={"map": t_map, "sampling": t_sampling,
+                          "total": time.perf_counter() - start})
+    return tree
+
+
+def _posterior(model: Model, dataset: Dataset, substeps: int) -> Posterior:
+    """The posterior to sample, with the noise learnt from repeatability."""
     try:
         likelihood = Likelihood(model, dataset, substeps=substeps)
     except LikelihoodError as exc:
         raise FitError(str(exc)) from None
-    posterior = Posterior(likelihood, estimate_noise(likelihood))
+    return Posterior(likelihood, estimate_noise(likelihood))
+
+
+def _check_settings(settings: FitSettings, posterior: Posterior) -> None:
     if settings.max_steps < 20:
         raise FitError(f"max_steps must be at least 20 (the autocorrelation time needs a "
                        f"chain), got {settings.max_steps}")
     if settings.n_walkers < 2 * posterior.ndim:
         raise FitError(f"n_walkers must be at least {2 * posterior.ndim} (twice the "
                        f"{posterior.ndim} parameters), got {settings.n_walkers}")
-    seeds = np.random.SeedSequence(seed)
-    s_map, s_walkers, s_ppc = seeds.spawn(3)
-    ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
 
-    tmp = None
-    if chains_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="pmabayes-chains-")
-        chains_dir = Path(tmp.name)
-    chains_dir = Path(chains_dir)
-    chains_dir.mkdir(parents=True, exist_ok=True)
-    stamp = chains_dir / "fit.json"
-    fingerprint = _fingerprint(likelihood, settings, seed)
-    paths = [str(chains_dir / f"ensemble_{e}.h5") for e in range(settings.n_ensembles)]
-    if restart:
-        for p in [*paths, str(stamp)]:
-            if os.path.exists(p):
-                os.remove(p)
-    resumed = stamp.exists()
-    if resumed:
-        saved = json.loads(stamp.read_text())
-        if saved.get("fingerprint") != fingerprint:
-            raise FitError(
-                f"{chains_dir} holds chains of a different fit (other data, model, seed or "
-                "sampler settings); pass restart=True (--restart) or choose another output"
-            )
-        map_result = MapResult(**{**saved["map"], "z": np.array(saved["map"]["z"]),
-                                  "covariance_z": np.array(saved["map"]["covariance_z"])})
-        t_map = saved["timings_s"]["map"]
-        _progress(settings, f"resuming the chains in {chains_dir}")
-    else:
-        _progress(settings, "global search and MAP ...")
-        map_result = find_map(posterior, rng=np.random.default_rng(s_map))
-        t_map = time.perf_counter() - start
-        _progress(settings, f"MAP in {t_map:.1f} s: RMS cost {map_result.rms_cost_m * 1e6:.1f} um "
-                  f"(global search {map_result.global_rms_cost_m * 1e6:.1f} um)")
-        record = {k: v for k, v in map_result.__dict__.items()}
-        record["z"] = map_result.z.tolist()
-        record["covariance_z"] = map_result.covariance_z.tolist()
-        for p in paths:
-            if os.path.exists(p):
-                os.remove(p)
-        stamp.write_text(json.dumps({"fingerprint": fingerprint, "map": record,
-                                     "timings_s": {"map": t_map}}, indent=1))
 
-    # initial walkers from the Laplace approximation
+def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSequence,
+                   say: Progress, start: float) -> tuple[MapResult, float, bool]:
+    """The stamped MAP of resumable chains, or a fresh MAP that starts new ones."""
+    saved = chains.saved_map()
+    if saved is not None:
+        say.say(f"resuming the chains in {chains.folder}")
+        return (*saved, True)
+    say.say("global search and MAP ...")
+    map_result = find_map(posterior, rng=np.random.default_rng(seed))
+    t_map = time.perf_counter() - start
+    say.say(f"MAP in {t_map:.1f} s: RMS cost {map_result.rms_cost_m * 1e6:.1f} um "
+            f"(global search {map_result.global_rms_cost_m * 1e6:.1f} um)")
+    chains.start(map_result, t_map)
+    return map_result, t_map, False
+
+
+def _initial_walkers(posterior: Posterior, map_result: MapResult, ens_seeds: list[int],
+                     n_walkers: int) -> list[np.ndarray]:
+    """Each ensemble's walkers, drawn from the Laplace approximation at the MAP."""
     initials = []
-    for e in range(settings.n_ensembles):
-        rng = np.random.default_rng(ens_seeds[e])
+    for seed in ens_seeds:
+        rng = np.random.default_rng(seed)
         pts = rng.multivariate_normal(map_result.z, map_result.covariance_z,
-                                      size=settings.n_walkers, method="eigh")
+                                      size=n_walkers, method="eigh")
         lp = posterior.log_prob_z(pts)
         for _ in range(100):  # redraw any walker that starts outside the support
             bad = ~np.isfinite(lp)
@@ -911,166 +897,15 @@ def fit(
                                                size=int(bad.sum()), method="eigh")
             lp[bad] = posterior.log_prob_z(pts[bad])
         initials.append(pts)
+    return initials
 
-    t_sample = time.perf_counter()
-    n_proc = settings.processes or min(settings.n_ensembles, os.cpu_count() or 1)
-    _init_worker(posterior)
-    # Workers are forked so that user effects (defined in a notebook or loaded with
-    # --plugin, not importable by name) reach them without pickling. Python warns
-    # about fork in a process with threads; here the threads are OpenBLAS's pool,
-    # which reinitialises in the child (pthread_atfork), and numba and h5py run none.
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
-                                category=DeprecationWarning)
-        pool = None
-        if n_proc > 1 and settings.n_ensembles > 1:
-            ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-            pool = ProcessPoolExecutor(max_workers=n_proc, mp_context=ctx,
-                                       initializer=_init_worker, initargs=(posterior,))
-        try:
-            _sample_rounds(posterior, paths, initials, ens_seeds, settings, pool, t_sample)
-        finally:
-            if pool is not None:
-                pool.shutdown()
-    t_sampling = time.perf_counter() - t_sample
-    chains = [emcee.backends.HDFBackend(p, name="mcmc", read_only=True).get_chain()
-              for p in paths]
-    diag = _diagnose(chains, posterior.names, settings, final=True)
+
+def _warn_if_not_converged(diag: _Diagnostics) -> None:
+    # said once, as a warning: a caller that reports it its own way (the CLI's
+    # banner) filters ConvergenceWarning
     if not diag.converged:
         warnings.warn(
             "pmabayes fit did NOT converge: " + "; ".join(diag.messages)
             + ". The result is saved anyway; run longer (more steps) before trusting it.",
-            RuntimeWarning, stacklevel=2,
+            ConvergenceWarning, stacklevel=3,
         )
-        _progress(settings, "NOT CONVERGED: " + "; ".join(diag.messages))
-    tree = _build_tree(posterior, paths, diag, settings, map_result,
-                       np.random.default_rng(s_ppc))
-    info = _info(posterior, diag, settings, map_result, seed,
-                 {"map": t_map, "sampling": t_sampling,
-                  "total": time.perf_counter() - start}, resumed)
-    tree.attrs["pmabayes"] = json.dumps(info)
-    if tmp is not None:
-        tmp.cleanup()
-    return tree
-
-
-def _build_tree(posterior: Posterior, paths, diag: _Diagnostics, settings: FitSettings,
-                map_result: MapResult, rng: np.random.Generator) -> xr.DataTree:
-    import arviz as az
-
-    lik = posterior.likelihood
-    zs, lps = [], []
-    for p in paths:
-        b = emcee.backends.HDFBackend(p, name="mcmc", read_only=True)
-        zs.append(b.get_chain(discard=diag.burn, thin=diag.thin)[: (diag.n_steps - diag.burn)
-                                                                  // diag.thin])
-        lps.append(b.get_log_prob(discard=diag.burn, thin=diag.thin)[: zs[-1].shape[0]])
-    n_draw = min(z.shape[0] for z in zs)
-    z = np.concatenate([zz[:n_draw].transpose(1, 0, 2) for zz in zs])  # (chain, draw, ndim)
-    lp_z = np.concatenate([ll[:n_draw].T for ll in lps])
-    n_chain = z.shape[0]
-    flat_z = z.reshape(-1, posterior.ndim)
-    theta = posterior.to_natural(flat_z)
-    lp = (lp_z.reshape(-1) - posterior.log_jacobian(flat_z)).reshape(n_chain, n_draw)
-    # the noise: independent draws from its posterior, paired with the model draws
-    sigma, rho, white = posterior.noise.draws(rng, theta.shape[0])
-    # per-trial log-likelihood for every kept draw, in chunks
-    pointwise = np.empty((theta.shape[0], lik.n_trials))
-    for a in range(0, theta.shape[0], 512):
-        sl = slice(a, a + 512)
-        x = lik.simulate(posterior.full_theta(theta[sl]))
-        pointwise[sl] = lik.pointwise(x, sigma[sl], rho[sl], white[sl])
-    # posterior predictive: random draws with fresh AR(1) noise
-    from pmabayes.likelihood import ar1_noise
-
-    pick = rng.choice(theta.shape[0], size=min(settings.ppc_draws, theta.shape[0]),
-                      replace=False)
-    x_pp = lik.simulate(posterior.full_theta(theta[pick]))
-    noise = ar1_noise(len(pick) * lik.n_trials, lik.n_samples,
-                      np.repeat(sigma[pick], lik.n_trials), np.repeat(rho[pick], lik.n_trials),
-                      rng)
-    noise += np.repeat(white[pick], lik.n_trials)[:, None] * rng.standard_normal(noise.shape)
-    y_pp = x_pp[:, None, :] + noise.reshape(len(pick), lik.n_trials, lik.n_samples)
-    ds = lik.dataset
-    data = {
-        "posterior": {
-            **{n: theta[:, j].reshape(n_chain, n_draw) for j, n in enumerate(posterior.names)},
-            "sigma_noise_m": sigma.reshape(n_chain, n_draw),
-            "rho_noise": rho.reshape(n_chain, n_draw),
-            "sigma_white_m": white.reshape(n_chain, n_draw),
-        },
-        "sample_stats": {"lp": lp},
-        "log_likelihood": {"position_m": pointwise.reshape(n_chain, n_draw, lik.n_trials)},
-        "observed_data": {"position_m": ds.position_m},
-        "constant_data": {ds.input_name: ds.input[0]},
-        "posterior_predictive": {
-            "position_m": y_pp[None].astype(np.float32),
-            "model_position_m": x_pp[None].astype(np.float32),
-        },
-    }
-    dims = {"position_m": ["trial", "time"], "model_position_m": ["time"],
-            ds.input_name: ["time"]}
-    coords = {"trial": ds.trial_ids, "time": ds.time_s}
-    tree = az.from_dict(data, dims=dims, coords=coords)
-    # log_likelihood's position_m is per trial only
-    ll_ds = xr.Dataset(
-        {"position_m": (("chain", "draw", "trial"), pointwise.reshape(n_chain, n_draw,
-                                                                      lik.n_trials))},
-        coords={"chain": np.arange(n_chain), "draw": np.arange(n_draw), "trial": ds.trial_ids},
-    )
-    tree["log_likelihood"] = xr.DataTree(ll_ds)
-    ss = tree["sample_stats"].to_dataset()
-    ss["ensemble"] = ("chain", np.repeat(np.arange(len(paths)), settings.n_walkers))
-    tree["sample_stats"] = xr.DataTree(ss)
-    return tree
-
-
-def _info(posterior: Posterior, diag: _Diagnostics, settings: FitSettings,
-          map_result: MapResult, seed, timings: dict, resumed: bool) -> dict:
-    lik = posterior.likelihood
-    model = posterior.model
-    rows = model.describe()
-    for p in NOISE_PARAMETERS:
-        rows.append({"name": p.name, "unit": p.unit, "default": p.default,
-                     "prior": str(p.prior), "bounds": p.bounds, "fixed": False,
-                     "description": p.description, "source": "noise"})
-    for row in rows:
-        row["bounds"] = [float(b) for b in row["bounds"]]
-    names = posterior.names
-
-    def named(values):
-        return None if values is None else {n: float(v) for n, v in
-                                            zip(names, values, strict=True)}
-
-    ds = lik.dataset
-    return {
-        "pmabayes_version": __version__,
-        "model": {"effects": list(model.effect_names), "rig": model.rig.to_dict(),
-                  "free": list(model.free_names), "fixed": dict(model.fixed),
-                  "parameters": rows},
-        "noise": {"model": "AR(1) disturbance plus white sensor noise per trial, stationary, "
-                           "independent between trials",
-                  "parameters": [p.name for p in NOISE_PARAMETERS],
-                  "estimated_from": "deviations of the trials from their mean (repeatability); "
-                                    "posterior by Laplace approximation, independent draws",
-                  "sigma_noise_m": posterior.noise.sigma, "rho_noise": posterior.noise.rho,
-                  "sigma_white_m": posterior.noise.white},
-        "data": {"source": ds.source, "n_trials": ds.n_trials, "n_samples": ds.n_samples,
-                 "dt_s": ds.dt_s, "input_name": ds.input_name,
-                 "synthetic": bool(ds.metadata.get("synthetic", False)),
-                 "noise_floor_m": ds.noise_floor_m},
-        "paper_values": dict(PAPER_VALUES),
-        "map": {"values": map_result.values, "log_posterior": map_result.log_posterior,
-                "rms_cost_m": map_result.rms_cost_m,
-                "global_search": {"values": map_result.global_values,
-                                  "rms_cost_m": map_result.global_rms_cost_m}},
-        "convergence": {"converged": diag.converged, "messages": diag.messages,
-                        "n_ensembles": settings.n_ensembles, "n_walkers": settings.n_walkers,
-                        "n_steps": diag.n_steps, "burn": diag.burn, "thin": diag.thin,
-                        "tau": named(diag.tau), "ess": named(diag.ess),
-                        "rhat": named(diag.rhat), "rhat_ensembles": named(diag.rhat_ensembles),
-                        "min_ess": settings.min_ess, "tau_multiple": settings.tau_multiple,
-                        "resumed": resumed},
-        "seed": seed,
-        "timings_s": timings,
-    }

@@ -447,17 +447,6 @@ class Model:
                     f"outside its bounds {p.bounds} [{p.unit}]"
                 )
 
-    def log_prior(self, theta: np.ndarray) -> np.ndarray:
-        """Log prior density of each row of a full parameter array (fixed ones excluded)."""
-        theta = np.atleast_2d(theta)
-        total = np.zeros(theta.shape[0])
-        for j, p in enumerate(self.parameters):
-            if p.name in self.fixed:
-                continue
-            inside = p.in_bounds(theta[:, j])
-            total += np.where(inside, self.priors[p.name].logpdf(theta[:, j]), -np.inf)
-        return total
-
     def describe(self) -> list[dict]:
         """One row per parameter: name, unit, default, prior, bounds, fixed, meaning, source."""
         rows = []

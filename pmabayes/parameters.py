@@ -225,6 +225,20 @@ class Parameter:
         value = np.asarray(value, dtype=float)
         return (value >= self.bounds[0]) & (value <= self.bounds[1])
 
-    def log_prior(self, value: np.ndarray | float) -> np.ndarray:
-        """Prior log density truncated to the bounds (unnormalised truncation)."""
-        return np.where(self.in_bounds(value), self.prior.logpdf(value), -np.inf)
+    def log_prior(self, value: np.ndarray | float, prior: Prior | None = None) -> np.ndarray:
+        """Prior log density truncated to the bounds (unnormalised truncation).
+
+        Parameters
+        ----------
+        value : array_like
+            Values in the parameter's unit.
+        prior : Prior, optional
+            A prior to use instead of the parameter's own (a model's override).
+
+        Returns
+        -------
+        numpy.ndarray
+            The log density, ``-inf`` outside the bounds.
+        """
+        prior = self.prior if prior is None else prior
+        return np.where(self.in_bounds(value), prior.logpdf(value), -np.inf)

@@ -37,12 +37,8 @@ CPU or version round differently in the last bits.
 from __future__ import annotations
 
 import json
-import os
-import sys
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_all_start_methods, get_context
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +58,9 @@ from pmabayes.control import (
     resolve_gains,
 )
 from pmabayes.model import Model, Rig
+from pmabayes.parallel import Runner
 from pmabayes.posterior import fit_info, load_fit
+from pmabayes.util import Progress
 
 __all__ = [
     "DEFAULT_FREQUENCIES_HZ",
@@ -174,37 +172,6 @@ def _run_chunk(job: dict) -> tuple[int, dict]:
     return job["start"], loop_metrics(run)
 
 
-class _Bar:
-    """A progress bar on stderr."""
-
-    def __init__(self, total: int, enabled: bool, label: str) -> None:
-        self.total, self.enabled, self.label = total, enabled, label
-        self.done = 0
-        self.t0 = time.perf_counter()
-        self._draw()
-
-    def update(self, n: int) -> None:
-        self.done += n
-        self._draw()
-
-    def _draw(self) -> None:
-        if not self.enabled:
-            return
-        frac = self.done / max(self.total, 1)
-        bar = "#" * int(round(30 * frac))
-        end = "\n" if self.done >= self.total else ""
-        print(f"\r[pmabayes robustness] [{bar:-<30}] {self.done}/{self.total} runs "
-              f"({time.perf_counter() - self.t0:.0f} s) {self.label}", end=end,
-              file=sys.stderr, flush=True)
-
-
-def _local_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))  # the cores this process may use
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
-
-
 def robustness_sweep(
     fit,
     *,
@@ -272,6 +239,55 @@ def robustness_sweep(
     ControlError
         On a bad mode, frequency, duration, sample count, chunk size or process count.
     """
+    freqs = _check_sweep(mode, frequencies_hz, duration_s, chunk_size, processes)
+    source = str(fit) if isinstance(fit, str | Path) else "(in memory)"
+    tree = load_fit(fit) if isinstance(fit, str | Path) else fit
+    model = control_model_from_fit(tree)
+    timing = Timing() if timing is None else timing
+    theta, mean, where = posterior_samples(tree, model, samples, seed)
+    given = dict(gains or {})
+    unknown = set(given) - set(CONTROLLERS)
+    if unknown:
+        raise ControlError(f"gains for unknown controllers {sorted(unknown)}; use "
+                           f"{', '.join(CONTROLLERS)}")
+    mean_source = "given"
+    if reference_mean_m is None:
+        reference_mean_m = operating_mean_m(model, mean, pressure_max_pa=timing.pressure_max_pa)
+        mean_source = "control.operating_mean_m on the posterior mean"
+    gains_used = resolve_gains(CONTROLLERS, given, model=model, params=mean, timing=timing,
+                               reference_mean_m=reference_mean_m)
+    spec = {"effects": list(model.effect_names), "rig": model.rig.to_dict(),
+            "fixed": dict(model.fixed), "duration_s": float(duration_s), "timing": timing,
+            "reference_mean_m": float(reference_mean_m)}
+    jobs = _sweep_jobs(spec, theta, mean, freqs, mode, gain_array(CONTROLLERS, gains_used),
+                       int(chunk_size))
+    label = (f"({theta.shape[0]} samples x {freqs.size} frequencies x {len(CONTROLLERS)} "
+             "controllers)")
+    t0 = time.perf_counter()
+    flat, runner = _run_sweep(jobs, theta.shape[0] * freqs.size * len(CONTROLLERS), processes,
+                              client, Progress("robustness", progress), label)
+    ds = _sweep_dataset(flat, theta, mean, where, freqs, model)
+    all_given = all(set(given.get(c, {})) >= set(gains_used[c]) for c in CONTROLLERS)
+    seed_attr = (int(seed) if isinstance(seed, int | np.integer)
+                 else "a numpy Generator (its state is not stored)")
+    ds.attrs.update({
+        "mode": mode, "seed": seed_attr, "fit": source,
+        "effects": ",".join(model.effect_names) or "none",
+        "duration_s": float(duration_s), "reference_mean_m": float(reference_mean_m),
+        "reference_mean_source": mean_source,
+        "reference_amplitude_m": REFERENCE_AMPLITUDE_M,
+        "gains": json.dumps(gains_used),
+        "gains_source": ("given" if all_given else
+                         "tune_gains on the posterior mean" + (" (some given)" if given else "")),
+        "timing": repr(timing), "runner": runner,
+        "sweep_seconds": time.perf_counter() - t0,
+    })
+    return ds
+
+
+def _check_sweep(mode: str, frequencies_hz, duration_s: float, chunk_size,
+                 processes) -> np.ndarray:
+    """Refuse bad sweep settings; the frequencies as an array."""
     if mode not in MODES:
         raise ControlError(f"unknown mode {mode!r}; choose 'plant' or 'model'")
     freqs = np.asarray(DEFAULT_FREQUENCIES_HZ if frequencies_hz is None else frequencies_hz,
@@ -289,80 +305,51 @@ def robustness_sweep(
             isinstance(processes, int | np.integer) and processes >= 1)):
         raise ControlError(f"processes must be an integer >= 1 (or left out for every core), "
                            f"got {processes!r}")
-    source = str(fit) if isinstance(fit, str | Path) else "(in memory)"
-    tree = load_fit(fit) if isinstance(fit, str | Path) else fit
-    model = control_model_from_fit(tree)
-    timing = Timing() if timing is None else timing
-    theta, mean, where = posterior_samples(tree, model, samples, seed)
-    given = dict(gains or {})
-    unknown = set(given) - set(CONTROLLERS)
-    if unknown:
-        raise ControlError(f"gains for unknown controllers {sorted(unknown)}; use "
-                           f"{', '.join(CONTROLLERS)}")
-    mean_source = "given"
-    if reference_mean_m is None:
-        reference_mean_m = operating_mean_m(model, mean, pressure_max_pa=timing.pressure_max_pa)
-        mean_source = "control.operating_mean_m on the posterior mean"
-    gains_used = resolve_gains(CONTROLLERS, given, model=model, params=mean, timing=timing,
-                               reference_mean_m=reference_mean_m)
-    gain_rows = gain_array(CONTROLLERS, gains_used)
-    all_given = all(set(given.get(c, {})) >= set(gains_used[c]) for c in CONTROLLERS)
+    return freqs
+
+
+def _sweep_jobs(spec: dict, theta: np.ndarray, mean: np.ndarray, freqs: np.ndarray, mode: str,
+                gain_rows: np.ndarray, chunk_size: int) -> list[dict]:
+    """The sweep's members in contiguous chunks; member (s, f, c) is at
+    ``(s * n_f + f) * n_c + c``."""
     n_s, n_f, n_c = theta.shape[0], freqs.size, len(CONTROLLERS)
-    # member (s, f, c) at (s * n_f + f) * n_c + c
     s_idx, f_idx, c_idx = (a.ravel() for a in np.meshgrid(
         np.arange(n_s), np.arange(n_f), np.arange(n_c), indexing="ij"))
     drawn = theta[s_idx]
     fixed_theta = np.repeat(mean[None, :], len(s_idx), axis=0)
     theta_p, theta_c = (drawn, fixed_theta) if mode == "plant" else (fixed_theta, drawn)
-    spec = {"effects": list(model.effect_names), "rig": model.rig.to_dict(),
-            "fixed": dict(model.fixed), "duration_s": float(duration_s), "timing": timing,
-            "reference_mean_m": float(reference_mean_m)}
     jobs = []
-    for lo in range(0, len(s_idx), int(chunk_size)):
-        sl = slice(lo, min(lo + int(chunk_size), len(s_idx)))
+    for lo in range(0, len(s_idx), chunk_size):
+        sl = slice(lo, min(lo + chunk_size, len(s_idx)))
         jobs.append({**spec, "start": lo, "theta_p": theta_p[sl], "theta_c": theta_c[sl],
                      "freq": freqs[f_idx[sl]], "kind": c_idx[sl].copy(),
                      "gains": gain_rows[c_idx[sl]]})
-    flat = {m: np.empty(len(s_idx)) for m in METRICS}
-    bar = _Bar(len(s_idx), progress, f"({n_s} samples x {n_f} frequencies x {n_c} controllers)")
+    return jobs
 
-    def collect(start: int, out: dict) -> None:
-        n = len(out[METRICS[0]])
-        for m in METRICS:
-            flat[m][start:start + n] = out[m]
-        bar.update(n)
 
-    t0 = time.perf_counter()
-    if client is not None:
-        try:
-            from distributed import as_completed as dask_completed
-        except ImportError as exc:  # pragma: no cover - a client implies distributed
-            raise ControlError("a Dask client needs `pip install pmabayes[dask]`") from exc
-        futures = client.map(_run_chunk, jobs, pure=False)
-        for fut in dask_completed(futures):
-            collect(*fut.result())
-        runner = f"dask ({len(client.scheduler_info().get('workers', {}))} workers)"
-    else:
-        n_proc = _local_cores() if processes is None else int(processes)
-        n_proc = min(n_proc, len(jobs))
-        if n_proc == 1:
-            for job in jobs:
-                collect(*_run_chunk(job))
-        else:
-            # fork where there is one: workers inherit the loaded kernels, where spawn
-            # re-imports numba and xarray in each (seconds per worker)
-            method = "fork" if "fork" in get_all_start_methods() else "spawn"
-            with ProcessPoolExecutor(n_proc, mp_context=get_context(method)) as pool:
-                for fut in as_completed([pool.submit(_run_chunk, j) for j in jobs]):
-                    collect(*fut.result())
-        runner = f"{n_proc} local process{'es' if n_proc > 1 else ''}"
-    seconds = time.perf_counter() - t0
-    shape = (n_s, n_f, n_c)
-    names = list(model.parameter_names)
+def _run_sweep(jobs: list[dict], n_runs: int, processes, client, bar: Progress,
+               label: str) -> tuple[dict, str]:
+    """Every chunk's metrics, placed by member index (so the order of completion
+    does not matter); and who ran them."""
+    flat = {m: np.empty(n_runs) for m in METRICS}
+    bar.start(n_runs, "runs", label)
+    with Runner(processes, client=client, tasks=len(jobs)) as runner:
+        for start, out in runner.map(_run_chunk, jobs, ordered=False):
+            n = len(out[METRICS[0]])
+            for m in METRICS:
+                flat[m][start:start + n] = out[m]
+            bar.advance(n)
+        return flat, runner.description
+
+
+def _sweep_dataset(flat: dict, theta: np.ndarray, mean: np.ndarray, where: np.ndarray,
+                   freqs: np.ndarray, model: Model) -> xr.Dataset:
+    """The metrics over ``(sample, frequency, controller)`` with the parameters and units."""
+    shape = (theta.shape[0], freqs.size, len(CONTROLLERS))
     ds = xr.Dataset(
         {m: (("sample", "frequency", "controller"), flat[m].reshape(shape)) for m in METRICS},
-        coords={"sample": np.arange(n_s), "frequency": freqs,
-                "controller": list(CONTROLLERS), "parameter": names,
+        coords={"sample": np.arange(shape[0]), "frequency": freqs,
+                "controller": list(CONTROLLERS), "parameter": list(model.parameter_names),
                 "chain": ("sample", where[:, 0]), "draw": ("sample", where[:, 1])},
     )
     ds["sample_parameters"] = (("sample", "parameter"), theta)
@@ -373,19 +360,6 @@ def robustness_sweep(
     for m, u in units.items():
         ds[m].attrs["units"] = u
     ds["frequency"].attrs["units"] = "Hz"
-    seed_attr = (int(seed) if isinstance(seed, int | np.integer)
-                 else "a numpy Generator (its state is not stored)")
-    ds.attrs.update({
-        "mode": mode, "seed": seed_attr, "fit": source,
-        "effects": ",".join(model.effect_names) or "none",
-        "duration_s": float(duration_s), "reference_mean_m": float(reference_mean_m),
-        "reference_mean_source": mean_source,
-        "reference_amplitude_m": REFERENCE_AMPLITUDE_M,
-        "gains": json.dumps(gains_used),
-        "gains_source": ("given" if all_given else
-                         "tune_gains on the posterior mean" + (" (some given)" if given else "")),
-        "timing": repr(timing), "runner": runner, "sweep_seconds": seconds,
-    })
     return ds
 
 

@@ -35,9 +35,7 @@ call of a new composition compiles for a few seconds and later processes load it
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
-import inspect
 import os
 import sys
 import tempfile
@@ -49,6 +47,7 @@ import numba
 import numpy as np
 
 from pmabayes.model import Model
+from pmabayes.util import fingerprint, source_text
 
 __all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError"]
 
@@ -56,7 +55,6 @@ __all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError
 #: and ``afn`` (approximate functions) let results differ in the last bits between
 #: CPUs and numba/LLVM versions, never between runs on one machine and install.
 FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
-_NEWTON_ITERATIONS = 2  # with force effects; the base model needs one plus a z polish
 
 
 class SimulationError(ValueError):
@@ -337,8 +335,38 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
     # Few distinct arrays keep the vectoriser's runtime alias checks cheap: all
     # per-member constants live in rows of `cst`, the state in rows of `st`.
     body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
-    # the pressure path goes through `pp` (start and end value of each interval);
-    # only a shared input without pressure effects skips it
+    # within a sample interval the pressure is linear from pp[0] to pp[1]
+    via_pp = (
+        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if pressure else "pp[0, k, i]",
+        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if pressure else "pp[0, k, i]",
+        "pp[0, k + 1, i]",
+        "pp[0, 0, i]",
+    )
+    shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
+    body += ["st = np.zeros((3, batch))"]
+    # one loop per kernel: a second copy in the same function does not vectorise
+    if pressure or not shared_input:
+        body += _pressure_fill(plant, shared_input) + _sample_loops(plant, record, *via_pp)
+    else:
+        body += _sample_loops(plant, record, *shared)
+    if record:
+        body += ["out_true[:, :] = out_x"]
+    body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
+
+    text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
+    text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
+    text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
+    for g in plant.inject:
+        text += f"{g} = None  # injected before the first call\n"
+    text += "\n\n@njit(cache=True, fastmath=FASTMATH, error_model='numpy')\n"
+    text += f"def kernel({args}):\n"
+    text += indent_lines(body, 4) + "\n"
+    return text, plant.inject
+
+
+def _pressure_fill(plant: PlantCode, shared_input: bool) -> list[str]:
+    """Lines that fill ``pp`` (the start and end pressure of each interval) from the
+    input and pass it through the pressure effects."""
     fill = [
         "pp = np.empty((2, n, batch))",
     ]
@@ -355,70 +383,48 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
         "pp[1] = pp[0]",
     ]
     fill += [
-        f"{name_of[e]}(theta[:, {s.start}:{s.stop}], pp[0], pp[1], dt)" for e, s in pressure
+        f"{plant.name_of[e]}(theta[:, {s.start}:{s.stop}], pp[0], pp[1], dt)"
+        for e, s in plant.pressure
     ]
-    # within a sample interval the pressure is linear from pp[0] to pp[1]
-    via_pp = (
-        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if pressure else "pp[0, k, i]",
-        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if pressure else "pp[0, k, i]",
-        "pp[0, k + 1, i]",
-        "pp[0, 0, i]",
-    )
-    shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
+    return fill
 
-    def loops(p_start: str, p_end: str, p_next: str, p_first: str) -> list[str]:
-        out = ["for i in range(batch):", f"    p0 = {p_first}"]
-        out += ["    " + ln for ln in plant.rest("p0", "xi")]
-        out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
-        if record:
-            out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
-            out += ["    " + ln for ln in plant.forces("xi", "0.0", "p0", "f0", False)]
-            out += ["    out_f[0, i] = f0"]
-        step = ["x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]"]
-        step += plant.step(p_start, p_end, "x0", "v0", "z0", "x1", "v1", "z1")
-        step += ["st[0, i] = x1; st[1, i] = v1; st[2, i] = z1"]
-        sample = ["out_x[k + 1, i] = st[0, i]"]
-        if record:
-            sample += [
-                "out_v[k + 1, i] = st[1, i]",
-                "out_z[k + 1, i] = st[2, i]",
-                f"out_p[k + 1, i] = {p_next}",
-            ]
-            sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False)
-            sample += ["out_f[k + 1, i] = fn"]
-        out += ["for k in range(n - 1):"]
-        if p_start == "pk":
-            out += ["    pk = p_in[k, 0]"]
-        out += [
-            "    for j in range(substeps):",
-            "        fa = j / substeps",
-            "        fb = (j + 1) / substeps",
-            "        for i in range(batch):",
-        ]
-        out += ["            " + ln for ln in step]
-        out += ["    for i in range(batch):"]
-        out += ["        " + ln for ln in sample]
-        return out
 
-    body += ["st = np.zeros((3, batch))"]
-    # one loop per kernel: a second copy in the same function does not vectorise
-    if pressure or not shared_input:
-        body += fill + loops(*via_pp)
-    else:
-        body += loops(*shared)
+def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
+                  p_first: str) -> list[str]:
+    """Lines of the initial state and the time loop, given how the pressure at the
+    start and end of a substep, at the next sample and at the first is read."""
+    out = ["for i in range(batch):", f"    p0 = {p_first}"]
+    out += ["    " + ln for ln in plant.rest("p0", "xi")]
+    out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     if record:
-        body += ["out_true[:, :] = out_x"]
-    body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
-
-    text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
-    text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
-    text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
-    for g in plant.inject:
-        text += f"{g} = None  # injected before the first call\n"
-    text += "\n\n@njit(cache=True, fastmath=FASTMATH, error_model='numpy')\n"
-    text += f"def kernel({args}):\n"
-    text += indent_lines(body, 4) + "\n"
-    return text, plant.inject
+        out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
+        out += ["    " + ln for ln in plant.forces("xi", "0.0", "p0", "f0", False)]
+        out += ["    out_f[0, i] = f0"]
+    step = ["x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]"]
+    step += plant.step(p_start, p_end, "x0", "v0", "z0", "x1", "v1", "z1")
+    step += ["st[0, i] = x1; st[1, i] = v1; st[2, i] = z1"]
+    sample = ["out_x[k + 1, i] = st[0, i]"]
+    if record:
+        sample += [
+            "out_v[k + 1, i] = st[1, i]",
+            "out_z[k + 1, i] = st[2, i]",
+            f"out_p[k + 1, i] = {p_next}",
+        ]
+        sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False)
+        sample += ["out_f[k + 1, i] = fn"]
+    out += ["for k in range(n - 1):"]
+    if p_start == "pk":
+        out += ["    pk = p_in[k, 0]"]
+    out += [
+        "    for j in range(substeps):",
+        "        fa = j / substeps",
+        "        fb = (j + 1) / substeps",
+        "        for i in range(batch):",
+    ]
+    out += ["            " + ln for ln in step]
+    out += ["    for i in range(batch):"]
+    out += ["        " + ln for ln in sample]
+    return out
 
 
 def cache_dir() -> Path:
@@ -435,15 +441,6 @@ def cache_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "pmabayes"
-
-
-def _source_fingerprint(obj) -> str:
-    # the whole defining file, so helpers the physics calls are covered too
-    fn = getattr(obj, "py_func", obj)
-    try:
-        return Path(inspect.getsourcefile(fn)).read_text()
-    except (OSError, TypeError):
-        return f"{fn.__module__}.{fn.__qualname__}:{id(fn)}"  # no source: never reused
 
 
 _KERNELS: dict[tuple, object] = {}
@@ -503,10 +500,9 @@ def compile_kernel(key: tuple, text: str, inject: dict, name: str = "kernel"):
     with _LOCK:
         if key in _KERNELS:
             return _KERNELS[key]
-        fingerprint = text + _source_fingerprint(_discretise)
-        fingerprint += "".join(_source_fingerprint(f) for f in inject.values())
-        fingerprint += numba.__version__ + np.__version__ + sys.version
-        digest = hashlib.sha256(fingerprint.encode()).hexdigest()[:20]
+        digest = fingerprint(text, source_text(_discretise),
+                             *(source_text(f) for f in inject.values()),
+                             numba.__version__, np.__version__, sys.version, length=20)
         modname = f"pmabayes_kernel_{digest}"
         folder = cache_dir() / "kernels"
         try:

@@ -1,7 +1,13 @@
 """Identification: MAP, posterior sampling, convergence, resume, reproducibility."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 import warnings
+from pathlib import Path
 
 import arviz as az
 import numpy as np
@@ -9,7 +15,15 @@ import pytest
 
 import pmabayes as pb
 from pmabayes.data import Dataset
-from pmabayes.fit import FitError, FitSettings, Posterior, estimate_noise, find_map, fit
+from pmabayes.fit import (
+    ConvergenceWarning,
+    FitError,
+    FitSettings,
+    Posterior,
+    estimate_noise,
+    find_map,
+    fit,
+)
 from pmabayes.likelihood import Likelihood
 from pmabayes.posterior import fit_info, load_fit, save_fit
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
@@ -139,8 +153,6 @@ def test_noise_comes_from_repeatability_not_model_error():
 def test_recovery_on_the_bundled_data():
     """The 90% HDI of every base parameter covers the value that generated the
     bundled data set (10 trials of the paper's 15 s chirp)."""
-    from pathlib import Path
-
     from pmabayes.data import load
 
     ds = load(Path(__file__).resolve().parents[1] / "data" / "pma_chirp_paper.csv")
@@ -243,3 +255,132 @@ def test_info_is_json(small_fit):
 def test_too_small_a_budget_is_refused(small_data):
     with pytest.raises(FitError, match="max_steps must be at least 20"):
         fit(small_data, pb.Model(), settings=FitSettings(max_steps=10))
+
+
+# -- short runs, failures and noise (new-user failures 2, 4, 7 and 8) ----------------
+
+
+def test_a_walker_that_has_not_moved_is_not_converged_not_a_crash():
+    """emcee's tau is NaN for a walker that has not moved; that is 'too short to judge'."""
+    from pmabayes.fit import _convergence
+
+    rng = np.random.default_rng(0)
+    chains = [rng.standard_normal((20, 16, 2)).cumsum(axis=0) for _ in range(2)]
+    chains[1][:, 3, 1] = 0.5  # one walker stuck on one parameter
+    diag = _convergence(chains, ("a", "b"), FitSettings(n_walkers=16))
+    assert not diag.converged
+    assert any("autocorrelation time of b cannot be estimated" in m for m in diag.messages)
+    assert np.isfinite(diag.tau[0]) and not np.isfinite(diag.tau[1])
+    assert diag.burn == 10 and diag.thin >= 1
+
+
+def test_short_run_says_once_that_it_has_not_converged(small_data, capsys):
+    """A 20-step run returns, warns exactly once, prints no second 'NOT CONVERGED', raises
+    no ArviZ dimension warning, and reports the walker R-hat the fit file gives."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tree = fit(small_data, pb.Model(), seed=4,
+                   settings=FitSettings(n_walkers=16, max_steps=20, check_every=20,
+                                        progress=True))
+    conv = fit_info(tree)["convergence"]
+    assert conv["converged"] is False and conv["n_steps"] == 20
+    texts = [str(w.message) for w in caught]
+    assert sum(issubclass(w.category, ConvergenceWarning) for w in caught) == 1, texts
+    assert not [t for t in texts if "longer than" in t or "dimension" in t], texts
+    err = capsys.readouterr().err
+    assert "NOT CONVERGED" not in err and "did NOT converge" not in err
+    assert all(line.startswith("[pmabayes fit]") for line in err.replace("\r", "\n").splitlines()
+               if line.strip()), err
+    # one walker R-hat: the fit's record is what ArviZ computes from the fit file
+    stats = az.summary(tree, group="posterior", sample_dims=["chain", "draw"], fmt="xarray",
+                       round_to="none")
+    for name in BASE:
+        assert conv["rhat"][name] == pytest.approx(
+            float(stats[name].sel(summary="r_hat")), rel=1e-9), name
+
+
+def test_a_failed_map_leaves_no_chains_folder(small_data, tmp_path):
+    flipped = Dataset(time_s=small_data.time_s, input=small_data.input,
+                      position_m=-small_data.position_m, trial_ids=small_data.trial_ids,
+                      source="flipped.csv")
+    chains = tmp_path / "fit.nc.chains"
+    with pytest.raises(FitError, match="the best fit leaves an RMS error"):
+        fit(flipped, pb.Model(), seed=0, settings=QUICK, chains_dir=chains)
+    assert not chains.exists()
+    # a folder the user made is left alone
+    chains.mkdir()
+    with pytest.raises(FitError):
+        fit(flipped, pb.Model(), seed=0, settings=QUICK, chains_dir=chains)
+    assert chains.is_dir() and not any(chains.iterdir())
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ("Z", "X")  # a zombie has died; only its exit status remains
+
+
+_KILLED_FIT = """
+import sys
+import pmabayes as pb
+from pmabayes.fit import FitSettings, fit
+from pmabayes.synthetic import Chirp, generate_chirp_dataset
+data = generate_chirp_dataset(n_trials=3, seed=11, chirp=Chirp(duration_s=3.0, f0_hz=0.3,
+                                                               f1_hz=2.0))
+fit(data, pb.Model(), seed=5, chains_dir=sys.argv[1],
+    settings=FitSettings(n_walkers=16, n_ensembles=2, max_steps=3000, check_every=100,
+                         min_ess=1e12, processes=2))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux's /proc")
+def test_killed_fit_takes_its_workers_along_and_resumes_exactly(small_data, tmp_path):
+    chains = tmp_path / "fit.nc.chains"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_FIT, str(chains)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 600
+        while not (chains / "ensemble_0.h5").exists():  # the first round is committed
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "the fit never wrote a round"
+            time.sleep(0.05)
+        workers = _children(proc.pid)
+        assert len(workers) >= 2, workers
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+    deadline = time.monotonic() + 5
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [w for w in workers if _alive(w)], "workers outlived their killed parent"
+    # a half-written round (a worker killed mid-write) is never read
+    (chains / "ensemble_0.h5.tmp").write_bytes(b"half a round")
+    settings = FitSettings(n_walkers=16, n_ensembles=2, max_steps=300, check_every=100,
+                           min_ess=1e12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        resumed = fit(small_data, pb.Model(), seed=5, chains_dir=chains, settings=settings)
+        whole = fit(small_data, pb.Model(), seed=5, settings=settings)
+    assert fit_info(resumed)["convergence"]["resumed"] is True
+    for name in whole["posterior"].data_vars:
+        assert np.array_equal(whole["posterior"][name].values,
+                              resumed["posterior"][name].values), name

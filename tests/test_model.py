@@ -88,13 +88,34 @@ def test_overrides_must_name_parameters():
         pb.Model(effect=["regulator_lag"])  # misspelt keyword is rejected, not swallowed
 
 
+def _posterior(model):
+    """The one joint log prior lives on the posterior; a tiny data set builds one."""
+    from pmabayes.likelihood import Likelihood
+    from pmabayes.posterior import NoiseEstimate, Posterior
+    from pmabayes.synthetic import Chirp, generate_chirp_dataset
+
+    ds = generate_chirp_dataset(n_trials=2, seed=0, chirp=Chirp(duration_s=1.0, f0_hz=0.5,
+                                                                 f1_hz=1.0))
+    noise = NoiseEstimate(5e-5, 0.9, 5e-6, np.zeros(3), np.eye(3))
+    return Posterior(Likelihood(model, ds), noise)
+
+
 def test_log_prior_respects_bounds_and_overrides():
-    model = pb.Model(priors={"d": pb.Uniform(100.0, 200.0)})
-    theta = model.theta({"d": [150.0, 250.0]})
-    lp = model.log_prior(theta)
-    assert np.isfinite(lp[0]) and lp[1] == -np.inf
-    base = pb.Model().log_prior(model.theta({"d": 150.0}))
+    model = pb.Model(priors={"d": pb.Uniform(100.0, 200.0)}, fixed={"beta": 1.7})
+    post = _posterior(model)
+    assert "beta" not in post.names  # fixed parameters have no prior
+    theta = model.theta({"d": [150.0, 250.0]})[:, [model.index(n) for n in post.names]]
+    lp = post.log_prior(theta)
+    assert lp[1] == -np.inf  # outside the overriding prior's support
+    # the sum of the free parameters' densities, the override's for d
+    expected = sum(float(model.priors[n].logpdf(theta[0, j])) for j, n in enumerate(post.names))
+    assert lp[0] == pytest.approx(expected, rel=1e-12)
+    base = _posterior(pb.Model(fixed={"beta": 1.7})).log_prior(theta[:1])
     assert base[0] != lp[0]
+    # outside a parameter's hard bounds: -inf whatever the prior
+    below = theta[:1].copy()
+    below[0, post.names.index("K_e")] = -1.0
+    assert post.log_prior(below)[0] == -np.inf
 
 
 @pytest.mark.parametrize(
