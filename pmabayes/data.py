@@ -17,15 +17,21 @@ NetCDF
 
 Bad input raises :class:`DataError` with a message that names the file, the line or
 trial, and says how to fix it. Nothing is dropped, repaired or clipped silently.
+Data that read but look suspect (pressure that looks absolute, not gauge) give a
+:class:`DataWarning`. Two metadata entries declare what the checks cannot know:
+``"pressure_reference"`` (``"gauge"``, or ``"absolute"`` to convert to gauge on
+reading) and ``"check_units": false``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import json
 import math
 import numbers
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,11 +39,14 @@ from typing import Any
 
 import numpy as np
 import xarray as xr
+from numpy.typing import ArrayLike
 
 __all__ = [
     "INPUT_NAMES",
     "DataError",
+    "DataWarning",
     "Dataset",
+    "check_time_grid",
     "load",
     "read_csv",
     "read_netcdf",
@@ -52,9 +61,15 @@ INPUT_NAMES: tuple[str, ...] = ("pressure_pa", "force_n")
 _UNITS = {"time_s": "s", "pressure_pa": "Pa", "force_n": "N", "position_m": "m"}
 _REL_TOL = 1e-6  # relative tolerance on sample intervals, sample times and sample rates
 _VACUUM_PA = -101325.0  # lowest possible gauge pressure (absolute vacuum at 1 atm)
+_ATM_PA = 101325.0  # standard atmosphere: the default ambient of "pressure_reference"
+# ambient pressure from about 2000 m altitude to sea-level highs: a lowest command in
+# this band means the record never vents the muscle, as absolute pressure would show
+_AMBIENT_BAND_PA = (80e3, 110e3)
+_BELOW_AMBIENT_PA = -20e3  # a muscle vents to 0 gauge; commands far below are an offset
 _MPA_BAR_MAX = 20.0  # max |p| at or below which pressure looks like MPa or bar
 _MM_MIN = 0.5  # max |x| above which position looks like mm
-_SILENCE = "If the values are really in SI units, pass check_units=False."
+_MM_MAX = 500.0  # max |x| above which position is not mm either (a PMA strokes < 0.5 m)
+_REFERENCES = ("gauge", "absolute")
 _NC_ENGINE = "h5netcdf"
 
 PathLike = str | os.PathLike[str]
@@ -90,6 +105,69 @@ def _first_nonuniform(t: np.ndarray) -> int | None:
     if not bad.any():
         return None
     return int(np.argmax(bad))
+
+
+def check_time_grid(
+    time_s: ArrayLike,
+    *,
+    source: str = "time_s",
+    locate: Callable[[int], str] | None = None,
+    error: type[Exception] = DataError,
+) -> float:
+    """Check that sample times are finite, strictly increasing and uniformly spaced.
+
+    The one time-grid check of the package: data sets, CSV trials and the
+    simulator's ``time_s`` all go through it.
+
+    Parameters
+    ----------
+    time_s : array_like
+        Sample times in s, 1-D, at least 2 samples.
+    source : str, optional
+        What the times belong to (a file, a trial), the start of every message.
+    locate : callable, optional
+        ``locate(j)`` describes sample ``j`` for messages (e.g. a CSV line);
+        ``"sample j"`` by default.
+    error : type, optional
+        Exception class to raise (:class:`DataError` by default).
+
+    Returns
+    -------
+    float
+        The mean sample interval in s (``np.diff(time_s).mean()``).
+
+    Raises
+    ------
+    DataError
+        (or ``error``) If the times are not 1-D with 2 or more samples, not finite,
+        not strictly increasing, or an interval differs from the median interval by
+        more than 1e-6 relative.
+    """
+    t = np.asarray(time_s, dtype=float)
+    where = locate or (lambda j: f"sample {j}")
+    if t.ndim != 1 or t.size < 2:
+        raise error(f"{source}: time_s must be 1-D with at least 2 samples; got shape {t.shape}.")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise error(f"{source}: {where(j)}: time_s = {t[j]} is not finite; supply finite times.")
+    d = np.diff(t)
+    if (d <= 0).any():
+        j = int(np.argmax(d <= 0)) + 1
+        raise error(
+            f"{source}: {where(j)}: time_s = {_fmt(t[j])} is not after {_fmt(t[j - 1])} "
+            f"on {where(j - 1)}; times must be strictly increasing: sort by time and "
+            "remove duplicate samples."
+        )
+    i = _first_nonuniform(t)
+    if i is not None:
+        raise error(
+            f"{source}: {where(i + 1)}: time_s is not uniformly sampled: interval "
+            f"{_fmt(d[i])} s from {where(i)} differs from the median interval "
+            f"{_fmt(np.median(d))} s by more than {_REL_TOL:g} relative (missing or "
+            "duplicated sample?); resample onto a uniform grid."
+        )
+    return float(d.mean())
 
 
 def _check_metadata_rate(metadata: dict, rate_hz: float, where: str) -> None:
@@ -133,10 +211,62 @@ def _json_roundtrip_check(metadata: dict, where: str) -> str:
     return text
 
 
-def _check_units(ds: Dataset, where: str, locate: Callable[[int, int], str]) -> None:
+class DataWarning(UserWarning):
+    """Data that read correctly but look suspect (e.g. absolute instead of gauge pressure).
+
+    Every message names the file, the trial and the fix, and how to declare the
+    data right when the suspicion is wrong.
+    """
+
+
+def _silence(declare: str) -> str:
+    """How to switch the unit checks off, for a file user and for an API user."""
+    return (
+        f'If the values really are in SI units, add "check_units": false to {declare} '
+        "(or pass check_units=False to pmabayes.data.load)."
+    )
+
+
+def _declarations(metadata: dict, declare: str) -> tuple[bool, str | None]:
+    """The metadata's ``check_units`` (bool) and ``pressure_reference`` (or None)."""
+    check = metadata.get("check_units", True)
+    if not isinstance(check, bool):
+        raise DataError(
+            f"{declare}: check_units = {check!r} must be true or false (JSON booleans); "
+            "fix or remove it."
+        )
+    reference = metadata.get("pressure_reference")
+    if reference is not None and reference not in _REFERENCES:
+        raise DataError(
+            f'{declare}: pressure_reference = {reference!r} must be "gauge" or "absolute"; '
+            "fix or remove it."
+        )
+    return check, reference
+
+
+def _absolute_to_gauge(ds: Dataset, declare: str) -> Dataset:
+    """Subtract the ambient pressure from data declared ``"pressure_reference": "absolute"``."""
+    ambient = ds.metadata.get("ambient_pressure_pa", _ATM_PA)
+    if isinstance(ambient, bool) or not isinstance(ambient, numbers.Real) or not (
+        _AMBIENT_BAND_PA[0] / 2 <= ambient <= 2 * _AMBIENT_BAND_PA[1]
+    ):
+        raise DataError(
+            f"{declare}: ambient_pressure_pa = {ambient!r} is not an ambient pressure in Pa "
+            f"(about {_fmt(_ATM_PA)}); fix it, or remove it to use {_fmt(_ATM_PA)} Pa."
+        )
+    metadata = {**ds.metadata, "pressure_reference": "gauge",
+                "converted_from_absolute": {"ambient_pressure_pa": float(ambient)}}
+    metadata.pop("ambient_pressure_pa", None)
+    return dataclasses.replace(ds, input=ds.input - float(ambient), metadata=metadata)
+
+
+def _check_units(
+    ds: Dataset, where: str, locate: Callable[[int, int], str], declare: str
+) -> None:
     """Reject values that look like the wrong unit (pressure-driven data only).
 
-    ``locate(k, j)`` describes trial index ``k``, sample ``j`` for the message.
+    ``locate(k, j)`` describes trial index ``k``, sample ``j`` for the message;
+    ``declare`` names where the metadata can switch the check off.
     """
     if ds.input_name != "pressure_pa":
         return
@@ -147,7 +277,8 @@ def _check_units(ds: Dataset, where: str, locate: Callable[[int, int], str]) -> 
         k, j = np.unravel_index(int(np.argmax(absp)), p.shape)
         raise DataError(
             f"{where}: pressure_pa looks like MPa (multiply by 1e6) or bar (multiply by "
-            f"1e5), not Pa: the largest |value| is {_fmt(pmax)} ({locate(k, j)}). " + _SILENCE
+            f"1e5), not Pa: the largest |value| is {_fmt(pmax)} ({locate(k, j)}). "
+            + _silence(declare)
         )
     below = p < _VACUUM_PA
     if below.any():
@@ -155,16 +286,87 @@ def _check_units(ds: Dataset, where: str, locate: Callable[[int, int], str]) -> 
         raise DataError(
             f"{where}: pressure_pa = {_fmt(p[k, j])} Pa ({locate(k, j)}) is below vacuum "
             f"({_fmt(_VACUUM_PA)} Pa), impossible for a gauge pressure; convert absolute "
-            "pressure to gauge (subtract ambient) or check the unit. " + _SILENCE
+            "pressure to gauge (subtract ambient) or check the unit. " + _silence(declare)
         )
     x = ds.position_m
     big = np.abs(x) > _MM_MIN
     if big.any():
         k, j = _first_in_file_order(big)
+        value = f"{where}: position_m = {_fmt(x[k, j])} ({locate(k, j)}) exceeds {_MM_MIN:g} m"
+        if abs(x[k, j]) <= _MM_MAX:
+            raise DataError(
+                f"{value} in magnitude and looks like millimetres, divide by 1000. "
+                + _silence(declare)
+            )
         raise DataError(
-            f"{where}: position_m = {_fmt(x[k, j])} ({locate(k, j)}) exceeds {_MM_MIN:g} m "
-            "in magnitude and looks like millimetres, divide by 1000. " + _SILENCE
+            f"{value} in magnitude: not a muscle's position in m, nor in mm (over "
+            f"{_MM_MAX:g} mm); check that the column holds the position, and convert "
+            "encoder counts or other units to m. " + _silence(declare)
         )
+
+
+def _check_gauge(
+    ds: Dataset, where: str, locate: Callable[[int, int], str], declare: str
+) -> None:
+    """Warn when pressure looks absolute or offset rather than gauge.
+
+    A vented muscle is at 0 gauge, and trials start at rest: so the lowest command
+    sits near 0, and the first samples, where the muscle rests, near the lowest.
+    """
+    if ds.input_name != "pressure_pa":
+        return
+    p = ds.input
+    k, j = np.unravel_index(int(np.argmin(p)), p.shape)
+    lowest = float(p[k, j])
+    at_rest = bool(np.all(p[:, 0] - p.min(axis=1) <= -_BELOW_AMBIENT_PA))
+    declare_gauge = (
+        f'If it really is gauge pressure, declare "pressure_reference": "gauge" in {declare}.'
+    )
+    if _AMBIENT_BAND_PA[0] <= lowest <= _AMBIENT_BAND_PA[1]:
+        start = ", and every trial starts there, at rest" if at_rest else ""
+        warnings.warn(
+            f"{where}: the lowest commanded pressure, {lowest / 1e3:.1f} kPa "
+            f"({locate(k, j)}), is about one atmosphere{start}: pressure_pa looks like "
+            "absolute pressure. pmabayes needs gauge pressure (0 = ambient, a vented "
+            "muscle); absolute pressure would be absorbed into the dead zone p_dz. Fix: "
+            f"subtract the ambient pressure ({_fmt(_ATM_PA)} Pa), or declare "
+            f'"pressure_reference": "absolute" in {declare} (with "ambient_pressure_pa" '
+            f"if not {_fmt(_ATM_PA)}) to convert on reading. " + declare_gauge,
+            DataWarning,
+            stacklevel=4,
+        )
+    elif lowest < _BELOW_AMBIENT_PA:
+        warnings.warn(
+            f"{where}: pressure_pa goes down to {lowest / 1e3:.1f} kPa ({locate(k, j)}): "
+            "a pneumatic muscle is vented at 0 gauge and not driven below ambient, so the "
+            f"pressure looks offset by about {lowest / 1e3:.0f} kPa (a wrong zero, or the "
+            "ambient subtracted twice), and the offset would be absorbed into the dead "
+            "zone p_dz. Fix: correct the zero so that the muscle at rest reads 0 Pa. "
+            + declare_gauge,
+            DataWarning,
+            stacklevel=4,
+        )
+
+
+def _checked(
+    ds: Dataset,
+    where: str,
+    locate: Callable[[int, int], str],
+    declare: str,
+    check_units: bool,
+) -> Dataset:
+    """Apply the metadata's declarations and the plausibility checks to read data."""
+    check, reference = _declarations(ds.metadata, declare)
+    check = check and check_units
+    if check:  # on the values as read: MPa or bar shows before any ambient shift
+        _check_units(ds, where, locate, declare)
+    if ds.input_name != "pressure_pa":
+        return ds
+    if reference == "absolute":
+        return _absolute_to_gauge(ds, declare)
+    if check and reference is None:
+        _check_gauge(ds, where, locate, declare)
+    return ds
 
 
 def _first_in_file_order(mask: np.ndarray) -> tuple[int, int]:
@@ -245,10 +447,7 @@ class Dataset:
             )
 
         time_s = self._as_float(self.time_s, "time_s", where)
-        if time_s.ndim != 1 or time_s.size < 2:
-            raise DataError(
-                f"{where}: time_s must be 1-D with at least 2 samples; got shape {time_s.shape}."
-            )
+        check_time_grid(time_s, source=where)
         n = time_s.size
         arrays = {}
         for name, value in (("input", self.input), ("position_m", self.position_m)):
@@ -283,11 +482,6 @@ class Dataset:
                 "trial ids must be unique."
             )
 
-        if not np.isfinite(time_s).all():
-            j = int(np.argmax(~np.isfinite(time_s)))
-            raise DataError(
-                f"{where}: time_s[{j}] = {time_s[j]} is not finite; supply finite times."
-            )
         for name, a in arrays.items():
             bad = ~np.isfinite(a)
             if bad.any():
@@ -296,22 +490,6 @@ class Dataset:
                     f"{where}: {name} of trial {ids[k]} is {a[k, j]} at sample {j}; "
                     "all values must be finite (no NaN or inf)."
                 )
-        d = np.diff(time_s)
-        if (d <= 0).any():
-            j = int(np.argmax(d <= 0)) + 1
-            raise DataError(
-                f"{where}: time_s is not strictly increasing at sample {j} "
-                f"({_fmt(time_s[j])} after {_fmt(time_s[j - 1])}); sort and de-duplicate."
-            )
-        i = _first_nonuniform(time_s)
-        if i is not None:
-            raise DataError(
-                f"{where}: time_s is not uniformly sampled: interval {_fmt(d[i])} s between "
-                f"samples {i} and {i + 1} differs from the median interval "
-                f"{_fmt(np.median(d))} s by more than {_REL_TOL:g} relative; resample "
-                "onto a uniform grid."
-            )
-
         for name, a in (("time_s", time_s), ("trial_ids", ids), *arrays.items()):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -737,19 +915,32 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
     check_units : bool, optional
         For pressure data, reject values that look like the wrong unit: pressure in
         MPa or bar (max ``|p| <= 20`` with some non-zero value), pressure below vacuum
-        (``< -101325`` Pa gauge), or position in mm (``max |x| > 0.5`` m). Default
-        True. Not applied to force data, whose scale is arbitrary.
+        (``< -101325`` Pa gauge), or position not in m (``max |x| > 0.5`` m); and
+        warn (:class:`DataWarning`) when the pressure looks absolute (lowest command
+        80 to 110 kPa) or offset (below -20 kPa) instead of gauge. Default True. Not
+        applied to force data, whose scale is arbitrary. The metadata entry
+        ``"check_units": false`` switches the checks off as well.
 
     Returns
     -------
     Dataset
-        The validated data, with ``source`` set to ``str(path)``.
+        The validated data, with ``source`` set to ``str(path)``. Pressure declared
+        absolute (metadata ``"pressure_reference": "absolute"``) is converted to
+        gauge by subtracting ``"ambient_pressure_pa"`` (101325 Pa by default); the
+        metadata then says ``"pressure_reference": "gauge"`` and records the
+        conversion under ``"converted_from_absolute"``.
 
     Raises
     ------
     DataError
         If the file or sidecar is missing pieces, malformed or inconsistent. The
         message names the file, the line (header = line 1) or trial, and the fix.
+
+    Warns
+    -----
+    DataWarning
+        If the pressure looks absolute or offset rather than gauge, unless the
+        metadata declares ``"pressure_reference"``.
     """
     path = Path(path)
     where = str(path)
@@ -816,30 +1007,16 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
         first_line[tid] = s + 2
 
     lengths = ends - starts
+    dts = []
     for s, e, tid in zip(starts.tolist(), ends.tolist(), run_ids.tolist(), strict=True):
         if e - s < 2:
             raise DataError(
                 f"{where}: trial {tid} has only 1 sample (line {s + 2}); every trial "
                 "needs at least 2 samples."
             )
-        d = np.diff(time[s:e])
-        nonpos = d <= 0
-        if nonpos.any():
-            j = int(np.argmax(nonpos)) + 1
-            raise DataError(
-                f"{where}: trial {tid}: line {s + j + 2}: time_s = {_fmt(time[s + j])} "
-                f"is not after {_fmt(time[s + j - 1])} on line {s + j + 1}; times must "
-                "be strictly increasing within a trial: sort by time_s and remove "
-                "duplicate samples."
-            )
-        i = _first_nonuniform(time[s:e])
-        if i is not None:
-            raise DataError(
-                f"{where}: trial {tid}: line {s + i + 3}: non-uniform sampling: interval "
-                f"{_fmt(d[i])} s from line {s + i + 2} differs from the trial's median "
-                f"interval {_fmt(np.median(d))} s by more than {_REL_TOL:g} relative "
-                "(missing or duplicated sample?); resample onto a uniform grid."
-            )
+        dts.append(check_time_grid(time[s:e], source=f"{where}: trial {tid}",
+                                   locate=lambda j, s=s: f"line {s + j + 2}"))
+    dt_ref = dts[0]
 
     if not (lengths == lengths[0]).all():
         listed = ", ".join(
@@ -857,7 +1034,6 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
     n_trials, n_samples = run_ids.size, int(lengths[0])
     times = time.reshape(n_trials, n_samples)
     ref = times[0]
-    dt_ref = (ref[-1] - ref[0]) / (n_samples - 1)
     off = np.abs(times - ref) > _REL_TOL * dt_ref
     if off.any():
         k, j = _first_in_file_order(off)
@@ -883,13 +1059,13 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
         metadata=metadata,
         source=where,
     )
-    if check_units:
-        _check_units(
-            ds,
-            where,
-            lambda k, j: f"line {k * n_samples + j + 2}, trial {int(run_ids[k])}",
-        )
-    return ds
+    return _checked(
+        ds,
+        where,
+        lambda k, j: f"line {k * n_samples + j + 2}, trial {int(run_ids[k])}",
+        f"the JSON sidecar {sidecar}",
+        check_units,
+    )
 
 
 def write_csv(dataset: Dataset, path: PathLike) -> None:
@@ -953,7 +1129,8 @@ def read_netcdf(path: PathLike, *, check_units: bool = True) -> Dataset:
     path : str or os.PathLike
         NetCDF4/HDF5 file (read with xarray, engine ``h5netcdf``).
     check_units : bool, optional
-        Apply the same unit plausibility checks as :func:`read_csv`. Default True.
+        Apply the same unit plausibility checks, and the same metadata declarations
+        (``check_units``, ``pressure_reference``), as :func:`read_csv`. Default True.
 
     Returns
     -------
@@ -981,10 +1158,14 @@ def read_netcdf(path: PathLike, *, check_units: bool = True) -> Dataset:
             "pmabayes.data.write_netcdf."
         ) from None
     ds = Dataset.from_xarray(xds, source=where)
-    if check_units:
-        ids = ds.trial_ids
-        _check_units(ds, where, lambda k, j: f"trial {int(ids[k])}, sample {j}")
-    return ds
+    ids = ds.trial_ids
+    return _checked(
+        ds,
+        where,
+        lambda k, j: f"trial {int(ids[k])}, sample {j}",
+        f"the metadata of {where} (Dataset.metadata, written by write_netcdf)",
+        check_units,
+    )
 
 
 def write_netcdf(dataset: Dataset, path: PathLike) -> None:
