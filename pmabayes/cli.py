@@ -305,10 +305,14 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from pmabayes.criticism import compare_fits
     from pmabayes.report import write_comparison
 
+    labels = args.labels.split(",") if args.labels else None
+    if len(args.fits) < 2 or (labels is not None and len(labels) != len(args.fits)):
+        raise CliError(f"compare got {len(args.fits)} fit(s) and "
+                       f"{'no' if labels is None else len(labels)} --labels; give two or more "
+                       "fits of the same data, and one label per fit if any")
     _out_folder(args.out)
     dataset = load(args.data)
     fits = [load_fit(f) for f in args.fits]
-    labels = args.labels.split(",") if args.labels else None
     result = compare_fits(fits, dataset, labels=labels)
     for k in result.labels:
         b = result.bands[k][-1]

@@ -51,6 +51,9 @@ def test_predict_writes_figure_and_summary(tmp_path, capsys):
         (["simulate", "x.csv", "--effect", "regulator_lag"], "must look like NAME=VALUE"),
         (["simulate", "x.csv", "--param", "d=abc"], "is not a number"),
         (["predict", "missing.csv", "--out", "o"], "missing.csv"),
+        (["compare", "a.nc", "--data", "d.csv", "--out", "o"], "give two or more fits"),
+        (["compare", "a.nc", "b.nc", "--data", "d.csv", "--out", "o", "--labels", "x"],
+         "one label per fit"),
     ],
 )
 def test_bad_input_is_one_clear_line(tmp_path, monkeypatch, capsys, argv, message):
