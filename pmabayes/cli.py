@@ -32,26 +32,40 @@ effects, so they work on the command line exactly like the built-in ones.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import importlib.util
 import json
+import math
 import sys
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from pmabayes.control import ControlError
 from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
 from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
+from pmabayes.likelihood import LikelihoodError
 from pmabayes.model import Model, ModelError
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
-__all__ = ["main", "model_for", "load_plugin"]
+__all__ = ["main", "load_plugin", "CliError"]
+
+
+class CliError(ValueError):
+    """A command-line argument is wrong; the message names it and the fix."""
+
+
+# The package's own errors: wrong input, told in one line. Any other exception is a
+# bug and keeps its traceback.
+_USER_ERRORS = (DataError, ModelError, EffectError, SimulationError, LikelihoodError,
+                FitError, FitFileError, ControlError, CliError)
 
 
 def _parse_assignments(items: Sequence[str], what: str) -> dict[str, float]:
@@ -59,12 +73,64 @@ def _parse_assignments(items: Sequence[str], what: str) -> dict[str, float]:
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or not name:
-            raise ValueError(f"{what} {item!r} must look like NAME=VALUE")
+            raise CliError(f"{what} {item!r} must look like NAME=VALUE")
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            raise ValueError(f"{what} {item!r}: {value!r} is not a number") from None
+            raise CliError(f"{what} {item!r}: {value!r} is not a number") from None
     return out
+
+
+def _seed(text: str) -> int:
+    """argparse type of ``--seed``: numpy's generators take integers >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a seed: give an integer >= 0 (e.g. --seed 0)")
+    return value
+
+
+def _positive(text: str) -> int:
+    """argparse type of a count that must be at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give an integer >= 1")
+    return value
+
+
+def _out_folder(path: str, option: str = "--out") -> Path:
+    """An output folder's path, refused early (before any work) if it names a file."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise CliError(f"{option} {out}: this is a file, not a folder; give the name of a "
+                       "folder (it is created if missing)")
+    return out
+
+
+@contextlib.contextmanager
+def _created(out: Path) -> Iterator[Path]:
+    """Create the folder ``out``; on failure remove it again if it is new and empty."""
+    existed = out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        yield out
+    except BaseException:
+        if not existed and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
+
+
+def _write_json(path: str | Path, obj: object) -> None:
+    """Write JSON, creating the file's folder if missing."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(obj, indent=2) + "\n")
 
 
 def _effect_list(text: str) -> list[str]:
@@ -83,24 +149,6 @@ def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
     return effects
 
 
-def model_for(dataset: Dataset, effects: Sequence[str] = ()) -> Model:
-    """The model for a data set, on the rig its sidecar records.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        Data whose ``metadata["rig"]`` (if any) gives the rig; the characterisation
-        rig otherwise.
-    effects : sequence of str
-        Effects to add to the base model.
-
-    Returns
-    -------
-    Model
-    """
-    return Model.for_dataset(dataset, list(effects))
-
-
 def load_plugin(spec: str) -> None:
     """Import a module or ``.py`` file that registers user effects.
 
@@ -112,7 +160,7 @@ def load_plugin(spec: str) -> None:
     if spec.endswith(".py"):
         path = Path(spec)
         if not path.is_file():
-            raise ValueError(f"--plugin {spec}: no such file")
+            raise CliError(f"--plugin {spec}: no such file; check the path")
         module_spec = importlib.util.spec_from_file_location(f"pmabayes_plugin_{path.stem}", path)
         module = importlib.util.module_from_spec(module_spec)
         sys.modules[module_spec.name] = module
@@ -125,13 +173,13 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     from pmabayes.plots import plot_comparison  # matplotlib only where figures are made
 
     start = time.perf_counter()
+    out = _out_folder(args.out)
     dataset = load(args.data)
-    model = model_for(dataset, args.effects)
+    model = Model.for_dataset(dataset, args.effects)
     params = _parse_assignments(args.param, "--param")
     x = simulate(model, params, dataset.input[0], time_s=dataset.time_s)[0]
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     resid = dataset.mean_position_m - x
+    floor = dataset.noise_floor_m
     summary = {
         "data": str(args.data),
         "synthetic": bool(dataset.metadata.get("synthetic", False)),
@@ -141,17 +189,19 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "parameters": {k: float(v) for k, v in {**model.defaults, **params}.items()},
         "rms_m": float(np.sqrt(np.mean(resid**2))),
         "max_error_m": float(np.max(np.abs(resid))),
-        "noise_floor_m": dataset.noise_floor_m,
+        "noise_floor_m": None if math.isnan(floor) else floor,  # JSON has no NaN
     }
-    plot_comparison(dataset, x, label="model (paper values)" if not params else "model",
-                    path=out / "comparison.png")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    with _created(out):
+        plot_comparison(dataset, x, label="model (paper values)" if not params else "model",
+                        path=out / "comparison.png")
+        _write_json(out / "summary.json", summary)
+    floor_text = ("no noise floor: one trial, repeat the trial to estimate it"
+                  if math.isnan(floor) else f"noise floor {floor * 1e6:.1f} um")
     print(f"data: {args.data} ({dataset.n_trials} trials x {dataset.n_samples} samples"
           f"{', synthetic' if summary['synthetic'] else ''})")
     print(f"model: base{' + ' + ' + '.join(model.effect_names) if model.effect_names else ''}")
     print(f"RMS error of the trial mean: {summary['rms_m'] * 1e6:.1f} um "
-          f"(noise floor {summary['noise_floor_m'] * 1e6:.1f} um, "
-          f"max error {summary['max_error_m'] * 1e6:.1f} um)")
+          f"({floor_text}, max error {summary['max_error_m'] * 1e6:.1f} um)")
     print(f"wrote {out / 'comparison.png'} and {out / 'summary.json'} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
@@ -162,8 +212,7 @@ def _fit_settings(args: argparse.Namespace) -> FitSettings:
                        max_steps=args.steps, progress=not args.quiet)
 
 
-def _do_fit(args: argparse.Namespace, dataset: Dataset, out: Path):
-    model = model_for(dataset, args.effects)
+def _do_fit(args: argparse.Namespace, dataset: Dataset, model: Model, out: Path):
     chains = out.with_name(out.name + ".chains")
     with warnings.catch_warnings():  # the banner below says it once
         warnings.simplefilter("ignore", ConvergenceWarning)
@@ -189,14 +238,21 @@ def _do_fit(args: argparse.Namespace, dataset: Dataset, out: Path):
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.is_dir():
+        raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
+                       "to write (e.g. fit.nc)")
     dataset = load(args.data)
-    _do_fit(args, dataset, Path(args.out))
+    model = Model.for_dataset(dataset, args.effects)
+    with _created(out.parent):
+        _do_fit(args, dataset, model, out)
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from pmabayes.report import fit_adequacy, write_report
 
+    _out_folder(args.out)
     tree = load_fit(args.fit)
     dataset = load(args.data) if args.data else None
     index = write_report(tree, Path(args.out), dataset=dataset)
@@ -209,10 +265,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from pmabayes.report import write_report
 
     start = time.perf_counter()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    dataset = load(args.data)
-    tree = _do_fit(args, dataset, out / "fit.nc")
+    out = _out_folder(args.out)
+    dataset = load(args.data)  # the input is read and checked before anything is made
+    model = Model.for_dataset(dataset, args.effects)
+    with _created(out):
+        tree = _do_fit(args, dataset, model, out / "fit.nc")
     index = write_report(tree, out, dataset=dataset)
     print(f"wrote the report {index} ({time.perf_counter() - start:.1f} s in all)")
     return 0
@@ -222,6 +279,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pmabayes.criticism import diagnose
 
     start = time.perf_counter()
+    if args.out:
+        _out_folder(args.out)
     dataset = load(args.data)
     result = diagnose(dataset, Model.for_dataset(dataset, args.effects),
                       candidates=args.candidates or None, seed=args.seed,
@@ -237,8 +296,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
               f"{'significant' if f.significant else 'n.s.':<11s}  {est}")
     print(result.verdict)
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(summary, indent=2) + "\n")
+        _write_json(args.json, summary)
         print(f"wrote {args.json}")
     if args.out:
         from pmabayes.report import write_diagnosis
@@ -253,9 +311,14 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from pmabayes.criticism import compare_fits
     from pmabayes.report import write_comparison
 
+    labels = args.labels.split(",") if args.labels else None
+    if len(args.fits) < 2 or (labels is not None and len(labels) != len(args.fits)):
+        raise CliError(f"compare got {len(args.fits)} fit(s) and "
+                       f"{'no' if labels is None else len(labels)} --labels; give two or more "
+                       "fits of the same data, and one label per fit if any")
+    _out_folder(args.out)
     dataset = load(args.data)
     fits = [load_fit(f) for f in args.fits]
-    labels = args.labels.split(",") if args.labels else None
     result = compare_fits(fits, dataset, labels=labels)
     for k in result.labels:
         b = result.bands[k][-1]
@@ -279,6 +342,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         n_trials=args.trials, seed=args.seed, chirp=chirp, noise=noise, params=params,
         effects=effects, description=args.description,
     )
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # like --json elsewhere
     save(dataset, args.out)
     hidden = ", ".join(f"{k}={v}" for e in effects.values() for k, v in e.items()) or "none"
     print(f"wrote {args.out}: {dataset.n_trials} trials x {dataset.n_samples} samples, "
@@ -320,7 +384,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
               f"periods {1e3 * m['period_difference_m']:.3f} mm apart; gains "
               f"{result['gains'][name]}")
     if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        _write_json(args.json, result)
         print(f"wrote {args.json}")
     return 0
 
@@ -329,6 +393,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     from pmabayes.plots import plot_robustness, plt  # matplotlib only where figures are made
     from pmabayes.robustness import robustness_sweep, summarise_robustness, write_robustness
 
+    _out_folder(args.out)
     ds = robustness_sweep(args.fit, samples=args.samples, frequencies_hz=args.freqs,
                           mode=args.mode, seed=args.seed, duration_s=args.duration,
                           processes=args.processes, progress=not args.quiet)
@@ -373,7 +438,7 @@ def _control_commands(sub) -> None:
     rob.add_argument("--mode", default="plant",
                      help="plant (plant drawn, controller nominal; default) or model "
                      "(controller's model drawn, plant nominal)")
-    rob.add_argument("--seed", type=int, default=0, help="chooses the samples (0)")
+    rob.add_argument("--seed", type=_seed, default=0, help="chooses the samples (0)")
     rob.add_argument("--duration", type=float, default=10.0, help="run length in s (10)")
     rob.add_argument("--processes", type=int, help="local worker processes (all cores)")
     rob.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -392,9 +457,10 @@ def _parser() -> argparse.ArgumentParser:
     def fit_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--effects", default="", type=_effect_list,
                        help="comma-separated effects to add to the base model")
-        p.add_argument("--seed", type=int, default=0, help="seed of everything random (0)")
+        p.add_argument("--seed", type=_seed, default=0,
+                       help="seed of everything random (0)")
         p.add_argument("--walkers", type=int, default=32, help="walkers per ensemble (32)")
-        p.add_argument("--ensembles", type=int, default=2,
+        p.add_argument("--ensembles", type=_positive, default=2,
                        help="independent ensembles, for R-hat across them (2)")
         p.add_argument("--steps", type=int, default=20000,
                        help="budget of steps per ensemble (20000); sampling stops earlier "
@@ -440,7 +506,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="effects to test (all registered effects by default)")
     diag.add_argument("--out", help="folder for the figures and an HTML page")
     diag.add_argument("--json", help="write a machine-readable summary here")
-    diag.add_argument("--seed", type=int, default=0, help="seed of everything random (0)")
+    diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
     diag.set_defaults(func=_cmd_diagnose)
 
@@ -454,9 +520,10 @@ def _parser() -> argparse.ArgumentParser:
     comp.set_defaults(func=_cmd_compare)
 
     simu = sub.add_parser("simulate", help="write a synthetic repeated-chirp data set")
-    simu.add_argument("out", help="output file (.csv with a .json sidecar, or .nc)")
+    simu.add_argument("out", help="output file (.csv with a .json sidecar, or .nc); its "
+                      "folder is created if missing")
     simu.add_argument("--trials", type=int, default=10, help="number of trials (10)")
-    simu.add_argument("--seed", type=int, default=0, help="seed of the noise (0)")
+    simu.add_argument("--seed", type=_seed, default=0, help="seed of the noise (0)")
     simu.add_argument("--noise", choices=["default", "none"], default="default",
                       help="'none' writes the exact model output")
     simu.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
@@ -475,11 +542,21 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warnings(command: str):
+    """A ``warnings.showwarning`` that prints one line, without the source line."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        kind = "warning" if issubclass(category, UserWarning) else category.__name__
+        print(f"pmabayes {command}: {kind}: {message}", file=sys.stderr)
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line.
 
-    Errors in the user's input (files, parameters, effects) print one clear line
-    to stderr and return 2 instead of a traceback.
+    Errors in the user's input (the package's own error classes: files, parameters,
+    effects, fits) print one clear line to stderr and return 2 instead of a
+    traceback; any other exception is a bug and keeps its traceback. Warnings
+    print as one line each.
 
     Parameters
     ----------
@@ -492,14 +569,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         Exit status.
     """
     args = _parser().parse_args(argv)
-    try:
-        for plugin in args.plugin:
-            load_plugin(plugin)
-        return args.func(args)
-    except (DataError, ModelError, EffectError, SimulationError, FitError, FitFileError,
-            ValueError) as err:
-        print(f"pmabayes {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warnings(args.command)
+        try:
+            for plugin in args.plugin:
+                load_plugin(plugin)
+            return args.func(args)
+        except _USER_ERRORS as err:
+            print(f"pmabayes {args.command}: error: {err}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -142,8 +142,11 @@ def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
         cov = np.linalg.inv(hess)
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        raise FitError("the noise parameters are not identified by the spread between the "
-                       "trials; are the trials really repeated measurements?") from None
+        raise FitError(f"{likelihood.dataset.source or 'the data set'}: the noise parameters "
+                       "are not identified by the spread between the trials; the trials must "
+                       "be repeated measurements of one input with independent noise: check "
+                       "that they are not copies of one another, and record more repetitions"
+                       ) from None
     return NoiseEstimate(float(np.exp(u[0])), float(np.tanh(u[1])), float(np.exp(u[2])), u, cov)
 
 

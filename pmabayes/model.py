@@ -195,7 +195,8 @@ class Rig:
         if self.gravity_sign not in (-1.0, 0.0, 1.0):
             raise ModelError(f"gravity_sign must be -1, 0 or +1, got {self.gravity_sign}")
         if not self.area_m2 > 0:
-            raise ModelError(f"area must be > 0, got {self.area_m2}")
+            raise ModelError(f"area_m2 must be > 0 (the effective area in m^2, force per "
+                             f"pressure; 1 for a force input), got {self.area_m2}; fix it")
         if self.input_kind not in ("pressure", "force"):
             raise ModelError(f"input_kind must be 'pressure' or 'force', got {self.input_kind!r}")
 
@@ -234,7 +235,8 @@ class Rig:
         known = {"moving_mass_kg", "gravity_sign", "area_m2", "input_kind", "g_m_s2", "name"}
         unknown = set(d) - known
         if unknown:
-            raise ModelError(f"unknown rig keys {sorted(unknown)}; expected {sorted(known)}")
+            raise ModelError(f"unknown rig keys {sorted(unknown)}; expected {sorted(known)}: "
+                             "rename or remove them")
         return cls(**d)
 
 
@@ -374,7 +376,10 @@ class Model:
         Model
         """
         rig_meta = dataset.metadata.get("rig") if dataset.metadata else None
-        rig = Rig.from_dict(rig_meta) if isinstance(rig_meta, dict) else Rig.characterisation()
+        try:
+            rig = Rig.from_dict(rig_meta) if isinstance(rig_meta, dict) else Rig.characterisation()
+        except ModelError as err:  # name the file: the rig comes from its sidecar
+            raise ModelError(f"{dataset.source or 'data set'}: metadata 'rig': {err}") from None
         return cls(effects, rig=rig)
 
     # -- parameter arrays -------------------------------------------------------

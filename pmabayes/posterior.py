@@ -49,7 +49,7 @@ import numpy as np
 import xarray as xr
 
 from pmabayes import __version__
-from pmabayes.data import Dataset
+from pmabayes.data import DataError, Dataset
 from pmabayes.likelihood import NOISE_PARAMETERS, Likelihood, ar1_noise
 from pmabayes.model import PAPER_VALUES, Model, Rig
 from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior
@@ -542,7 +542,7 @@ def check_dataset(tree: xr.DataTree, dataset: Dataset) -> None:
 
     Raises
     ------
-    ValueError
+    DataError
         If the trials' shape, positions (within 1e-12 m) or times differ.
     """
     if not isinstance(dataset, Dataset):
@@ -552,14 +552,14 @@ def check_dataset(tree: xr.DataTree, dataset: Dataset) -> None:
     where = (f"dataset {dataset.source or '(no source)'} does not match the observed data "
              f"of the fit (made from {fit_src})")
     if obs.shape != dataset.position_m.shape:
-        raise ValueError(
+        raise DataError(
             f"{where}: position_m has shape {dataset.position_m.shape} (trials, samples), "
             f"the fit's has {obs.shape}"
         )
     diff = float(np.max(np.abs(np.asarray(obs.values, dtype=float) - dataset.position_m)))
     if not diff <= 1e-12:
-        raise ValueError(f"{where}: position_m differs by up to {diff:.3g} m (tolerance 1e-12 m)")
+        raise DataError(f"{where}: position_m differs by up to {diff:.3g} m (tolerance 1e-12 m)")
     t = np.asarray(obs["time"].values, dtype=float)
     t_diff = float(np.max(np.abs(t - dataset.time_s)))
     if not t_diff <= 1e-12 * max(1.0, float(np.max(np.abs(t)))):
-        raise ValueError(f"{where}: the sample times differ by up to {t_diff:.3g} s")
+        raise DataError(f"{where}: the sample times differ by up to {t_diff:.3g} s")

@@ -46,6 +46,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from pmabayes.data import check_time_grid
 from pmabayes.model import Model
 from pmabayes.util import fingerprint, source_text
 
@@ -568,10 +569,8 @@ def _time_axis(n: int, dt_s: float | None, time_s: np.ndarray | None) -> tuple[n
         time_s = np.asarray(time_s, dtype=float)
         if time_s.shape != (n,):
             raise SimulationError(f"time_s has shape {time_s.shape}, expected ({n},)")
-        steps = np.diff(time_s)
-        if n > 1 and (np.any(steps <= 0) or np.ptp(steps) > 1e-6 * steps.mean()):
-            raise SimulationError("time_s must be strictly increasing and uniformly sampled")
-        dt = float(steps.mean()) if n > 1 else (dt_s or 1.0)
+        dt = (check_time_grid(time_s, source="simulate", error=SimulationError) if n > 1
+              else (dt_s or 1.0))
         if dt_s is not None and abs(dt - dt_s) > 1e-9 * dt:
             raise SimulationError(f"dt_s={dt_s} disagrees with the spacing of time_s ({dt})")
         return time_s, dt

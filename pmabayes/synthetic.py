@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pmabayes.data import Dataset
+from pmabayes.data import DataError, Dataset
 from pmabayes.effects import get_effect
 from pmabayes.likelihood import ar1_noise
 from pmabayes.model import Model, ModelError, Rig
@@ -99,11 +99,17 @@ class Chirp:
 
     def __post_init__(self) -> None:
         if not (0 < self.f0_hz and 0 < self.f1_hz and self.duration_s > 0):
-            raise ValueError(f"chirp needs positive frequencies and duration, got {self}")
+            raise DataError(f"chirp needs positive frequencies and duration, got {self}; "
+                            "give f0_hz, f1_hz and duration_s (--duration) > 0")
         if not self.p_min_pa < self.p_max_pa:
-            raise ValueError(f"chirp needs p_min_pa < p_max_pa, got {self}")
+            raise DataError(f"chirp needs p_min_pa < p_max_pa, got {self}; swap or fix them")
         if not self.sample_rate_hz > 0:
-            raise ValueError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}")
+            raise DataError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}; give "
+                            "the sample rate in Hz (--rate)")
+        if self.time_s.size < 2:
+            raise DataError(f"chirp of {self.duration_s:g} s at {self.sample_rate_hz:g} Hz has "
+                            "fewer than 2 samples; lengthen it (--duration) or sample faster "
+                            "(--rate)")
 
     @property
     def time_s(self) -> np.ndarray:
@@ -154,13 +160,13 @@ class MeasurementNoise:
 
     def __post_init__(self) -> None:
         if self.disturbance_std_m < 0:
-            raise ValueError(f"disturbance_std_m must be >= 0, got {self.disturbance_std_m}")
+            raise DataError(f"disturbance_std_m must be >= 0, got {self.disturbance_std_m}")
         if not self.disturbance_corr_time_s > 0:
-            raise ValueError(
+            raise DataError(
                 f"disturbance_corr_time_s must be > 0, got {self.disturbance_corr_time_s}"
             )
         if self.encoder_counts_per_m is not None and not self.encoder_counts_per_m > 0:
-            raise ValueError(f"encoder_counts_per_m must be > 0, got {self.encoder_counts_per_m}")
+            raise DataError(f"encoder_counts_per_m must be > 0, got {self.encoder_counts_per_m}")
 
     def disturbance(self, n_trials: int, n_samples: int, dt_s: float, rng: np.random.Generator):
         """Draw ``(n_trials, n_samples)`` stationary AR(1) disturbances."""
@@ -262,7 +268,8 @@ def generate_chirp_dataset(
         With metadata ``synthetic=True`` and the full generator settings.
     """
     if not (isinstance(n_trials, int | np.integer) and n_trials >= 1):
-        raise ValueError(f"n_trials must be a positive integer, got {n_trials!r}")
+        raise DataError(f"n_trials must be a positive integer, got {n_trials!r}; give 2 or more "
+                        "repeated trials (--trials) to fit the data")
     chirp = Chirp() if chirp is None else chirp
     model, effect_values = hidden_effects_model(effects, rig=rig)
     values = dict(model.defaults)

@@ -1,5 +1,6 @@
 """The command line is a thin layer over the API; test it through main()."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -52,6 +53,9 @@ def test_predict_writes_figure_and_summary(tmp_path, capsys):
         (["simulate", "x.csv", "--effect", "regulator_lag"], "must look like NAME=VALUE"),
         (["simulate", "x.csv", "--param", "d=abc"], "is not a number"),
         (["predict", "missing.csv", "--out", "o"], "missing.csv"),
+        (["compare", "a.nc", "--data", "d.csv", "--out", "o"], "give two or more fits"),
+        (["compare", "a.nc", "b.nc", "--data", "d.csv", "--out", "o", "--labels", "x"],
+         "one label per fit"),
     ],
 )
 def test_bad_input_is_one_clear_line(tmp_path, monkeypatch, capsys, argv, message):
@@ -228,3 +232,171 @@ def test_compare_two_fits(offset_data, tmp_path, capsys):
     main(["simulate", str(other), "--trials", "4", "--duration", "4", "--seed", "7"])
     assert main(["compare", *fits, "--data", str(other), "--out", str(out)]) == 2
     assert "does not match the observed data" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- failures a
+# new user hit (issue 10): one clear line for bad input, a traceback for a bug, no debris
+
+
+def test_a_bug_keeps_its_traceback_and_bad_input_is_one_line(tmp_path, monkeypatch, capsys):
+    import pmabayes.cli as cli
+    from pmabayes.data import DataError
+
+    def bug(*args, **kwargs):
+        raise ValueError("an internal bug")
+
+    monkeypatch.setattr(cli, "load", bug)
+    with pytest.raises(ValueError, match="an internal bug"):
+        main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")])
+
+    def bad_input(*args, **kwargs):
+        raise DataError("d.csv: line 3: bad; fix it")
+
+    monkeypatch.setattr(cli, "load", bad_input)
+    assert main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err == "pmabayes predict: error: d.csv: line 3: bad; fix it\n"
+    assert not (tmp_path / "o").exists()
+
+
+def test_model_for_is_gone():
+    import pmabayes.cli as cli
+
+    assert not hasattr(cli, "model_for") and "model_for" not in cli.__all__
+
+
+@pytest.fixture(scope="module")
+def small_data(tmp_path_factory):
+    """Three short noisy trials from the paper's model."""
+    data = tmp_path_factory.mktemp("small") / "d.csv"
+    assert main(["simulate", str(data), "--trials", "3", "--duration", "1", "--seed", "1"]) == 0
+    return data
+
+
+def test_predict_out_is_an_existing_file(small_data, tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    assert main(["predict", str(small_data), "--out", str(afile)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {afile}: this is a file, not a folder" in err and "Traceback" not in err
+    assert afile.read_text() == "keep me"
+
+
+def test_simulate_creates_the_missing_folder(tmp_path):
+    out = tmp_path / "new" / "deeper" / "s.csv"
+    assert main(["simulate", str(out), "--trials", "2", "--duration", "1"]) == 0
+    assert read_csv(out).n_trials == 2
+
+
+@pytest.mark.parametrize("argv", [["simulate", "x.csv", "--seed", "-1"],
+                                  ["fit", "d.csv", "--out", "f.nc", "--seed", "-1"],
+                                  ["fit", "d.csv", "--out", "f.nc", "--ensembles", "0"]])
+def test_bad_counts_are_refused_by_the_parser(tmp_path, monkeypatch, capsys, argv):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "give an integer >= " in err and "Traceback" not in err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["simulate", "x.csv", "--duration", "-1"], "duration_s (--duration) > 0"),
+        (["simulate", "x.csv", "--duration", "0.001"], "fewer than 2 samples"),
+        (["simulate", "x.csv", "--trials", "0"], "(--trials)"),
+    ],
+)
+def test_bad_simulate_settings_name_the_option(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_run_on_bad_data_leaves_no_folder(small_data, tmp_path, capsys):
+    from pmabayes.data import load, save
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("trial,time_s,pressure_pa,position_m\n1,0,0,0\n")
+    assert main(["run", str(bad), "--out", str(tmp_path / "r1")]) == 2
+    assert "only 1 sample" in capsys.readouterr().err
+    one = tmp_path / "one.csv"  # reads, but cannot be fitted: fails inside the fit
+    save(load(small_data).select_trials([0]), one)
+    assert main(["run", str(one), "--out", str(tmp_path / "r2"), "--quiet"]) == 2
+    assert "only one trial" in capsys.readouterr().err
+    assert not (tmp_path / "r1").exists() and not (tmp_path / "r2").exists()
+
+
+def test_predict_on_one_trial_says_there_is_no_noise_floor(small_data, tmp_path, capsys):
+    from pmabayes.data import load, save
+
+    one = tmp_path / "one.csv"
+    save(load(small_data).select_trials([1]), one)
+    assert main(["predict", str(one), "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "no noise floor: one trial" in out and "nan" not in out
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())  # strict JSON
+    assert summary["noise_floor_m"] is None and summary["n_trials"] == 1
+
+
+@pytest.mark.parametrize(
+    ("rig", "message"),
+    [
+        ({"colour": "red"}, "unknown rig keys ['colour']"),
+        ({"area_m2": 0.0}, "area_m2 must be > 0"),
+    ],
+)
+def test_rig_errors_name_the_file_and_the_fix(small_data, tmp_path, capsys, rig, message):
+    from pmabayes.data import load, save
+
+    ds = load(small_data)
+    path = tmp_path / "rig.csv"
+    save(dataclasses.replace(ds, metadata={**ds.metadata, "rig": {**ds.metadata["rig"], **rig}}),
+         path)
+    assert main(["predict", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: metadata 'rig': " in err and message in err
+    assert "rename or remove" in err or "fix it" in err
+
+
+def test_warnings_print_one_line_without_source(small_data, tmp_path, monkeypatch, capsys):
+    import warnings
+
+    import pmabayes.cli as cli
+    from pmabayes.data import load, save
+
+    ds = load(small_data)
+    path = tmp_path / "abs.csv"
+    save(dataclasses.replace(ds, input=ds.input + 101325.0), path)
+    assert main(["predict", str(path), "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith(f"pmabayes predict: warning: {path}: the lowest commanded pressure")
+    assert "looks like absolute pressure" in err and err.count("\n") == 1
+
+    def noisy(args):
+        warnings.warn("invalid value encountered in divide", RuntimeWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(cli, "_cmd_effects", noisy)
+    assert main(["effects"]) == 0
+    err = capsys.readouterr().err
+    assert err == "pmabayes effects: RuntimeWarning: invalid value encountered in divide\n"
+
+
+def test_unidentified_noise_names_the_file_and_the_fix(small_data, tmp_path, monkeypatch,
+                                                       capsys):
+    import pmabayes.fit as fit_module
+
+    def singular(a):
+        raise np.linalg.LinAlgError("singular matrix")
+
+    # the Hessian of the noise posterior is singular when the trials do not identify it
+    monkeypatch.setattr(fit_module.np.linalg, "inv", singular)
+    assert main(["fit", str(small_data), "--out", str(tmp_path / "f.nc"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pmabayes fit: error: {small_data}: the noise parameters are not "
+                          "identified")
+    assert "record more repetitions" in err

@@ -13,6 +13,8 @@ import pytest
 from pmabayes.data import (
     DataError,
     Dataset,
+    DataWarning,
+    check_time_grid,
     load,
     read_csv,
     read_netcdf,
@@ -324,9 +326,11 @@ def test_write_csv_rejects_json_suffix(tmp_path: Path) -> None:
         ({"input": np.zeros(5)}, r"np\.newaxis"),
         ({"position_m": np.zeros((3, 5))}, r"input has shape \(2, 5\) but position_m"),
         ({"time_s": np.array([0.0])}, r"at least 2 samples"),
-        ({"time_s": np.array([0, 1, 2, 4, 5.0])}, r"not uniformly sampled.*samples 2 and 3"),
-        ({"time_s": np.array([0, 1, 1, 2, 3.0])}, r"not strictly increasing at sample 2"),
-        ({"time_s": np.array([0, 1, np.nan, 3, 4])}, r"time_s\[2\] = nan is not finite"),
+        ({"time_s": np.array([0, 1, 2, 4, 5.0])},
+         r"sample 3: time_s is not uniformly sampled.*from sample 2"),
+        ({"time_s": np.array([0, 1, 1, 2, 3.0])},
+         r"sample 2: time_s = 1 is not after 1 on sample 1; .*strictly increasing"),
+        ({"time_s": np.array([0, 1, np.nan, 3, 4])}, r"sample 2: time_s = nan is not finite"),
         ({"input": np.array([[0, 1, 2, 3, np.inf]] * 2)}, r"input of trial 1 is inf at sample 4"),
         ({"trial_ids": np.array([1, 1])}, r"trial 1 appears 2 times"),
         ({"trial_ids": np.array([1.0, 2.0])}, r"trial_ids must be an integer array"),
@@ -474,7 +478,8 @@ def test_non_uniform_sampling(tmp_path: Path) -> None:
     lines[4] = "3,0.0400001,1000,0.001"  # 1e-5 relative error on the interval
     path = write(tmp_path, rows(*lines))
     with pytest.raises(
-        DataError, match=at(path, r": trial 3: line 6: non-uniform sampling: interval .* line 5")
+        DataError,
+        match=at(path, r": trial 3: line 6: time_s is not uniformly sampled: interval .* line 5"),
     ):
         read_csv(path)
     lines[4] = "3,0.04000000000001,1000,0.001"  # within 1e-6: accepted
@@ -484,7 +489,8 @@ def test_non_uniform_sampling(tmp_path: Path) -> None:
 def test_missing_sample_is_non_uniform(tmp_path: Path) -> None:
     lines = [f"1,{k * 0.01!r},1000,0.001" for k in (0, 1, 2, 4, 5, 6)]
     path = write(tmp_path, rows(*lines))
-    with pytest.raises(DataError, match=at(path, r": trial 1: line 5: non-uniform sampling")):
+    pattern = r": trial 1: line 5: time_s is not uniformly sampled"
+    with pytest.raises(DataError, match=at(path, pattern)):
         read_csv(path)
 
 
@@ -546,7 +552,8 @@ def test_pressure_below_vacuum(tmp_path: Path) -> None:
         read_csv(path)
     assert "check_units=False" in str(info.value)
     assert read_csv(path, check_units=False).input.min() == -101326
-    read_csv(write(tmp_path, rows(*with_line(6, "2,0.01,-101325,0.002")), "vac.csv"))
+    with pytest.warns(DataWarning, match="looks offset"):
+        read_csv(write(tmp_path, rows(*with_line(6, "2,0.01,-101325,0.002")), "vac.csv"))
 
 
 def test_position_looks_like_mm(tmp_path: Path) -> None:
@@ -648,3 +655,116 @@ def test_read_150k_rows(tmp_path: Path) -> None:
     ds = read_csv(path)
     assert ds.input.shape == (10, n)
     assert ds.position_m[3, -1] == 1e-6 * (n - 1)
+
+
+def test_position_far_beyond_mm_is_not_called_millimetres(tmp_path: Path) -> None:
+    path = write(tmp_path, rows(*with_line(4, "1,0.02,3000,1e300")))
+    pattern = r": position_m = 1e\+300 \(line 4, trial 1\)"
+    with pytest.raises(DataError, match=at(path, pattern)) as info:
+        read_csv(path)
+    text = str(info.value)
+    assert "millimetres" not in text and "not a muscle's position in m, nor in mm" in text
+
+
+def test_unit_check_advice_works_from_the_sidecar(tmp_path: Path) -> None:
+    path = write(tmp_path, rows(*with_line(4, "1,0.02,3000,12.5")))
+    with pytest.raises(DataError) as info:
+        read_csv(path)
+    sidecar = tmp_path / "d.json"
+    assert f'add "check_units": false to the JSON sidecar {sidecar}' in str(info.value)
+    sidecar.write_text('{"check_units": false}')  # what a command-line user can do
+    assert read_csv(path).position_m[0, 2] == 12.5
+    sidecar.write_text('{"check_units": "no"}')
+    with pytest.raises(DataError, match=re.escape(f"{sidecar}: check_units = 'no' must be")):
+        read_csv(path)
+
+
+# ----------------------------------------------------------------------------- gauge pressure
+
+
+def chirp_csv(tmp_path: Path, offset_pa: float = 0.0, meta: dict | None = None) -> Path:
+    """Two short synthetic chirp trials (trials start at rest), pressure shifted by offset_pa."""
+    from pmabayes.synthetic import Chirp, generate_chirp_dataset
+
+    ds = generate_chirp_dataset(n_trials=2, seed=3, chirp=Chirp(duration_s=1.0))
+    metadata = {**ds.metadata, **(meta or {})}
+    path = tmp_path / "chirp.csv"
+    write_csv(dataclasses.replace(ds, input=ds.input + offset_pa, metadata=metadata), path)
+    return path
+
+
+@pytest.mark.parametrize("offset_pa", [101325.0, 95e3])
+def test_absolute_pressure_is_flagged(tmp_path: Path, offset_pa: float) -> None:
+    path = chirp_csv(tmp_path, offset_pa)
+    with pytest.warns(DataWarning) as record:
+        ds = read_csv(path)
+    (w,) = record
+    text = str(w.message)
+    assert text.startswith(f"{path}: the lowest commanded pressure, {offset_pa / 1e3:.1f} kPa")
+    assert "(line 2, trial 0)" in text and "every trial starts there, at rest" in text
+    assert "looks like absolute pressure" in text and "subtract the ambient pressure" in text
+    assert f'"pressure_reference": "absolute" in the JSON sidecar {tmp_path / "chirp.json"}' in text
+    assert ds.input.min() == offset_pa  # a warning: nothing is changed
+
+
+def test_negative_offset_is_flagged(tmp_path: Path) -> None:
+    path = chirp_csv(tmp_path, -100e3)
+    with pytest.warns(DataWarning, match=re.escape(f"{path}: pressure_pa goes down to -100.0 kPa "
+                                                   "(line 2, trial 0)")) as record:
+        read_csv(path)
+    assert "correct the zero" in str(record[0].message)
+
+
+def test_gauge_data_and_declared_data_read_quietly(tmp_path: Path) -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_csv(chirp_csv(tmp_path))  # like the bundled data: starts at rest at 0 Pa
+        read_csv(write(tmp_path, rows(*GOOD)))
+        read_csv(chirp_csv(tmp_path, 101325.0, {"pressure_reference": "gauge"}))
+        for name in ("pma_chirp_lab.csv", "pma_chirp_paper.csv"):
+            read_csv(Path(__file__).parents[1] / "data" / name)
+
+
+@pytest.mark.parametrize(("declared", "ambient"), [({}, 101325.0),
+                                                   ({"ambient_pressure_pa": 95e3}, 95e3)])
+def test_declared_absolute_pressure_is_converted(tmp_path: Path, declared: dict,
+                                                 ambient: float) -> None:
+    gauge = read_csv(chirp_csv(tmp_path))
+    path = chirp_csv(tmp_path, ambient, {"pressure_reference": "absolute", **declared})
+    ds = read_csv(path)
+    np.testing.assert_allclose(ds.input, gauge.input, rtol=0, atol=1e-9)
+    assert ds.metadata["pressure_reference"] == "gauge"
+    assert ds.metadata["converted_from_absolute"] == {"ambient_pressure_pa": ambient}
+    save(ds, tmp_path / "again.csv")  # written as gauge, read back unchanged
+    assert read_csv(tmp_path / "again.csv") == ds
+
+
+def test_bad_pressure_reference_is_refused(tmp_path: Path) -> None:
+    path = chirp_csv(tmp_path, 0.0, {"pressure_reference": "relative"})
+    with pytest.raises(DataError, match=re.escape(
+            f"the JSON sidecar {tmp_path / 'chirp.json'}: pressure_reference = 'relative'")):
+        read_csv(path)
+
+
+# ----------------------------------------------------------------------------- time grid
+
+
+def test_one_time_grid_check_for_data_files_and_the_simulator() -> None:
+    import pmabayes as pb
+
+    t = 0.25 + np.arange(6) * 2e-3
+    assert check_time_grid(t) == np.diff(t).mean()
+    bad = t.copy()
+    bad[3] += 1e-6
+    with pytest.raises(DataError, match=r"^x: sample 3: time_s is not uniformly sampled.*"
+                                        r"from sample 2"):
+        check_time_grid(bad, source="x")
+    with pytest.raises(DataError, match=r"^x: line 5: time_s = nan is not finite"):
+        check_time_grid(np.where(np.arange(6) == 3, np.nan, t), source="x",
+                        locate=lambda j: f"line {j + 2}")
+    with pytest.raises(pb.SimulationError, match=r"^simulate: sample 3: time_s is not uniformly"):
+        pb.simulate(pb.Model(), None, np.zeros(6), time_s=bad)
+    with pytest.raises(pb.SimulationError, match=r"time_s = nan is not finite"):
+        pb.simulate(pb.Model(), None, np.zeros(3), time_s=[0.0, np.nan, 2e-3])

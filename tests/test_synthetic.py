@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.data import read_csv, write_csv
+from pmabayes.data import DataError, read_csv, write_csv
 from pmabayes.synthetic import (
     ENCODER_COUNTS_PER_M,
     Chirp,
@@ -83,10 +83,18 @@ def test_bad_generator_settings():
         generate_chirp_dataset(effects={"regulator_lag": {"tau": 0.1}}, chirp=SHORT)
     with pytest.raises(pb.EffectError, match="unknown effect 'lag'"):
         generate_chirp_dataset(effects={"lag": 0.1}, chirp=SHORT)
-    with pytest.raises(ValueError, match="n_trials"):
+    # DataError (a ValueError): the command line reports the package's own errors
+    # in one line and lets any other exception show as a bug
+    with pytest.raises(DataError, match=r"n_trials.*\(--trials\)"):
         generate_chirp_dataset(n_trials=0, chirp=SHORT)
-    with pytest.raises(ValueError, match="p_min_pa < p_max_pa"):
+    with pytest.raises(DataError, match="p_min_pa < p_max_pa"):
         Chirp(p_min_pa=1.0, p_max_pa=0.0)
+    with pytest.raises(DataError, match=r"duration_s \(--duration\) > 0"):
+        Chirp(duration_s=-1.0)
+    with pytest.raises(DataError, match=r"fewer than 2 samples; lengthen it \(--duration\)"):
+        Chirp(duration_s=1e-3)
+    with pytest.raises(DataError, match="disturbance_std_m must be >= 0"):
+        MeasurementNoise(disturbance_std_m=-1.0)
 
 
 def test_bundled_datasets_are_synthetic_and_regenerable():

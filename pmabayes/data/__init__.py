@@ -1,0 +1,41 @@
+"""Data stage: read, validate and write pneumatic-muscle (or oscillator) trial data.
+
+A data set is a set of trials that share one uniformly sampled time grid. Each trial
+has one input signal (commanded gauge pressure in Pa, or force in N for a generic
+force-driven oscillator) and one measured position signal in m.
+
+Two file formats are supported:
+
+CSV
+    Header ``trial,time_s,pressure_pa,position_m`` (any column order; ``force_n`` may
+    replace ``pressure_pa``), one row per sample, each trial's rows contiguous. An
+    optional JSON sidecar with the same stem (``foo.csv`` -> ``foo.json``) holds a
+    free-form metadata object.
+NetCDF
+    Written and read through xarray with the ``h5netcdf`` engine; metadata is stored
+    as a JSON string attribute. Intended for large data.
+
+Bad input raises :class:`DataError` with a message that names the file, the line or
+trial, and says how to fix it. Nothing is dropped, repaired or clipped silently.
+Data that read but look suspect (pressure that looks absolute, not gauge) give a
+:class:`DataWarning`. Two metadata entries declare what the checks cannot know:
+``"pressure_reference"`` (``"gauge"``, or ``"absolute"`` to convert to gauge on
+reading) and ``"check_units": false``.
+"""
+
+from pmabayes.data.dataset import INPUT_NAMES, DataError, Dataset, DataWarning, check_time_grid
+from pmabayes.data.files import load, read_csv, read_netcdf, save, write_csv, write_netcdf
+
+__all__ = [
+    "INPUT_NAMES",
+    "DataError",
+    "DataWarning",
+    "Dataset",
+    "check_time_grid",
+    "load",
+    "read_csv",
+    "read_netcdf",
+    "save",
+    "write_csv",
+    "write_netcdf",
+]

@@ -1,0 +1,553 @@
+"""Data sets: trials on one uniform time grid, and the package's one time-grid check.
+
+:class:`Dataset` validates what it holds (shapes, finite values, unique trial ids,
+the time grid); :class:`DataError` and :class:`DataWarning` are the stage's error
+and warning. Reading and writing files is :mod:`pmabayes.data.files`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from numpy.typing import ArrayLike
+
+__all__ = ["INPUT_NAMES", "DataError", "DataWarning", "Dataset", "check_time_grid"]
+
+INPUT_NAMES: tuple[str, ...] = ("pressure_pa", "force_n")
+"""Allowed names of the input column: commanded gauge pressure (Pa) or force (N)."""
+
+_UNITS = {"time_s": "s", "pressure_pa": "Pa", "force_n": "N", "position_m": "m"}
+_REL_TOL = 1e-6  # relative tolerance on sample intervals, sample times and sample rates
+
+
+class DataError(ValueError):
+    """Invalid or inconsistent data.
+
+    Every message names the file (or the data set's source), the line (1-based,
+    header = line 1) or the trial, and says how to fix the problem.
+    """
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _fmt(x: float) -> str:
+    """Format a number compactly but unambiguously for messages."""
+    return f"{float(x):.10g}"
+
+
+def _first_nonuniform(t: np.ndarray) -> int | None:
+    """Return the index ``i`` of the first interval ``t[i+1] - t[i]`` off the median.
+
+    The median (not the mean) is the reference so that one glitch is reported where
+    it occurs rather than shifting the reference for every other interval.
+    """
+    d = np.diff(t)
+    if d.size == 0:
+        return None
+    ref = float(np.median(d))
+    bad = np.abs(d - ref) > _REL_TOL * abs(ref)
+    if not bad.any():
+        return None
+    return int(np.argmax(bad))
+
+
+def check_time_grid(
+    time_s: ArrayLike,
+    *,
+    source: str = "time_s",
+    locate: Callable[[int], str] | None = None,
+    error: type[Exception] = DataError,
+) -> float:
+    """Check that sample times are finite, strictly increasing and uniformly spaced.
+
+    The one time-grid check of the package: data sets, CSV trials and the
+    simulator's ``time_s`` all go through it.
+
+    Parameters
+    ----------
+    time_s : array_like
+        Sample times in s, 1-D, at least 2 samples.
+    source : str, optional
+        What the times belong to (a file, a trial), the start of every message.
+    locate : callable, optional
+        ``locate(j)`` describes sample ``j`` for messages (e.g. a CSV line);
+        ``"sample j"`` by default.
+    error : type, optional
+        Exception class to raise (:class:`DataError` by default).
+
+    Returns
+    -------
+    float
+        The mean sample interval in s (``np.diff(time_s).mean()``).
+
+    Raises
+    ------
+    DataError
+        (or ``error``) If the times are not 1-D with 2 or more samples, not finite,
+        not strictly increasing, or an interval differs from the median interval by
+        more than 1e-6 relative.
+    """
+    t = np.asarray(time_s, dtype=float)
+    where = locate or (lambda j: f"sample {j}")
+    if t.ndim != 1 or t.size < 2:
+        raise error(f"{source}: time_s must be 1-D with at least 2 samples; got shape {t.shape}.")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise error(f"{source}: {where(j)}: time_s = {t[j]} is not finite; supply finite times.")
+    d = np.diff(t)
+    if (d <= 0).any():
+        j = int(np.argmax(d <= 0)) + 1
+        raise error(
+            f"{source}: {where(j)}: time_s = {_fmt(t[j])} is not after {_fmt(t[j - 1])} "
+            f"on {where(j - 1)}; times must be strictly increasing: sort by time and "
+            "remove duplicate samples."
+        )
+    i = _first_nonuniform(t)
+    if i is not None:
+        raise error(
+            f"{source}: {where(i + 1)}: time_s is not uniformly sampled: interval "
+            f"{_fmt(d[i])} s from {where(i)} differs from the median interval "
+            f"{_fmt(np.median(d))} s by more than {_REL_TOL:g} relative (missing or "
+            "duplicated sample?); resample onto a uniform grid."
+        )
+    return float(d.mean())
+
+
+def _check_metadata_rate(metadata: dict, rate_hz: float, where: str) -> None:
+    """Check a metadata ``sample_rate_hz`` against the data's sample rate."""
+    if "sample_rate_hz" not in metadata:
+        return
+    value = metadata["sample_rate_hz"]
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, numbers.Real)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
+        raise DataError(
+            f"{where}: sample_rate_hz = {value!r} is not a positive finite number; "
+            f"set it to the sample rate in Hz (the time_s column gives {_fmt(rate_hz)} Hz) "
+            "or remove it."
+        )
+    if abs(float(value) - rate_hz) > _REL_TOL * rate_hz:
+        raise DataError(
+            f"{where}: sample_rate_hz = {_fmt(value)} Hz disagrees with the sample rate "
+            f"of the time_s column, {_fmt(rate_hz)} Hz (relative tolerance {_REL_TOL:g}); "
+            "correct sample_rate_hz or the time column."
+        )
+
+
+def _json_roundtrip_check(metadata: dict, where: str) -> str:
+    """Serialize metadata to JSON, raising if it would not read back identically."""
+    try:
+        text = json.dumps(metadata, indent=2, sort_keys=True, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise DataError(
+            f"{where}: metadata cannot be stored as JSON ({exc}); use only str keys and "
+            "str/int/float/bool/None/list/dict values (no NaN, no numpy scalars)."
+        ) from None
+    if json.loads(text) != metadata:
+        raise DataError(
+            f"{where}: metadata would not read back identically from JSON (tuples or "
+            "non-str keys?); use lists and str keys."
+        )
+    return text
+
+
+class DataWarning(UserWarning):
+    """Data that read correctly but look suspect (e.g. absolute instead of gauge pressure).
+
+    Every message names the file, the trial and the fix, and how to declare the
+    data right when the suspicion is wrong.
+    """
+
+
+def _first_in_file_order(mask: np.ndarray) -> tuple[int, int]:
+    """First ``(trial index, sample index)`` where a 2-D mask is true, row-major."""
+    k, j = np.unravel_index(int(np.argmax(mask)), mask.shape)
+    return int(k), int(j)
+
+
+# ----------------------------------------------------------------------------- Dataset
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Dataset:
+    """Trials sharing one uniform time grid: input signal and measured position.
+
+    Parameters
+    ----------
+    time_s : numpy.ndarray
+        Sample times in s, shape ``(n_samples,)``, strictly increasing and uniformly
+        sampled (relative tolerance 1e-6 on the interval); shared by all trials. The
+        first sample may be non-zero. At least 2 samples.
+    input : numpy.ndarray
+        Input signal, shape ``(n_trials, n_samples)``: commanded gauge pressure in Pa
+        (``input_name="pressure_pa"``) or force in N (``input_name="force_n"``).
+    position_m : numpy.ndarray
+        Measured position in m, shape ``(n_trials, n_samples)``.
+    trial_ids : numpy.ndarray
+        Integer trial ids, shape ``(n_trials,)``, unique, in file order.
+    input_name : str, optional
+        ``"pressure_pa"`` (default) or ``"force_n"``.
+    metadata : dict, optional
+        Free-form metadata (e.g. ``synthetic``, ``description``, ``sample_rate_hz``,
+        ``rig``, ``generator``). A ``sample_rate_hz`` entry must agree with the time
+        grid to within 1e-6 relative.
+    source : str or None, optional
+        Path the data were read from; used in error messages.
+
+    Raises
+    ------
+    DataError
+        If shapes, dtypes or values are invalid: non-finite values, time not strictly
+        increasing or not uniform, duplicate trial ids, unknown ``input_name``.
+
+    Notes
+    -----
+    Arrays are stored as read-only float64 (``trial_ids``: int64) copies. Two data sets
+    compare equal when all fields except ``source`` are equal.
+    """
+
+    time_s: np.ndarray
+    input: np.ndarray
+    position_m: np.ndarray
+    trial_ids: np.ndarray
+    input_name: str = "pressure_pa"
+    metadata: dict = field(default_factory=dict)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        """Validate the fields and freeze the arrays."""
+        source = self.source
+        if source is not None:
+            if not isinstance(source, (str, os.PathLike)):
+                raise DataError(
+                    f"Dataset: source must be a str path or None, got {type(source).__name__}."
+                )
+            source = os.fspath(source)
+        where = f"Dataset from {source}" if source else "Dataset"
+
+        if self.input_name not in INPUT_NAMES:
+            raise DataError(
+                f"{where}: input_name must be one of {', '.join(INPUT_NAMES)}; "
+                f"got {self.input_name!r}."
+            )
+        if not isinstance(self.metadata, dict):
+            raise DataError(
+                f"{where}: metadata must be a dict, got {type(self.metadata).__name__}; "
+                "pass a dict (possibly empty)."
+            )
+
+        time_s = self._as_float(self.time_s, "time_s", where)
+        check_time_grid(time_s, source=where)
+        n = time_s.size
+        arrays = {}
+        for name, value in (("input", self.input), ("position_m", self.position_m)):
+            a = self._as_float(value, name, where)
+            if a.ndim != 2 or a.shape[1] != n or a.shape[0] < 1:
+                raise DataError(
+                    f"{where}: {name} must have shape (n_trials, {n}) to match time_s; got "
+                    f"{a.shape} (for one trial use a[np.newaxis, :])."
+                )
+            arrays[name] = a
+        if arrays["input"].shape != arrays["position_m"].shape:
+            raise DataError(
+                f"{where}: input has shape {arrays['input'].shape} but position_m has "
+                f"{arrays['position_m'].shape}; both must be (n_trials, n_samples)."
+            )
+        n_trials = arrays["input"].shape[0]
+
+        ids = np.asarray(self.trial_ids)
+        if ids.dtype.kind not in "iu" or ids.shape != (n_trials,):
+            raise DataError(
+                f"{where}: trial_ids must be an integer array of shape ({n_trials},); got "
+                f"dtype {ids.dtype} and shape {ids.shape}."
+            )
+        if ids.dtype.kind == "u" and ids.size and int(ids.max()) > np.iinfo(np.int64).max:
+            raise DataError(f"{where}: trial_ids exceed the int64 range; renumber the trials.")
+        ids = np.array(ids, dtype=np.int64, copy=True)
+        uniq, counts = np.unique(ids, return_counts=True)
+        if (counts > 1).any():
+            dup = int(uniq[np.argmax(counts > 1)])
+            raise DataError(
+                f"{where}: trial {dup} appears {int(counts.max())} times in trial_ids; "
+                "trial ids must be unique."
+            )
+
+        for name, a in arrays.items():
+            bad = ~np.isfinite(a)
+            if bad.any():
+                k, j = _first_in_file_order(bad)
+                raise DataError(
+                    f"{where}: {name} of trial {ids[k]} is {a[k, j]} at sample {j}; "
+                    "all values must be finite (no NaN or inf)."
+                )
+        for name, a in (("time_s", time_s), ("trial_ids", ids), *arrays.items()):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "metadata", dict(self.metadata))
+        object.__setattr__(self, "source", source)
+        _check_metadata_rate(self.metadata, self.sample_rate_hz, f"{where}: metadata")
+
+    @staticmethod
+    def _as_float(value: Any, name: str, where: str) -> np.ndarray:
+        """Return a float64 copy of a real numeric array, else raise DataError."""
+        a = np.asarray(value)
+        if a.dtype.kind not in "iuf":
+            raise DataError(f"{where}: {name} must be a real numeric array; got dtype {a.dtype}.")
+        return np.array(a, dtype=np.float64, copy=True)
+
+    # -- properties
+
+    @property
+    def n_trials(self) -> int:
+        """Number of trials."""
+        return int(self.input.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples per trial."""
+        return int(self.time_s.size)
+
+    @property
+    def dt_s(self) -> float:
+        """Uniform sample interval in s, ``(t[-1] - t[0]) / (n_samples - 1)``."""
+        return float(self.time_s[-1] - self.time_s[0]) / (self.n_samples - 1)
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Sample rate in Hz, ``1 / dt_s``."""
+        return 1.0 / self.dt_s
+
+    @property
+    def pressure_pa(self) -> np.ndarray:
+        """Commanded gauge pressure in Pa, ``(n_trials, n_samples)``.
+
+        Raises
+        ------
+        DataError
+            If the input is force (``input_name == "force_n"``).
+        """
+        if self.input_name != "pressure_pa":
+            where = self.source or "Dataset"
+            raise DataError(
+                f"{where}: this data set's input is {self.input_name!r}, not pressure; "
+                "use Dataset.input."
+            )
+        return self.input
+
+    @property
+    def mean_position_m(self) -> np.ndarray:
+        """Position averaged over trials, shape ``(n_samples,)``."""
+        return self.position_m.mean(axis=0)
+
+    @property
+    def noise_floor_m(self) -> float:
+        """RMS error a perfect model would have against the trial mean.
+
+        Estimated from the spread between repeated trials: the root of the
+        time-averaged sample variance across trials divided by the number of
+        trials. NaN with a single trial (no spread to estimate it from).
+        """
+        if self.n_trials < 2:
+            return math.nan
+        var = self.position_m.var(axis=0, ddof=1).mean()
+        return float(math.sqrt(var / self.n_trials))
+
+    # -- methods
+
+    def select_trials(self, indices: int | Sequence[int] | np.ndarray) -> Dataset:
+        """Return a new data set with a subset of trials.
+
+        Parameters
+        ----------
+        indices : int or sequence of int
+            Positional trial indices (``0 .. n_trials - 1``; negative counts from the
+            end), not trial ids. Order is kept; duplicates are not allowed.
+
+        Returns
+        -------
+        Dataset
+            The selected trials, with the same time grid, metadata and source.
+
+        Raises
+        ------
+        DataError
+            If no index is given, an index is out of range or repeated, or an index is
+            not an integer.
+        """
+        where = self.source or "Dataset"
+        idx = np.atleast_1d(np.asarray(indices))
+        if idx.ndim != 1 or idx.size == 0 or idx.dtype.kind not in "iu":
+            raise DataError(
+                f"{where}: select_trials needs one or more integer trial indices "
+                f"(positions 0..{self.n_trials - 1}); got {indices!r}."
+            )
+        out = (idx < -self.n_trials) | (idx >= self.n_trials)
+        if out.any():
+            raise DataError(
+                f"{where}: trial index {int(idx[np.argmax(out)])} is out of range for "
+                f"{self.n_trials} trials; use positions 0..{self.n_trials - 1} (not trial ids)."
+            )
+        idx = idx % self.n_trials
+        if np.unique(idx).size != idx.size:
+            raise DataError(
+                f"{where}: select_trials got repeated trial indices {indices!r}; "
+                "select each trial at most once."
+            )
+        return Dataset(
+            time_s=self.time_s,
+            input=self.input[idx],
+            position_m=self.position_m[idx],
+            trial_ids=self.trial_ids[idx],
+            input_name=self.input_name,
+            metadata=dict(self.metadata),
+            source=self.source,
+        )
+
+    def to_xarray(self) -> xr.Dataset:
+        """Convert to an :class:`xarray.Dataset`.
+
+        Returns
+        -------
+        xarray.Dataset
+            Dimensions ``("trial", "time_s")`` with coordinates ``trial`` (the trial
+            ids) and ``time_s``; data variables named after the input (``pressure_pa``
+            or ``force_n``) and ``position_m``, each with a ``units`` attribute;
+            attributes ``input_name`` and ``metadata_json`` (the metadata as JSON).
+            Arrays are writable copies.
+
+        Raises
+        ------
+        DataError
+            If the metadata cannot be stored as JSON exactly.
+        """
+        meta = _json_roundtrip_check(self.metadata, self.source or "Dataset")
+        dims = ("trial", "time_s")
+        return xr.Dataset(
+            data_vars={
+                self.input_name: (dims, self.input.copy(), {"units": _UNITS[self.input_name]}),
+                "position_m": (dims, self.position_m.copy(), {"units": "m"}),
+            },
+            coords={
+                "trial": ("trial", self.trial_ids.copy()),
+                "time_s": ("time_s", self.time_s.copy(), {"units": "s"}),
+            },
+            attrs={"input_name": self.input_name, "metadata_json": meta},
+        )
+
+    @classmethod
+    def from_xarray(cls, ds: xr.Dataset, *, source: str | None = None) -> Dataset:
+        """Build a data set from an :class:`xarray.Dataset` made by :meth:`to_xarray`.
+
+        Parameters
+        ----------
+        ds : xarray.Dataset
+            Dimensions ``trial`` and ``time_s``; coordinates of the same names; data
+            variables ``position_m`` and exactly one of ``pressure_pa`` or ``force_n``.
+            An optional ``metadata_json`` attribute holds the metadata.
+        source : str or None, optional
+            Where the data came from, for messages.
+
+        Returns
+        -------
+        Dataset
+            The validated data set.
+
+        Raises
+        ------
+        TypeError
+            If ``ds`` is not an :class:`xarray.Dataset`.
+        DataError
+            If variables or coordinates are missing, extra or mis-shaped, or the
+            metadata attribute is not a JSON object.
+        """
+        if not isinstance(ds, xr.Dataset):
+            raise TypeError(f"from_xarray needs an xarray.Dataset, got {type(ds).__name__}")
+        where = os.fspath(source) if source is not None else "xarray dataset"
+        names = set(ds.data_vars)
+        inputs = [n for n in INPUT_NAMES if n in names]
+        expected = "position_m and exactly one of pressure_pa or force_n"
+        if len(inputs) != 1 or "position_m" not in names:
+            raise DataError(f"{where}: data variables are {sorted(names)}; expected {expected}.")
+        extra = sorted(names - {"position_m", inputs[0]})
+        if extra:
+            raise DataError(
+                f"{where}: unexpected data variable(s) {extra}; expected {expected}. Remove them."
+            )
+        input_name = inputs[0]
+        for coord in ("trial", "time_s"):
+            if coord not in ds.coords or ds[coord].dims != (coord,):
+                raise DataError(
+                    f"{where}: missing 1-D coordinate {coord!r} along dimension {coord!r}; "
+                    "write the file with write_netcdf or Dataset.to_xarray."
+                )
+        for name in (input_name, "position_m"):
+            if set(ds[name].dims) != {"trial", "time_s"}:
+                raise DataError(
+                    f"{where}: {name} has dimensions {ds[name].dims}; expected ('trial', 'time_s')."
+                )
+        attr_name = ds.attrs.get("input_name", input_name)
+        if attr_name != input_name:
+            raise DataError(
+                f"{where}: attribute input_name={attr_name!r} but the data variable is "
+                f"{input_name!r}; make them agree."
+            )
+        meta_text = ds.attrs.get("metadata_json", "{}")
+        try:
+            metadata = json.loads(meta_text)
+        except (TypeError, json.JSONDecodeError) as exc:
+            raise DataError(
+                f"{where}: attribute metadata_json is not valid JSON ({exc}); "
+                "store the metadata as a JSON object string."
+            ) from None
+        if not isinstance(metadata, dict):
+            raise DataError(
+                f"{where}: attribute metadata_json holds a JSON {type(metadata).__name__}, "
+                "not an object; store a JSON object."
+            )
+        return cls(
+            time_s=ds["time_s"].values,
+            input=ds[input_name].transpose("trial", "time_s").values,
+            position_m=ds["position_m"].transpose("trial", "time_s").values,
+            trial_ids=ds["trial"].values,
+            input_name=input_name,
+            metadata=metadata,
+            source=source,
+        )
+
+    # -- dunder
+
+    def __eq__(self, other: object) -> bool:
+        """Equal if all fields except ``source`` are equal (arrays by value)."""
+        if not isinstance(other, Dataset):
+            return NotImplemented
+        return (
+            self.input_name == other.input_name
+            and self.metadata == other.metadata
+            and np.array_equal(self.trial_ids, other.trial_ids)
+            and np.array_equal(self.time_s, other.time_s)
+            and np.array_equal(self.input, other.input)
+            and np.array_equal(self.position_m, other.position_m)
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable metadata, array fields
+
+    def __repr__(self) -> str:
+        """Short summary (no array contents)."""
+        return (
+            f"Dataset(n_trials={self.n_trials}, n_samples={self.n_samples}, "
+            f"dt_s={self.dt_s:.6g}, input_name={self.input_name!r}, "
+            f"trial_ids={self.trial_ids.tolist()!r}, source={self.source!r})"
+        )
