@@ -22,10 +22,10 @@ from __future__ import annotations
 import os
 import sys
 
+import matplotlib.pyplot as plt
 from _paper import Numbers, cached_fit, out_dirs, paper_dataset, parser, sig
 
 from pmabayes import Model, registered_effects
-from pmabayes.plots import plt
 from pmabayes.posterior import fit_info
 from pmabayes.synthetic import Chirp
 

@@ -23,10 +23,9 @@ from __future__ import annotations
 import csv
 import sys
 
+import matplotlib.pyplot as plt
 import numpy as np
 from _paper import Numbers, out_dirs, parser, tex_escape
-
-from pmabayes.plots import plt
 
 QUICK = {"null": 1, "seeds": 1, "sizes": 1, "max_refits": 1}
 #: the quick mode sweeps one effect only (each diagnosis with a refit costs ~20 s)

@@ -18,11 +18,11 @@ from __future__ import annotations
 import json
 import sys
 
+import matplotlib.pyplot as plt
 import numpy as np
 from _paper import DATA_DIR, Numbers, cached_fit, out_dirs, paper_dataset, parser, sig
 
 from pmabayes.model import CARRIAGE_MASS_KG, CONTROL_LOAD_KG, PAPER_AREA_M2, PMA_MASS_KG
-from pmabayes.plots import plt
 from pmabayes.report import predictive_band
 
 

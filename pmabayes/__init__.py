@@ -1,9 +1,10 @@
 """pmabayes: Bayesian identification of pneumatic muscle actuators with Bouc-Wen hysteresis.
 
 The package is organised as a one-way pipeline: data -> model (base physics and
-composable effects) -> batched compiled simulator -> likelihood -> sampler ->
-posterior -> diagnostics, control and robustness -> reports. Each stage is one
-module; a lower stage never imports a higher one.
+composable effects) -> batched compiled simulator -> likelihood -> posterior
+(density and fit file) -> sampler -> diagnostics, control and robustness ->
+reports. Each stage is one module (or one small package); a lower stage never
+imports a higher one. ``pmabayes.util`` and ``pmabayes.parallel`` serve them all.
 """
 
 from pmabayes.effects import (

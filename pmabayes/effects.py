@@ -610,34 +610,12 @@ class RegulatorLag(Effect):
 
     @classmethod
     def history_s(cls, q: np.ndarray) -> np.ndarray:
-        """``40 tau_reg``: exp(-40) of the older past remains (see :meth:`Effect.history_s`).
-
-        Parameters
-        ----------
-        q : numpy.ndarray
-            ``(batch, 1)``: ``tau_reg``.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(batch,)`` in s.
-        """
+        """``40 tau_reg``: exp(-40) of the older past remains (see :meth:`Effect.history_s`)."""
         return 40.0 * q[:, 0]
 
     @classmethod
     def lead_s(cls, q: np.ndarray) -> np.ndarray:
-        """``tau_reg``, the first-order lead ``1 + tau s ~ exp(tau s)`` (see :meth:`Effect.lead_s`).
-
-        Parameters
-        ----------
-        q : numpy.ndarray
-            ``(batch, 1)``: ``tau_reg``.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(batch,)`` in s.
-        """
+        """``tau_reg``: the first-order lead ``1 + tau s ~ exp(tau s)`` (:meth:`Effect.lead_s`)."""
         return q[:, 0]
 
 
@@ -665,52 +643,17 @@ class TransportDelay(Effect):
 
     @classmethod
     def history_s(cls, q: np.ndarray) -> np.ndarray:
-        """``t_delay`` (see :meth:`Effect.history_s`).
-
-        Parameters
-        ----------
-        q : numpy.ndarray
-            ``(batch, 1)``: ``t_delay``.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(batch,)`` in s.
-        """
+        """``t_delay`` (see :meth:`Effect.history_s`)."""
         return np.maximum(q[:, 0], 0.0)
 
     @classmethod
     def lead_s(cls, q: np.ndarray) -> np.ndarray:
-        """``t_delay``: predicting that far ahead is exact in phase (see :meth:`Effect.lead_s`).
-
-        Parameters
-        ----------
-        q : numpy.ndarray
-            ``(batch, 1)``: ``t_delay``.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(batch,)`` in s.
-        """
+        """``t_delay``: predicting that far ahead is exact in phase (see :meth:`Effect.lead_s`)."""
         return q[:, 0]
 
     @classmethod
     def add_delay(cls, q: np.ndarray, delay_s: float) -> np.ndarray:
-        """``t_delay + delay_s`` (see :meth:`Effect.add_delay`).
-
-        Parameters
-        ----------
-        q : numpy.ndarray
-            ``(batch, 1)``: ``t_delay``.
-        delay_s : float
-            Extra delay in s.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(batch, 1)``.
-        """
+        """``t_delay + delay_s`` (see :meth:`Effect.add_delay`)."""
         out = np.array(q, dtype=float, copy=True)
         out[:, 0] += delay_s
         return out

@@ -146,26 +146,22 @@ class Posterior:
     # -- coordinates ------------------------------------------------------------
     def to_natural(self, z: np.ndarray) -> np.ndarray:
         """Natural parameter values from unconstrained coordinates ``(batch, ndim)``."""
-        z = np.atleast_2d(np.asarray(z, dtype=float))
-        out = z.copy()
-        with np.errstate(over="ignore"):
-            for j, kind in enumerate(self.kinds):
-                if kind == "log":
-                    out[:, j] = np.exp(z[:, j])
-                elif kind == "atanh":
-                    out[:, j] = np.tanh(z[:, j])
-        return out
+        return self._map(z, 0)
 
     def to_unconstrained(self, theta: np.ndarray) -> np.ndarray:
         """Unconstrained coordinates from natural values ``(batch, ndim)``."""
-        theta = np.atleast_2d(np.asarray(theta, dtype=float))
-        out = theta.copy()
-        with np.errstate(divide="ignore"):
+        return self._map(theta, 1)
+
+    #: each transform's (to natural, to unconstrained) maps
+    _MAPS = {"log": (np.exp, np.log), "atanh": (np.tanh, np.arctanh)}
+
+    def _map(self, values: np.ndarray, direction: int) -> np.ndarray:
+        values = np.atleast_2d(np.asarray(values, dtype=float))
+        out = values.copy()
+        with np.errstate(over="ignore", divide="ignore"):
             for j, kind in enumerate(self.kinds):
-                if kind == "log":
-                    out[:, j] = np.log(theta[:, j])
-                elif kind == "atanh":
-                    out[:, j] = np.arctanh(theta[:, j])
+                if kind in self._MAPS:
+                    out[:, j] = self._MAPS[kind][direction](values[:, j])
         return out
 
     def log_jacobian(self, z: np.ndarray) -> np.ndarray:

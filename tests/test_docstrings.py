@@ -15,6 +15,7 @@ MODULES = [
     "pmabayes.simulator",
     "pmabayes.synthetic",
     "pmabayes.likelihood",
+    "pmabayes.util",
     "pmabayes.parallel",
     "pmabayes.fit",
     "pmabayes.posterior",
