@@ -865,6 +865,9 @@ def _check_settings(settings: FitSettings, posterior: Posterior) -> None:
     if settings.n_walkers < 2 * posterior.ndim:
         raise FitError(f"n_walkers must be at least {2 * posterior.ndim} (twice the "
                        f"{posterior.ndim} parameters), got {settings.n_walkers}")
+    if settings.n_ensembles < 1:
+        raise FitError(f"n_ensembles must be at least 1 (2 or more for R-hat across "
+                       f"ensembles), got {settings.n_ensembles}")
 
 
 def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSequence,

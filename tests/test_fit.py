@@ -255,6 +255,8 @@ def test_info_is_json(small_fit):
 def test_too_small_a_budget_is_refused(small_data):
     with pytest.raises(FitError, match="max_steps must be at least 20"):
         fit(small_data, pb.Model(), settings=FitSettings(max_steps=10))
+    with pytest.raises(FitError, match="n_ensembles must be at least 1"):
+        fit(small_data, pb.Model(), settings=FitSettings(n_ensembles=0))
 
 
 # -- short runs, failures and noise (new-user failures 2, 4, 7 and 8) ----------------
