@@ -37,6 +37,7 @@ import importlib
 import importlib.util
 import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -454,31 +455,41 @@ def _parser() -> argparse.ArgumentParser:
                         help="import user effects before running (repeatable)")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def fit_options(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--effects", default="", type=_effect_list,
-                       help="comma-separated effects to add to the base model")
-        p.add_argument("--seed", type=_seed, default=0,
-                       help="seed of everything random (0)")
-        p.add_argument("--walkers", type=int, default=32, help="walkers per ensemble (32)")
-        p.add_argument("--ensembles", type=_positive, default=2,
-                       help="independent ensembles, for R-hat across them (2)")
-        p.add_argument("--steps", type=int, default=20000,
-                       help="budget of steps per ensemble (20000); sampling stops earlier "
-                       "when converged")
-        p.add_argument("--restart", action="store_true",
-                       help="discard saved chains instead of resuming them")
-        p.add_argument("--quiet", action="store_true", help="no progress lines")
+    _fit_commands(sub)
+    _criticism_commands(sub)
+    _data_commands(sub)
+    _control_commands(sub)
+    return parser
 
+
+def _fit_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--effects", default="", type=_effect_list,
+                   help="comma-separated effects to add to the base model")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="seed of everything random (0)")
+    p.add_argument("--walkers", type=int, default=32, help="walkers per ensemble (32)")
+    p.add_argument("--ensembles", type=_positive, default=2,
+                   help="independent ensembles, for R-hat across them (2)")
+    p.add_argument("--steps", type=int, default=20000,
+                   help="budget of steps per ensemble (20000); sampling stops earlier "
+                   "when converged")
+    p.add_argument("--restart", action="store_true",
+                   help="discard saved chains instead of resuming them")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+
+def _fit_commands(sub) -> None:
     run = sub.add_parser("run", help="the main job: fit a data set and write the report")
     run.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
     run.add_argument("--out", required=True, help="output folder (fit.nc and the report)")
-    fit_options(run)
+    _fit_options(run)
     run.set_defaults(func=_cmd_run)
 
     fitp = sub.add_parser("fit", help="identify the parameters: MAP and posterior")
     fitp.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
     fitp.add_argument("--out", required=True, help="the fit, a NetCDF file (FIT.nc)")
-    fit_options(fitp)
+    _fit_options(fitp)
     fitp.set_defaults(func=_cmd_fit)
 
     rep = sub.add_parser("report", help="summary tables, diagnostics and figures of a fit")
@@ -497,6 +508,9 @@ def _parser() -> argparse.ArgumentParser:
                       help="override a parameter value (repeatable)")
     pred.set_defaults(func=_cmd_predict)
 
+
+
+def _criticism_commands(sub) -> None:
     diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
                           "effect is missing")
     diag.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
@@ -519,6 +533,8 @@ def _parser() -> argparse.ArgumentParser:
                       "models, base + effect + ...)")
     comp.set_defaults(func=_cmd_compare)
 
+
+def _data_commands(sub) -> None:
     simu = sub.add_parser("simulate", help="write a synthetic repeated-chirp data set")
     simu.add_argument("out", help="output file (.csv with a .json sidecar, or .nc); its "
                       "folder is created if missing")
@@ -538,8 +554,6 @@ def _parser() -> argparse.ArgumentParser:
 
     eff = sub.add_parser("effects", help="list the registered physical effects")
     eff.set_defaults(func=_cmd_effects)
-    _control_commands(sub)
-    return parser
 
 
 def _one_line_warnings(command: str):
@@ -578,6 +592,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         except _USER_ERRORS as err:
             print(f"pmabayes {args.command}: error: {err}", file=sys.stderr)
             return 2
+        except BrokenPipeError:  # `pmabayes effects | head`: the reader has gone
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 0
 
 
 if __name__ == "__main__":  # pragma: no cover
