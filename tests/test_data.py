@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
 from pathlib import Path
 
@@ -491,6 +492,61 @@ def test_missing_sample_is_non_uniform(tmp_path: Path) -> None:
     path = write(tmp_path, rows(*lines))
     pattern = r": trial 1: line 5: time_s is not uniformly sampled"
     with pytest.raises(DataError, match=at(path, pattern)):
+        read_csv(path)
+
+
+def _rounded_rows(rate_hz: float, n: int, trials=(1, 2), decimals: int = 6, drop=None,
+                  jitter_s: float = 0.0) -> list[str]:
+    """A lab's CSV rows: the clock printed to ``decimals`` places (0.001333, ...)."""
+    rng = np.random.default_rng(3)
+    out = []
+    for tid in trials:
+        for k in range(n):
+            if k == drop:
+                continue
+            t = k / rate_hz + (jitter_s * rng.standard_normal() if jitter_s else 0.0)
+            out.append(f"{tid},{t:.{decimals}f},{1000 + k},{1e-3 * math.sin(k / 7)!r}")
+    return out
+
+
+def test_a_clock_rounded_to_its_printed_precision_is_a_uniform_grid(tmp_path: Path) -> None:
+    path = write(tmp_path, rows(*_rounded_rows(750.0, 400)))
+    with pytest.raises(DataError, match="not uniformly sampled"):  # the strict check alone
+        check_time_grid(np.round(np.arange(400) / 750.0, 6))
+    with pytest.warns(DataWarning, match=r"printed to 1e-06 s.*rebuilt as t0 \+ k / rate "
+                      r"from a straight-line fit of the times, 750"):
+        ds = read_csv(path)
+    assert ds.n_samples == 400 and ds.n_trials == 2
+    # the fitted line is off by far less than the 1 us rounding (1% of it)
+    assert np.abs(ds.time_s - np.arange(400) / 750.0).max() < 1e-8
+    assert np.abs(np.diff(ds.time_s) - 1 / 750.0).max() < 1e-11
+
+
+def test_the_rounded_grid_comes_from_the_sidecar_rate(tmp_path: Path) -> None:
+    path = write(tmp_path, rows(*_rounded_rows(750.0, 60)))
+    path.with_suffix(".json").write_text(json.dumps({"sample_rate_hz": 750.0}))
+    with pytest.warns(DataWarning, match="from the sidecar's sample_rate_hz = 750"):
+        ds = read_csv(path)
+    assert np.abs(ds.time_s - np.arange(60) / 750.0).max() < 1e-12
+
+
+def test_exact_times_are_kept_without_a_note(tmp_path: Path) -> None:
+    import warnings
+
+    lines = [f"1,{k / 750.0!r},1000,0.001" for k in range(50)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds = read_csv(write(tmp_path, rows(*lines)))
+    assert np.array_equal(ds.time_s, np.array([k / 750.0 for k in range(50)]))
+
+
+@pytest.mark.parametrize("kind", ["gap", "jitter"])
+def test_gaps_and_jitter_beyond_the_rounding_stay_errors(tmp_path: Path, kind: str) -> None:
+    bad = (_rounded_rows(750.0, 300, trials=(1,), drop=120) if kind == "gap"
+           else _rounded_rows(750.0, 300, trials=(1,), jitter_s=5e-6))
+    path = write(tmp_path, rows(*bad))
+    with pytest.raises(DataError, match=at(path, r": trial 1: line \d+: time_s is not "
+                                                 "uniformly sampled")):
         read_csv(path)
 
 

@@ -7,10 +7,12 @@ run on everything read.
 
 from __future__ import annotations
 
+import decimal
 import difflib
 import json
 import math
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,8 +25,10 @@ from pmabayes.data.dataset import (
     INPUT_NAMES,
     DataError,
     Dataset,
+    DataWarning,
     _check_metadata_rate,
     _first_in_file_order,
+    _first_nonuniform,
     _fmt,
     _json_roundtrip_check,
     check_time_grid,
@@ -242,6 +246,69 @@ def _parse_rows(rows: list[str], names: list[str], where: str) -> np.ndarray:
     return table
 
 
+#: rounded times must lie this close (in units of the printed step) to the rebuilt grid:
+#: half a step of rounding, plus the fitted line's own error on short trials
+_ROUNDING_SLACK = 0.6
+
+
+def _printed_step(rows: list[str], column: int) -> float | None:
+    """The finest decimal step the time column is printed with (1e-6 for 0.001333)."""
+    exponents = set()
+    for line in rows:
+        try:
+            exponents.add(decimal.Decimal(line.split(",")[column].strip()).as_tuple().exponent)
+        except (decimal.InvalidOperation, IndexError):
+            return None
+    finest = min(exponents)
+    return 10.0 ** finest if isinstance(finest, int) else None
+
+
+def _trial_blocks(trial: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, end)`` rows of each run of equal trial ids, in file order."""
+    starts = np.concatenate(([0], np.flatnonzero(trial[1:] != trial[:-1]) + 1))
+    ends = np.concatenate((starts[1:], [trial.size]))
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
+
+
+def _rounded_grid(trial: np.ndarray, time: np.ndarray, rows: list[str], column: int,
+                  rate_hz: float | None, where: str) -> np.ndarray:
+    """The times, rebuilt as ``t0 + k / rate`` where they are a uniform grid rounded to
+    the precision they are printed with; unchanged where they are uniform already, or
+    where they are not uniform even to that precision (the grid check then says where).
+
+    A 750 Hz clock printed to microseconds (0.001333, 0.002667, ...) moves each interval
+    by far more than the grid check's 1e-6 relative tolerance, yet the grid is uniform.
+    """
+    blocks = [(s, e) for s, e in _trial_blocks(trial) if e - s >= 3]
+    if all(_first_nonuniform(time[s:e]) is None for s, e in blocks):
+        return time
+    step = _printed_step(rows, column)
+    if step is None:
+        return time
+    out = np.array(time, dtype=float)
+    for s, e in blocks:
+        k = np.arange(e - s, dtype=float)
+        t = time[s:e]
+        if rate_hz:
+            dt = 1.0 / float(rate_hz)
+            t0 = float(np.mean(t - k * dt))
+        else:
+            dt, t0 = (float(c) for c in np.polyfit(k, t, 1))
+        grid = t0 + k * dt
+        tol = _ROUNDING_SLACK * step + 8 * np.finfo(float).eps * float(np.abs(t).max())
+        if step > 0.1 * dt or np.abs(t - grid).max() > tol:
+            return time  # a gap or jitter beyond the rounding: let the grid check report it
+        out[s:e] = grid
+    source = (f"the sidecar's sample_rate_hz = {float(rate_hz):g}" if rate_hz
+              else f"a straight-line fit of the times, {1.0 / dt:.7g} Hz")
+    warnings.warn(DataWarning(
+        f"{where}: time_s is printed to {step:g} s, so its intervals vary by up to "
+        f"{step:g} s; the times are a uniform grid to that precision, so the grid was "
+        f"rebuilt as t0 + k / rate from {source}. Write times with more digits (or "
+        "sample_rate_hz in the sidecar) to make this exact."), stacklevel=4)
+    return out
+
+
 def _shared_grid(
     trial: np.ndarray, time: np.ndarray, where: str
 ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -252,9 +319,7 @@ def _shared_grid(
     """
     trial = np.ascontiguousarray(trial)
     time = np.ascontiguousarray(time)
-    n_rows = trial.size
-    starts = np.concatenate(([0], np.flatnonzero(trial[1:] != trial[:-1]) + 1))
-    ends = np.concatenate((starts[1:], [n_rows]))
+    starts, ends = (np.array(c, dtype=np.int64) for c in zip(*_trial_blocks(trial), strict=True))
     run_ids = trial[starts]
 
     # Each trial must occupy one contiguous block of rows.
@@ -355,13 +420,16 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
     where = str(path)
     names, input_name, rows = _csv_rows(path, where)
     table = _parse_rows(rows, names, where)
-    run_ids, times, dt_s = _shared_grid(table["trial"], table["time_s"], where)
-    n_trials, n_samples = times.shape
-
     metadata: dict = {}
     sidecar = _sidecar_path(path)
     if sidecar != path and sidecar.is_file():
         metadata = _read_sidecar(sidecar)
+    rate = metadata.get("sample_rate_hz")
+    time = _rounded_grid(table["trial"], table["time_s"], rows, names.index("time_s"),
+                         rate if isinstance(rate, int | float) and rate > 0 else None, where)
+    run_ids, times, dt_s = _shared_grid(table["trial"], time, where)
+    n_trials, n_samples = times.shape
+    if metadata:
         _check_metadata_rate(metadata, 1.0 / dt_s, f"{sidecar} (metadata sidecar of {path.name})")
 
     ds = Dataset(
