@@ -178,7 +178,8 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     dataset = load(args.data)
     model = Model.for_dataset(dataset, args.effects)
     params = _parse_assignments(args.param, "--param")
-    x = simulate(model, params, dataset.input[0], time_s=dataset.time_s)[0]
+    x = simulate(model, params, dataset.input[0], time_s=dataset.time_s,
+                 between_samples=dataset.input_between_samples)[0]
     resid = dataset.mean_position_m - x
     floor = dataset.noise_floor_m
     summary = {

@@ -585,7 +585,8 @@ class _Base:
 
 def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int) -> Simulation:
     return simulate(model, _model_values(model, values), likelihood.input,
-                    time_s=likelihood.dataset.time_s, substeps=substeps, states=True)
+                    time_s=likelihood.dataset.time_s, substeps=substeps, states=True,
+                    between_samples=likelihood.dataset.input_between_samples)
 
 
 def _fit_base(model: Model, dataset: Dataset, s: _Settings, rng: np.random.Generator) -> _Base:
@@ -965,7 +966,8 @@ def _map_residual(tree, model: Model, dataset: Dataset):
     info = fit_info(tree)
     lik = Likelihood(model, dataset)
     vals = _model_values(model, info["map"]["values"])
-    x = simulate(model, vals, lik.input, time_s=dataset.time_s)[0]
+    x = simulate(model, vals, lik.input, time_s=dataset.time_s,
+                 between_samples=dataset.input_between_samples)[0]
     nz = info["noise"]
     e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
     return band_errors(dataset, x), whiteness(e), e

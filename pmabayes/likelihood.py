@@ -253,7 +253,8 @@ class Likelihood:
     def simulate(self, theta: np.ndarray) -> np.ndarray:
         """Model positions ``(batch, n_samples)`` for a full parameter array."""
         return simulate(self.model, theta, self.input, time_s=self.dataset.time_s,
-                        substeps=self.substeps)
+                        substeps=self.substeps,
+                        between_samples=self.dataset.input_between_samples)
 
     def rms_cost(self, x: np.ndarray) -> np.ndarray:
         """The paper's cost: RMS of the trial mean minus the model, per batch member."""

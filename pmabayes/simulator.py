@@ -46,11 +46,12 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from pmabayes.data import check_time_grid
+from pmabayes.data import BETWEEN_SAMPLES, check_time_grid
 from pmabayes.model import Model
 from pmabayes.util import fingerprint, source_text
 
-__all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError"]
+__all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError",
+           "BETWEEN_SAMPLES"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -324,7 +325,8 @@ class PlantCode:
         return step
 
 
-def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict]:
+def _generate(model: Model, record: bool, shared_input: bool,
+              between_samples: str = "hold") -> tuple[str, dict]:
     """Source of the kernel for ``model`` and the globals it needs injected."""
     plant = PlantCode(model)
     pressure, measure = plant.pressure, plant.measure
@@ -337,17 +339,20 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
     # per-member constants live in rows of `cst`, the state in rows of `st`.
     body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
     # within a sample interval the pressure is linear from pp[0] to pp[1]
+    linear = between_samples == "linear"
+    ramps = bool(pressure) or linear
     via_pp = (
-        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if pressure else "pp[0, k, i]",
-        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if pressure else "pp[0, k, i]",
+        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if ramps else "pp[0, k, i]",
+        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if ramps else "pp[0, k, i]",
         "pp[0, k + 1, i]",
         "pp[0, 0, i]",
     )
     shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
     body += ["st = np.zeros((3, batch))"]
     # one loop per kernel: a second copy in the same function does not vectorise
-    if pressure or not shared_input:
-        body += _pressure_fill(plant, shared_input) + _sample_loops(plant, record, *via_pp)
+    if ramps or not shared_input:
+        body += (_pressure_fill(plant, shared_input, linear)
+                 + _sample_loops(plant, record, *via_pp))
     else:
         body += _sample_loops(plant, record, *shared)
     if record:
@@ -356,6 +361,7 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
 
     text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
     text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
+    text += f"# input between samples: {between_samples}\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in plant.inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -365,9 +371,9 @@ def _generate(model: Model, record: bool, shared_input: bool) -> tuple[str, dict
     return text, plant.inject
 
 
-def _pressure_fill(plant: PlantCode, shared_input: bool) -> list[str]:
+def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False) -> list[str]:
     """Lines that fill ``pp`` (the start and end pressure of each interval) from the
-    input and pass it through the pressure effects."""
+    input, held or linear between samples, and pass it through the pressure effects."""
     fill = [
         "pp = np.empty((2, n, batch))",
     ]
@@ -383,6 +389,8 @@ def _pressure_fill(plant: PlantCode, shared_input: bool) -> list[str]:
     fill += [
         "pp[1] = pp[0]",
     ]
+    if linear:  # each interval ramps to the next sample
+        fill += ["for k in range(n - 1):", "    pp[1, k, :] = pp[0, k + 1, :]"]
     fill += [
         f"{plant.name_of[e]}(theta[:, {s.start}:{s.stop}], pp[0], pp[1], dt)"
         for e, s in plant.pressure
@@ -448,17 +456,20 @@ _KERNELS: dict[tuple, object] = {}
 _LOCK = threading.Lock()
 
 
-def structure_key(model: Model, record: bool, shared_input: bool) -> tuple:
+def structure_key(model: Model, record: bool, shared_input: bool,
+                  between_samples: str = "hold") -> tuple:
     """Key of a kernel's composition: the effects (by identity) and the input kind."""
-    return (
+    key = (
         tuple((e.__module__, e.__qualname__, id(e)) for e in model.effects),
         model.rig.input_kind,
         record,
         shared_input,
     )
+    return key if between_samples == "hold" else (*key, between_samples)
 
 
-def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True):
+def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
+               between_samples: str = "hold"):
     """The compiled kernel for ``model``'s composition (generated and cached once).
 
     Parameters
@@ -471,17 +482,19 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True)
     shared_input : bool
         Whether one input signal, passed as ``(n, 1)``, drives the whole batch, or
         each member has its own row of a ``(batch, n)`` array.
+    between_samples : str
+        What the input does between samples: ``"hold"`` or ``"linear"``.
 
     Returns
     -------
     numba dispatcher
         ``kernel(theta, p_in, time_s, dt, mass, f_grav, area, out_x[, ...])``.
     """
-    key = structure_key(model, record, shared_input)
+    key = structure_key(model, record, shared_input, between_samples)
     kernel = cached_kernel(key)
     if kernel is not None:
         return kernel
-    text, inject = _generate(model, record, shared_input)
+    text, inject = _generate(model, record, shared_input, between_samples)
     return compile_kernel(key, text, inject)
 
 
@@ -588,6 +601,7 @@ def simulate(
     time_s: np.ndarray | None = None,
     substeps: int = 1,
     states: bool = False,
+    between_samples: str = "hold",
 ):
     """Simulate ``model`` for a batch of parameter sets.
 
@@ -613,6 +627,11 @@ def simulate(
         falls as ``substeps**-2``; see the README.
     states : bool
         Return a :class:`Simulation` with all recorded states instead of positions.
+    between_samples : str
+        What the input does between samples: ``"hold"`` (the default: a DAQ's
+        zero-order hold of a commanded pressure, each sample acting until the next)
+        or ``"linear"`` (straight lines between samples, for the samples of a
+        continuous signal). See :data:`BETWEEN_SAMPLES`.
 
     Returns
     -------
@@ -628,6 +647,11 @@ def simulate(
     """
     if input_signal is None:
         raise SimulationError("input_signal is required (pressure in Pa or force in N)")
+    if between_samples not in BETWEEN_SAMPLES:
+        raise SimulationError(
+            f"between_samples must be one of {', '.join(map(repr, BETWEEN_SAMPLES))}, got "
+            f"{between_samples!r}; a band-limited reconstruction is not available yet: "
+            "use 'linear' with more substeps, or resample the input finer")
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
     theta = model.theta(params)
@@ -654,9 +678,10 @@ def simulate(
             rig.area_m2, out_x)
     shared = u.ndim == 1
     if not states:
-        kernel_for(model, shared_input=shared)(*args)
+        kernel_for(model, shared_input=shared, between_samples=between_samples)(*args)
         return out_x.T
     rec = [np.empty((n, batch)) for _ in range(5)]
-    kernel_for(model, record=True, shared_input=shared)(*args, *rec)
+    kernel_for(model, record=True, shared_input=shared,
+               between_samples=between_samples)(*args, *rec)
     v, z, p, f, true_x = rec
     return Simulation(t, out_x.T, true_x.T, v.T, z.T, p.T, f.T)

@@ -86,6 +86,37 @@ def _rk4_piece(c, y, p_cmd, length, steps):
 
 
 @numba.njit(cache=True)
+def _rk4_ramp(c, y, a, b, length, steps):
+    """Like :func:`_rk4_piece` with the command ramping linearly from ``a`` to ``b``."""
+    h = length / steps
+    for s in range(steps):
+        p0 = a + (b - a) * s / steps
+        ph = a + (b - a) * (s + 0.5) / steps
+        p1 = a + (b - a) * (s + 1.0) / steps
+        x, v, z, pa = y[0], y[1], y[2], y[3]
+        k1 = _rhs(c, x, v, z, pa, p0)
+        k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
+                  pa + 0.5 * h * k1[3], ph)
+        k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
+                  pa + 0.5 * h * k2[3], ph)
+        k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3], p1)
+        for j in range(4):
+            y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+
+
+@numba.njit(cache=True)
+def _integrate_linear(c, u, dt, substeps, x_init, out):
+    """:func:`_integrate` for an input that is a straight line between samples."""
+    y = np.array([x_init, 0.0, 0.0, u[0]])
+    out[:, 0] = y
+    for k in range(u.shape[0] - 1):
+        _rk4_ramp(c, y, u[k], u[k + 1], dt, substeps)
+        out[:, k + 1] = y
+        if c[C_TAU] <= 0.0:
+            out[3, k + 1] = u[k + 1]
+
+
+@numba.njit(cache=True)
 def _integrate(c, u, dt, t_delay, substeps, x_init, out):
     """Integrate a whole trial; ``out[:, k]`` receives (x, v, z, p_act) at ``t_k``."""
     n = u.shape[0]
@@ -160,6 +191,7 @@ def reference_simulate(
     K_p: float = 0.0,
     x_offset: float = 0.0,
     substeps: int = 64,
+    linear: bool = False,
 ) -> ReferenceResult:
     """Simulate one trial with RK4 on ``substeps`` steps per sample interval.
 
@@ -180,6 +212,8 @@ def reference_simulate(
         Effect parameters; 0 switches an effect off.
     substeps : int
         RK4 steps per sample interval.
+    linear : bool
+        The input is a straight line between samples instead of held (no delay).
 
     Returns
     -------
@@ -197,7 +231,12 @@ def reference_simulate(
     drive0 = area * (max(p0 - p_dz, 0.0) if dead_zone else p0)
     x_init = _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p, p0)
     out = np.empty((4, u.shape[0]))
-    _integrate(c, u, float(dt), float(t_delay), int(substeps), x_init, out)
+    if linear:
+        if t_delay:
+            raise ValueError("the reference's linear input takes no transport delay")
+        _integrate_linear(c, u, float(dt), int(substeps), x_init, out)
+    else:
+        _integrate(c, u, float(dt), float(t_delay), int(substeps), x_init, out)
     x, v, z, p = out
     f_eff = F_c * np.tanh(v / v_c) + K3 * x**3 + K_p * p * x
     return ReferenceResult(x + x_offset, x, v, z, p, f_eff)

@@ -20,14 +20,26 @@ trial, and says how to fix it. Nothing is dropped, repaired or clipped silently.
 Data that read but look suspect (pressure that looks absolute, not gauge) give a
 :class:`DataWarning`. Two metadata entries declare what the checks cannot know:
 ``"pressure_reference"`` (``"gauge"``, or ``"absolute"`` to convert to gauge on
-reading) and ``"check_units": false``.
+reading) and ``"check_units": false``; ``"input_between_samples"`` says what the
+input does between samples (:data:`BETWEEN_SAMPLES`). A metadata key close to one
+pmabayes reads (:data:`METADATA_KEYS`) is taken for a misspelling and refused.
 """
 
-from pmabayes.data.dataset import INPUT_NAMES, DataError, Dataset, DataWarning, check_time_grid
+from pmabayes.data.dataset import (
+    BETWEEN_SAMPLES,
+    INPUT_NAMES,
+    METADATA_KEYS,
+    DataError,
+    Dataset,
+    DataWarning,
+    check_time_grid,
+)
 from pmabayes.data.files import load, read_csv, read_netcdf, save, write_csv, write_netcdf
 
 __all__ = [
     "INPUT_NAMES",
+    "BETWEEN_SAMPLES",
+    "METADATA_KEYS",
     "DataError",
     "DataWarning",
     "Dataset",

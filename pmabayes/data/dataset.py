@@ -7,6 +7,7 @@ and warning. Reading and writing files is :mod:`pmabayes.data.files`.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import numbers
@@ -19,13 +20,24 @@ import numpy as np
 import xarray as xr
 from numpy.typing import ArrayLike
 
-__all__ = ["INPUT_NAMES", "DataError", "DataWarning", "Dataset", "check_time_grid"]
+__all__ = ["INPUT_NAMES", "BETWEEN_SAMPLES", "METADATA_KEYS", "DataError", "DataWarning",
+           "Dataset", "check_time_grid"]
 
 INPUT_NAMES: tuple[str, ...] = ("pressure_pa", "force_n")
 """Allowed names of the input column: commanded gauge pressure (Pa) or force (N)."""
 
 _UNITS = {"time_s": "s", "pressure_pa": "Pa", "force_n": "N", "position_m": "m"}
 _REL_TOL = 1e-6  # relative tolerance on sample intervals, sample times and sample rates
+
+#: What an input does between its samples, as a sidecar's ``input_between_samples``
+#: declares it: ``"hold"`` (the default: a DAQ's zero-order hold of a commanded
+#: pressure) or ``"linear"`` (the samples of a continuous signal, joined by lines).
+BETWEEN_SAMPLES = ("hold", "linear")
+#: The metadata (sidecar) keys pmabayes reads or writes; a key close to one of
+#: these is taken for a misspelling. Any other key is free-form and kept.
+METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
+                 "pressure_reference", "ambient_pressure_pa", "check_units",
+                 "converted_from_absolute", "input_between_samples")
 
 
 class DataError(ValueError):
@@ -164,6 +176,26 @@ def _json_roundtrip_check(metadata: dict, where: str) -> str:
     return text
 
 
+def _check_declarations(metadata: dict, where: str) -> None:
+    """Metadata keys that look misspelt, and declarations pmabayes cannot honour."""
+    for key in metadata:
+        if key in METADATA_KEYS or not isinstance(key, str):
+            continue
+        close = difflib.get_close_matches(key, METADATA_KEYS, n=1, cutoff=0.85)
+        if close:
+            raise DataError(
+                f"{where}: metadata key {key!r} looks like a misspelling of {close[0]!r}, "
+                f"which pmabayes reads; rename it to {close[0]!r} (keys not close to one "
+                "pmabayes reads are kept as free-form metadata).")
+    between = metadata.get("input_between_samples", "hold")
+    if between not in BETWEEN_SAMPLES:
+        raise DataError(
+            f"{where}: metadata 'input_between_samples' is {between!r}; it must be one of "
+            f"{', '.join(map(repr, BETWEEN_SAMPLES))} ('hold' for a commanded input held by "
+            "the DAQ, 'linear' for samples of a continuous signal). A band-limited "
+            "reconstruction is not available yet: declare 'linear'.")
+
+
 class DataWarning(UserWarning):
     """Data that read correctly but look suspect (e.g. absolute instead of gauge pressure).
 
@@ -248,6 +280,7 @@ class Dataset:
                 f"{where}: metadata must be a dict, got {type(self.metadata).__name__}; "
                 "pass a dict (possibly empty)."
             )
+        _check_declarations(self.metadata, where)
 
         time_s = self._as_float(self.time_s, "time_s", where)
         check_time_grid(time_s, source=where)
@@ -309,6 +342,15 @@ class Dataset:
         return np.array(a, dtype=np.float64, copy=True)
 
     # -- properties
+
+    @property
+    def input_between_samples(self) -> str:
+        """What the input does between samples, from the metadata (``"hold"`` by default).
+
+        See :data:`BETWEEN_SAMPLES`; :func:`pmabayes.simulate` takes it as
+        ``between_samples``.
+        """
+        return self.metadata.get("input_between_samples", "hold")
 
     @property
     def n_trials(self) -> int:
