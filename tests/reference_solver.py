@@ -72,17 +72,7 @@ def _rhs(c, x, v, z, pa, p_cmd):
 @numba.njit(cache=True)
 def _rk4_piece(c, y, p_cmd, length, steps):
     """Advance ``y = [x, v, z, p_act]`` in place over ``length`` s in ``steps`` RK4 steps."""
-    h = length / steps
-    for _ in range(steps):
-        x, v, z, pa = y[0], y[1], y[2], y[3]
-        k1 = _rhs(c, x, v, z, pa, p_cmd)
-        k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
-                  pa + 0.5 * h * k1[3], p_cmd)
-        k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
-                  pa + 0.5 * h * k2[3], p_cmd)
-        k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3], p_cmd)
-        for j in range(4):
-            y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+    _rk4_ramp(c, y, p_cmd, p_cmd, length, steps)
 
 
 @numba.njit(cache=True)
