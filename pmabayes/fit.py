@@ -505,8 +505,9 @@ def _advance(job: tuple) -> int:
         state = emcee.State(initial, random_state=np.random.RandomState(seed).get_state())
         store.reset(initial.shape[0], posterior.ndim)
     if n_steps <= 0:  # already ahead (another ensemble's round was cut short)
+        done = store.iteration  # read before the copy it reads from goes
         os.remove(tmp)
-        return store.iteration
+        return done
     sampler = emcee.EnsembleSampler(state.coords.shape[0], posterior.ndim,
                                     posterior.log_prob_z, vectorize=True, moves=_moves(moves))
     final = sampler.run_mcmc(state, n_steps, progress=False)

@@ -386,3 +386,22 @@ def test_killed_fit_takes_its_workers_along_and_resumes_exactly(small_data, tmp_
     for name in whole["posterior"].data_vars:
         assert np.array_equal(whole["posterior"][name].values,
                               resumed["posterior"][name].values), name
+
+
+def test_an_ensemble_already_ahead_is_left_as_it_is(tmp_path, monkeypatch):
+    """A resumed round skips an ensemble that a killed run had already advanced."""
+    import emcee
+
+    from pmabayes import fit as fit_module
+
+    path = str(tmp_path / "ensemble_0.h5")
+    store = emcee.backends.HDFBackend(path, name="mcmc")
+    store.reset(4, 2)
+    store.grow(3, None)
+    with store.open("a") as f:
+        f["mcmc"].attrs["iteration"] = 3
+    before = Path(path).read_bytes()
+    monkeypatch.setattr(fit_module, "_WORKER_POSTERIOR", type("P", (), {"ndim": 2})())
+    assert fit_module._advance((path, 0, np.zeros((4, 2)), 1, "de")) == 3
+    assert not Path(path + ".tmp").exists()
+    assert Path(path).read_bytes() == before
