@@ -137,3 +137,46 @@ def test_free_form_metadata_stays_allowed():
     ds = _chirp_dataset({"operator": "A. N. Other", "valve_model": "171E2N",
                          "generator_version": 3})
     assert ds.metadata["operator"] == "A. N. Other"
+
+
+def _periodic_dataset(metadata, n_periods=3, period=500):
+    from pmabayes.data import Dataset
+
+    t = np.arange(n_periods * period) * 1e-3
+    p = 3e5 + 2e5 * np.sin(2 * np.pi * t / (period * 1e-3))
+    x = 1e-3 * np.sin(2 * np.pi * t / (period * 1e-3))[None]
+    return Dataset(time_s=t, input=p[None], position_m=x, trial_ids=np.array([1]),
+                   metadata=metadata, source="sine.csv")
+
+
+def test_a_declared_period_is_read_from_the_sidecar(tmp_path):
+    from pmabayes.data import read_csv, write_csv
+
+    ds = _periodic_dataset({"period_samples": 500, "starts_in_steady_state": True})
+    write_csv(ds, tmp_path / "sine.csv")
+    back = read_csv(tmp_path / "sine.csv")
+    assert (back.period_samples, back.n_periods, back.starts_in_steady_state) == (500, 3, True)
+    plain = _periodic_dataset({})
+    assert (plain.period_samples, plain.n_periods, plain.starts_in_steady_state) == (
+        None, None, False)
+
+
+@pytest.mark.parametrize(("metadata", "pattern"), [
+    ({"period_samples": 400},
+     r"sine.csv: metadata 'period_samples' is 400, which does not divide the record's 1500 "
+     r"samples.*trim the record to 1200 samples"),
+    ({"period_samples": 2000, "starts_in_steady_state": True},
+     r"sine.csv: .*'period_samples' is 2000 but the record starts in steady state, and is "
+     r"only 1500 samples long, shorter than one period"),
+    ({"period_samples": 500.0}, r"'period_samples' is 500.0; it must be a whole number"),
+    ({"period_samples": 1}, r"at least 2"),
+    ({"starts_in_steady_state": True},
+     r"'starts_in_steady_state' is true but no 'period_samples' is declared"),
+    ({"period_samples": 500, "starts_in_steady_state": "yes"}, r"true or false"),
+    ({"period_sample": 500}, r"'period_sample' looks like a misspelling of 'period_samples'"),
+])
+def test_bad_period_declarations_are_errors_that_name_the_fix(metadata, pattern):
+    from pmabayes.data import DataError
+
+    with pytest.raises(DataError, match=pattern):
+        _periodic_dataset(metadata)

@@ -37,7 +37,8 @@ BETWEEN_SAMPLES = ("hold", "linear")
 #: these is taken for a misspelling. Any other key is free-form and kept.
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
                  "pressure_reference", "ambient_pressure_pa", "check_units",
-                 "converted_from_absolute", "input_between_samples")
+                 "converted_from_absolute", "input_between_samples", "period_samples",
+                 "starts_in_steady_state")
 
 
 class DataError(ValueError):
@@ -194,6 +195,43 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{', '.join(map(repr, BETWEEN_SAMPLES))} ('hold' for a commanded input held by "
             "the DAQ, 'linear' for samples of a continuous signal). A band-limited "
             "reconstruction is not available yet: declare 'linear'.")
+    period = metadata.get("period_samples")
+    if period is not None and (isinstance(period, bool) or not isinstance(period, int)
+                               or period < 2):
+        raise DataError(
+            f"{where}: metadata 'period_samples' is {period!r}; it must be a whole number of "
+            "samples, at least 2: the length of one period of a periodic input. Remove it "
+            "for a record that is not periodic.")
+    steady = metadata.get("starts_in_steady_state", False)
+    if not isinstance(steady, bool):
+        raise DataError(
+            f"{where}: metadata 'starts_in_steady_state' is {steady!r}; it must be true or "
+            "false (JSON booleans, not strings).")
+    if steady and period is None:
+        raise DataError(
+            f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
+            "declared; a steady state needs a periodic input: declare 'period_samples' (the "
+            "samples in one period), or set 'starts_in_steady_state' to false.")
+
+
+def _check_period(metadata: dict, n_samples: int, where: str) -> None:
+    """A declared period must fit the record: whole periods, at least one."""
+    period = metadata.get("period_samples")
+    if period is None:
+        return
+    if period > n_samples:
+        state = ("starts in steady state, and is " if metadata.get("starts_in_steady_state")
+                 else "")
+        raise DataError(
+            f"{where}: metadata 'period_samples' is {period} but the record {state}only "
+            f"{n_samples} samples long, shorter than one period; record at least one whole "
+            "period, or correct 'period_samples'.")
+    if n_samples % period:
+        raise DataError(
+            f"{where}: metadata 'period_samples' is {period}, which does not divide the "
+            f"record's {n_samples} samples ({n_samples / period:.4g} periods); keep whole "
+            f"periods only (trim the record to {n_samples // period * period} samples) or "
+            "correct 'period_samples'.")
 
 
 class DataWarning(UserWarning):
@@ -332,6 +370,7 @@ class Dataset:
         object.__setattr__(self, "metadata", dict(self.metadata))
         object.__setattr__(self, "source", source)
         _check_metadata_rate(self.metadata, self.sample_rate_hz, f"{where}: metadata")
+        _check_period(self.metadata, n, where)
 
     @staticmethod
     def _as_float(value: Any, name: str, where: str) -> np.ndarray:
@@ -351,6 +390,31 @@ class Dataset:
         ``between_samples``.
         """
         return self.metadata.get("input_between_samples", "hold")
+
+    @property
+    def period_samples(self) -> int | None:
+        """Samples in one period of a periodic input, from the metadata; None if not periodic.
+
+        A sidecar's ``"period_samples": N`` declares that each trial holds whole periods
+        of one periodic input (N divides ``n_samples``).
+        """
+        return self.metadata.get("period_samples")
+
+    @property
+    def n_periods(self) -> int | None:
+        """Whole periods per trial, or None when the input is not declared periodic."""
+        period = self.period_samples
+        return None if period is None else self.n_samples // period
+
+    @property
+    def starts_in_steady_state(self) -> bool:
+        """Whether each trial starts in periodic steady state (metadata; default False).
+
+        True: the plant had been driven by the periodic input long before the record
+        began, so a simulation runs through periods from rest first. False: each trial
+        starts from rest and its first period holds the transient.
+        """
+        return bool(self.metadata.get("starts_in_steady_state", False))
 
     @property
     def n_trials(self) -> int:
