@@ -143,7 +143,7 @@ def _periodic_dataset(metadata, n_periods=3, period=500):
     from pmabayes.data import Dataset
 
     t = np.arange(n_periods * period) * 1e-3
-    p = 3e5 + 2e5 * np.sin(2 * np.pi * t / (period * 1e-3))
+    p = 3e5 + 1.5e5 * np.sin(2 * np.pi * t / (period * 1e-3))
     x = 1e-3 * np.sin(2 * np.pi * t / (period * 1e-3))[None]
     return Dataset(time_s=t, input=p[None], position_m=x, trial_ids=np.array([1]),
                    metadata=metadata, source="sine.csv")
