@@ -53,7 +53,7 @@ from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
 from pmabayes.likelihood import LikelihoodError
 from pmabayes.model import Model, ModelError
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
-from pmabayes.simulator import SimulationError, simulate
+from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
 __all__ = ["main", "load_plugin", "CliError"]
@@ -178,8 +178,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     dataset = load(args.data)
     model = Model.for_dataset(dataset, args.effects)
     params = _parse_assignments(args.param, "--param")
-    x = simulate(model, params, dataset.input[0], time_s=dataset.time_s,
-                 between_samples=dataset.input_between_samples)[0]
+    x = simulate_dataset(model, params, dataset)[0]
     resid = dataset.mean_position_m - x
     floor = dataset.noise_floor_m
     summary = {

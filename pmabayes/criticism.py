@@ -51,7 +51,7 @@ from pmabayes.residuals import (
     whiteness,
     whiteness_curves,
 )
-from pmabayes.simulator import Simulation, simulate
+from pmabayes.simulator import Simulation, simulate_dataset
 from pmabayes.util import Progress
 
 #: the residual statistics of the old single module, still importable from here
@@ -584,9 +584,8 @@ class _Base:
 
 
 def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int) -> Simulation:
-    return simulate(model, _model_values(model, values), likelihood.input,
-                    time_s=likelihood.dataset.time_s, substeps=substeps, states=True,
-                    between_samples=likelihood.dataset.input_between_samples)
+    return simulate_dataset(model, _model_values(model, values), likelihood.dataset,
+                            substeps=substeps, states=True)
 
 
 def _fit_base(model: Model, dataset: Dataset, s: _Settings, rng: np.random.Generator) -> _Base:
@@ -966,8 +965,7 @@ def _map_residual(tree, model: Model, dataset: Dataset):
     info = fit_info(tree)
     lik = Likelihood(model, dataset)
     vals = _model_values(model, info["map"]["values"])
-    x = simulate(model, vals, lik.input, time_s=dataset.time_s,
-                 between_samples=dataset.input_between_samples)[0]
+    x = simulate_dataset(model, vals, dataset)[0]
     nz = info["noise"]
     e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
     return band_errors(dataset, x), whiteness(e), e

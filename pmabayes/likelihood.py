@@ -62,7 +62,7 @@ import numpy as np
 from pmabayes.data import Dataset
 from pmabayes.model import Model
 from pmabayes.parameters import LogNormal, Parameter, Uniform
-from pmabayes.simulator import simulate
+from pmabayes.simulator import simulate_dataset
 
 __all__ = ["NOISE_PARAMETERS", "Likelihood", "LikelihoodError", "ar1_noise"]
 
@@ -252,9 +252,7 @@ class Likelihood:
     # -- model output ---------------------------------------------------------
     def simulate(self, theta: np.ndarray) -> np.ndarray:
         """Model positions ``(batch, n_samples)`` for a full parameter array."""
-        return simulate(self.model, theta, self.input, time_s=self.dataset.time_s,
-                        substeps=self.substeps,
-                        between_samples=self.dataset.input_between_samples)
+        return simulate_dataset(self.model, theta, self.dataset, substeps=self.substeps)
 
     def rms_cost(self, x: np.ndarray) -> np.ndarray:
         """The paper's cost: RMS of the trial mean minus the model, per batch member."""

@@ -50,8 +50,8 @@ from pmabayes.data import BETWEEN_SAMPLES, check_time_grid
 from pmabayes.model import Model
 from pmabayes.util import fingerprint, source_text
 
-__all__ = ["simulate", "Simulation", "kernel_for", "cache_dir", "SimulationError",
-           "BETWEEN_SAMPLES"]
+__all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
+           "SimulationError", "BETWEEN_SAMPLES"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -685,3 +685,36 @@ def simulate(
                between_samples=between_samples)(*args, *rec)
     v, z, p, f, true_x = rec
     return Simulation(t, out_x.T, true_x.T, v.T, z.T, p.T, f.T)
+
+
+def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
+                     states: bool = False):
+    """Simulate ``model`` on a data set's input, as the data set declares it.
+
+    The one place where a data set's declarations (what its input does between
+    samples, see :attr:`pmabayes.data.Dataset.input_between_samples`) become
+    simulator options; the likelihood, diagnostics and validation all simulate
+    through it.
+
+    Parameters
+    ----------
+    model : Model
+        The composed model (on the data set's rig).
+    params : mapping or array, optional
+        Parameters, as accepted by :meth:`Model.theta`.
+    dataset : Dataset
+        The data: its first trial's input and its time grid are used (repeated
+        trials share the input).
+    substeps : int
+        Integration steps per sample interval.
+    states : bool
+        Return a :class:`Simulation` instead of positions.
+
+    Returns
+    -------
+    numpy.ndarray or Simulation
+        As :func:`simulate`.
+    """
+    return simulate(model, params, dataset.input[0], time_s=dataset.time_s,
+                    substeps=substeps, states=states,
+                    between_samples=dataset.input_between_samples)
