@@ -21,6 +21,7 @@ The last line printed is ``posterior_seconds: <number>``. A benchmark, not a tes
 from __future__ import annotations
 
 import argparse
+import resource
 import sys
 import time
 from pathlib import Path
@@ -48,9 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     compile_s = time.perf_counter() - start
 
     counted = _count_simulations()
+    cpu_start = _cpu_seconds()
     start = time.perf_counter()
     tree = fit(dataset, Model(), seed=args.seed, settings=FitSettings(progress=True))
     seconds = time.perf_counter() - start
+    cpu = _cpu_seconds() - cpu_start
     info = fit_info(tree)
     conv = info["convergence"]
     print(f"data: {args.data} ({dataset.n_trials} trials x {dataset.n_samples} samples)")
@@ -65,13 +68,21 @@ def main(argv: list[str] | None = None) -> int:
               f"{rhat_e:>11.4f}{conv['rhat'][name]:>15.4f}")
     n_walker_steps = conv["n_steps"] * conv["n_ensembles"] * conv["n_walkers"]
     print(f"work: {counted['map']} simulations in the global search and MAP, "
-          f"{n_walker_steps} walker-steps in sampling")
+          f"{n_walker_steps} walker-steps in sampling; {cpu:.1f} CPU s (this process and "
+          f"its sampler processes; less sensitive than the wall time to a shared machine)")
     t = info["timings_s"]
     print(f"MAP {t['map']:.1f} s, sampling {t['sampling']:.1f} s, total {t['total']:.1f} s; "
           f"min ESS {min(conv['ess'].values()):.0f}, "
           f"max R-hat across ensembles {max(conv['rhat_ensembles'].values()):.4f}")
     print(f"posterior_seconds: {seconds:.1f}")
     return 0 if np.isfinite(seconds) else 1
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process and its finished child processes."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def _count_simulations() -> dict:
