@@ -231,13 +231,14 @@ def _fd_hessian(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 #: Differential evolution's mutation strategy. ``currenttobest1bin`` moves every
 #: member towards the best while keeping its own place, which keeps the population
-#: spread over basins for longer than ``best1bin``: on 12 data sets of a model with
-#: a 45 ms regulator lag, where tau_reg trades off against alpha and K_e,
-#: ``best1bin`` alone landed in a wrong basin in 3 and ``currenttobest1bin`` in none.
+#: spread over basins for longer than ``best1bin``: on a model with a 45 ms regulator
+#: lag, where tau_reg trades off against alpha and K_e, ``best1bin`` alone landed in
+#: a wrong basin in 3 of 12 seeds and ``currenttobest1bin`` in none.
 _DE_STRATEGY = "currenttobest1bin"
 #: The search stops when the population's RMS costs spread by at most this fraction
 #: of their mean (scipy's ``tol``): the whole population is then in one basin, and
-#: the local polish, not more generations, finds its bottom.
+#: the local polish, not more generations, finds its bottom. Stopped so, it found
+#: the right basin on 12 of 12 data sets of that lagged model (README, Speed).
 _DE_TOL = 0.01
 
 
