@@ -31,8 +31,10 @@ _REL_TOL = 1e-6  # relative tolerance on sample intervals, sample times and samp
 
 #: What an input does between its samples, as a sidecar's ``input_between_samples``
 #: declares it: ``"hold"`` (the default: a DAQ's zero-order hold of a commanded
-#: pressure) or ``"linear"`` (the samples of a continuous signal, joined by lines).
-BETWEEN_SAMPLES = ("hold", "linear")
+#: pressure), ``"linear"`` (the samples of a continuous signal, joined by lines) or
+#: ``"bandlimited"`` (the samples of a continuous band-limited signal, reconstructed
+#: between them: exactly, by FFT interpolation, where ``period_samples`` is declared).
+BETWEEN_SAMPLES = ("hold", "linear", "bandlimited")
 #: The metadata (sidecar) keys pmabayes reads or writes; a key close to one of
 #: these is taken for a misspelling. Any other key is free-form and kept.
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
@@ -193,8 +195,7 @@ def _check_declarations(metadata: dict, where: str) -> None:
         raise DataError(
             f"{where}: metadata 'input_between_samples' is {between!r}; it must be one of "
             f"{', '.join(map(repr, BETWEEN_SAMPLES))} ('hold' for a commanded input held by "
-            "the DAQ, 'linear' for samples of a continuous signal). A band-limited "
-            "reconstruction is not available yet: declare 'linear'.")
+            "the DAQ, 'linear' or 'bandlimited' for samples of a continuous signal).")
     period = metadata.get("period_samples")
     if period is not None and (isinstance(period, bool) or not isinstance(period, int)
                                or period < 2):
