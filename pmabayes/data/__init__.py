@@ -32,9 +32,11 @@ from pmabayes.data.dataset import (
     DataError,
     Dataset,
     DataWarning,
+    check_same_input_kind,
     check_time_grid,
 )
 from pmabayes.data.files import load, read_csv, read_netcdf, save, write_csv, write_netcdf
+from pmabayes.data.matlab import MAT_ROLES, MAT_TRIALS, read_mat
 
 __all__ = [
     "INPUT_NAMES",
@@ -43,9 +45,13 @@ __all__ = [
     "DataError",
     "DataWarning",
     "Dataset",
+    "MAT_ROLES",
+    "MAT_TRIALS",
+    "check_same_input_kind",
     "check_time_grid",
     "load",
     "read_csv",
+    "read_mat",
     "read_netcdf",
     "save",
     "write_csv",
