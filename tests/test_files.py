@@ -68,6 +68,17 @@ def _v73_write(group: h5py.Group, name: str, value: object) -> None:
         for key, item in value.items():
             _v73_write(sub, key, item)
         return
+    if isinstance(value, list):  # a 1 x n struct array: each field an array of references
+        sub = group.create_group(name)
+        sub.attrs["MATLAB_class"] = np.bytes_("struct")
+        refs = group.file.require_group("#refs#")
+        for key in value[0]:
+            targets = []
+            for item in value:
+                _v73_write(refs, f"r{len(refs)}", item[key])
+                targets.append(refs[f"r{len(refs) - 1}"].ref)
+            sub.create_dataset(key, data=np.array([targets], dtype=h5py.ref_dtype).T)
+        return
     if isinstance(value, str):
         data = np.array([[ord(c) for c in value]], dtype=np.uint16)  # 1 x n char
         ds = group.create_dataset(name, data=data.T)
@@ -141,6 +152,33 @@ def test_simulink_structure_with_time(tmp_path: Path, version: str) -> None:
     one = read_mat(path, pressure_pa="p", position_m="ScopeData.signals.values(:,2)",
                    time_s="ScopeData.time", check_units=False)
     np.testing.assert_array_equal(one.position_m, X[:, 1][np.newaxis])
+    same = read_mat(path, pressure_pa="p", position_m="ScopeData.signals.values(:,2)",
+                    time_s="ScopeData", check_units=False)  # a structure's time is its time
+    assert same == one
+
+
+@pytest.mark.parametrize("version", WRITERS)
+def test_a_scope_with_several_signals(tmp_path: Path, version: str) -> None:
+    """A Scope of two inputs saves ``signals`` as a 1x2 struct array: name one."""
+    signals = [{"values": P[:, np.newaxis], "label": "p"},
+               {"values": X[:, :1], "label": "x"}]
+    path = tmp_path / "scope.mat"
+    if version == "v5":
+        array = np.zeros((1, 2), dtype=[("values", object), ("label", object)])
+        array[0, 0] = (signals[0]["values"], "p")
+        array[0, 1] = (signals[1]["values"], "x")
+        v5(path, {"ScopeData": {"time": T[:, np.newaxis], "signals": array}})
+    else:
+        v73(path, {"ScopeData": {"time": T[:, np.newaxis], "signals": signals}})
+    ds = read_mat(path, time_s="ScopeData.time", pressure_pa="ScopeData.signals(1).values",
+                  position_m="ScopeData.signals(2).values", check_units=False)
+    np.testing.assert_array_equal(ds.input, P[np.newaxis])
+    np.testing.assert_array_equal(ds.position_m, X[:, :1].T)
+    with pytest.raises(DataError, match=r"'ScopeData' is a Simulink structure with 2 signals; "
+                                        r"name one, e.g. 'ScopeData.signals\(1\).values'"):
+        read_mat(path, pressure_pa="ScopeData.signals(1).values", position_m="ScopeData")
+    with pytest.raises(DataError, match=r"ScopeData.signals\(3\) is out of range, it has 2"):
+        read_mat(path, pressure_pa="ScopeData.signals(3).values", position_m="ScopeData")
 
 
 def test_v73_is_read_as_v5(tmp_path: Path) -> None:

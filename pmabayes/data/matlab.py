@@ -583,7 +583,15 @@ def read_mat(
     time, time_name, time_stored = None, None, None
     if "time_s" in mapping:
         time_name = mapping["time_s"]
-        t = _signal(time_name, variables, "time_s", where_v).values
+        sig = _signal(time_name, variables, "time_s", where_v)
+        t = sig.values
+        if sig.time_rows:  # a Simulink structure: its time, not its values
+            if sig.time is None:
+                raise DataError(
+                    f"{where_v}: time_s: {time_name!r} is a Simulink structure saved without "
+                    "time ('Structure', not 'Structure With Time'); map time_s to a time "
+                    "vector, or remove it and give sample_rate_hz in the sidecar.")
+            t, time_name = np.squeeze(sig.time), f"{time_name}.time"
         if t.ndim != 1:
             raise DataError(
                 f"{where_v}: time_s: {time_name!r} is {t.shape[0]}x{t.shape[1]}; it must be "
