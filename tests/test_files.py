@@ -263,7 +263,7 @@ def test_shapes_that_are_not_accepted(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=at(path, r".*'cube' has shape 200x2x3; " + accepted)):
         read_mat(path, time_s="t", pressure_pa="p", position_m="cube")
     with pytest.raises(DataError, match=at(path, r".*samples per trial are x5: 150, not the "
-                                                 r"time vector's 200")):
+                                                 r"record's 200")):
         read_mat(path, time_s="t", pressure_pa="p", position_m="x5")
     with pytest.raises(DataError, match=r"time_s: 'tt' is 2x200; it must be one vector"):
         read_mat(path, time_s="tt", pressure_pa="p", position_m="x5")
@@ -290,6 +290,10 @@ def test_mapping_errors(tmp_path: Path) -> None:
         load(path, force_n="p")
     with pytest.raises(TypeError):
         load(path, positon_m="x")  # unknown keywords are refused
+    sidecar(path, mat_variable={"time_s": "t", "pressure_pa": "p", "position_m": "x"})
+    with pytest.raises(DataError, match=r"'mat_variable' looks like a misspelling of "
+                                        r"'mat_variables'"):
+        load(path)
 
 
 def test_non_finite_samples_name_the_variable_and_sample(tmp_path: Path) -> None:

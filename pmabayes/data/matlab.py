@@ -430,8 +430,8 @@ def _trials(s: _Signal, role: str, layout: str | None, n: int | None, where: str
     if layout is None:
         why = (f"both of its dimensions are {n}, the number of samples" if n is not None
                and rows == cols == n else
-               f"neither dimension matches the {n} samples of the time vector" if n
-               is not None else "no time vector or 1-D variable fixes the number of samples")
+               f"neither dimension matches the record's {n} samples" if n is not None
+               else "no time vector or 1-D variable fixes the number of samples")
         raise DataError(
             f"{where}: {role}: {s.name!r} is {rows}x{cols} and {why}; declare the layout: "
             '"mat_trials": "columns" (N samples x n_trials, MATLAB\'s usual) or "rows" '
@@ -452,9 +452,9 @@ def _stack(signals: list[_Signal], role: str, layout: str | None, n: int | None,
     if n is not None and lengths != {n} or len(lengths) > 1:
         listed = ", ".join(f"{lab}: {b.shape[1]}" for b, lab in
                            zip(blocks, [s.name for s in signals], strict=True))
-        ref = f"the time vector's {n}" if n is not None else "one length"
+        ref = f"not the record's {n}" if n is not None else "not one length"
         raise DataError(
-            f"{where}: {role}: samples per trial are {listed}, not {ref}; every trial needs "
+            f"{where}: {role}: samples per trial are {listed}, {ref}; every trial needs "
             "one sample per time step: trim the records to a common length.")
     return np.concatenate(blocks, axis=0), labels
 
