@@ -75,7 +75,14 @@ from typing import Any
 
 import numpy as np
 
-from pmabayes.data.dataset import _REL_TOL, INPUT_NAMES, DataError, Dataset, check_time_grid
+from pmabayes.data.dataset import (
+    _REL_TOL,
+    INPUT_NAMES,
+    DataError,
+    Dataset,
+    _check_declarations,
+    check_time_grid,
+)
 
 __all__ = ["MAT_ROLES", "MAT_TRIALS", "read_mat"]
 
@@ -542,6 +549,7 @@ def read_mat(
     sidecar = _sidecar_path(path)
     metadata: dict = _read_sidecar(sidecar) if sidecar.is_file() else {}
     declare = f"the JSON sidecar {sidecar}"
+    _check_declarations(metadata, declare)  # a misspelt key before it misleads the mapping
     variables, version = _variables(path, where)
     where_v = f"{where} (MATLAB {version})"
 
