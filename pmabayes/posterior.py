@@ -570,7 +570,7 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         row["bounds"] = [float(b) for b in row["bounds"]]
     noise_map = {k: (map_record.get("values") or {}).get(k) for k in
                  (p.name for p in NOISE_PARAMETERS)}
-    experiments = experiment_records(posterior, noise_map)
+    experiments = experiment_records(posterior, noise_map, map_record.get("values"))
     sources = {e["noise_source"] for e in experiments}
     estimated_from = "; ".join(
         text for key, text in (
@@ -625,7 +625,8 @@ def _finite_or_none(value) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def experiment_records(posterior: Posterior, noise_map: dict | None = None) -> list[dict]:
+def experiment_records(posterior: Posterior, noise_map: dict | None = None,
+                       map_values: dict | None = None) -> list[dict]:
     """The ``experiments`` entry of a fit's metadata: one dict per experiment.
 
     Parameters
@@ -635,6 +636,9 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None) -> l
     noise_map : dict, optional
         The noise at the MAP (:meth:`Posterior.noise_values`), for the noise that
         is sampled with the model.
+    map_values : dict, optional
+        The MAP (every identified parameter by name), for each experiment's RMS
+        cost there.
 
     Returns
     -------
@@ -643,11 +647,17 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None) -> l
         ``n_samples``, ``dt_s``, ``input_name``, ``input_between_samples``,
         ``period_samples``, ``starts_in_steady_state``, ``noise`` (``"own"`` or
         ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
-        ``"record"``), ``noise_estimate`` (the noise's mode),
+        ``"record"``), ``noise_estimate`` (the noise's mode), ``rms_cost_m``
+        (the paper's cost at the MAP, None without it),
         ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
         ``metadata`` (the data set's, to rebuild it).
     """
     noise_map = noise_map or {}
+    map_values = map_values or {}
+    theta = None
+    if all(n in map_values for n in posterior.names[: posterior.n_model]):
+        theta = posterior.full_theta(np.array([[float(map_values[n]) for n in
+                                                posterior.names[: posterior.n_model]]]))
     out = []
     tied = len(set(posterior.groups)) < len(posterior.groups)
     for e, (lik, name) in enumerate(zip(posterior.likelihoods, posterior.experiment_names,
@@ -669,6 +679,8 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None) -> l
             "starts_in_steady_state": ds.starts_in_steady_state,
             "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
             "noise_estimate": est, "noise_floor_m": _finite_or_none(ds.noise_floor_m),
+            "rms_cost_m": (None if theta is None
+                           else _finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
             "metadata": ds.metadata,
         })
