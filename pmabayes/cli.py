@@ -323,6 +323,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _needs_repeats(dataset: Dataset, command: str) -> None:
+    """Refuse a single record where a command's errors are judged against the floor."""
+    if dataset.n_trials < 2:
+        raise CliError(
+            f"{dataset.source}: one trial; {command} judges errors per band against the noise "
+            "floor of repeated trials, which a single record does not have. Fit it with "
+            f"`pmabayes fit {dataset.source} --out FIT.nc` (its noise is identified from its "
+            "periods or from the record itself) and read the adequacy verdict of the fit's "
+            "report, or record repeated trials")
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pmabayes.criticism import diagnose
 
@@ -336,6 +347,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.out:
         _out_folder(args.out)
     dataset = load(args.data[0])
+    _needs_repeats(dataset, "diagnose")
     result = diagnose(dataset, _model_for(dataset, args),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
@@ -378,6 +390,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
             "multi-experiment fits by their reports (`pmabayes report FIT.nc`)")
     _out_folder(args.out)
     dataset = load(args.data[0])
+    _needs_repeats(dataset, "compare")
     fits = [load_fit(f) for f in args.fits]
     for path, tree in zip(args.fits, fits, strict=True):
         if len(fit_info(tree).get("experiments") or [None]) > 1:

@@ -1,4 +1,4 @@
-"""The likelihood of repeated trials under a model and an AR(1) noise model.
+"""The likelihood of an experiment's trials under a model and an AR(1) noise model.
 
 Noise model
 -----------
@@ -50,6 +50,36 @@ have its error explained away as slow noise (``rho -> 1``, ``sigma`` inflated):
 the AR(1) likelihood barely penalises a slowly varying residual. With the noise
 fixed by repeatability, model error stays visible. When the model is right, this
 and the joint posterior agree to O(1/R).
+
+Single records
+--------------
+A record without repeated trials (:attr:`Likelihood.noise_source`):
+
+* **periodic** (``period_samples`` declared): its periods are the repeats. All of
+  them when the record starts in steady state; from the second on when it starts
+  from rest, since the first holds the transient. The noise is learnt from the
+  periods' deviations from their mean, model-free as for trials; the model's
+  likelihood is that of the whole record.
+* **not periodic**: nothing but the record identifies the noise, so it is fitted
+  with the model, and the guard above is replaced by one on the noise model
+  itself (:meth:`Likelihood.noise_parameters`): the disturbance's correlation
+  time is bounded by ``1 / (2 pi GUARD_FACTOR f_in)``, ``f_in`` the frequency
+  below which 99% of the input's variance lies. Its spectrum is then flat up to
+  ten times the input's band, where a model's misfit lives (the input's band and
+  the harmonics hysteresis makes of it). To absorb a misfit there the noise would
+  have to rise at all frequencies, against the record's own high-frequency
+  residual; what it cannot absorb stays in the innovations, whose whiteness test
+  then judges the model. The price: a disturbance that really is slow cannot be
+  told from model error in one record, and is not modelled; repeat the record, or
+  make it periodic.
+
+Several experiments
+-------------------
+Each experiment (a data set with its own input, rig and trials) has its own
+:class:`Likelihood`; :class:`pmabayes.posterior.Posterior` sums their log
+likelihoods, each given its experiment's noise. :class:`JointLikelihood` presents
+them as one output for the global search (a cost that weighs every experiment the
+same) and the quality check.
 """
 
 from __future__ import annotations

@@ -33,7 +33,43 @@ the reports read):
 root attribute ``pmabayes``
     A JSON string: the model (effects, rig, fixed values, priors), the data
     source, the noise model, the MAP and the paper's RMS cost, convergence
-    diagnostics, seed and timings. :func:`fit_info` decodes it.
+    diagnostics, seed and timings. :func:`fit_info` decodes it. Its
+    ``experiments`` entry is a list with one dict per experiment, for one
+    experiment too (:func:`experiment_records`: ``name``, ``source``, ``rig``,
+    ``n_trials``, ``n_samples``, ``input_name``, ``input_between_samples``,
+    ``period_samples``, ``starts_in_steady_state``, ``noise`` ``"own"`` or
+    ``"tied"``, ``noise_source``, ``noise_estimate``, ``noise_floor_m``,
+    ``rms_cost_m``, ``metadata``).
+
+A fit of one experiment has exactly the layout above, whatever its noise source.
+For a record without repeats the noise parameters in ``/posterior`` are sampled
+with the model rather than drawn from the repeats' Laplace approximation, and
+``data.noise_floor_m`` is None.
+
+A fit of several experiments (``NAME`` is an experiment's name, unique, from its
+file's stem; :func:`experiment_names`):
+
+``/posterior``
+    The model's parameters ``(chain, draw)``, shared; the noise parameters
+    ``(chain, draw, experiment)``, coordinate ``experiment`` = the names (with
+    ``tie_noise`` the values are the same for every experiment).
+``/observed_data``
+    ``position_m__NAME``, ``(trial__NAME, time__NAME)``.
+``/constant_data``
+    The input of each, ``pressure_pa__NAME`` or ``force_n__NAME``,
+    ``(time__NAME,)``.
+``/posterior_predictive``
+    ``position_m__NAME`` ``(chain, draw, trial__NAME, time__NAME)`` and
+    ``model_position_m__NAME`` ``(chain, draw, time__NAME)``, the same draws for
+    every experiment.
+``/log_likelihood``
+    ``position_m``, ``(chain, draw, trial)``: every trial of every experiment
+    along one ``trial`` dimension (experiment after experiment), with the
+    coordinates ``experiment`` and ``trial_id`` along it, so that ``az.loo``
+    leaves one trial out of all of them.
+
+:func:`experiment_datasets` and :func:`experiment_models` rebuild each
+experiment's data set and model from either layout.
 """
 
 from __future__ import annotations
