@@ -960,9 +960,10 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
 def _map_residual(tree, model: Model, dataset: Dataset):
     """Band errors, whiteness and whitened residual of a fit's MAP model."""
     info = fit_info(tree)
-    lik = Likelihood(model, dataset)
+    substeps = int(info.get("substeps", 1))
+    lik = Likelihood(model, dataset, substeps=substeps)
     vals = _model_values(model, info["map"]["values"])
-    x = simulate_dataset(model, vals, dataset)[0]
+    x = simulate_dataset(model, vals, dataset, substeps=substeps)[0]
     nz = info["noise"]
     e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
     return band_errors(dataset, x), whiteness(e), e

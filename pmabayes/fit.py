@@ -58,7 +58,7 @@ import numpy as np
 import xarray as xr
 from scipy.optimize import differential_evolution, minimize
 
-from pmabayes.data import Dataset
+from pmabayes.data import DataError, Dataset, check_same_input_kind
 from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, LikelihoodError
 from pmabayes.model import Model, ModelError, Rig
 from pmabayes.parallel import Runner
@@ -82,7 +82,6 @@ __all__ = [
     "MapResult",
     "find_map",
     "fit",
-    "check_same_input_kind",
 ]
 
 
@@ -899,25 +898,6 @@ def fit(
     return tree
 
 
-def check_same_input_kind(datasets: Sequence[Dataset]) -> None:
-    """Refuse experiments whose inputs are of different kinds (pressure and force).
-
-    Raises
-    ------
-    FitError
-        Naming the first experiment of each kind.
-    """
-    # TODO(issue 11): use pmabayes.data.check_same_input_kind once it lands
-    first = datasets[0]
-    for ds in datasets[1:]:
-        if ds.input_name != first.input_name:
-            raise FitError(
-                f"{ds.source or 'an experiment'} has input {ds.input_name!r} but "
-                f"{first.source or 'the first experiment'} has {first.input_name!r}: the "
-                "experiments of one fit must have the same kind of input (one model, one rig "
-                "type); fit them separately")
-
-
 def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False) -> Posterior:
     """The posterior to sample: a likelihood per experiment, and each noise group's
     estimate from its repeats (None where it has none: sampled with the model)."""
@@ -928,7 +908,10 @@ def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False
         if not isinstance(ds, Dataset):
             raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
                             f"{type(ds).__name__}")
-    check_same_input_kind(datasets)
+    try:
+        check_same_input_kind(datasets)
+    except DataError as err:
+        raise FitError(str(err)) from None
     names = experiment_names([ds.source for ds in datasets])
     try:
         models = [model] if len(datasets) == 1 else [_on_rig(model, ds) for ds in datasets]
