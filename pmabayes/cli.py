@@ -55,6 +55,7 @@ from pmabayes.model import Model, ModelError
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+from pmabayes.trials import exclude_trials, parse_trial_ids
 
 __all__ = ["main", "load_plugin", "CliError"]
 
@@ -136,6 +137,29 @@ def _write_json(path: str | Path, obj: object) -> None:
 
 def _effect_list(text: str) -> list[str]:
     return [e.strip() for e in text.split(",") if e.strip()]
+
+
+def _trial_ids(text: str) -> list[int]:
+    try:
+        return parse_trial_ids(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _exclude_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--exclude-trials", type=_trial_ids, default=[], metavar="ID,ID",
+                   help="leave these trial ids out (e.g. 3,7: trials the check of the "
+                   "trials names as drifting or outlying)")
+
+
+def _load_data(args: argparse.Namespace) -> Dataset:
+    """The data file, without the trials ``--exclude-trials`` names (said, not silent)."""
+    dataset = load(args.data)
+    if args.exclude_trials:
+        dataset = exclude_trials(dataset, args.exclude_trials)
+        print(f"excluded trials {','.join(map(str, args.exclude_trials))} (--exclude-trials); "
+              f"{dataset.n_trials} remain")
+    return dataset
 
 
 def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -249,7 +273,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
                        "to write (e.g. fit.nc)")
-    dataset = load(args.data)
+    dataset = _load_data(args)
     model = Model.for_dataset(dataset, args.effects)
     with _created(out.parent):
         _do_fit(args, dataset, model, out)
@@ -273,7 +297,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = _out_folder(args.out)
-    dataset = load(args.data)  # the input is read and checked before anything is made
+    dataset = _load_data(args)  # the input is read and checked before anything is made
     model = Model.for_dataset(dataset, args.effects)
     with _created(out):
         tree = _do_fit(args, dataset, model, out / "fit.nc")
@@ -288,7 +312,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     if args.out:
         _out_folder(args.out)
-    dataset = load(args.data)
+    dataset = _load_data(args)
     result = diagnose(dataset, Model.for_dataset(dataset, args.effects),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
@@ -482,6 +506,7 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true",
                    help="discard saved chains instead of resuming them")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    _exclude_option(p)
 
 
 
@@ -528,6 +553,7 @@ def _criticism_commands(sub) -> None:
     diag.add_argument("--json", help="write a machine-readable summary here")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
+    _exclude_option(diag)
     diag.set_defaults(func=_cmd_diagnose)
 
     comp = sub.add_parser("compare", help="fits of the same data side by side: error per "

@@ -63,6 +63,7 @@ from pmabayes.likelihood import NOISE_PARAMETERS, Likelihood, LikelihoodError
 from pmabayes.model import Model
 from pmabayes.parallel import Runner
 from pmabayes.posterior import NoiseEstimate, Posterior, _log_sech2, fit_tree, set_fit_info
+from pmabayes.trials import check_trials
 from pmabayes.util import Progress, fingerprint, local_cores
 
 __all__ = [
@@ -856,6 +857,7 @@ def _posterior(model: Model, dataset: Dataset, substeps: int) -> Posterior:
         likelihood = Likelihood(model, dataset, substeps=substeps)
     except LikelihoodError as exc:
         raise FitError(str(exc)) from None
+    check_trials(dataset, warn=True)  # before their spread is taken for noise
     return Posterior(likelihood, estimate_noise(likelihood))
 
 
