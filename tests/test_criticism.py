@@ -130,6 +130,21 @@ def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
     assert b.adequate is False and b.energy > 2
 
 
+@pytest.mark.slow
+def test_the_two_time_scale_verdict_is_calibrated():
+    """20 data sets, a correct model: at most one called inadequate (README's numbers)."""
+    from pmabayes.residuals import check_adequacy
+
+    model, x, adequate = pb.Model(), None, 0
+    for seed in range(100, 120):
+        lik = Likelihood(model, two_time_scale(seed))
+        x = lik.simulate(model.theta(None))[0] if x is None else x  # one input for all
+        a = check_adequacy(lik, x, estimate_noise(lik))
+        assert a.noise_model != "AR(1) + white"
+        adequate += bool(a.adequate)
+    assert adequate >= 19
+
+
 def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
     from pmabayes.residuals import check_adequacy, check_noise_model, whiteness
 
