@@ -55,7 +55,7 @@ from pmabayes.model import Model, ModelError
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
-from pmabayes.trials import exclude_trials, parse_trial_ids
+from pmabayes.trials import check_trials, exclude_trials, parse_trial_ids
 
 __all__ = ["main", "load_plugin", "CliError"]
 
@@ -313,6 +313,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.out:
         _out_folder(args.out)
     dataset = _load_data(args)
+    print(check_trials(dataset).summary())  # the noise is learnt from their spread
     result = diagnose(dataset, Model.for_dataset(dataset, args.effects),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)

@@ -586,8 +586,11 @@ class Signature:
 
     def describe(self) -> str:
         """The signature in one or two plain sentences, from the numbers."""
-        # the band above the command's carries mostly noise: it would hide a trend
+        # the band above the command's carries mostly noise, and the lowest one the
+        # offset and the leakage of the ends' mismatch: either would hide a trend
         bands = [b for b in self.bands[:-1] if b.n_samples > 0 and math.isfinite(b.band_hz[1])]
+        if sum(b.band_hz[0] > 0 for b in bands) >= 2:
+            bands = [b for b in bands if b.band_hz[0] > 0]
         overall = self.bands[-1]
         if math.isnan(overall.floor_m):
             text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS ({overall.nrms:.3g} of the "
