@@ -199,7 +199,16 @@ def check_trials(dataset: Dataset, *, level: float = LEVEL, n_null: int = 200,
     -------
     TrialCheck
         With no test (p-values None) for fewer than 3 trials.
+
+    Raises
+    ------
+    ValueError
+        If ``level`` is not in (0, 1) or ``n_null`` is below 20.
     """
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1); got {level!r}")
+    if int(n_null) < 20:
+        raise ValueError(f"n_null must be at least 20 (the null distributions); got {n_null!r}")
     check = _check_trials(dataset, level, n_null, seed)
     if warn and not check.exchangeable:
         where = dataset.source or "the data set"
@@ -214,8 +223,6 @@ def check_trials(dataset: Dataset, *, level: float = LEVEL, n_null: int = 200,
 
 def _check_trials(dataset: Dataset, level: float, n_null: int,
                   seed: int | np.random.Generator) -> TrialCheck:
-    if not 0 < level < 1:
-        raise ValueError(f"level must be in (0, 1); got {level!r}")
     rng = np.random.default_rng(seed)
     y = np.asarray(dataset.position_m, dtype=float)
     ids = [int(i) for i in dataset.trial_ids]
