@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import signal, stats
@@ -775,6 +776,8 @@ class NoiseModelCheck:
         the AR model's own small misfit cancels.
     reference_energy : float
         Mean square of the contrasts whitened by the AR model.
+    reference_samples : int
+        Samples in all the contrasts (0 without repeats: nothing tested).
     level : float
         Level of the test.
     """
@@ -789,6 +792,7 @@ class NoiseModelCheck:
     n_trials: int
     reference_acf: np.ndarray
     reference_energy: float
+    reference_samples: int
     level: float = LEVEL_ADEQUATE
 
     @property
@@ -858,7 +862,7 @@ class NoiseModelCheck:
         n = e.size
         max_lag = self.reference_acf.size
         _, acf, _ = autocorrelation(e, max_lag=max_lag)
-        var = 1.0 / n + 1.0 / ((self.n_trials - 1) * n)
+        var = 1.0 / n + 1.0 / self.reference_samples
         q = float(np.sum((acf - self.reference_acf) ** 2) / var)
         energy = float(np.mean(e * e)) / self.reference_energy
         return {"ljung_box_p": float(stats.chi2.sf(q, max_lag)), "energy": energy,
@@ -866,6 +870,8 @@ class NoiseModelCheck:
 
     def summary(self) -> str:
         """The verdict in one line."""
+        if self.reference_samples == 0:
+            return "Noise model AR(1) + white: not tested (no repeats to test it on)."
         if self.adequate:
             return (f"Noise model AR(1) + white: it whitens the deviations between trials "
                     f"(Ljung-Box {_p_text(self.ljung_box_p)}).")
@@ -918,7 +924,13 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
     NoiseModelCheck
     """
     contrasts = np.asarray(likelihood._contrasts, dtype=float)
-    r, n = likelihood.n_trials, likelihood.n_samples
+    r = likelihood.n_trials
+    if contrasts.shape[0] == 0:  # a single record without periods: nothing to test on
+        return NoiseModelCheck(ljung_box_p=math.nan, energy=math.nan, adequate=True, ar_order=0,
+                               ar_ljung_box_p=math.nan, coefficients=np.zeros((1, 1)),
+                               variances=np.ones(1), n_trials=r, reference_acf=np.zeros(25),
+                               reference_energy=1.0, reference_samples=0, level=level)
+    n = contrasts.shape[1]
     # whiten() takes the trial mean's residual and scales it by sqrt(R)
     innov = [likelihood.whiten(c / math.sqrt(r), noise.sigma, noise.rho, noise.white)
              for c in contrasts]
@@ -937,7 +949,7 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
                             ar_order=order, ar_ljung_box_p=math.nan,
                             coefficients=phi[: order + 1, :order], variances=var[: order + 1],
                             n_trials=r, reference_acf=np.zeros(25), reference_energy=1.0,
-                            level=level)
+                            reference_samples=int(contrasts.size), level=level)
     white = [check.whiten_series(c) for c in contrasts]
     pooled = np.mean([autocorrelation(w, max_lag=25)[1] for w in white], axis=0)
     return NoiseModelCheck(**{**check.__dict__, "ar_ljung_box_p": _pooled_ljung_box(white),
@@ -1119,7 +1131,9 @@ class Adequacy:
     def evidence(self) -> str:
         """The numbers behind the verdict in one sentence."""
         text = (f"the error of the trial mean is {self.ratio:.3g}x the noise floor (RMS "
-                f"{self.rms_m * 1e6:.4g} µm against {self.floor_m * 1e6:.4g} µm)")
+                f"{self.rms_m * 1e6:.4g} µm against {self.floor_m * 1e6:.4g} µm)"
+                if math.isfinite(self.floor_m) else
+                f"the RMS error is {self.rms_m * 1e6:.4g} µm (no repeats: no noise floor)")
         if self.energy is not None:
             text += (f"; the whitened residual's energy is {self.energy:.3g} (1 for pure "
                      f"noise, at most {1 + self.energy_tolerance:g} allowed) and its "
@@ -1218,7 +1232,11 @@ def check_adequacy(
         :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnose` uses.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
-    overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
+    if likelihood.dataset.n_trials >= 2:
+        overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
+    else:  # a single record: its error, and no floor without repeats
+        r = likelihood.y_mean - x
+        overall = SimpleNamespace(rms_m=float(np.sqrt(np.mean(r * r))), floor_m=math.nan)
     energy = lb_p = adequate = None
     noise_model = "AR(1) + white"
     if noise is not None:

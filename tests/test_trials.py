@@ -127,11 +127,19 @@ def test_exclude_trials_on_the_command_line(tmp_path, capsys):
     for command in ("fit", "run", "diagnose"):
         args = cli._parser().parse_args([command, str(path), "--out", str(tmp_path / "o"),
                                          "--exclude-trials", "1,2"])
-        ds = cli._load_data(args)
+        ds = (cli._load_all(args)[0] if command != "diagnose"
+              else cli._load_data(args, args.data[0], min_trials=2))
         assert list(ds.trial_ids) == [0, 3]
-    assert "excluded trials 1,2 (--exclude-trials); 2 remain" in capsys.readouterr().out
+    assert "excluded trials 1,2 of" in capsys.readouterr().out
     args = cli._parser().parse_args(["fit", str(path), "--out", "x", "--exclude-trials", "8"])
     with pytest.raises(DataError, match="no trial with id 8"):
-        cli._load_data(args)
+        cli._load_all(args)
+    args = cli._parser().parse_args(["fit", str(path), str(path), "--out", "x",
+                                     "--exclude-trials", "1"])
+    with pytest.raises(cli.CliError, match="names trial ids of one data file"):
+        cli._load_all(args)
+    args = cli._parser().parse_args(["diagnose", str(path), "--exclude-trials", "0,1,2"])
+    with pytest.raises(DataError, match="leaves 1 of 4; at least 2"):
+        cli._load_data(args, args.data[0], min_trials=2)
     with pytest.raises(SystemExit):
         cli._parser().parse_args(["fit", str(path), "--out", "x", "--exclude-trials", "a"])
