@@ -56,6 +56,7 @@ from pmabayes.parameters import Prior, parse_prior
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+from pmabayes.trials import check_trials, exclude_trials, parse_trial_ids
 
 __all__ = ["main", "load_plugin", "CliError"]
 
@@ -154,6 +155,38 @@ def _model_for(dataset: Dataset, args: argparse.Namespace) -> Model:
 
 def _effect_list(text: str) -> list[str]:
     return [e.strip() for e in text.split(",") if e.strip()]
+
+
+def _trial_ids(text: str) -> list[int]:
+    try:
+        return parse_trial_ids(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _exclude_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--exclude-trials", type=_trial_ids, default=[], metavar="ID,ID",
+                   help="leave these trial ids out (e.g. 3,7: trials the check of the "
+                   "trials names as drifting or outlying)")
+
+
+def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1) -> Dataset:
+    """A data file, without the trials ``--exclude-trials`` names (said, not silent)."""
+    dataset = load(path)
+    if args.exclude_trials:
+        dataset = exclude_trials(dataset, args.exclude_trials, min_trials=min_trials)
+        print(f"excluded trials {','.join(map(str, args.exclude_trials))} of {path} "
+              f"(--exclude-trials); {dataset.n_trials} remain")
+    return dataset
+
+
+def _load_all(args: argparse.Namespace) -> list[Dataset]:
+    """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
+    if args.exclude_trials and len(args.data) > 1:
+        raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
+                       "were given; leave the trials out of that file first (pmabayes.trials."
+                       "exclude_trials, then pmabayes.data.save), or fit it alone")
+    return [_load_data(args, p) for p in args.data]
 
 
 def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -283,7 +316,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
                        "to write (e.g. fit.nc)")
-    datasets = [load(p) for p in args.data]
+    datasets = _load_all(args)
     model = _model_for(datasets[0], args)
     with _created(out.parent):
         _do_fit(args, datasets, model, out)
@@ -320,7 +353,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = _out_folder(args.out)
-    datasets = [load(p) for p in args.data]  # read and checked before anything is made
+    datasets = _load_all(args)  # read and checked before anything is made
     model = _model_for(datasets[0], args)
     with _created(out):
         tree = _do_fit(args, datasets, model, out / "fit.nc")
@@ -352,8 +385,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             "`pmabayes fit " + " ".join(args.data) + " --effects ... --out FIT.nc`")
     if args.out:
         _out_folder(args.out)
-    dataset = load(args.data[0])
+    dataset = _load_data(args, args.data[0], min_trials=2)
     _needs_repeats(dataset, "diagnose")
+    print(check_trials(dataset).summary())  # the noise is learnt from their spread
     result = diagnose(dataset, _model_for(dataset, args),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
@@ -578,6 +612,7 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-noise", action="store_true",
                    help="one noise model for all experiments (same sensor and disturbance) "
                    "instead of one per experiment")
+    _exclude_option(p)
 
 
 
@@ -633,6 +668,7 @@ def _criticism_commands(sub) -> None:
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
     _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
+    _exclude_option(diag)
     diag.set_defaults(func=_cmd_diagnose)
 
     comp = sub.add_parser("compare", help="fits of the same data side by side: error per "

@@ -48,9 +48,9 @@ from pmabayes.residuals import (
     innovations,
     input_bands,
     instantaneous_frequency,
+    judged_whiteness,
     ljung_box,  # noqa: F401
     residual_signature,
-    whiteness,
     whiteness_curves,
 )
 from pmabayes.simulator import Simulation, simulate_dataset
@@ -965,8 +965,9 @@ def _map_residual(tree, model: Model, dataset: Dataset):
     vals = _model_values(model, info["map"]["values"])
     x = simulate_dataset(model, vals, dataset, substeps=substeps)[0]
     nz = info["noise"]
-    e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
-    return band_errors(dataset, x), whiteness(e), e
+    noise = NoiseEstimate(nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"], None, None)
+    e, white, _ = judged_whiteness(lik, x, noise)  # AR(1) + white unless the repeats reject it
+    return band_errors(dataset, x), white, e
 
 
 def _loo_table(fits: list, labels: list) -> tuple[dict, list]:

@@ -70,6 +70,7 @@ from pmabayes.posterior import (
     fit_tree,
     set_fit_info,
 )
+from pmabayes.trials import check_trials
 from pmabayes.util import Progress, fingerprint, local_cores
 
 __all__ = [
@@ -919,6 +920,8 @@ def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False
                 for m, ds in zip(models, datasets, strict=True)]
     except (LikelihoodError, ModelError) as exc:
         raise FitError(str(exc)) from None
+    for ds in datasets:  # before their spread is taken for noise
+        check_trials(ds, warn=True)
     groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
     noises = []
     for g in range(max(groups) + 1):

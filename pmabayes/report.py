@@ -51,6 +51,7 @@ from pmabayes.posterior import (
     model_from_fit,
 )
 from pmabayes.residuals import Adequacy, check_adequacy
+from pmabayes.trials import check_trials
 
 __all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
            "write_comparison", "pair_figure", "predictive_band", "fit_adequacy",
@@ -790,6 +791,7 @@ def write_report(
     body = [
         _meta_block(info, _source_name(info, dataset)),
         _adequacy_box(adequacy),
+        _trials_line(dataset if dataset is not None else _dataset_from_fit(tree, info)),
         _banner(info.get("convergence") or {}),
         _synthetic_note_of(info),
         *_parameter_section(rows, info, ci_prob),
@@ -803,6 +805,13 @@ def write_report(
     title = f"pmabayes fit report: {Path(_source_name(info, dataset)).name}"
     index.write_text(_page(title, body), encoding="utf-8")
     return index
+
+
+def _trials_line(dataset: Dataset) -> str:
+    """The verdict of :func:`pmabayes.trials.check_trials` on the fitted trials, one line."""
+    check = check_trials(dataset)
+    text = html.escape(check.summary())
+    return f"<p>{text}</p>" if check.exchangeable else f'<p class="note">{text}</p>'
 
 
 def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,

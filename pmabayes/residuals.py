@@ -16,6 +16,11 @@ samples:
   tests of system identification, applied to the residual whitened by the
   identified noise model. That residual is independent N(0, 1) when the model
   describes the data;
+* :func:`check_noise_model` and :func:`judged_whiteness`: whether the AR(1) +
+  white noise model whitens the deviations between trials (model-free), and
+  when it does not, an AR model of the repeats to whiten the trial mean's
+  residual with, so that the adequacy verdict judges the physics and not the
+  noise model;
 * :func:`residual_signature`: all of these for one model, with the correlations
   that say where it fails;
 * :func:`is_adequate` and :func:`check_adequacy`: the one adequacy rule (the
@@ -56,6 +61,10 @@ __all__ = [
     "cross_correlation",
     "ljung_box",
     "whiteness",
+    "MAX_AR_ORDER",
+    "NoiseModelCheck",
+    "check_noise_model",
+    "judged_whiteness",
     "is_adequate",
     "Signature",
     "residual_signature",
@@ -537,6 +546,10 @@ class Signature:
         That correlation.
     ccf_bound : float
         Its 99% bound for independent series.
+    noise_model : str
+        The noise model the residual was whitened with: ``"AR(1) + white"``, or an
+        AR model of the repeats when those reject AR(1) + white
+        (:func:`judged_whiteness`).
     """
 
     bands: list
@@ -547,6 +560,7 @@ class Signature:
     ccf_lag_s: float
     ccf_peak: float
     ccf_bound: float
+    noise_model: str = "AR(1) + white"
 
     @property
     def ratio(self) -> float:
@@ -573,8 +587,11 @@ class Signature:
 
     def describe(self) -> str:
         """The signature in one or two plain sentences, from the numbers."""
-        # the band above the command's carries mostly noise: it would hide a trend
+        # the band above the command's carries mostly noise, and the lowest one the
+        # offset and the leakage of the ends' mismatch: either would hide a trend
         bands = [b for b in self.bands[:-1] if b.n_samples > 0 and math.isfinite(b.band_hz[1])]
+        if sum(b.band_hz[0] > 0 for b in bands) >= 2:
+            bands = [b for b in bands if b.band_hz[0] > 0]
         overall = self.bands[-1]
         if math.isnan(overall.floor_m):
             text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS ({overall.nrms:.3g} of the "
@@ -613,7 +630,46 @@ class Signature:
                      f"bound): {how}.")
         if self.ljung_box_p < 0.01:
             text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
+        if self.noise_model != "AR(1) + white":
+            text += (f" (Whitened with an {self.noise_model}: the deviations between trials "
+                     "reject the AR(1) + white noise model.)")
         return text
+
+
+def judged_whiteness(likelihood: Likelihood, model_position_m: np.ndarray, noise
+                     ) -> tuple[np.ndarray, dict, NoiseModelCheck]:
+    """The whitened residual and its whiteness, under the noise model the repeats support.
+
+    With AR(1) + white when :func:`check_noise_model` finds that it whitens the
+    deviations between trials (:func:`innovations`, :func:`whiteness`: as
+    before); otherwise with the AR model of the repeats
+    (:meth:`NoiseModelCheck.residual_whiteness`), so that the adequacy verdict
+    judges the physics and not the noise model.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        Data and noise model.
+    model_position_m : numpy.ndarray
+        Model output ``(n_samples,)``.
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+
+    Returns
+    -------
+    e : numpy.ndarray
+        The whitened residual.
+    white : dict
+        ``ljung_box_p``, ``energy``, ``energy_p``.
+    check : NoiseModelCheck
+    """
+    x = np.asarray(model_position_m, dtype=float).reshape(-1)
+    check = check_noise_model(likelihood, noise)
+    if check.adequate:
+        e = innovations(likelihood, x, noise)
+        return e, whiteness(e), check
+    r = likelihood.y_mean - x
+    return check.whiten_residual(r), check.residual_whiteness(r), check
 
 
 def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
@@ -638,8 +694,7 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
     ds = likelihood.dataset
     x = sim.position_m[0]
     r = likelihood.y_mean - x
-    e = innovations(likelihood, x, noise)
-    white = whiteness(e)
+    e, white, noise_check = judged_whiteness(likelihood, x, noise)
     rate = np.gradient(ds.input[0], ds.time_s)
     signals = {"position": x, "velocity": sim.velocity_m_s[0], "pressure": sim.pressure_pa[0],
                "pressure rate": rate}
@@ -655,8 +710,251 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
         bands=band_errors(ds, x), ljung_box_p=white["ljung_box_p"], energy=white["energy"],
         energy_p=white["energy_p"], correlations=corr,
         ccf_lag_s=float(lags_r[pos][k] * ds.dt_s), ccf_peak=float(ccf_r[pos][k]),
-        ccf_bound=bound,
+        ccf_bound=bound, noise_model=noise_check.noise_model,
     )
+
+
+#: Largest order of the autoregressive noise model fitted to the deviations between
+#: trials when AR(1) + white does not whiten them (:func:`check_noise_model`).
+MAX_AR_ORDER = 60
+
+
+def _levinson(acov: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Durbin-Levinson: predictor coefficients and innovation variances of orders 0..order.
+
+    Row ``m`` of the first output holds the order-``m`` coefficients in its first
+    ``m`` entries.
+    """
+    phi = np.zeros((order + 1, max(order, 1)))
+    var = np.empty(order + 1)
+    var[0] = acov[0]
+    for m in range(1, order + 1):
+        prev = phi[m - 1, : m - 1]
+        k = (acov[m] - prev @ acov[m - 1:0:-1]) / var[m - 1]
+        phi[m, : m - 1] = prev - k * prev[::-1]
+        phi[m, m - 1] = k
+        var[m] = var[m - 1] * (1.0 - k * k)
+    return phi, var
+
+
+@dataclass(frozen=True)
+class NoiseModelCheck:
+    """Does AR(1) + white describe the trial-to-trial noise? Result of :func:`check_noise_model`.
+
+    Model-free: it looks at the deviations between the trials only (their Helmert
+    contrasts, series of the noise process alone).
+
+    Parameters
+    ----------
+    ljung_box_p : float
+        Ljung-Box p-value (25 lags, pooled over the contrasts) of the contrasts'
+        Kalman innovations under the identified AR(1) + white noise.
+    energy : float
+        Mean square of those innovations (about 1 whatever the model, since the
+        noise was fitted to the same deviations).
+    adequate : bool
+        ``ljung_box_p >= level``: the AR(1) + white noise model whitens the
+        deviations.
+    ar_order : int
+        Order of the autoregressive noise model fitted to the deviations
+        (Yule-Walker, pooled over the contrasts, order by AIC up to
+        :data:`MAX_AR_ORDER`): the spectrum of the repeats, used to whiten the
+        trial mean's residual when AR(1) + white is rejected.
+    ar_ljung_box_p : float
+        Ljung-Box p-value of the contrasts whitened by that model.
+    coefficients : numpy.ndarray
+        Durbin-Levinson predictor coefficients of orders ``0 .. ar_order``
+        (row ``m``, first ``m`` entries).
+    variances : numpy.ndarray
+        One-step prediction variances of those orders, in m^2 (of one trial's
+        noise).
+    n_trials : int
+        Trials (the trial mean's residual is scaled by ``sqrt(n_trials)``).
+    reference_acf : numpy.ndarray
+        Autocorrelation at lags 1..25 of the contrasts whitened by the AR model,
+        pooled: what the trial mean's whitened residual is compared with, so that
+        the AR model's own small misfit cancels.
+    reference_energy : float
+        Mean square of the contrasts whitened by the AR model.
+    reference_samples : int
+        Samples in all the contrasts (0 without repeats: nothing tested).
+    level : float
+        Level of the test.
+    """
+
+    ljung_box_p: float
+    energy: float
+    adequate: bool
+    ar_order: int
+    ar_ljung_box_p: float
+    coefficients: np.ndarray
+    variances: np.ndarray
+    n_trials: int
+    reference_acf: np.ndarray
+    reference_energy: float
+    reference_samples: int
+    level: float = LEVEL_ADEQUATE
+
+    @property
+    def noise_model(self) -> str:
+        """The noise model the adequacy verdict whitens with."""
+        return "AR(1) + white" if self.adequate else f"AR({self.ar_order}) from the repeats"
+
+    def whiten_series(self, v: np.ndarray) -> np.ndarray:
+        """Exact standardised innovations of a series of one trial's noise (AR model).
+
+        Parameters
+        ----------
+        v : numpy.ndarray
+            ``(n_samples,)``, e.g. a Helmert contrast, or ``sqrt(R)`` times the
+            trial mean's residual.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_samples,)``; independent N(0, 1) when the AR model holds.
+        """
+        v = np.asarray(v, dtype=float).reshape(-1)
+        p = min(self.ar_order, v.size)
+        out = np.empty(v.size)
+        for t in range(p):  # the start: predictors of growing order (Durbin-Levinson)
+            out[t] = (v[t] - self.coefficients[t, :t] @ v[t - 1::-1][:t]) / math.sqrt(
+                self.variances[t])
+        a = np.concatenate(([1.0], -self.coefficients[p, :p]))
+        out[p:] = signal.lfilter(a, [1.0], v)[p:] / math.sqrt(self.variances[p])
+        return out
+
+    def whiten_residual(self, residual_m: np.ndarray) -> np.ndarray:
+        """The trial mean's residual whitened by the AR model of the repeats.
+
+        Parameters
+        ----------
+        residual_m : numpy.ndarray
+            Trial mean minus model, ``(n_samples,)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            Independent N(0, 1) when the model describes the data.
+        """
+        return self.whiten_series(math.sqrt(self.n_trials) * np.asarray(residual_m, float))
+
+    def residual_whiteness(self, residual_m: np.ndarray) -> dict:
+        """Whiteness of the trial mean's residual against the repeats, under the AR model.
+
+        The residual and the contrasts are whitened by the same AR model; the
+        residual's autocorrelation (lags 1..25) is compared with the contrasts'
+        (a Ljung-Box-like statistic on the difference, chi-squared with 25
+        degrees of freedom), and its energy is relative to theirs. Both are about
+        those of pure noise for a model that describes the data.
+
+        Parameters
+        ----------
+        residual_m : numpy.ndarray
+            Trial mean minus model, ``(n_samples,)``.
+
+        Returns
+        -------
+        dict
+            As :func:`whiteness`: ``ljung_box_p``, ``energy`` and ``energy_p``.
+        """
+        e = self.whiten_residual(residual_m)
+        n = e.size
+        max_lag = self.reference_acf.size
+        _, acf, _ = autocorrelation(e, max_lag=max_lag)
+        var = 1.0 / n + 1.0 / self.reference_samples
+        q = float(np.sum((acf - self.reference_acf) ** 2) / var)
+        energy = float(np.mean(e * e)) / self.reference_energy
+        return {"ljung_box_p": float(stats.chi2.sf(q, max_lag)), "energy": energy,
+                "energy_p": float(stats.chi2.sf(energy * n, n))}
+
+    def summary(self) -> str:
+        """The verdict in one line."""
+        if self.reference_samples == 0:
+            return "Noise model AR(1) + white: not tested (no repeats to test it on)."
+        if self.adequate:
+            return (f"Noise model AR(1) + white: it whitens the deviations between trials "
+                    f"(Ljung-Box {_p_text(self.ljung_box_p)}).")
+        return (f"Noise model AR(1) + white is REJECTED by the deviations between trials "
+                f"(Ljung-Box {_p_text(self.ljung_box_p)}): the disturbance has more "
+                f"structure (several time scales, vibration, drift). The adequacy verdict "
+                f"whitens with an AR({self.ar_order}) model of the repeats instead (its "
+                f"Ljung-Box {_p_text(self.ar_ljung_box_p)}); the sampler's likelihood is "
+                "still AR(1) + white, so its intervals may be too narrow.")
+
+    def to_dict(self) -> dict:
+        """JSON-ready values."""
+        return {"noise_model": self.noise_model, "ljung_box_p": self.ljung_box_p,
+                "energy": self.energy, "adequate": self.adequate, "ar_order": self.ar_order,
+                "ar_ljung_box_p": self.ar_ljung_box_p, "level": self.level}
+
+
+def _pooled_ljung_box(series: list, max_lag: int = 25) -> float:
+    q = sum(ljung_box(e, max_lag=max_lag)[0] for e in series)
+    return float(stats.chi2.sf(q, max_lag * len(series)))
+
+
+def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_ORDER,
+                      level: float = LEVEL_ADEQUATE) -> NoiseModelCheck:
+    """Test the AR(1) + white noise model on the deviations between trials (model-free).
+
+    The Helmert contrasts of the trials are series of the noise alone. Whitened
+    by the identified noise (Kalman innovations, :meth:`Likelihood.whiten`) they
+    are white when the noise model holds: a pooled Ljung-Box test says whether it
+    does. Real disturbances often have more structure (two time scales,
+    vibration, slow drift), and then the whiteness test of the trial mean's
+    residual would reject the noise model, not the physics. So an autoregressive
+    model of the repeats is also fitted (Yule-Walker on the contrasts, order by
+    AIC), which :func:`check_adequacy` and :func:`residual_signature` whiten with
+    when AR(1) + white is rejected.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        The data (at least 2 trials).
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+    max_order : int
+        Largest AR order tried.
+    level : float
+        Level of the Ljung-Box test.
+
+    Returns
+    -------
+    NoiseModelCheck
+    """
+    contrasts = np.asarray(likelihood._contrasts, dtype=float)
+    r = likelihood.n_trials
+    if contrasts.shape[0] == 0:  # a single record without periods: nothing to test on
+        return NoiseModelCheck(ljung_box_p=math.nan, energy=math.nan, adequate=True, ar_order=0,
+                               ar_ljung_box_p=math.nan, coefficients=np.zeros((1, 1)),
+                               variances=np.ones(1), n_trials=r, reference_acf=np.zeros(25),
+                               reference_energy=1.0, reference_samples=0, level=level)
+    n = contrasts.shape[1]
+    # whiten() takes the trial mean's residual and scales it by sqrt(R)
+    innov = [likelihood.whiten(c / math.sqrt(r), noise.sigma, noise.rho, noise.white)
+             for c in contrasts]
+    lb_p = _pooled_ljung_box(innov)
+    energy = float(np.mean(np.square(innov)))
+    # Yule-Walker on the contrasts, pooled: the autocovariance of one trial's noise
+    order_max = int(max(1, min(max_order, n // 10)))
+    spec = np.fft.rfft(contrasts, n=2 * n, axis=1)
+    acov = np.fft.irfft(np.sum(np.abs(spec) ** 2, axis=0), axis=0)[: order_max + 1] / (
+        contrasts.shape[0] * n)
+    phi, var = _levinson(acov, order_max)
+    n_eff = contrasts.shape[0] * n
+    aic = n_eff * np.log(np.maximum(var, 1e-300)) + 2.0 * np.arange(order_max + 1)
+    order = int(np.argmin(aic[1:]) + 1)
+    check = NoiseModelCheck(ljung_box_p=lb_p, energy=energy, adequate=bool(lb_p >= level),
+                            ar_order=order, ar_ljung_box_p=math.nan,
+                            coefficients=phi[: order + 1, :order], variances=var[: order + 1],
+                            n_trials=r, reference_acf=np.zeros(25), reference_energy=1.0,
+                            reference_samples=int(contrasts.size), level=level)
+    white = [check.whiten_series(c) for c in contrasts]
+    pooled = np.mean([autocorrelation(w, max_lag=25)[1] for w in white], axis=0)
+    return NoiseModelCheck(**{**check.__dict__, "ar_ljung_box_p": _pooled_ljung_box(white),
+                              "reference_acf": pooled,
+                              "reference_energy": float(np.mean(np.square(white)))})
 
 
 def whiteness(e: np.ndarray) -> dict:
@@ -800,6 +1098,8 @@ class Adequacy:
         Tolerance used for ``adequate``.
     level_adequate : float
         Ljung-Box level used for ``adequate``.
+    noise_model : str
+        The noise model the residual was whitened with (:func:`judged_whiteness`).
     """
 
     adequate: bool | None
@@ -812,6 +1112,7 @@ class Adequacy:
     next_command: str = ""
     energy_tolerance: float = ENERGY_TOLERANCE
     level_adequate: float = LEVEL_ADEQUATE
+    noise_model: str = "AR(1) + white"
 
     @property
     def ratio(self) -> float:
@@ -838,6 +1139,9 @@ class Adequacy:
                      f"noise, at most {1 + self.energy_tolerance:g} allowed) and its "
                      f"Ljung-Box {_p_text(self.ljung_box_p)} (at least "
                      f"{self.level_adequate:g} needed)")
+            if self.noise_model != "AR(1) + white":
+                text += (f", whitened with an {self.noise_model} since the deviations between "
+                         "trials reject AR(1) + white")
         if self.coverage is not None:
             text += (f"; {self.coverage:.1%} of the data lie inside the {self.ci_prob:.0%} "
                      "posterior predictive band")
@@ -887,7 +1191,7 @@ class Adequacy:
                 "energy": self.energy, "ljung_box_p": self.ljung_box_p,
                 "coverage": self.coverage, "ci_prob": self.ci_prob,
                 "next_command": self.next_command, "energy_tolerance": self.energy_tolerance,
-                "level_adequate": self.level_adequate}
+                "level_adequate": self.level_adequate, "noise_model": self.noise_model}
 
 
 def _p_text(p: float) -> str:
@@ -934,10 +1238,12 @@ def check_adequacy(
         r = likelihood.y_mean - x
         overall = SimpleNamespace(rms_m=float(np.sqrt(np.mean(r * r))), floor_m=math.nan)
     energy = lb_p = adequate = None
+    noise_model = "AR(1) + white"
     if noise is not None:
-        white = whiteness(innovations(likelihood, x, noise))
+        _, white, noise_check = judged_whiteness(likelihood, x, noise)
         energy, lb_p = white["energy"], white["ljung_box_p"]
         adequate = is_adequate(energy, lb_p)
+        noise_model = noise_check.noise_model
     return Adequacy(adequate=adequate, rms_m=overall.rms_m, floor_m=overall.floor_m,
                     energy=energy, ljung_box_p=lb_p, coverage=coverage, ci_prob=ci_prob,
-                    next_command=next_command)
+                    next_command=next_command, noise_model=noise_model)

@@ -92,6 +92,71 @@ def test_the_adequacy_rule_and_its_verdict(perfect, lagged):
     assert not is_adequate(1.0, 0.0099)
 
 
+def two_time_scale(seed, effects=None, r=6):
+    """Chirp trials with a disturbance on two time scales (10 ms and 1 s) and white noise."""
+    from pmabayes.likelihood import ar1_noise
+
+    clean = generate_chirp_dataset(n_trials=r, seed=seed, chirp=CHIRP, noise=None,
+                                   effects=effects)
+    rng = np.random.default_rng(seed)
+    n, dt = clean.n_samples, clean.dt_s
+    e = (ar1_noise(r, n, 10e-6, np.exp(-dt / 0.010), rng)
+         + ar1_noise(r, n, 30e-6, np.exp(-dt / 1.0), rng) + 1e-6 * rng.standard_normal((r, n)))
+    return Dataset(time_s=clean.time_s, input=clean.input, position_m=clean.position_m + e,
+                   trial_ids=clean.trial_ids, input_name=clean.input_name,
+                   metadata=clean.metadata)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
+    from pmabayes.residuals import check_adequacy, check_noise_model, whiteness
+
+    ds = two_time_scale(seed)
+    lik = Likelihood(pb.Model(), ds)
+    x = lik.simulate(pb.Model().theta(None))[0]
+    noise = estimate_noise(lik)
+    check = check_noise_model(lik, noise)
+    assert not check.adequate and check.ljung_box_p < 1e-6  # AR(1) + white is wrong here
+    assert check.ar_ljung_box_p > 0.01 and check.ar_order >= 2
+    assert "REJECTED" in check.summary()
+    # with AR(1) + white the whiteness test would blame the physics
+    assert whiteness(innovations(lik, x, noise))["ljung_box_p"] < 0.01
+    a = check_adequacy(lik, x, noise)
+    assert a.adequate is True, a.evidence()
+    assert a.noise_model.startswith("AR(") and "reject AR(1) + white" in a.evidence()
+    missing = two_time_scale(seed, effects={"coulomb_friction": 0.3})
+    lik_m = Likelihood(pb.Model(), missing)
+    b = check_adequacy(lik_m, x, estimate_noise(lik_m))
+    assert b.adequate is False and b.energy > 2
+
+
+@pytest.mark.slow
+def test_the_two_time_scale_verdict_is_calibrated():
+    """20 data sets, a correct model: at most one called inadequate (README's numbers)."""
+    from pmabayes.residuals import check_adequacy
+
+    model, x, adequate = pb.Model(), None, 0
+    for seed in range(100, 120):
+        lik = Likelihood(model, two_time_scale(seed))
+        x = lik.simulate(model.theta(None))[0] if x is None else x  # one input for all
+        a = check_adequacy(lik, x, estimate_noise(lik))
+        assert a.noise_model != "AR(1) + white"
+        adequate += bool(a.adequate)
+    assert adequate >= 19
+
+
+def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
+    from pmabayes.residuals import check_adequacy, check_noise_model, whiteness
+
+    for case in (perfect, lagged):
+        ds, lik, x, e = judge(case)
+        noise = estimate_noise(lik)
+        assert check_noise_model(lik, noise).adequate
+        a = check_adequacy(lik, x, noise)
+        assert a.noise_model == "AR(1) + white"
+        assert a.energy == pytest.approx(whiteness(e)["energy"], rel=1e-12)
+
+
 def test_autocorrelation_bound_and_ljung_box_on_white_noise():
     rng = np.random.default_rng(0)
     w = rng.standard_normal(20000)

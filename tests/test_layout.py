@@ -19,7 +19,7 @@ RANK = {
     "data": 1,
     "parameters": 2, "effects": 2, "model": 2,
     "simulator": 3,
-    "likelihood": 4,
+    "likelihood": 4, "trials": 4,
     "synthetic": 5,
     "posterior": 6,
     "fit": 7,
