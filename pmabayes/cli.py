@@ -543,6 +543,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     _fit_commands(sub)
+    _batch_commands(sub)
     _criticism_commands(sub)
     _data_commands(sub)
     _control_commands(sub)
@@ -616,6 +617,59 @@ def _fit_commands(sub) -> None:
                       help="override a parameter value (repeatable)")
     pred.set_defaults(func=_cmd_predict)
 
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from pmabayes.batch import BatchError, BatchJob, fit_batch
+
+    out = _out_folder(args.out)
+    if args.processes is not None and args.dask is not None:
+        raise CliError("give --processes or --dask, not both")
+    effects = tuple(args.effects)
+    try:
+        result = fit_batch([BatchJob(d, effects) for d in args.data], out_dir=out,
+                           settings=_fit_settings(args), seed=args.seed,
+                           processes=args.processes, dask=args.dask, restart=args.restart,
+                           progress=not args.quiet)
+    except BatchError as err:
+        raise CliError(str(err)) from None
+    summary = result.summary()
+    for r in summary["datasets"]:
+        if r["status"] == "failed":
+            print(f"{r['name']}: FAILED {r['data']}: {r['error']}")
+            continue
+        rms = r["map_rms_cost_m"]
+        conv = "converged" if r["converged"] else "NOT CONVERGED"
+        took = (f"{r['seconds']:.1f} s" if r["status"] == "fitted"
+                else "skipped, up to date")
+        print(f"{r['name']}: {r['fit_file']}: MAP RMS cost "
+              f"{'n/a' if rms is None else f'{rms * 1e6:.1f} um'}, {conv} "
+              f"({r['n_steps']} steps), {took}")
+    print(f"{summary['n_datasets']} data sets: {summary['n_fitted']} fitted, "
+          f"{summary['n_skipped']} skipped, {summary['n_failed']} failed, "
+          f"{summary['n_not_converged']} not converged; {summary['seconds']:.1f} s on "
+          f"{summary['runner']}")
+    if args.json:
+        _write_json(args.json, summary)
+        print(f"wrote {args.json}")
+    return 0 if result.ok else 1
+
+
+def _batch_commands(sub) -> None:
+    """The ``batch`` subcommand: many independent data sets, one fit each."""
+    bat = sub.add_parser("batch", help="fit many independent data sets, each alone, on local "
+                         "processes or a Dask cluster")
+    bat.add_argument("data", nargs="+", help="data files (.csv with optional .json sidecar, "
+                     "or .nc); each fit is written to OUT/<file stem>.nc")
+    bat.add_argument("--out", required=True, help="output folder of the fits")
+    _fit_options(bat)
+    bat.add_argument("--processes", type=_positive, default=None,
+                     help="local worker processes, one data set each (all cores)")
+    bat.add_argument("--dask", metavar="ADDRESS", default=None,
+                     help="run on the Dask scheduler at ADDRESS (tcp://HOST:8786) instead; "
+                     "needs `pip install pmabayes[dask]`")
+    bat.add_argument("--json", help="write the batch's summary here")
+    bat.set_defaults(func=_cmd_batch)
 
 
 def _criticism_commands(sub) -> None:
