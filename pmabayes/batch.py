@@ -210,6 +210,8 @@ class BatchResult:
         Who ran the fits (``"2 local processes"``, ``"dask (4 workers)"``).
     seconds : float
         Wall time of the batch.
+    settings : dict
+        The sampler settings every fit was asked for.
     """
 
     records: list[dict]
@@ -430,8 +432,9 @@ def fit_batch(
                                    processes=settings.processes if runner.local else 1)
             _run(runner, tasks, fit_settings, records, out_dir, say, description)
     for r in records.values():
-        if r["status"] == "failed":
-            say.say(f"FAILED {r['data']}: {r['error']}")
+        if r["status"] == "failed":  # the package's errors name the file already
+            say.say(f"FAILED{'' if r['data'] in r['error'] else ' ' + r['data']}: "
+                    f"{r['error']}")
     return BatchResult(records=[records[n] for n in names], out_dir=out_dir, seed=seed,
                        runner=description, seconds=time.perf_counter() - start,
                        settings=_jsonable({f.name: getattr(settings, f.name)

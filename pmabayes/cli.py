@@ -4,6 +4,9 @@
     The main job: fit the data (MAP and posterior) and write the report.
 ``pmabayes fit DATA.csv --out FIT.nc``
     Identify the parameters; chains are kept beside the fit and resumed.
+``pmabayes batch A.csv B.csv ... --out DIR [--processes N | --dask ADDRESS]``
+    Fit many independent data sets, each alone, to ``DIR/<stem>.nc``; one progress
+    bar, failures reported per file, resumable.
 ``pmabayes report FIT.nc --out DIR``
     Summary tables (CSV, Markdown), diagnostics and figures in an HTML page.
 ``pmabayes predict DATA.csv --out DIR``
@@ -635,8 +638,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         raise CliError(str(err)) from None
     summary = result.summary()
     for r in summary["datasets"]:
-        if r["status"] == "failed":
-            print(f"{r['name']}: FAILED {r['data']}: {r['error']}")
+        if r["status"] == "failed":  # the package's errors name the file already
+            where = "" if r["data"] in r["error"] else f" ({r['data']})"
+            print(f"{r['name']}: FAILED{where}: {r['error']}")
             continue
         rms = r["map_rms_cost_m"]
         conv = "converged" if r["converged"] else "NOT CONVERGED"

@@ -114,7 +114,7 @@ def test_cli_batch_reports_failures_and_exits_1(tmp_path, capsys):
                  "--json", str(report), "--quiet", "--processes", "1"])
     assert code == 1
     out = capsys.readouterr().out
-    assert "broken: FAILED" in out and "1 failed" in out
+    assert "broken: FAILED: " in out and "1 failed" in out
     summary = json.loads(report.read_text())
     assert summary["n_failed"] == 1 and summary["datasets"][0]["error_type"] == "DataError"
     assert main(["batch", "x.csv", "--out", str(tmp_path / "f"), "--processes", "2",
@@ -213,7 +213,7 @@ def test_resume_skips_fits_that_are_up_to_date_and_redoes_changed_data(batch_run
                  "12", "--ensembles", "2", "--steps", "40", "--json", str(tmp_path / "b.json")])
     assert code == 1  # the broken file
     out = capfd.readouterr().out
-    assert out.count("skipped, up to date") == 3 and "broken: FAILED" in out
+    assert out.count("skipped, up to date") == 3 and "broken: FAILED: " in out
     # other data under the same name: fitted again, the others still skipped
     changed = tmp_path / "data"
     new_files = _write_data(changed, names=("pma_b",), seed0=99)
