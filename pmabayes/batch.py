@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import sys
 import time
 import traceback
 import warnings
@@ -421,16 +422,19 @@ def fit_batch(
     say = Progress("batch", progress)
     records, tasks = _prepare(jobs, names, out_dir, settings, seed, restart, say)
     out_dir.mkdir(parents=True, exist_ok=True)
-    with contextlib.ExitStack() as stack:
-        if runner is None:
-            client = stack.enter_context(dask_client(dask)) if dask is not None else None
-            runner = stack.enter_context(Runner(processes, client=client,
-                                                tasks=max(len(tasks), 1)))
-        description = runner.description
-        if tasks:
+    description = "nothing to fit"
+    if tasks:
+        with contextlib.ExitStack() as stack:
+            if runner is None:
+                client = stack.enter_context(dask_client(dask)) if dask is not None else None
+                runner = stack.enter_context(Runner(processes, client=client,
+                                                    tasks=len(tasks)))
+            description = runner.description
             fit_settings = replace(settings, progress=False,
                                    processes=settings.processes if runner.local else 1)
             _run(runner, tasks, fit_settings, records, out_dir, say, description)
+    elif runner is not None:
+        description = runner.description
     for r in records.values():
         if r["status"] == "failed":  # the package's errors name the file already
             say.say(f"FAILED{'' if r['data'] in r['error'] else ' ' + r['data']}: "
@@ -491,17 +495,16 @@ def _run(runner: Runner, tasks: list[dict], settings: FitSettings, records: dict
     say.say(f"fitting {len(tasks)} data set{'s' if len(tasks) != 1 else ''} on {description}")
     say.start(len(tasks), "data sets")
     t0 = time.perf_counter()
-    for k, out in enumerate(runner.map(_fit_one, [{**t, "settings": settings} for t in tasks],
-                                       ordered=False), start=1):
+    results = runner.map(_fit_one, [{**t, "settings": settings} for t in tasks], ordered=False)
+    for k in range(1, len(tasks) + 1):
+        try:
+            out = next(results)
+        except Exception as exc:  # noqa: BLE001 - the runner itself: a worker died
+            _runner_failed(exc, tasks, records, say)
+            return
         rec = records[out["name"]]
         if "tree" in out:
-            tree = out["tree"]
-            tree.attrs[BATCH_ATTR] = json.dumps({
-                "fingerprint": rec.pop("fingerprint"), "name": rec["name"],
-                "seed": rec["seed"], "data": rec["data"]})
-            save_fit(tree, out_dir / f"{out['name']}.nc")
-            rec.update(status="fitted", **_outcome(fit_info(tree)),
-                       seconds=out["seconds"], warnings=out["warnings"])
+            _save(out, rec, out_dir)
         else:
             rec.pop("fingerprint", None)
             rec.update({k2: v for k2, v in out.items() if k2 != "name"}, fit_file=None)
@@ -509,3 +512,37 @@ def _run(runner: Runner, tasks: list[dict], settings: FitSettings, records: dict
         say.label = (f"ETA {elapsed / k * (len(tasks) - k):.0f} s" if k < len(tasks)
                      else "done")
         say.advance()
+
+
+def _save(out: dict, rec: dict, out_dir: Path) -> None:
+    """Write a worker's fit, stamped with what made it, and fill in its record."""
+    tree = out["tree"]
+    tree.attrs[BATCH_ATTR] = json.dumps({"fingerprint": rec.pop("fingerprint"),
+                                         "name": rec["name"], "seed": rec["seed"],
+                                         "data": rec["data"]})
+    path = out_dir / f"{out['name']}.nc"
+    try:
+        save_fit(tree, path)
+    except OSError as exc:  # a full disk, a read-only folder: this fit is lost, not others
+        rec.update(_failure(exc), fit_file=None,
+                   error=f"{path}: cannot write the fit of {rec['data']}: {exc}")
+        return
+    rec.update(status="fitted", **_outcome(fit_info(tree)), seconds=out["seconds"],
+               warnings=out["warnings"])
+
+
+def _runner_failed(exc: Exception, tasks: list[dict], records: dict, say: Progress) -> None:
+    """Mark the data sets left when the runner broke (a worker killed, out of memory):
+    the fits written so far stay, and the same call fits the others."""
+    if say.enabled:  # end the progress line
+        print(file=say.stream if say.stream is not None else sys.stderr, flush=True)
+    say.say(f"the runner failed ({type(exc).__name__}); the data sets left are reported")
+    for t in tasks:
+        rec = records[t["name"]]
+        if rec["status"] is None:
+            rec.pop("fingerprint", None)
+            rec.update(status="failed", fit_file=None, error_type=type(exc).__name__,
+                       error=f"{rec['data']}: not fitted: the runner failed before this data "
+                             f"set's fit came back ({type(exc).__name__}: {exc}); a worker "
+                             "may have been killed or run out of memory. Run the same batch "
+                             "again: the fits written are kept and the others are fitted")

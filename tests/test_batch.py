@@ -16,7 +16,7 @@ from pmabayes.batch import BatchError, BatchJob, dask_client, dataset_seed, fit_
 from pmabayes.cli import main
 from pmabayes.data import load, save
 from pmabayes.effects import EffectError
-from pmabayes.fit import FitSettings, fit
+from pmabayes.fit import FitError, FitSettings, fit
 from pmabayes.posterior import fit_info, load_fit
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
@@ -106,6 +106,46 @@ def test_unreadable_data_sets_are_reported_each_with_its_file(tmp_path):
         assert rec["fit_file"] is None and "traceback" not in rec
     assert "position_m" in res.records[0]["error"]
     json.dumps(res.summary())  # JSON-able as it is
+
+
+def _fake_fit(dataset, model, *, seed, settings):
+    """Stands in for the sampler (forked workers inherit it): a bug, or bad data."""
+    if dataset.metadata.get("kind") == "bug":
+        raise ZeroDivisionError("a bug")
+    raise FitError(f"{dataset.source}: this data set cannot be fitted")
+
+
+def _tiny_jobs(kinds) -> list[BatchJob]:
+    jobs = []
+    for i, kind in enumerate(kinds):
+        ds = generate_chirp_dataset(n_trials=2, seed=i, chirp=CHIRP)
+        ds = replace(ds, metadata={**ds.metadata, "kind": kind}, source=f"{kind}_{i}.csv")
+        jobs.append(BatchJob(ds, name=f"{kind}_{i}"))
+    return jobs
+
+
+@pytest.mark.parametrize("processes", [1, 2])
+def test_a_fit_that_raises_is_reported_and_a_bug_keeps_its_traceback(tmp_path, monkeypatch,
+                                                                      processes):
+    monkeypatch.setattr(batch, "fit", _fake_fit)
+    res = fit_batch(_tiny_jobs(["bug", "bad"]), out_dir=tmp_path, processes=processes,
+                    progress=False)
+    bug, bad = res.records
+    assert (bug["status"], bug["error_type"], bad["status"], bad["error_type"]) == (
+        "failed", "ZeroDivisionError", "failed", "FitError")
+    assert "ZeroDivisionError: a bug" in bug["traceback"] and "_fake_fit" in bug["traceback"]
+    assert "traceback" not in bad and bad["error"] == "bad_1.csv: this data set cannot be fitted"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_worker_that_dies_fails_the_data_sets_left_with_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(batch, "fit", lambda *a, **k: os._exit(3))  # killed, out of memory
+    res = fit_batch(_tiny_jobs(["dies", "dies"]), out_dir=tmp_path, processes=2,
+                    progress=False)
+    for rec in res.records:
+        assert rec["status"] == "failed" and rec["error_type"] == "BrokenProcessPool"
+        assert "not fitted: the runner failed" in rec["error"] and "again" in rec["error"]
+        assert rec["data"] in rec["error"]
 
 
 def test_cli_batch_reports_failures_and_exits_1(tmp_path, capsys):
