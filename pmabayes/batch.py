@@ -409,6 +409,7 @@ def fit_batch(
     start = time.perf_counter()
     if sum(x is not None for x in (processes, dask, runner)) > 1:
         raise BatchError("give at most one of processes, dask and runner")
+    dataset_seed(seed, "")  # a bad seed is refused before any work
     settings = FitSettings() if settings is None else settings
     jobs = [_as_job(j, tuple(effects)) for j in jobs]
     for job in jobs:
@@ -421,7 +422,6 @@ def fit_batch(
     names = _unique_names(jobs)
     say = Progress("batch", progress)
     records, tasks = _prepare(jobs, names, out_dir, settings, seed, restart, say)
-    out_dir.mkdir(parents=True, exist_ok=True)
     description = "nothing to fit"
     if tasks:
         with contextlib.ExitStack() as stack:
@@ -430,6 +430,7 @@ def fit_batch(
                 runner = stack.enter_context(Runner(processes, client=client,
                                                     tasks=len(tasks)))
             description = runner.description
+            out_dir.mkdir(parents=True, exist_ok=True)
             fit_settings = replace(settings, progress=False,
                                    processes=settings.processes if runner.local else 1)
             _run(runner, tasks, fit_settings, records, out_dir, say, description)

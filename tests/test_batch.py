@@ -84,6 +84,8 @@ def test_names_must_be_unique_and_are_checked_before_any_work(tmp_path):
         fit_batch([BatchJob(ds, name="sub/pma")], out_dir=out, processes=1, progress=False)
     with pytest.raises(EffectError):
         fit_batch([a], out_dir=out, effects=["no_such_effect"], processes=1, progress=False)
+    with pytest.raises(ValueError, match="integer >= 0"):
+        fit_batch([a], out_dir=out, seed=-1, processes=1, progress=False)
     with pytest.raises(BatchError, match="at most one"):
         fit_batch([a], out_dir=out, processes=1, dask="tcp://127.0.0.1:1", progress=False)
     assert not out.exists()
@@ -177,7 +179,7 @@ def test_an_unreachable_scheduler_is_a_clear_error_within_the_timeout(tmp_path, 
     err = capsys.readouterr().err
     assert "--dask 127.0.0.1:1: cannot reach a Dask scheduler there within 1 s" in err
     assert "--processes N" in err
-    assert not (tmp_path / "fits" / "pma_a.nc").exists()
+    assert not (tmp_path / "fits").exists()
 
 
 # ---------------------------------------------------------------------------------
