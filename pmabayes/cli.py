@@ -663,8 +663,9 @@ def _batch_commands(sub) -> None:
     """The ``batch`` subcommand: many independent data sets, one fit each."""
     bat = sub.add_parser("batch", help="fit many independent data sets, each alone, on local "
                          "processes or a Dask cluster")
-    bat.add_argument("data", nargs="+", help="data files (.csv with optional .json sidecar, "
-                     "or .nc); each fit is written to OUT/<file stem>.nc")
+    bat.add_argument("data", nargs="+", help="data files: .csv, .nc or MATLAB .mat (v4-v7.3), "
+                     "each with an optional .json sidecar of the same stem; each fit is "
+                     "written to OUT/<file stem>.nc")
     bat.add_argument("--out", required=True, help="output folder of the fits")
     _fit_options(bat)
     bat.add_argument("--processes", type=_positive, default=None,
