@@ -36,7 +36,7 @@ import sys
 import time
 import traceback
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
@@ -50,6 +50,7 @@ from pmabayes.fit import FitError, FitSettings, fit
 from pmabayes.likelihood import LikelihoodError
 from pmabayes.model import Model, ModelError
 from pmabayes.parallel import Runner
+from pmabayes.parameters import Prior
 from pmabayes.posterior import fit_info, save_fit
 from pmabayes.simulator import SimulationError
 from pmabayes.util import Progress, fingerprint
@@ -82,11 +83,14 @@ class BatchJob:
     name : str, optional
         Names the fit file (``<name>.nc``) and derives the seed; by default the
         file's stem (the data set's ``source`` stem for a Dataset).
+    priors : mapping of str to Prior, optional
+        Overrides of the default priors, by parameter name.
     """
 
     data: str | Path | Dataset
     effects: tuple[str, ...] = ()
     name: str | None = None
+    priors: Mapping[str, Prior] | None = None
 
     def resolved_name(self) -> str:
         """The data set's name: ``name``, else the stem of its file.
@@ -266,11 +270,11 @@ def _jsonable(obj):
     return obj
 
 
-def _as_job(item, effects: tuple[str, ...]) -> BatchJob:
+def _as_job(item, effects: tuple[str, ...], priors: Mapping[str, Prior] | None) -> BatchJob:
     if isinstance(item, BatchJob):
         return item
     if isinstance(item, (str, Path, Dataset)):
-        return BatchJob(item, effects)
+        return BatchJob(item, effects, priors=priors)
     raise TypeError(f"a batch job is a data file, a Dataset or a BatchJob, got "
                     f"{type(item).__name__}")
 
@@ -350,6 +354,7 @@ def fit_batch(
     settings: FitSettings | None = None,
     seed: int = 0,
     effects: Iterable[str] = (),
+    priors: Mapping[str, Prior] | None = None,
     processes: int | None = None,
     dask: str | None = None,
     runner: Runner | None = None,
@@ -374,6 +379,8 @@ def fit_batch(
         data set's name.
     effects : iterable of str
         Effects added to the base model of jobs given as files or data sets.
+    priors : mapping of str to Prior, optional
+        Prior overrides of jobs given as files or data sets.
     processes : int, optional
         Local worker processes (the cores this process may use by default).
     dask : str, optional
@@ -411,7 +418,7 @@ def fit_batch(
         raise BatchError("give at most one of processes, dask and runner")
     dataset_seed(seed, "")  # a bad seed is refused before any work
     settings = FitSettings() if settings is None else settings
-    jobs = [_as_job(j, tuple(effects)) for j in jobs]
+    jobs = [_as_job(j, tuple(effects), priors) for j in jobs]
     for job in jobs:
         for name in job.effects:
             get_effect(name)  # a wrong name is the call's error, not a data set's
@@ -467,11 +474,13 @@ def _prepare(jobs: list[BatchJob], names: list[str], out_dir: Path, settings: Fi
         s = dataset_seed(seed, name)
         path = out_dir / f"{name}.nc"
         rec = {"name": name, "data": job.where, "status": None, "seed": s,
-               "effects": list(job.effects), "fit_file": str(path)}
+               "effects": list(job.effects),
+               "priors": {k: str(v) for k, v in (job.priors or {}).items()},
+               "fit_file": str(path)}
         records[name] = rec
         try:
             dataset = job.data if isinstance(job.data, Dataset) else load(job.data)
-            model = Model.for_dataset(dataset, job.effects)
+            model = Model.for_dataset(dataset, job.effects, priors=job.priors)
         except (*_DATA_ERRORS, OSError) as exc:
             rec.update(_failure(exc), fit_file=None)
             continue

@@ -630,7 +630,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         raise CliError("give --processes or --dask, not both")
     effects = tuple(args.effects)
     try:
-        result = fit_batch([BatchJob(d, effects) for d in args.data], out_dir=out,
+        result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],
+                           out_dir=out,
                            settings=_fit_settings(args), seed=args.seed,
                            processes=args.processes, dask=args.dask, restart=args.restart,
                            progress=not args.quiet)

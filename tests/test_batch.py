@@ -17,6 +17,7 @@ from pmabayes.cli import main
 from pmabayes.data import load, save
 from pmabayes.effects import EffectError
 from pmabayes.fit import FitError, FitSettings, fit
+from pmabayes.parameters import parse_prior
 from pmabayes.posterior import fit_info, load_fit
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
@@ -68,6 +69,24 @@ def test_dataset_seed_depends_on_the_batch_seed_and_the_name_only():
     assert len(seeds) == 4 and all(0 <= s < 2**63 for s in seeds)
     with pytest.raises(ValueError, match="integer >= 0"):
         dataset_seed(-1, "pma_a")
+
+
+def test_the_fingerprint_changes_with_what_changes_a_fit():
+    ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
+    key = batch._fit_fingerprint(ds, Model(), 5, TINY)
+    # the runner's processes and the progress do not change a fit
+    assert batch._fit_fingerprint(ds, Model(), 5, replace(TINY, processes=1,
+                                                          progress=True)) == key
+    other_data = generate_chirp_dataset(n_trials=2, seed=2, chirp=CHIRP)
+    changed = [
+        batch._fit_fingerprint(other_data, Model(), 5, TINY),
+        batch._fit_fingerprint(ds, Model(["regulator_lag"]), 5, TINY),
+        batch._fit_fingerprint(ds, Model(priors={"K_e": parse_prior("LogNormal(5e4, 2)")}),
+                               5, TINY),
+        batch._fit_fingerprint(ds, Model(), 6, TINY),
+        batch._fit_fingerprint(ds, Model(), 5, replace(TINY, max_steps=60)),
+    ]
+    assert key not in changed and len(set(changed)) == len(changed)
 
 
 def test_names_must_be_unique_and_are_checked_before_any_work(tmp_path):
