@@ -628,13 +628,16 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     out = _out_folder(args.out)
     if args.processes is not None and args.dask is not None:
         raise CliError("give --processes or --dask, not both")
+    if args.tie_noise:
+        raise CliError("--tie-noise: each data set of a batch is fitted alone, as one "
+                       "experiment; to fit experiments together use `pmabayes fit A B ...`")
     effects = tuple(args.effects)
     try:
         result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],
                            out_dir=out,
                            settings=_fit_settings(args), seed=args.seed,
                            processes=args.processes, dask=args.dask, restart=args.restart,
-                           progress=not args.quiet)
+                           progress=not args.quiet, substeps=args.substeps)
     except BatchError as err:
         raise CliError(str(err)) from None
     summary = result.summary()

@@ -85,6 +85,7 @@ def test_the_fingerprint_changes_with_what_changes_a_fit():
                                5, TINY),
         batch._fit_fingerprint(ds, Model(), 6, TINY),
         batch._fit_fingerprint(ds, Model(), 5, replace(TINY, max_steps=60)),
+        batch._fit_fingerprint(ds, Model(), 5, TINY, substeps=2),
     ]
     assert key not in changed and len(set(changed)) == len(changed)
 
@@ -129,7 +130,7 @@ def test_unreadable_data_sets_are_reported_each_with_its_file(tmp_path):
     json.dumps(res.summary())  # JSON-able as it is
 
 
-def _fake_fit(dataset, model, *, seed, settings):
+def _fake_fit(dataset, model, *, seed, settings, substeps):
     """Stands in for the sampler (forked workers inherit it): a bug, or bad data."""
     if dataset.metadata.get("kind") == "bug":
         raise ZeroDivisionError("a bug")
@@ -181,6 +182,8 @@ def test_cli_batch_reports_failures_and_exits_1(tmp_path, capsys):
     assert main(["batch", "x.csv", "--out", str(tmp_path / "f"), "--processes", "2",
                  "--dask", "tcp://127.0.0.1:1"]) == 2
     assert "not both" in capsys.readouterr().err
+    assert main(["batch", "x.csv", "--out", str(tmp_path / "f"), "--tie-noise"]) == 2
+    assert "fitted alone" in capsys.readouterr().err
 
 
 def test_an_unreachable_scheduler_is_a_clear_error_within_the_timeout(tmp_path, capsys,
