@@ -429,7 +429,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     tree = load_fit(args.fit)
     datasets = [load(path) for path in args.data]
     result = validate(tree, datasets, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
-                      noise_from=args.noise_from)
+                      noise_from=args.noise_from, substeps=args.substeps)
     print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
           f"{len(datasets)} held-out experiment(s), {args.draws} posterior draws each:")
     for line in result.lines():
@@ -476,6 +476,8 @@ def _validation_commands(sub) -> None:
                      "else all pooled)")
     val.add_argument("--seed", type=_seed, default=0,
                      help="seed of the draws' choice and the predictive noise (0)")
+    val.add_argument("--substeps", type=_positive, default=1,
+                     help="simulator steps per sample interval, as the fit used (1)")
     val.set_defaults(func=_cmd_validate)
 
 

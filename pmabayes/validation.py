@@ -183,12 +183,12 @@ class ExperimentValidation:
 
     def summary(self) -> str:
         """One line for the command line: error, floor, NRMSE and coverage."""
-        floor = ("no noise floor (one trial)" if self.noise_floor_m is None
-                 else f"{self.ratio_to_floor:.3g}x the noise floor "
+        floor = ("(no noise floor: one trial)" if self.noise_floor_m is None
+                 else f"= {self.ratio_to_floor:.3g}x the noise floor "
                       f"{self.noise_floor_m * 1e6:.3g} um")
         synth = ", synthetic" if self.synthetic else ""
         return (f"{self.name}: {self.n_trials} trial(s) x {self.n_samples} samples"
-                f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um = "
+                f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um "
                 f"{floor}; NRMSE {self.nrmse:.3g}; {100 * self.band_coverage:.1f}% of the "
                 f"samples inside the {100 * self.ci_prob:.4g}% predictive band")
 
@@ -490,7 +490,7 @@ def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list) -> list | Non
 
 
 def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,
-         rng: np.random.Generator, tree: xr.DataTree) -> ExperimentValidation:
+         substeps: int, rng: np.random.Generator, tree: xr.DataTree) -> ExperimentValidation:
     where = ds.source or "held-out data set"
     model = _check_dataset(fit, ds, where)
     try:
@@ -504,7 +504,7 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
     columns, noise_text = _noise_columns(fit, ds, model.rig, noise_from, where)
     pick = rng.choice(fit.n_total, size=min(n_draws, fit.n_total), replace=False)
     theta = model.theta({n: fit.draws[n][pick] for n in model.free_names})
-    x = simulate_dataset(model, theta, ds)
+    x = simulate_dataset(model, theta, ds, substeps=substeps)
     sigma, rho, white, fit_dt = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
     ok = np.all(np.isfinite(x), axis=1)
@@ -567,6 +567,7 @@ def validate(
     seed: int | None = 0,
     rng: np.random.Generator | None = None,
     noise_from: str | None = None,
+    substeps: int = 1,
 ) -> Validation:
     """Predict held-out experiments with a fit's posterior and compare with their data.
 
@@ -591,6 +592,9 @@ def validate(
         For a fit of several experiments: the fitted experiment whose noise makes the
         predictive band (by default the one on the held-out data's rig; see the
         module's docstring).
+    substeps : int
+        Simulator steps per sample interval (see :func:`pmabayes.simulate`): as many
+        as the fit used, for a lightly damped fast oscillator more than 1.
 
     Returns
     -------
@@ -627,9 +631,10 @@ def validate(
     if rng is None:
         rng = np.random.default_rng(seed)
     experiments = [_one(fit, ds, n_draws=int(n_draws), ci_prob=ci_prob,
-                        noise_from=noise_from, rng=rng, tree=tree) for ds in datasets]
+                        noise_from=noise_from, substeps=substeps, rng=rng, tree=tree)
+                   for ds in datasets]
     return Validation(
         experiments=experiments, fit_source=fit_path or fit.source, effects=fit.effects,
         settings={"n_draws": int(n_draws), "ci_prob": ci_prob,
                   "seed": recorded_seed,
-                  "noise_from": noise_from})
+                  "noise_from": noise_from, "substeps": substeps})
