@@ -421,6 +421,12 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
             f"{where}: the sidecar's rig ({model.rig.name}) is {model.rig.input_kind}-driven "
             f"but the input column is {ds.input_name!r}; correct the sidecar's 'rig' or the "
             "input column")
+    per_experiment = [n for n in model.free_names if n in fit.draws and fit.draws[n].ndim > 1]
+    if per_experiment:
+        raise ValidationError(
+            f"{where}: the fit's {', '.join(per_experiment)} differ between its experiments, "
+            "so there is no one value to predict a new experiment with; validation needs "
+            "physical parameters shared by the fitted experiments")
     lacking = [n for n in model.free_names if n not in fit.draws]
     if lacking:
         raise ValidationError(
@@ -443,8 +449,9 @@ def _noise_columns(fit: _FitDraws, ds: Dataset, rig: Rig, noise_from: str | None
     if not fit.experiments:
         if noise_from is not None:
             raise ValidationError(
-                f"noise_from={noise_from!r}: this fit has one noise (it was fitted to one "
-                "experiment), so there is nothing to choose; leave --noise-from out")
+                f"noise_from={noise_from!r}: this fit has one noise for all its data (one "
+                "experiment, or a noise tied across experiments), so there is nothing to "
+                "choose; leave --noise-from out")
         return None, "the fit's noise"
     names = [e["name"] for e in fit.experiments]
     if noise_from is not None:
@@ -528,9 +535,13 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                      "used per sample as it is")
     k = _NOISE_PER_DRAW
     n = ds.n_samples
-    noise = ar1_noise(x.shape[0] * k, n, np.repeat(sigma, k), np.repeat(rho, k), rng)
-    noise += np.repeat(white, k)[:, None] * rng.standard_normal(noise.shape)
-    y = np.repeat(x, k, axis=0) + noise
+    # in place: a long record (40,960 samples) times hundreds of series is large
+    y = ar1_noise(x.shape[0] * k, n, np.repeat(sigma, k), np.repeat(rho, k), rng)
+    w = rng.standard_normal(y.shape)
+    w *= np.repeat(white, k)[:, None]
+    y += w
+    del w
+    y.reshape(x.shape[0], k, n)[...] += x[:, None, :]
     q = (1.0 - ci_prob) / 2.0
     low, high = np.quantile(y, [q, 1.0 - q], axis=0)
     model_low, model_high = np.quantile(x, [q, 1.0 - q], axis=0)

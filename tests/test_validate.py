@@ -180,6 +180,11 @@ def test_multi_experiment_fit_takes_the_noise_of_the_matching_rig(held_out_sets)
     assert "pooled over all" in pooled.noise["from"]
     with pytest.raises(ValidationError, match="names no fitted experiment.*chirp, sine_loaded"):
         validate(tree, loaded, noise_from="nope")
+    post = tree["posterior"].to_dataset()
+    post["K_e"] = post["K_e"].expand_dims(experiment=["chirp", "sine_loaded"], axis=-1)
+    tree["posterior"] = type(tree)(post)
+    with pytest.raises(ValidationError, match="K_e differ between its experiments"):
+        validate(tree, loaded)
 
 
 def test_the_fit_own_data_is_flagged_as_not_held_out(tmp_path):
