@@ -54,7 +54,8 @@ from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
 from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
 from pmabayes.likelihood import LikelihoodError
-from pmabayes.model import Model, ModelError
+from pmabayes.model import BASE_PARAMETERS, Model, ModelError
+from pmabayes.parameters import Prior, parse_prior
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
@@ -135,6 +136,23 @@ def _write_json(path: str | Path, obj: object) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(obj, indent=2) + "\n")
+
+
+def _prior(text: str) -> tuple[str, Prior]:
+    """argparse type of ``--prior NAME=SPEC``, e.g. ``alpha=LogNormal(5e4, 2)``."""
+    name, sep, spec = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(
+            f"{text!r} must look like NAME=SPEC, e.g. alpha='LogNormal(5e4, 2)'")
+    try:
+        return name.strip(), parse_prior(spec)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _model_for(dataset: Dataset, args: argparse.Namespace) -> Model:
+    """The model of a fitting command: the data's rig, the effects and priors asked for."""
+    return Model.for_dataset(dataset, args.effects, priors=dict(args.prior))
 
 
 def _effect_list(text: str) -> list[str]:
@@ -247,7 +265,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
                        "to write (e.g. fit.nc)")
     dataset = load(args.data)
-    model = Model.for_dataset(dataset, args.effects)
+    model = _model_for(dataset, args)
     with _created(out.parent):
         _do_fit(args, dataset, model, out)
     return 0
@@ -271,7 +289,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = _out_folder(args.out)
     dataset = load(args.data)  # the input is read and checked before anything is made
-    model = Model.for_dataset(dataset, args.effects)
+    model = _model_for(dataset, args)
     with _created(out):
         tree = _do_fit(args, dataset, model, out / "fit.nc")
     index = write_report(tree, out, dataset=dataset)
@@ -286,7 +304,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.out:
         _out_folder(args.out)
     dataset = load(args.data)
-    result = diagnose(dataset, Model.for_dataset(dataset, args.effects),
+    result = diagnose(dataset, _model_for(dataset, args),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
     summary = result.to_dict()
@@ -355,9 +373,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_effects(args: argparse.Namespace) -> int:
-    for name, eff in sorted(registered_effects().items()):
-        print(f"{name} [{eff.stage}]")
-        for p in eff.parameters:
+    groups = [("base model (p_dz only with a pressure input)", BASE_PARAMETERS)]
+    groups += [(f"{name} [{eff.stage}]", eff.parameters)
+               for name, eff in sorted(registered_effects().items())]
+    for title, parameters in groups:
+        print(title)
+        for p in parameters:
             fixed = " (fixed by default)" if not p.vary else ""
             print(f"    {p.name} [{p.unit}] default {p.default:g}, prior {p.prior}{fixed}: "
                   f"{p.description}")
@@ -527,11 +548,20 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _prior_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prior", action="append", default=[], type=_prior,
+                   metavar="NAME=SPEC",
+                   help="replace a parameter's prior, e.g. --prior 'K_e=LogNormal(5e4, 2)' "
+                   "(Uniform(low, high), Normal(mu, sigma), LogNormal(median, sigma), "
+                   "HalfNormal(sigma); repeatable); `pmabayes effects` lists the defaults")
+
+
 def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effects", default="", type=_effect_list,
                    help="comma-separated effects to add to the base model")
     p.add_argument("--seed", type=_seed, default=0,
                    help="seed of everything random (0)")
+    _prior_option(p)
     p.add_argument("--walkers", type=int, default=32, help="walkers per ensemble (32)")
     p.add_argument("--ensembles", type=_positive, default=2,
                    help="independent ensembles, for R-hat across them (2)")
@@ -586,6 +616,7 @@ def _criticism_commands(sub) -> None:
     diag.add_argument("--out", help="folder for the figures and an HTML page")
     diag.add_argument("--json", help="write a machine-readable summary here")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
+    _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
     diag.set_defaults(func=_cmd_diagnose)
 

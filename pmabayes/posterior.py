@@ -52,7 +52,7 @@ from pmabayes import __version__
 from pmabayes.data import DataError, Dataset
 from pmabayes.likelihood import NOISE_PARAMETERS, Likelihood, ar1_noise
 from pmabayes.model import PAPER_VALUES, Model, Rig
-from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior
+from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior, parse_prior
 
 __all__ = ["Posterior", "NoiseEstimate", "fit_tree", "set_fit_info", "save_fit", "load_fit",
            "fit_info", "model_from_fit", "check_dataset", "FitFileError"]
@@ -516,14 +516,19 @@ def model_from_fit(tree: xr.DataTree) -> Model:
     Returns
     -------
     Model
-        Priors are the effects' defaults; user effects must be registered first
+        Priors are those the fit used; user effects must be registered first
         (``pmabayes --plugin FILE.py`` on the command line).
     """
     m = fit_info(tree).get("model") or {}
     rig = m.get("rig")
-    return Model(list(m.get("effects") or []),
-                 rig=Rig.from_dict(rig) if isinstance(rig, dict) else None,
-                 fixed=m.get("fixed") or None)
+    kwargs = {"rig": Rig.from_dict(rig) if isinstance(rig, dict) else None,
+              "fixed": m.get("fixed") or None}
+    model = Model(list(m.get("effects") or []), **kwargs)
+    # the priors the fit used (a user's --prior), where they differ from the defaults
+    priors = {row["name"]: parse_prior(row["prior"]) for row in m.get("parameters") or []
+              if row.get("name") in model.priors and row.get("prior")
+              and row["prior"] != str(model.priors[row["name"]])}
+    return Model(list(m.get("effects") or []), priors=priors, **kwargs) if priors else model
 
 
 def check_dataset(tree: xr.DataTree, dataset: Dataset) -> None:
