@@ -62,7 +62,7 @@ from pmabayes.data import DataError, Dataset, DataWarning, load
 from pmabayes.effects import EffectError
 from pmabayes.likelihood import ar1_noise
 from pmabayes.model import Model, ModelError, Rig
-from pmabayes.posterior import check_dataset, fit_info, load_fit
+from pmabayes.posterior import check_dataset, fit_info, load_fit, model_from_fit
 from pmabayes.residuals import band_errors
 from pmabayes.simulator import simulate_dataset
 
@@ -314,7 +314,7 @@ def _json_float(value) -> float | None:
 class _FitDraws:
     """What validation reads from a fit: the model's recipe and flattened draws."""
 
-    effects: tuple
+    effects: tuple       # Effect classes
     fixed: dict
     input_kind: str | None
     draws: dict          # model parameter -> (n_total,)
@@ -361,9 +361,15 @@ def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
         raise ValidationError(f"{where}: the fit has no posterior group; write it with "
                               "`pmabayes fit`")
     post = tree["posterior"].to_dataset()
-    m = info.get("model") or {}
-    rig = m.get("rig")
-    input_kind = rig.get("input_kind") if isinstance(rig, Mapping) else None
+    try:  # the fit's effects and fixed values, read where every command reads them
+        fitted = model_from_fit(tree)
+    except EffectError as err:
+        raise ValidationError(f"{where}: the fit's effects cannot be built: {err}; register "
+                              "a user effect first (pmabayes --plugin FILE.py)") from None
+    except ModelError as err:
+        raise ValidationError(f"{where}: the fit's model cannot be rebuilt: {err}") from None
+    rig = (info.get("model") or {}).get("rig")
+    input_kind = fitted.rig.input_kind if isinstance(rig, Mapping) else None
     exp_names: list = []
     missing = [n for n in NOISE_NAMES if n not in post.data_vars]
     if missing:
@@ -392,7 +398,7 @@ def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
     data = info.get("data") or {}
     n_total = next(iter(noise.values())).shape[0]
     return _FitDraws(
-        effects=tuple(m.get("effects") or ()), fixed=dict(m.get("fixed") or {}),
+        effects=fitted.effects, fixed=dict(fitted.fixed),
         input_kind=input_kind, draws=draws, noise=noise, experiments=experiments,
         dt_s=data.get("dt_s"), source=data.get("source"), n_total=n_total)
 
@@ -409,10 +415,7 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
             f"{fit.input_kind}-driven rig; a fit can only predict data of its own input kind: "
             "validate it on data with the same input column")
     try:
-        model = Model(list(fit.effects), rig=Model.for_dataset(ds).rig, fixed=fit.fixed)
-    except EffectError as err:
-        raise ValidationError(f"{where}: the fit's effects cannot be built: {err}; register "
-                              "a user effect first (pmabayes --plugin FILE.py)") from None
+        model = Model(fit.effects, rig=Model.for_dataset(ds).rig, fixed=fit.fixed)
     except ModelError as err:
         raise ValidationError(f"{where}: the fit's model cannot be built on this data set's "
                               f"rig: {err}") from None
@@ -645,7 +648,8 @@ def validate(
                         noise_from=noise_from, substeps=substeps, rng=rng, tree=tree)
                    for ds in datasets]
     return Validation(
-        experiments=experiments, fit_source=fit_path or fit.source, effects=fit.effects,
+        experiments=experiments, fit_source=fit_path or fit.source,
+        effects=tuple(e.name for e in fit.effects),
         settings={"n_draws": int(n_draws), "ci_prob": ci_prob,
                   "seed": recorded_seed,
                   "noise_from": noise_from, "substeps": substeps})

@@ -58,11 +58,13 @@ def held_out(pressure: np.ndarray, *, n_trials: int = 5, seed: int = 1, rig: Rig
                    source=source)
 
 
-def plant_fit(effects=(), spread: float = 2e-4, seed: int = 0, n_time: int = 400, **kw):
+def plant_fit(effects=(), values=None, spread: float = 2e-4, seed: int = 0, n_time: int = 400,
+              **kw):
     """A fit-like tree tight around the plant's values, with the generator's noise."""
     model = Model(list(effects))
+    centre = {**model.defaults, **(values or {})}
     params = {n: (model.parameter(n).unit, v, spread * abs(v))
-              for n, v in model.defaults.items() if n in model.free_names}
+              for n, v in centre.items() if n in model.free_names}
     params["sigma_noise_m"] = ("m", NOISE.disturbance_std_m, 0.03 * NOISE.disturbance_std_m)
     params["rho_noise"] = ("1", RHO, 1e-4)
     params["sigma_white_m"] = ("m", WHITE_M, 0.03 * WHITE_M)
@@ -100,6 +102,14 @@ def test_a_wrong_model_is_far_above_the_floor_with_low_coverage(fit_tree):
     e = validate(fit_tree, lagged, n_draws=100, seed=0).experiments[0]
     assert e.rmse_m > 10 * e.noise_floor_m
     assert e.band_coverage < 0.5
+
+
+def test_the_model_with_the_missing_effects_predicts_to_the_floor():
+    lab = {"regulator_lag": 0.045, "coulomb_friction": 0.8}
+    tree = plant_fit(tuple(lab), values={"tau_reg": 0.045, "F_c": 0.8})
+    data = held_out(sine_pa(1.0, 4.0), source="lab_sine.csv", effects=lab, rig=Rig.control())
+    e = validate(tree, data, n_draws=100, seed=0).experiments[0]
+    assert 0.8 <= e.band_coverage <= 0.97 and e.rmse_m < 1.5 * e.noise_floor_m
 
 
 def test_json_keys_and_nulls(fit_tree):
