@@ -576,13 +576,15 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
 
 def _fit_commands(sub) -> None:
     run = sub.add_parser("run", help="the main job: fit a data set and write the report")
-    run.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    run.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
+                     "optional .json sidecar of the same stem")
     run.add_argument("--out", required=True, help="output folder (fit.nc and the report)")
     _fit_options(run)
     run.set_defaults(func=_cmd_run)
 
     fitp = sub.add_parser("fit", help="identify the parameters: MAP and posterior")
-    fitp.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    fitp.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
+                      "optional .json sidecar of the same stem")
     fitp.add_argument("--out", required=True, help="the fit, a NetCDF file (FIT.nc)")
     _fit_options(fitp)
     fitp.set_defaults(func=_cmd_fit)
@@ -595,7 +597,8 @@ def _fit_commands(sub) -> None:
 
     pred = sub.add_parser("predict", help="simulate the model on a data set's input and "
                           "compare (no fitting)")
-    pred.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    pred.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
+                      "optional .json sidecar of the same stem")
     pred.add_argument("--out", required=True, help="output folder")
     pred.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
@@ -608,7 +611,8 @@ def _fit_commands(sub) -> None:
 def _criticism_commands(sub) -> None:
     diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
                           "effect is missing")
-    diag.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    diag.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
+                      "optional .json sidecar of the same stem")
     diag.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
     diag.add_argument("--candidates", default="", type=_effect_list,
