@@ -415,7 +415,7 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
             f"{fit.input_kind}-driven rig; a fit can only predict data of its own input kind: "
             "validate it on data with the same input column")
     try:
-        model = Model(fit.effects, rig=Model.for_dataset(ds).rig, fixed=fit.fixed)
+        model = Model.for_dataset(ds, fit.effects, fixed=fit.fixed)
     except ModelError as err:
         raise ValidationError(f"{where}: the fit's model cannot be built on this data set's "
                               f"rig: {err}") from None
