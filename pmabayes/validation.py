@@ -317,7 +317,7 @@ class _FitDraws:
     effects: tuple       # Effect classes
     fixed: dict
     input_kind: str | None
-    draws: dict          # model parameter -> (n_total,)
+    draws: dict          # posterior variable -> DataArray (chain, draw[, experiment])
     noise: dict          # noise name -> (n_total,) or (n_total, n_experiment)
     experiments: list    # [{"name", "rig_name", "dt_s"}], one per noise column
     dt_s: float | None   # the fit's sample interval (single-experiment fits)
@@ -394,7 +394,9 @@ def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
             kinds.add(e["rig"].get("input_kind"))
     if input_kind is None and len(kinds) == 1:
         input_kind = kinds.pop()
-    draws = {n: _flat(v, n, where) for n, v in post.data_vars.items() if n not in NOISE_NAMES}
+    # the model's parameters are flattened when a held-out data set asks for them: other
+    # variables a fit may hold are not this module's business
+    draws = {n: v for n, v in post.data_vars.items() if n not in NOISE_NAMES}
     data = info.get("data") or {}
     n_total = next(iter(noise.values())).shape[0]
     return _FitDraws(
@@ -424,7 +426,8 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
             f"{where}: the sidecar's rig ({model.rig.name}) is {model.rig.input_kind}-driven "
             f"but the input column is {ds.input_name!r}; correct the sidecar's 'rig' or the "
             "input column")
-    per_experiment = [n for n in model.free_names if n in fit.draws and fit.draws[n].ndim > 1]
+    per_experiment = [n for n in model.free_names
+                      if n in fit.draws and set(fit.draws[n].dims) - {"chain", "draw"}]
     if per_experiment:
         raise ValidationError(
             f"{where}: the fit's {', '.join(per_experiment)} differ between its experiments, "
@@ -446,8 +449,8 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
     return model
 
 
-def _noise_columns(fit: _FitDraws, ds: Dataset, rig: Rig, noise_from: str | None,
-                   where: str) -> tuple[list[int] | None, str]:
+def _noise_columns(fit: _FitDraws, rig: Rig, noise_from: str | None
+                   ) -> tuple[list[int] | None, str]:
     """Which fitted experiments' noise a held-out data set takes, and why."""
     if not fit.experiments:
         if noise_from is not None:
@@ -511,9 +514,9 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
         warnings.warn(f"{where}: these are the data the fit was made from, not held-out "
                       "data; the numbers say how well it fits, not how well it predicts",
                       DataWarning, stacklevel=3)
-    columns, noise_text = _noise_columns(fit, ds, model.rig, noise_from, where)
+    columns, noise_text = _noise_columns(fit, model.rig, noise_from)
     pick = rng.choice(fit.n_total, size=min(n_draws, fit.n_total), replace=False)
-    theta = model.theta({n: fit.draws[n][pick] for n in model.free_names})
+    theta = model.theta({n: _flat(fit.draws[n], n, where)[pick] for n in model.free_names})
     x = simulate_dataset(model, theta, ds, substeps=substeps)
     sigma, rho, white, fit_dt = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
