@@ -496,10 +496,13 @@ def _noise_draws(fit: _FitDraws, pick: np.ndarray, columns: list[int] | None,
 
 def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list) -> list | None:
     try:
-        return [b.to_dict() for b in band_errors(ds, prediction)]
+        rows = [b.to_dict() for b in band_errors(ds, prediction)]
     except ValueError as err:
         notes.append(f"error per frequency band not available: {err}")
         return None
+    # JSON has no NaN: a number that cannot be had (a floor without repeats) is None
+    return [{k: _json_float(v) if isinstance(v, float) else v for k, v in row.items()}
+            for row in rows]
 
 
 def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,

@@ -115,7 +115,7 @@ def test_the_model_with_the_missing_effects_predicts_to_the_floor():
 def test_json_keys_and_nulls(fit_tree):
     single = held_out(steps_pa(4.0), n_trials=1, source="one_step.csv")
     v = validate(fit_tree, single, n_draws=50, seed=0)
-    d = json.loads(json.dumps(v.to_dict()))  # JSON-ready: no NaN, no numpy
+    d = json.loads(json.dumps(v.to_dict(), allow_nan=False))  # JSON-ready: no NaN, no numpy
     e = d["experiments"][0]
     for key in ("rmse_m", "nrmse", "noise_floor_m", "band_coverage", "band_errors",
                 "predictive_band", "source", "rig", "n_trials", "n_samples", "synthetic"):
