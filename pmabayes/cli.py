@@ -193,6 +193,7 @@ def load_plugin(spec: str) -> None:
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     from pmabayes.plots import plot_comparison  # matplotlib only where figures are made
+    from pmabayes.residuals import band_errors, band_label
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -212,6 +213,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "rms_m": float(np.sqrt(np.mean(resid**2))),
         "max_error_m": float(np.max(np.abs(resid))),
         "noise_floor_m": None if math.isnan(floor) else floor,  # JSON has no NaN
+        "bands": [b.to_dict() for b in band_errors(dataset, x)],
     }
     with _created(out):
         plot_comparison(dataset, x, label="model (paper values)" if not params else "model",
@@ -224,6 +226,10 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     print(f"model: base{' + ' + ' + '.join(model.effect_names) if model.effect_names else ''}")
     print(f"RMS error of the trial mean: {summary['rms_m'] * 1e6:.1f} um "
           f"({floor_text}, max error {summary['max_error_m'] * 1e6:.1f} um)")
+    for b in summary["bands"][:-1]:
+        print(f"  {band_label(tuple(b['band_hz'][:1]) + (b['band_hz'][1] or math.inf,)):>12s}: "
+              f"RMS {b['rms_m'] * 1e6:.1f} um = {b['nrms']:.3g} of the motion"
+              + (f", {b['ratio']:.3g}x the floor" if b["ratio"] is not None else ""))
     print(f"wrote {out / 'comparison.png'} and {out / 'summary.json'} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0

@@ -146,6 +146,9 @@ def plot_band_errors(
 ) -> Figure:
     """RMS error per frequency band for one or more models, beside the noise floor.
 
+    The bands are those of :func:`pmabayes.residuals.band_errors` (spectral, for
+    any input); with a single trial there is no floor and no ratio to draw.
+
     Parameters
     ----------
     errors : dict
@@ -173,17 +176,21 @@ def plot_band_errors(
         bars = ax.bar(xs - 0.4 + width * (i + 0.5), rms, width,
                       color=cmap(i / max(len(labels) - 1, 1)), label=label)
         for bar, row in zip(bars, errors[label], strict=True):
+            if not np.isfinite(row.ratio):  # one trial: no floor to compare with
+                continue
             ax.annotate(f"{row.ratio:.3g}x", (bar.get_x() + bar.get_width() / 2,
                                                bar.get_height()),
                         ha="center", va="bottom", fontsize=7, rotation=90,
                         xytext=(0, 2), textcoords="offset points")
     floors = [b.floor_m * 1e6 for b in errors[labels[0]]]
     for x, f in zip(xs, floors, strict=True):
-        ax.hlines(f, x - 0.45, x + 0.45, color="k", lw=2,
-                  label="noise floor" if x == 0 else None)
+        if np.isfinite(f):
+            ax.hlines(f, x - 0.45, x + 0.45, color="k", lw=2,
+                      label="noise floor" if x == 0 else None)
     ax.set_yscale("log")
     ax.set_xticks(xs, [b.label for b in errors[labels[0]]])
-    ax.set_xlabel("instantaneous frequency of the chirp")
+    ax.set_xlabel("frequency band (octaves over the band the input excites; from the spectra "
+                  "of the residual and of the deviations between trials)", fontsize=8)
     ax.set_ylabel("RMS error of the trial mean [µm]")
     ax.set_title(title or "error per frequency band (label: multiple of the floor)",
                  fontsize=10)

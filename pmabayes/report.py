@@ -856,11 +856,14 @@ def _synthetic_note(dataset: Dataset) -> str:
 def _band_rows(rows) -> list[list[Any]]:
     out = []
     for b in rows:
-        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, b.floor_m * 1e6, b.ratio])
+        floor = b.floor_m * 1e6 if np.isfinite(b.floor_m) else None  # one trial: no floor
+        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, floor,
+                    b.ratio if floor is not None else None])
     return out
 
 
-_BAND_HEADER = ["band", "RMS [µm]", "normalised RMS", "max [µm]", "floor [µm]", "RMS / floor"]
+_BAND_HEADER = ["frequency band", "RMS [µm]", "RMS / motion RMS", "max [µm]", "floor [µm]",
+                "RMS / floor"]
 
 
 def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
@@ -939,9 +942,10 @@ def _diagnosis_figures(d, label: str, out_dir: Path) -> dict[str, str]:
                        "Trials, their mean and the model at its MAP; the residual beside the "
                        "noise floor; the hysteresis loop."),
         "bands": (plots.plot_band_errors({label: d.signature.bands}),
-                  "RMS error of the trial mean per band of the chirp's instantaneous "
-                  "frequency, with the noise floor (black): the error a perfect model would "
-                  "have, from the spread between the trials."),
+                  "RMS error of the trial mean per frequency band (octaves over the band the "
+                  "input excites, from the residual's spectrum; the bands' mean squares add "
+                  "up to the total), with the noise floor (black): the error a perfect model "
+                  "would have, from the spectrum of the deviations between the trials."),
         "signature": (plots.plot_residual_signature(ds, d.simulation, d.frequency_hz,
                                                     label=label),
                       "Where the model fails: the residual against time, frequency, velocity, "

@@ -5,10 +5,12 @@ data set and a model output (and, for the whiteness tests, the identified noise)
 and measures the misfit against what repeatability allows; nothing fits or
 samples:
 
-* :func:`band_errors`: RMS, normalised RMS and maximum error of the trial mean in
-  bands of the chirp's instantaneous frequency (:func:`instantaneous_frequency`),
-  each beside the noise floor in that band (the error a perfect model would have,
-  from the spread between repeated trials);
+* :func:`band_errors`: RMS, normalised RMS and maximum error of the trial mean per
+  frequency band, for any input, from the spectra of the residual and of the
+  deviations between trials (:func:`power_spectrum`), each beside the noise floor
+  in that band (the error a perfect model would have); the bands are octaves over
+  the frequencies the command excites (:func:`input_bands`), and their mean
+  squares add up to the total;
 * :func:`innovations`, :func:`autocorrelation`, :func:`cross_correlation`,
   :func:`ljung_box` and :func:`whiteness`: the classic whiteness and independence
   tests of system identification, applied to the residual whitened by the
@@ -39,8 +41,14 @@ __all__ = [
     "LEVEL_ADEQUATE",
     "BandErrors",
     "BandError",
+    "EXCITED_POWER_FRACTION",
+    "MIN_BINS",
     "band_label",
     "instantaneous_frequency",
+    "power_spectrum",
+    "excited_band",
+    "input_bands",
+    "band_rms",
     "band_errors",
     "innovations",
     "autocorrelation",
@@ -56,7 +64,9 @@ __all__ = [
     "check_adequacy",
 ]
 
-#: Bands of the chirp's instantaneous frequency (Hz) for error tables.
+#: Fixed frequency bands (Hz) of earlier versions, for callers that pass them as
+#: ``bands_hz``; :func:`band_errors` now takes its bands from the input
+#: (:func:`input_bands`).
 DEFAULT_BANDS_HZ: tuple[tuple[float, float], ...] = (
     (0.1, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 3.0),
 )
@@ -106,25 +116,29 @@ def instantaneous_frequency(dataset: Dataset) -> np.ndarray:
 class BandErrors:
     """Errors of the trial mean in one frequency band: a result row of :func:`band_errors`.
 
-    ``BandError`` is a deprecated alias of this class (the same class under its old
-    name, which read like an exception's).
+    The band's share of each quantity comes from a spectrum (periodogram), so
+    the mean squares of bands that partition the frequency axis add up to the
+    overall one (Parseval). ``BandError`` is a deprecated alias of this class (the
+    same class under its old name, which read like an exception's).
 
     Parameters
     ----------
     band_hz : tuple of float
-        ``(low, high)`` instantaneous frequency.
+        ``(low, high)`` frequency in Hz, ``low <= f < high``.
     n_samples : int
-        Samples in the band.
+        Periodogram bins (frequencies ``k / T``) in the band.
     rms_m : float
-        RMS of trial mean minus model.
+        RMS of the part of trial mean minus model in the band.
     nrms : float
         ``rms_m`` divided by the RMS of the trial mean's motion (about its mean)
         in the band.
     max_m : float
-        Largest absolute error.
+        Largest absolute value of the residual's part in the band (the residual
+        with its other frequencies removed); for the overall row, of the residual.
     floor_m : float
-        RMS a perfect model would have: the spread between trials in the band,
-        divided by the square root of the number of trials.
+        RMS a perfect model would have in the band: the spectrum of the
+        deviations between trials divided by the number of trials; NaN with a
+        single trial (no repeats, no floor).
     """
 
     band_hz: tuple[float, float]
@@ -136,20 +150,26 @@ class BandErrors:
 
     @property
     def ratio(self) -> float:
-        """``rms_m / floor_m``: about 1 for a model that describes the data."""
-        return self.rms_m / self.floor_m
+        """``rms_m / floor_m``: about 1 for a model that describes the data (NaN, no floor)."""
+        if math.isnan(self.floor_m):
+            return math.nan
+        return self.rms_m / self.floor_m if self.floor_m > 0 else math.inf
 
     @property
     def label(self) -> str:
-        """The band in words: ``"0.5-1 Hz"``, or ``"all"`` for the overall row."""
+        """The band in words: ``"0.5-1 Hz"``, ``"> 4 Hz"``, or ``"all"`` for the overall row."""
         return band_label(self.band_hz)
 
     def to_dict(self) -> dict:
-        """JSON-ready values (an open upper edge as None)."""
+        """JSON-ready values (an open upper edge, a missing floor and its ratio as None)."""
         lo, hi = self.band_hz
-        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "rms_m": self.rms_m,
-                "nrms": self.nrms, "max_m": self.max_m, "floor_m": self.floor_m,
-                "ratio": self.ratio}
+        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "n_bins": self.n_samples,
+                "rms_m": self.rms_m, "nrms": self.nrms, "max_m": self.max_m,
+                "floor_m": _finite_or_none(self.floor_m), "ratio": _finite_or_none(self.ratio)}
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 #: Deprecated alias of :class:`BandErrors` (a result, not an exception); kept so that
@@ -158,7 +178,7 @@ BandError = BandErrors
 
 
 def band_label(band: tuple[float, float]) -> str:
-    """A frequency band in words: ``"0.5-1 Hz"``, or ``"all"`` for ``(0, inf)``.
+    """A frequency band in words: ``"0.5-1 Hz"``, ``"> 4 Hz"``, or ``"all"`` for ``(0, inf)``.
 
     Parameters
     ----------
@@ -170,59 +190,212 @@ def band_label(band: tuple[float, float]) -> str:
     str
     """
     lo, hi = band
-    return "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
+    if not math.isfinite(hi):
+        return "all" if lo == 0.0 else f"> {lo:g} Hz"
+    return f"{lo:g}-{hi:g} Hz"
+
+
+def power_spectrum(x: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided periodogram scaled so that its sum is the mean square of ``x``.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Series along the last axis.
+    dt_s : float
+        Sample interval.
+
+    Returns
+    -------
+    freq_hz : numpy.ndarray
+        ``k / (n dt)`` for ``k = 0 .. n // 2``.
+    power_m2 : numpy.ndarray
+        Mean square at each frequency (same leading axes as ``x``): summed over
+        any set of frequencies it is the mean square of the part of ``x`` at those
+        frequencies (Parseval), with no window, so nothing is lost or counted twice.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-1]
+    p = np.abs(np.fft.rfft(x, axis=-1)) ** 2 / float(n) ** 2
+    # the negative frequencies fold onto the positive ones, except DC and Nyquist
+    p[..., 1:] *= 2.0
+    if n % 2 == 0:
+        p[..., -1] /= 2.0
+    return np.fft.rfftfreq(n, dt_s), p
+
+
+#: Power, relative to the command's strongest frequency, above which a frequency
+#: counts as excited by :func:`excited_band` (-20 dB).
+EXCITED_POWER_FRACTION = 0.01
+
+#: Fewest periodogram bins in a band of :func:`input_bands`: narrower low octaves are
+#: merged, since an RMS over one or two bins is mostly chance.
+MIN_BINS = 4
+
+
+def excited_band(dataset: Dataset) -> tuple[float, float]:
+    """The frequencies the command excites: where its power is within 20 dB of its peak.
+
+    From the periodogram of the command (about its mean): the band runs from the
+    lowest to the highest frequency whose power is at least
+    :data:`EXCITED_POWER_FRACTION` of the largest. Any input will do (chirp,
+    steps, sines, multisines); no generator settings are needed.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data (the command is averaged over the trials).
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)`` in Hz; the whole axis above 0 Hz for a constant command.
+
+    Raises
+    ------
+    ValueError
+        With fewer than 3 samples (no frequency above 0 Hz).
+    """
+    u = np.asarray(dataset.input, dtype=float).mean(axis=0)  # the command, over the trials
+    f, p = power_spectrum(u - u.mean(), dataset.dt_s)
+    f, p = f[1:], p[1:]
+    if f.size == 0:
+        raise ValueError(f"{dataset.source or 'the data'} has too few samples for a spectrum")
+    if not p.max() > 0:
+        return float(f[0]), float(f[-1])
+    excited = np.flatnonzero(p >= EXCITED_POWER_FRACTION * p.max())
+    return float(f[excited[0]]), float(f[excited[-1]])
+
+
+def input_bands(dataset: Dataset) -> tuple[tuple[float, float], ...]:
+    """Frequency bands for error tables: octaves over the band the command excites.
+
+    Octaves ``[2^k, 2^(k+1))`` Hz that span :func:`excited_band`; the lowest reaches
+    down to 0 Hz (so that an offset counts), low octaves holding fewer than
+    :data:`MIN_BINS` periodogram bins are merged with the next, and a last band
+    holds everything above. The bands partition the frequency axis, so their mean
+    squares add up to the total.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data.
+
+    Returns
+    -------
+    tuple of (low, high)
+        In Hz, the last one ``(high edge, inf)``.
+    """
+    lo, hi = excited_band(dataset)
+    k0 = math.floor(math.log2(lo))
+    k1 = math.floor(math.log2(hi)) + 1
+    edges = [0.0, *(2.0 ** k for k in range(k0 + 1, k1 + 1))]
+    df = 1.0 / (dataset.n_samples * dataset.dt_s)
+    inner = list(zip(edges[:-1], edges[1:], strict=True))
+    merged: list[tuple[float, float]] = []
+    for band in inner:
+        if merged and _n_bins(merged[-1], df) < MIN_BINS:
+            band = (merged.pop()[0], band[1])
+        merged.append(band)
+    if len(merged) > 1 and _n_bins(merged[-1], df) < MIN_BINS:
+        last = merged.pop()
+        merged[-1] = (merged[-1][0], last[1])
+    return (*merged, (edges[-1], math.inf))
+
+
+def _n_bins(band: tuple[float, float], df: float) -> int:
+    return int(np.ceil(band[1] / df - 1e-9) - np.ceil(band[0] / df - 1e-9))
+
+
+def band_rms(x: np.ndarray, dt_s: float,
+             bands_hz: tuple[tuple[float, float], ...]) -> np.ndarray:
+    """RMS of a series' part in each frequency band (from :func:`power_spectrum`).
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        The series, ``(n_samples,)``.
+    dt_s : float
+        Sample interval.
+    bands_hz : tuple of (low, high)
+        Bands in Hz, ``low <= f < high``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(len(bands_hz),)``.
+    """
+    f, p = power_spectrum(x, dt_s)
+    return np.array([math.sqrt(float(p[(f >= lo) & (f < hi)].sum())) for lo, hi in bands_hz])
 
 
 def band_errors(
     dataset: Dataset,
     model_position_m: np.ndarray,
     *,
-    bands_hz: tuple[tuple[float, float], ...] = DEFAULT_BANDS_HZ,
+    bands_hz: tuple[tuple[float, float], ...] | None = None,
 ) -> list[BandErrors]:
-    """Errors of the trial mean against the model, per band and overall.
+    """Errors of the trial mean against the model, per frequency band and overall.
+
+    For any input (chirp, steps, sines, multisines): each band's share comes
+    from the periodogram of the residual (trial mean minus model), of the trial
+    mean's motion (for the normalised RMS) and of the deviations of the trials
+    from their mean (for the noise floor: their summed spectrum over ``R - 1``,
+    divided by ``R``, which is the variance of the mean). No window is applied, so
+    over bands that partition the frequency axis the mean squares add up exactly
+    to the overall one (Parseval); the price is that a residual's component
+    between two bins leaks a little into the neighbouring ones.
 
     Parameters
     ----------
     dataset : Dataset
-        Repeated trials.
+        The trials.
     model_position_m : numpy.ndarray
         Model output on the data's time grid, ``(n_samples,)``.
-    bands_hz : tuple of (low, high)
-        Frequency bands; a last row covers all samples.
+    bands_hz : tuple of (low, high), optional
+        Frequency bands in Hz; by default :func:`input_bands` (octaves over the
+        band the command excites, then everything above). A last row covers all
+        frequencies.
 
     Returns
     -------
     list of BandErrors
-        One per band that holds samples, then the overall one (band ``(0, inf)``).
+        One per band that holds a periodogram bin, then the overall one (band
+        ``(0, inf)``). With a single trial the floors (and ratios) are NaN.
 
     Raises
     ------
     ValueError
-        If the model output does not match the data's length, or there is only
-        one trial (no floor without repeats).
+        If the model output does not match the data's length.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
     if x.shape != (dataset.n_samples,):
         raise ValueError(f"model output has {x.size} samples, the data {dataset.n_samples}")
-    if dataset.n_trials < 2:
-        raise ValueError("the noise floor needs at least 2 repeated trials")
-    freq = instantaneous_frequency(dataset)
+    bands = input_bands(dataset) if bands_hz is None else tuple(bands_hz)
+    dt = dataset.dt_s
     mean = dataset.mean_position_m
     resid = mean - x
-    spread = dataset.position_m.var(axis=0, ddof=1) / dataset.n_trials
+    spec = np.fft.rfft(resid)
+    f, p_resid = power_spectrum(resid, dt)
+    _, p_motion = power_spectrum(mean - mean.mean(), dt)
+    n_trials = dataset.n_trials
+    if n_trials >= 2:
+        p_floor = power_spectrum(dataset.position_m - mean, dt)[1].sum(axis=0) / (
+            (n_trials - 1) * n_trials)
+    else:
+        p_floor = np.full_like(p_resid, np.nan)
     rows = []
-    for lo, hi in (*bands_hz, (0.0, math.inf)):
-        sel = (freq >= lo) & (freq < hi)
+    for lo, hi in (*bands, (0.0, math.inf)):
+        sel = (f >= lo) & (f < hi)
         if not sel.any():
             continue
-        r = resid[sel]
-        motion = mean[sel] - mean[sel].mean()
+        rms = math.sqrt(float(p_resid[sel].sum()))
+        motion = math.sqrt(float(p_motion[sel].sum()))
+        part = resid if sel.all() else np.fft.irfft(np.where(sel, spec, 0.0), n=resid.size)
         rows.append(BandErrors(
-            band_hz=(lo, hi), n_samples=int(sel.sum()),
-            rms_m=float(np.sqrt(np.mean(r * r))),
-            nrms=float(np.sqrt(np.mean(r * r)) / max(np.sqrt(np.mean(motion**2)), 1e-300)),
-            max_m=float(np.max(np.abs(r))),
-            floor_m=float(np.sqrt(np.mean(spread[sel]))),
+            band_hz=(float(lo), float(hi)), n_samples=int(sel.sum()), rms_m=rms,
+            nrms=rms / max(motion, 1e-300), max_m=float(np.max(np.abs(part))),
+            floor_m=math.sqrt(float(p_floor[sel].sum())),
         ))
     return rows
 
@@ -399,9 +572,14 @@ class Signature:
 
     def describe(self) -> str:
         """The signature in one or two plain sentences, from the numbers."""
-        bands = [b for b in self.bands[:-1] if b.n_samples > 0]
-        ratios = [b.ratio for b in bands]
+        # the band above the command's carries mostly noise: it would hide a trend
+        bands = [b for b in self.bands[:-1] if b.n_samples > 0 and math.isfinite(b.band_hz[1])]
         overall = self.bands[-1]
+        if math.isnan(overall.floor_m):
+            text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS ({overall.nrms:.3g} of the "
+                    "motion; one trial, so no noise floor)")
+            return text + "." + self._describe_correlations()
+        ratios = [b.ratio for b in bands]
         text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS against a noise floor of "
                 f"{overall.floor_m * 1e6:.4g} µm ({overall.ratio:.3g}x)")
         if len(bands) >= 2:
@@ -413,9 +591,12 @@ class Signature:
             elif lo.ratio > 2.0 * hi.ratio:
                 text += f"; it is largest at low frequency, {span}"
             else:
-                text += (f"; it is spread over the whole chirp ({min(ratios):.3g}x to "
-                         f"{max(ratios):.3g}x the floor per band)")
-        text += "."
+                text += (f"; it is spread over the band the input excites ({min(ratios):.3g}x "
+                         f"to {max(ratios):.3g}x the floor per band)")
+        return text + "." + self._describe_correlations()
+
+    def _describe_correlations(self) -> str:
+        text = ""
         if self.correlations:
             name, value = max(self.correlations.items(), key=lambda kv: abs(kv[1]))
             text += f" The residual correlates most with the {name} (r = {value:+.2f})."
@@ -634,6 +815,8 @@ class Adequacy:
     @property
     def ratio(self) -> float:
         """``rms_m / floor_m``: about 1 for a model that describes the data."""
+        if math.isnan(self.floor_m):
+            return math.nan
         return self.rms_m / self.floor_m if self.floor_m > 0 else math.inf
 
     @property
@@ -696,8 +879,9 @@ class Adequacy:
         -------
         dict
         """
-        return {"adequate": self.adequate, "rms_m": self.rms_m, "floor_m": self.floor_m,
-                "ratio": self.ratio, "energy": self.energy, "ljung_box_p": self.ljung_box_p,
+        return {"adequate": self.adequate, "rms_m": self.rms_m,
+                "floor_m": _finite_or_none(self.floor_m), "ratio": _finite_or_none(self.ratio),
+                "energy": self.energy, "ljung_box_p": self.ljung_box_p,
                 "coverage": self.coverage, "ci_prob": self.ci_prob,
                 "next_command": self.next_command, "energy_tolerance": self.energy_tolerance,
                 "level_adequate": self.level_adequate}
