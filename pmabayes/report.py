@@ -1031,19 +1031,6 @@ def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None
 # ------------------------------------------------------------------- validation
 
 
-def _validation_band_rows(rows: Sequence[Mapping]) -> list[list[Any]]:
-    """Rows of the error-per-band table from :meth:`BandErrors.to_dict` values."""
-    out = []
-    for b in rows:
-        lo, hi = (b.get("band_hz") or [None, None])[:2]
-        label = ("all" if lo == 0.0 and hi is None
-                 else f"{_fmt(lo)}-{_fmt(hi) if hi is not None else '∞'} Hz")
-        scaled = [None if b.get(k) is None else b[k] * 1e6 for k in ("rms_m", "max_m",
-                                                                    "floor_m")]
-        out.append([label, scaled[0], b.get("nrms"), scaled[1], scaled[2], b.get("ratio")])
-    return out
-
-
 def write_validation(validation, out_dir: str | Path) -> Path:
     """Write the figures, ``validation.json`` and an HTML page of a validation.
 
@@ -1106,7 +1093,7 @@ def write_validation(validation, out_dir: str | Path) -> Path:
         for note in e.notes:
             body.append(f'<p class="note">{html.escape(note)}</p>')
         if e.band_errors:
-            body.append(_table(_BAND_HEADER, _validation_band_rows(e.band_errors)))
+            body.append(_table(_BAND_HEADER, _band_rows(e.band_errors)))
         body.append(_img(png, f"validation of {e.name}",
                          f"{e.name}: measured trials (grey), the {pct} predictive band "
                          "(blue) and the posterior-mean prediction (red); bottom: the same "

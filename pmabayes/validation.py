@@ -125,9 +125,10 @@ class ExperimentValidation:
         The trial mean's noise floor; None with a single trial.
     band_coverage : float
         Fraction of measured samples inside ``[low_m, high_m]``.
-    band_errors : list of dict or None
-        Error per frequency band (:meth:`pmabayes.residuals.BandErrors.to_dict`),
-        None when they cannot be computed (see ``notes``).
+    band_errors : list of pmabayes.residuals.BandErrors or None
+        Error of the trial mean per frequency band and overall
+        (:func:`pmabayes.residuals.band_errors`), None when they cannot be computed
+        (see ``notes``).
     noise : dict
         Where the predictive noise came from, and its median values.
     n_draws : int
@@ -222,7 +223,11 @@ class ExperimentValidation:
             "ratio_to_floor": _json_float(self.ratio_to_floor),
             "band_coverage": _json_float(self.band_coverage),
             "ci_prob": self.ci_prob, "n_draws": self.n_draws,
-            "band_errors": self.band_errors, "noise": dict(self.noise),
+            "band_errors": None if self.band_errors is None else [
+                # JSON has no NaN: a number that cannot be had (a floor without repeats)
+                {k: _json_float(v) if isinstance(v, float) else v for k, v in b.to_dict().items()}
+                for b in self.band_errors],
+            "noise": dict(self.noise),
             "notes": list(self.notes),
         }
         if arrays:
@@ -496,13 +501,10 @@ def _noise_draws(fit: _FitDraws, pick: np.ndarray, columns: list[int] | None,
 
 def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list) -> list | None:
     try:
-        rows = [b.to_dict() for b in band_errors(ds, prediction)]
+        return band_errors(ds, prediction)
     except ValueError as err:
         notes.append(f"error per frequency band not available: {err}")
         return None
-    # JSON has no NaN: a number that cannot be had (a floor without repeats) is None
-    return [{k: _json_float(v) if isinstance(v, float) else v for k, v in row.items()}
-            for row in rows]
 
 
 def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,

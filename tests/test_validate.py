@@ -92,6 +92,9 @@ def test_right_model_covers_near_90_and_sits_at_the_floor(fit_tree, held_out_set
         assert e.noise_floor_m is not None
         assert e.rmse_m < 1.5 * e.noise_floor_m, (e.name, e.rmse_m, e.noise_floor_m)
         assert 0 < e.nrmse < 0.05
+        # the error per band (spectral) adds up to the overall error, each near its floor
+        assert e.band_errors[-1].rms_m == pytest.approx(e.rmse_m, rel=1e-6)
+        assert all(b.ratio < 2.0 for b in e.band_errors if b.floor_m > 0.1 * e.noise_floor_m)
         # the parameters' band alone is far narrower than the predictive band
         assert np.mean(e.model_high_m - e.model_low_m) < 0.5 * np.mean(e.high_m - e.low_m)
     assert v.experiments[2].rig["name"] == "control"
@@ -102,6 +105,7 @@ def test_a_wrong_model_is_far_above_the_floor_with_low_coverage(fit_tree):
     e = validate(fit_tree, lagged, n_draws=100, seed=0).experiments[0]
     assert e.rmse_m > 10 * e.noise_floor_m
     assert e.band_coverage < 0.5
+    assert max(b.ratio for b in e.band_errors) > 10
 
 
 def test_the_model_with_the_missing_effects_predicts_to_the_floor():
@@ -121,6 +125,8 @@ def test_json_keys_and_nulls(fit_tree):
                 "predictive_band", "source", "rig", "n_trials", "n_samples", "synthetic"):
         assert key in e
     assert e["noise_floor_m"] is None and e["ratio_to_floor"] is None
+    assert e["band_errors"] and all(b["floor_m"] is None for b in e["band_errors"])
+    assert e["band_errors"][-1]["rms_m"] == pytest.approx(e["rmse_m"], rel=1e-6)
     assert e["n_trials"] == 1 and e["synthetic"] is True and e["source"] == "one_step.csv"
     assert len(e["predictive_band"]["low_m"]) == e["n_samples"] == 4000
     assert d["settings"]["ci_prob"] == 0.9 and "nrmse" in d["definitions"]
