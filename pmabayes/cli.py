@@ -453,12 +453,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     if args.out:
         _out_folder(args.out)
-    tree = load_fit(args.fit)
-    datasets = [load(path) for path in args.data]
-    result = validate(tree, datasets, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
+    # paths: the fit is read first (a bad fit file is refused before the data), and
+    # its path names it in the outputs
+    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
                       noise_from=args.noise_from, substeps=args.substeps)
     print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
-          f"{len(datasets)} held-out experiment(s), {args.draws} posterior draws each:")
+          f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
+          "each:")
     for line in result.lines():
         print(f"  {line}")
     if args.json:

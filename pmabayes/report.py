@@ -1076,12 +1076,12 @@ def write_validation(validation, out_dir: str | Path) -> Path:
         "repeated trials (none with one trial). Coverage: the share of all measured "
         f"samples inside the {pct} band (about {pct} for a model and noise that describe "
         "the data).</p>",
-        _table(["experiment", "rig", "trials", "samples", "RMSE [µm]", "noise floor [µm]",
-                "RMSE / floor", "NRMSE", f"inside the {pct} band", "noise from"],
-               [[e.name, e.rig.get("name"), e.n_trials, e.n_samples, e.rmse_m * 1e6,
-                 None if e.noise_floor_m is None else e.noise_floor_m * 1e6,
-                 e.ratio_to_floor, e.nrmse, f"{100 * e.band_coverage:.1f}%",
-                 e.noise["from"]] for e in v.experiments], num_from=2),
+        _table(["experiment", "rig", "noise from", "trials", "samples", "RMSE [µm]",
+                "noise floor [µm]", "RMSE / floor", "NRMSE", f"inside the {pct} band"],
+               [[e.name, e.rig.get("name"), e.noise["from"], e.n_trials, e.n_samples,
+                 e.rmse_m * 1e6, None if e.noise_floor_m is None else e.noise_floor_m * 1e6,
+                 e.ratio_to_floor, e.nrmse, f"{100 * e.band_coverage:.1f}%"]
+                for e in v.experiments], num_from=3),
     ]
     for i, e in enumerate(v.experiments):
         safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in e.name)

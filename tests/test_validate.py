@@ -247,6 +247,7 @@ def test_cli_end_to_end(tmp_path, capsys, held_out_sets):
     assert "steps:" in text and "sine_single:" in text and "no noise floor" in text
     d = json.loads(out_json.read_text())
     steps, single = d["experiments"]
+    assert d["fit"] == str(fit_path) and d["settings"]["seed"] == 2
     assert steps["noise_floor_m"] > 0 and single["noise_floor_m"] is None
     assert 0.8 <= steps["band_coverage"] <= 0.97
     assert (tmp_path / "page" / "index.html").is_file()
