@@ -136,6 +136,10 @@ def test_same_seed_same_numbers_and_ci_prob_changes_coverage(fit_tree, held_out_
     a = validate(fit_tree, held_out_sets[1], n_draws=60, seed=3).experiments[0]
     b = validate(fit_tree, held_out_sets[1], n_draws=60, seed=3).experiments[0]
     assert a.rmse_m == b.rmse_m and np.array_equal(a.low_m, b.low_m)
+    c = validate(fit_tree, held_out_sets[1], n_draws=60, rng=np.random.default_rng(3))
+    assert np.array_equal(c.experiments[0].low_m, a.low_m) and c.settings["seed"] is None
+    other = validate(fit_tree, held_out_sets[1], n_draws=60, seed=4).experiments[0]
+    assert not np.array_equal(other.low_m, a.low_m)
     wide = validate(fit_tree, held_out_sets[1], n_draws=60, seed=3, ci_prob=0.99).experiments[0]
     assert wide.band_coverage > a.band_coverage
 
