@@ -403,11 +403,15 @@ def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
     # variables a fit may hold are not this module's business
     draws = {n: v for n, v in post.data_vars.items() if n not in NOISE_NAMES}
     data = info.get("data") or {}
+    dt_s = data.get("dt_s")
+    recorded = [e for e in info.get("experiments") or [] if isinstance(e, Mapping)]
+    if dt_s is None and len(recorded) == 1:
+        dt_s = recorded[0].get("dt_s")
     n_total = next(iter(noise.values())).shape[0]
     return _FitDraws(
         effects=fitted.effects, fixed=dict(fitted.fixed),
         input_kind=input_kind, draws=draws, noise=noise, experiments=experiments,
-        dt_s=data.get("dt_s"), source=data.get("source"), n_total=n_total)
+        dt_s=dt_s, source=data.get("source"), n_total=n_total)
 
 
 # ----------------------------------------------------------------------------- checks
