@@ -44,17 +44,17 @@ def sine_pa(freq_hz: float = 1.0, duration_s: float = 8.0) -> np.ndarray:
 
 def held_out(pressure: np.ndarray, *, n_trials: int = 5, seed: int = 1, rig: Rig | None = None,
              effects: dict | None = None, source: str | None = None,
-             input_name: str = "pressure_pa") -> Dataset:
+             input_name: str = "pressure_pa", rate_hz: float = RATE_HZ) -> Dataset:
     """Trials of one input from the plant (plus hidden effects), measured like the generator."""
     model, values = hidden_effects_model(effects, rig=rig)
-    t = np.arange(pressure.size) / RATE_HZ
+    t = np.arange(pressure.size) / rate_hz
     x = simulate(model, values, pressure, time_s=t)[0]
-    y = NOISE.apply(np.repeat(x[None], n_trials, axis=0), 1.0 / RATE_HZ,
+    y = NOISE.apply(np.repeat(x[None], n_trials, axis=0), 1.0 / rate_hz,
                     np.random.default_rng(seed))
     return Dataset(time_s=t, input=np.repeat(pressure[None], n_trials, axis=0), position_m=y,
                    trial_ids=np.arange(n_trials), input_name=input_name,
                    metadata={"synthetic": True, "rig": model.rig.to_dict(),
-                             "sample_rate_hz": RATE_HZ},
+                             "sample_rate_hz": rate_hz},
                    source=source)
 
 
@@ -114,6 +114,14 @@ def test_the_model_with_the_missing_effects_predicts_to_the_floor():
     data = held_out(sine_pa(1.0, 4.0), source="lab_sine.csv", effects=lab, rig=Rig.control())
     e = validate(tree, data, n_draws=100, seed=0).experiments[0]
     assert 0.8 <= e.band_coverage <= 0.97 and e.rmse_m < 1.5 * e.noise_floor_m
+
+
+def test_another_sample_rate_rescales_the_noise_correlation(fit_tree):
+    slow = held_out(sine_pa(1.0, 16.0)[::4], rate_hz=250.0, source="sine_250hz.csv")
+    e = validate(fit_tree, slow, n_draws=100, seed=0).experiments[0]
+    assert any("rescaled" in note for note in e.notes)
+    assert e.noise["rho_noise_median"] == pytest.approx(RHO**4, rel=1e-3)
+    assert 0.8 <= e.band_coverage <= 0.97
 
 
 def test_json_keys_and_nulls(fit_tree):
