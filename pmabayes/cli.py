@@ -54,7 +54,7 @@ from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
 from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
 from pmabayes.likelihood import LikelihoodError
-from pmabayes.model import BASE_PARAMETERS, Model, ModelError
+from pmabayes.model import BASE_PARAMETERS, Model, ModelError, Rig
 from pmabayes.parameters import Prior, parse_prior
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
@@ -240,27 +240,43 @@ def _fit_settings(args: argparse.Namespace) -> FitSettings:
                        max_steps=args.steps, progress=not args.quiet)
 
 
-def _do_fit(args: argparse.Namespace, dataset: Dataset, model: Model, out: Path):
+def _floor_text(floor_m) -> str:
+    return "no repeats" if floor_m is None else f"noise floor {floor_m * 1e6:.1f} um"
+
+
+def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out: Path):
     chains = out.with_name(out.name + ".chains")
     with warnings.catch_warnings():  # the banner below says it once
         warnings.simplefilter("ignore", ConvergenceWarning)
-        tree = fit(dataset, model, seed=args.seed, settings=_fit_settings(args),
-                   chains_dir=chains, restart=args.restart)
+        tree = fit(datasets if len(datasets) > 1 else datasets[0], model, seed=args.seed,
+                   settings=_fit_settings(args), chains_dir=chains, restart=args.restart,
+                   tie_noise=args.tie_noise, substeps=args.substeps)
     save_fit(tree, out)
     info = fit_info(tree)
     conv = info["convergence"]
-    print(f"fit: {args.data} with {' + '.join(['base', *model.effect_names])}: "
+    data_text = " ".join(str(d) for d in args.data)
+    print(f"fit: {data_text} with {' + '.join(['base', *model.effect_names])}: "
           f"MAP RMS cost {info['map']['rms_cost_m'] * 1e6:.1f} um "
-          f"(noise floor {info['data']['noise_floor_m'] * 1e6:.1f} um); "
-          f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
+          + (f"({_floor_text(info['data']['noise_floor_m'])}); " if len(datasets) == 1
+             else f"(combined over {len(datasets)} experiments); ")
+          + f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
           f"{conv['n_walkers']} walkers in {info['timings_s']['total']:.1f} s")
+    if len(datasets) > 1:
+        for exp in info["experiments"]:
+            print(f"  experiment {exp['name']} ({exp['source']}): {exp['n_trials']} trial(s) x "
+                  f"{exp['n_samples']} samples on the {Rig.from_dict(exp['rig']).name} rig, "
+                  f"RMS cost {exp['rms_cost_m'] * 1e6:.1f} um "
+                  f"({_floor_text(exp['noise_floor_m'])}), noise {exp['noise']} "
+                  f"from the {exp['noise_source']}")
     if not conv["converged"]:
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
-    from pmabayes.report import fit_adequacy  # the model's fit, not the sampler's convergence
+    from pmabayes.report import experiment_adequacy  # the model's fit, not the sampler's
 
-    print("\n".join(fit_adequacy(tree, dataset=dataset).lines()))
+    for name, adequacy in experiment_adequacy(tree, datasets=datasets):
+        prefix = f"[{name}] " if len(datasets) > 1 else ""
+        print("\n".join(prefix + line for line in adequacy.lines()))
     print(f"wrote {out} (chains in {chains})")
     return tree
 
@@ -270,21 +286,34 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
                        "to write (e.g. fit.nc)")
-    dataset = load(args.data)
-    model = _model_for(dataset, args)
+    datasets = [load(p) for p in args.data]
+    model = _model_for(datasets[0], args)
     with _created(out.parent):
-        _do_fit(args, dataset, model, out)
+        _do_fit(args, datasets, model, out)
     return 0
 
 
+def _report_datasets(tree, paths: Sequence[str] | None) -> list[Dataset] | None:
+    """The data files given to ``report``, one per experiment of the fit, or None."""
+    if not paths:
+        return None
+    n_exp = len(fit_info(tree).get("experiments") or [None])
+    if len(paths) != n_exp:
+        raise CliError(f"--data got {len(paths)} file(s) but the fit has {n_exp} "
+                       "experiment(s); give one data file per experiment, in the fit's order")
+    return [load(p) for p in paths]
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
-    from pmabayes.report import fit_adequacy, write_report
+    from pmabayes.report import experiment_adequacy, write_report
 
     _out_folder(args.out)
     tree = load_fit(args.fit)
-    dataset = load(args.data) if args.data else None
-    index = write_report(tree, Path(args.out), dataset=dataset)
-    print("\n".join(fit_adequacy(tree, dataset=dataset).lines()))
+    datasets = _report_datasets(tree, args.data)
+    index = write_report(tree, Path(args.out), dataset=datasets)
+    for name, adequacy in experiment_adequacy(tree, datasets=datasets):
+        prefix = f"[{name}] " if len(fit_info(tree).get("experiments") or [None]) > 1 else ""
+        print("\n".join(prefix + line for line in adequacy.lines()))
     print(f"wrote the report {index}")
     return 0
 
@@ -294,22 +323,40 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = _out_folder(args.out)
-    dataset = load(args.data)  # the input is read and checked before anything is made
-    model = _model_for(dataset, args)
+    datasets = [load(p) for p in args.data]  # read and checked before anything is made
+    model = _model_for(datasets[0], args)
     with _created(out):
-        tree = _do_fit(args, dataset, model, out / "fit.nc")
-    index = write_report(tree, out, dataset=dataset)
+        tree = _do_fit(args, datasets, model, out / "fit.nc")
+    index = write_report(tree, out, dataset=datasets)
     print(f"wrote the report {index} ({time.perf_counter() - start:.1f} s in all)")
     return 0
+
+
+def _needs_repeats(dataset: Dataset, command: str) -> None:
+    """Refuse a single record where a command's errors are judged against the floor."""
+    if dataset.n_trials < 2:
+        raise CliError(
+            f"{dataset.source}: one trial; {command} judges errors per band against the noise "
+            "floor of repeated trials, which a single record does not have. Fit it with "
+            f"`pmabayes fit {dataset.source} --out FIT.nc` (its noise is identified from its "
+            "periods or from the record itself) and read the adequacy verdict of the fit's "
+            "report, or record repeated trials")
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pmabayes.criticism import diagnose
 
     start = time.perf_counter()
+    if len(args.data) > 1:
+        raise CliError(
+            f"diagnose got {len(args.data)} data files; it criticises one experiment at a "
+            "time (the search for a missing effect is per data set): run `pmabayes diagnose "
+            "FILE` on each of " + ", ".join(args.data) + ", then fit them together with "
+            "`pmabayes fit " + " ".join(args.data) + " --effects ... --out FIT.nc`")
     if args.out:
         _out_folder(args.out)
-    dataset = load(args.data)
+    dataset = load(args.data[0])
+    _needs_repeats(dataset, "diagnose")
     result = diagnose(dataset, _model_for(dataset, args),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
@@ -344,9 +391,22 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise CliError(f"compare got {len(args.fits)} fit(s) and "
                        f"{'no' if labels is None else len(labels)} --labels; give two or more "
                        "fits of the same data, and one label per fit if any")
+    if len(args.data) > 1:
+        raise CliError(
+            f"compare got {len(args.data)} data files; it compares fits of one data set "
+            "(error per band, whiteness, ELPD per trial): compare fits of each experiment "
+            "on its own (`pmabayes fit FILE --out FIT.nc` per model), or compare "
+            "multi-experiment fits by their reports (`pmabayes report FIT.nc`)")
     _out_folder(args.out)
-    dataset = load(args.data)
+    dataset = load(args.data[0])
+    _needs_repeats(dataset, "compare")
     fits = [load_fit(f) for f in args.fits]
+    for path, tree in zip(args.fits, fits, strict=True):
+        if len(fit_info(tree).get("experiments") or [None]) > 1:
+            raise CliError(
+                f"{path} is a fit of {len(fit_info(tree)['experiments'])} experiments; compare "
+                "takes fits of one data set: fit each experiment on its own to compare "
+                "models on it, or read the multi-experiment fit's report (`pmabayes report`)")
     result = compare_fits(fits, dataset, labels=labels)
     for k in result.labels:
         b = result.bands[k][-1]
@@ -578,27 +638,36 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true",
                    help="discard saved chains instead of resuming them")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--substeps", type=_positive, default=1,
+                   help="simulator steps per sample interval (1; more for a lightly damped "
+                   "oscillator near the sample rate, e.g. 16 for the Bouc-Wen benchmark)")
+    p.add_argument("--tie-noise", action="store_true",
+                   help="one noise model for all experiments (same sensor and disturbance) "
+                   "instead of one per experiment")
 
 
 
 def _fit_commands(sub) -> None:
     run = sub.add_parser("run", help="the main job: fit a data set and write the report")
-    run.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
-                     "optional .json sidecar of the same stem")
+    run.add_argument("data", nargs="+", help="data files, one per experiment (.csv, .nc or "
+                     "MATLAB .mat v4-v7.3, each with an optional .json sidecar of the same "
+                     "stem); the experiments share the physical parameters")
     run.add_argument("--out", required=True, help="output folder (fit.nc and the report)")
     _fit_options(run)
     run.set_defaults(func=_cmd_run)
 
     fitp = sub.add_parser("fit", help="identify the parameters: MAP and posterior")
-    fitp.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
-                      "optional .json sidecar of the same stem")
+    fitp.add_argument("data", nargs="+", help="data files, one per experiment (.csv, .nc or "
+                      "MATLAB .mat v4-v7.3, each with an optional .json sidecar of the same "
+                      "stem); the experiments share the physical parameters")
     fitp.add_argument("--out", required=True, help="the fit, a NetCDF file (FIT.nc)")
     _fit_options(fitp)
     fitp.set_defaults(func=_cmd_fit)
 
     rep = sub.add_parser("report", help="summary tables, diagnostics and figures of a fit")
     rep.add_argument("fit", help="a fit written by `pmabayes fit`")
-    rep.add_argument("--data", help="the data file, to check it matches the fit")
+    rep.add_argument("--data", nargs="+", help="the data files (one per experiment, in the "
+                     "fit's order), to check they match the fit")
     rep.add_argument("--out", required=True, help="output folder")
     rep.set_defaults(func=_cmd_report)
 
@@ -618,8 +687,9 @@ def _fit_commands(sub) -> None:
 def _criticism_commands(sub) -> None:
     diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
                           "effect is missing")
-    diag.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
-                      "optional .json sidecar of the same stem")
+    diag.add_argument("data", nargs="+", help="data file (.csv, .nc or MATLAB .mat v4-v7.3, "
+                      "with an optional .json sidecar of the same stem); one experiment at "
+                      "a time")
     diag.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
     diag.add_argument("--candidates", default="", type=_effect_list,
@@ -634,7 +704,8 @@ def _criticism_commands(sub) -> None:
     comp = sub.add_parser("compare", help="fits of the same data side by side: error per "
                           "band, whiteness, ELPD")
     comp.add_argument("fits", nargs="+", help="two or more fits (FIT.nc) of the same data")
-    comp.add_argument("--data", required=True, help="the data file the fits were made from")
+    comp.add_argument("--data", required=True, nargs="+",
+                      help="the data file the fits were made from (one)")
     comp.add_argument("--out", required=True, help="output folder")
     comp.add_argument("--labels", help="comma-separated names of the fits (default: their "
                       "models, base + effect + ...)")

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import signal, stats
@@ -829,7 +830,9 @@ class Adequacy:
     def evidence(self) -> str:
         """The numbers behind the verdict in one sentence."""
         text = (f"the error of the trial mean is {self.ratio:.3g}x the noise floor (RMS "
-                f"{self.rms_m * 1e6:.4g} µm against {self.floor_m * 1e6:.4g} µm)")
+                f"{self.rms_m * 1e6:.4g} µm against {self.floor_m * 1e6:.4g} µm)"
+                if math.isfinite(self.floor_m) else
+                f"the RMS error is {self.rms_m * 1e6:.4g} µm (no repeats: no noise floor)")
         if self.energy is not None:
             text += (f"; the whitened residual's energy is {self.energy:.3g} (1 for pure "
                      f"noise, at most {1 + self.energy_tolerance:g} allowed) and its "
@@ -925,7 +928,11 @@ def check_adequacy(
         :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnose` uses.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
-    overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
+    if likelihood.dataset.n_trials >= 2:
+        overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
+    else:  # a single record: its error, and no floor without repeats
+        r = likelihood.y_mean - x
+        overall = SimpleNamespace(rms_m=float(np.sqrt(np.mean(r * r))), floor_m=math.nan)
     energy = lb_p = adequate = None
     if noise is not None:
         white = whiteness(innovations(likelihood, x, noise))
