@@ -27,6 +27,9 @@
     Closed-loop tracking of the paper's sinusoid by PID and computed torque.
 ``pmabayes robustness FIT.nc --out DIR``
     Posterior samples through both controllers across tracking frequencies.
+``pmabayes validate FIT.nc DATA.csv [DATA2.csv ...] [--json OUT.json] [--out DIR]``
+    Predict held-out experiments with the fit's posterior, each on its own rig:
+    error against the noise floor, NRMSE, error per band, predictive band coverage.
 
 ``--plugin FILE.py`` (before the command) imports a file that registers user
 effects, so they work on the command line exactly like the built-in ones.
@@ -541,6 +544,68 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from pmabayes.validation import validate
+
+    start = time.perf_counter()
+    if args.out:
+        _out_folder(args.out)
+    # paths: the fit is read first (a bad fit file is refused before the data), and
+    # its path names it in the outputs
+    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
+                      noise_from=args.noise_from, substeps=args.substeps)
+    print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
+          f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
+          "each:")
+    for line in result.lines():
+        print(f"  {line}")
+    if args.json:
+        _write_json(args.json, result.to_dict())
+        print(f"wrote {args.json}")
+    if args.out:
+        from pmabayes.report import write_validation
+
+        print(f"wrote {write_validation(result, Path(args.out))}")
+    print(f"({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _probability(text: str) -> float:
+    """argparse type of ``--ci-prob``: a probability strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a probability between 0 and 1 "
+                                         "(e.g. 0.9)")
+    return value
+
+
+def _validation_commands(sub) -> None:
+    """The ``validate`` subcommand: a fit's predictions of held-out experiments."""
+    val = sub.add_parser("validate", help="predict held-out experiments with a fit's "
+                         "posterior: error, noise floor, predictive band and its coverage")
+    val.add_argument("fit", help="a fit written by `pmabayes fit`")
+    val.add_argument("data", nargs="+", help="held-out data files (.csv with optional .json "
+                     "sidecar, or .nc), one experiment each, each on the rig its sidecar gives")
+    val.add_argument("--json", help="write the numbers and bands per experiment here")
+    val.add_argument("--out", help="folder for the figures and an HTML page")
+    val.add_argument("--draws", type=_positive, default=300,
+                     help="posterior draws simulated per experiment (300)")
+    val.add_argument("--ci-prob", type=_probability, default=0.9,
+                     help="probability of the predictive band (0.9)")
+    val.add_argument("--noise-from", metavar="NAME",
+                     help="for a fit of several experiments: the fitted experiment whose "
+                     "noise makes the band (default: the one on the held-out data's rig, "
+                     "else all pooled)")
+    val.add_argument("--seed", type=_seed, default=0,
+                     help="seed of the draws' choice and the predictive noise (0)")
+    val.add_argument("--substeps", type=_positive, default=1,
+                     help="simulator steps per sample interval, as the fit used (1)")
+    val.set_defaults(func=_cmd_validate)
+
+
 def _control_commands(sub) -> None:
     """The closed-loop subcommands (``track``, ``robustness``)."""
     tr = sub.add_parser("track", help="closed-loop tracking of the paper's sinusoid by PID "
@@ -584,6 +649,7 @@ def _parser() -> argparse.ArgumentParser:
     _criticism_commands(sub)
     _data_commands(sub)
     _control_commands(sub)
+    _validation_commands(sub)
     return parser
 
 
