@@ -9,16 +9,33 @@ for every parameter (20 data sets give a binomial standard error of 6.7%).
 Usage::
 
     python analyses/calibration.py [--datasets 20] [--seed 0] [--out DIR] [--quick]
-                                   [--processes N]
+                                   [--processes N | --dask ADDRESS]
+                                   [--single {record,periodic}]
 
 Writes ``calibration.csv`` and ``calibration.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``coverage_min: <fraction>``. ``--quick``
-uses 4 short data sets (as in the tests).
+uses 4 short data sets (as in the tests). ``--dask tcp://HOST:8786`` runs the fits on
+that Dask scheduler's workers instead of local processes (``pip install pmabayes[dask]``
+here and on the workers); the rows are the same.
+
+``--single`` calibrates fits of single records instead of repeated chirps (files
+``calibration_single_MODE.*``):
+
+* ``record``: one chirp record, no repeats, not periodic (0.2 to 3 Hz over 8 s at
+  500 Hz). Its noise is identified with the model under the guard of
+  :mod:`pmabayes.likelihood`, which assumes a disturbance much faster than the input:
+  the measurement is an AR(1) disturbance of 20 um and 2 ms correlation time, plus
+  encoder quantisation.
+* ``periodic``: one record of 4 periods of a 2 s multisine (harmonics 1 to 4 of
+  0.5 Hz, phases from the data set's seed) from rest, at 500 Hz, with the default
+  measurement (AR(1) of 60 um and 0.1 s, quantised). Periods 2 to 4 are the
+  noise's repeats.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import sys
 import time
@@ -28,31 +45,70 @@ from pathlib import Path
 import arviz as az
 import numpy as np
 
-from pmabayes import Model
+from pmabayes import Model, simulate
+from pmabayes.batch import dask_client
+from pmabayes.data import Dataset
 from pmabayes.fit import FitSettings, fit
 from pmabayes.parallel import Runner
 from pmabayes.posterior import fit_info
-from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
+from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
 PARAMS = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")  # the noise has no single truth
+SINGLE_MODES = ("record", "periodic")
+#: the single non-periodic record's chirp and measurement (a fast disturbance)
+RECORD_CHIRP = Chirp(duration_s=8.0, f0_hz=0.2, f1_hz=3.0, sample_rate_hz=500.0)
+RECORD_NOISE = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002)
+
+
+def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods: int = 4,
+                    rate_hz: float = 500.0) -> Dataset:
+    """One synthetic record of ``n_periods`` periods of a multisine, from rest.
+
+    Harmonics 1 to 4 of ``1 / period_s`` with phases drawn from ``seed``, scaled to
+    0.05-0.45 MPa; the default measurement (:class:`MeasurementNoise`). Declared
+    periodic (``period_samples``), starting from rest.
+    """
+    rng = np.random.default_rng(seed)
+    period = int(round(period_s * rate_hz))
+    t = np.arange(n_periods * period) / rate_hz
+    phases = rng.uniform(0, 2 * np.pi, 4)
+    u = sum(np.sin(2 * np.pi * (k + 1) * t / period_s + phases[k]) for k in range(4))
+    u = 0.05e6 + 0.4e6 * (u - u.min()) / (u.max() - u.min())
+    model = Model()
+    x = simulate(model, truth, u, time_s=t)[0]
+    y = MeasurementNoise().apply(x[None], 1.0 / rate_hz, rng)
+    meta = {"synthetic": True, "sample_rate_hz": rate_hz, "rig": model.rig.to_dict(),
+            "period_samples": period, "starts_in_steady_state": False,
+            "description": "synthetic periodic multisine record made by analyses/calibration.py "
+                           "(not measured)"}
+    return Dataset(time_s=t, input=u[None], position_m=y, trial_ids=np.arange(1),
+                   metadata=meta, source=f"periodic_{seed}.csv")
 
 
 def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trials: int = 10,
               settings: FitSettings | None = None, verbose: bool = True,
-              processes: int | None = None) -> list[dict]:
+              processes: int | None = None, single: str | None = None,
+              client=None) -> list[dict]:
     """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter.
 
     The data sets are drawn here, in order, from ``seed``; their fits run on
     :class:`pmabayes.parallel.Runner` (``processes`` local workers, every core by
-    default), each fit in one process, so the rows do not depend on how they ran.
+    default, or the Dask ``client``'s workers), each fit in one process, so the rows do
+    not depend on how they ran. Run as a script, Dask sends this module's functions by
+    value; called from Python with a client, the scheduler and the workers must be able
+    to import this module (``analyses/`` on their ``PYTHONPATH``).
+    ``single`` (``"record"`` or ``"periodic"``) fits single records instead of
+    ``n_trials`` repeated chirps (see the module's docstring).
     """
+    if single is not None and single not in SINGLE_MODES:
+        raise ValueError(f"single must be one of {SINGLE_MODES} or None, got {single!r}")
     rng = np.random.default_rng(seed)
     jobs = []
     for i in range(n_datasets):
         truth = draw_plausible(rng)
         jobs.append({"index": i, "truth": truth, "seed": int(rng.integers(2**31)),
-                     "chirp": chirp, "n_trials": n_trials})
-    runner = Runner(processes, tasks=n_datasets)
+                     "chirp": chirp, "n_trials": n_trials, "single": single})
+    runner = Runner(processes, client=client, tasks=n_datasets)
     settings = FitSettings() if settings is None else settings
     if not runner.local:  # the data sets share the cores; a fit needs no pool of its own
         settings = replace(settings, processes=1)
@@ -73,8 +129,14 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
 def _calibrate_one(job: dict) -> tuple[list[dict], float]:
     """Fit one data set; its rows and the seconds it took."""
     truth, data_seed = job["truth"], job["seed"]
-    ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed, chirp=job["chirp"],
-                                params=truth)
+    if job.get("single") == "periodic":
+        ds = periodic_record(truth, data_seed)
+    elif job.get("single") == "record":
+        ds = generate_chirp_dataset(n_trials=1, seed=data_seed, chirp=RECORD_CHIRP,
+                                    noise=RECORD_NOISE, params=truth)
+    else:
+        ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed,
+                                    chirp=job["chirp"], params=truth)
     start = time.perf_counter()
     tree = fit(ds, Model(), seed=data_seed, settings=job["settings"])
     info = fit_info(tree)
@@ -117,27 +179,42 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="4 short data sets")
     parser.add_argument("--processes", type=int, default=None,
                         help="local worker processes (every core by default)")
+    parser.add_argument("--single", choices=SINGLE_MODES, default=None,
+                        help="calibrate fits of single records: 'record' (one chirp, no "
+                        "repeats) or 'periodic' (one multisine record, its periods as repeats)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="budget of sampler steps per ensemble (FitSettings' default)")
+    parser.add_argument("--dask", metavar="ADDRESS", default=None,
+                        help="run the fits on this Dask scheduler (tcp://HOST:8786)")
     args = parser.parse_args(argv)
+    if args.dask is not None and args.processes is not None:
+        parser.error("give --processes or --dask, not both")
     chirp, n_trials, n = None, 10, args.datasets
     if args.quick:
         chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, 4
+    settings = FitSettings() if args.steps is None else FitSettings(max_steps=args.steps)
+    stem = "calibration" if args.single is None else f"calibration_single_{args.single}"
     start = time.perf_counter()
-    rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials, processes=args.processes)
+    with (dask_client(args.dask) if args.dask is not None
+          else contextlib.nullcontext()) as client:
+        rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
+                         processes=args.processes, single=args.single, settings=settings,
+                         client=client)
     cov = coverage(rows)
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "calibration_fits.csv", "w", newline="") as fh:
+    with open(args.out / f"{stem}_fits.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    with open(args.out / "calibration.csv", "w", newline="") as fh:
+    with open(args.out / f"{stem}.csv", "w", newline="") as fh:
         fh.write("parameter,coverage_90,rms_z,n_datasets\n")
         for p, c in cov.items():
             fh.write(f"{p},{c:.3f},{spread[p]:.3f},{n}\n")
     lines = ["| parameter | 90% HDI coverage | RMS of z (1 if calibrated) |", "|---|---|---|"]
     lines += [f"| `{p}` | {c:.0%} ({round(c * n)}/{n}) | {spread[p]:.2f} |"
               for p, c in cov.items()]
-    (args.out / "calibration.md").write_text("\n".join(lines) + "\n")
+    (args.out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     n_conv = len({r["dataset"] for r in rows if r["converged"]})
     print(f"{n} data sets, {n_conv} converged, {time.perf_counter() - start:.0f} s")

@@ -4,6 +4,9 @@
     The main job: fit the data (MAP and posterior) and write the report.
 ``pmabayes fit DATA.csv --out FIT.nc``
     Identify the parameters; chains are kept beside the fit and resumed.
+``pmabayes batch A.csv B.csv ... --out DIR [--processes N | --dask ADDRESS]``
+    Fit many independent data sets, each alone, to ``DIR/<stem>.nc``; one progress
+    bar, failures reported per file, resumable.
 ``pmabayes report FIT.nc --out DIR``
     Summary tables (CSV, Markdown), diagnostics and figures in an HTML page.
 ``pmabayes predict DATA.csv --out DIR``
@@ -24,6 +27,9 @@
     Closed-loop tracking of the paper's sinusoid by PID and computed torque.
 ``pmabayes robustness FIT.nc --out DIR``
     Posterior samples through both controllers across tracking frequencies.
+``pmabayes validate FIT.nc DATA.csv [DATA2.csv ...] [--json OUT.json] [--out DIR]``
+    Predict held-out experiments with the fit's posterior, each on its own rig:
+    error against the noise floor, NRMSE, error per band, predictive band coverage.
 
 ``--plugin FILE.py`` (before the command) imports a file that registers user
 effects, so they work on the command line exactly like the built-in ones.
@@ -51,10 +57,12 @@ from pmabayes.data import DataError, Dataset, load, save
 from pmabayes.effects import EffectError, get_effect, registered_effects
 from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
 from pmabayes.likelihood import LikelihoodError
-from pmabayes.model import Model, ModelError
+from pmabayes.model import BASE_PARAMETERS, Model, ModelError, Rig
+from pmabayes.parameters import Prior, parse_prior
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+from pmabayes.trials import check_trials, exclude_trials, parse_trial_ids
 
 __all__ = ["main", "load_plugin", "CliError"]
 
@@ -134,8 +142,57 @@ def _write_json(path: str | Path, obj: object) -> None:
     path.write_text(json.dumps(obj, indent=2) + "\n")
 
 
+def _prior(text: str) -> tuple[str, Prior]:
+    """argparse type of ``--prior NAME=SPEC``, e.g. ``alpha=LogNormal(5e4, 2)``."""
+    name, sep, spec = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(
+            f"{text!r} must look like NAME=SPEC, e.g. alpha='LogNormal(5e4, 2)'")
+    try:
+        return name.strip(), parse_prior(spec)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _model_for(dataset: Dataset, args: argparse.Namespace) -> Model:
+    """The model of a fitting command: the data's rig, the effects and priors asked for."""
+    return Model.for_dataset(dataset, args.effects, priors=dict(args.prior))
+
+
 def _effect_list(text: str) -> list[str]:
     return [e.strip() for e in text.split(",") if e.strip()]
+
+
+def _trial_ids(text: str) -> list[int]:
+    try:
+        return parse_trial_ids(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _exclude_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--exclude-trials", type=_trial_ids, default=[], metavar="ID,ID",
+                   help="leave these trial ids out (e.g. 3,7: trials the check of the "
+                   "trials names as drifting or outlying)")
+
+
+def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1) -> Dataset:
+    """A data file, without the trials ``--exclude-trials`` names (said, not silent)."""
+    dataset = load(path)
+    if args.exclude_trials:
+        dataset = exclude_trials(dataset, args.exclude_trials, min_trials=min_trials)
+        print(f"excluded trials {','.join(map(str, args.exclude_trials))} of {path} "
+              f"(--exclude-trials); {dataset.n_trials} remain")
+    return dataset
+
+
+def _load_all(args: argparse.Namespace) -> list[Dataset]:
+    """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
+    if args.exclude_trials and len(args.data) > 1:
+        raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
+                       "were given; leave the trials out of that file first (pmabayes.trials."
+                       "exclude_trials, then pmabayes.data.save), or fit it alone")
+    return [_load_data(args, p) for p in args.data]
 
 
 def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -172,6 +229,7 @@ def load_plugin(spec: str) -> None:
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     from pmabayes.plots import plot_comparison  # matplotlib only where figures are made
+    from pmabayes.residuals import band_errors, band_label
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -191,6 +249,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "rms_m": float(np.sqrt(np.mean(resid**2))),
         "max_error_m": float(np.max(np.abs(resid))),
         "noise_floor_m": None if math.isnan(floor) else floor,  # JSON has no NaN
+        "bands": [b.to_dict() for b in band_errors(dataset, x)],
     }
     with _created(out):
         plot_comparison(dataset, x, label="model (paper values)" if not params else "model",
@@ -203,6 +262,10 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     print(f"model: base{' + ' + ' + '.join(model.effect_names) if model.effect_names else ''}")
     print(f"RMS error of the trial mean: {summary['rms_m'] * 1e6:.1f} um "
           f"({floor_text}, max error {summary['max_error_m'] * 1e6:.1f} um)")
+    for b in summary["bands"][:-1]:
+        print(f"  {band_label(tuple(b['band_hz'][:1]) + (b['band_hz'][1] or math.inf,)):>12s}: "
+              f"RMS {b['rms_m'] * 1e6:.1f} um = {b['nrms']:.3g} of the motion"
+              + (f", {b['ratio']:.3g}x the floor" if b["ratio"] is not None else ""))
     print(f"wrote {out / 'comparison.png'} and {out / 'summary.json'} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
@@ -213,27 +276,43 @@ def _fit_settings(args: argparse.Namespace) -> FitSettings:
                        max_steps=args.steps, progress=not args.quiet)
 
 
-def _do_fit(args: argparse.Namespace, dataset: Dataset, model: Model, out: Path):
+def _floor_text(floor_m) -> str:
+    return "no repeats" if floor_m is None else f"noise floor {floor_m * 1e6:.1f} um"
+
+
+def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out: Path):
     chains = out.with_name(out.name + ".chains")
     with warnings.catch_warnings():  # the banner below says it once
         warnings.simplefilter("ignore", ConvergenceWarning)
-        tree = fit(dataset, model, seed=args.seed, settings=_fit_settings(args),
-                   chains_dir=chains, restart=args.restart)
+        tree = fit(datasets if len(datasets) > 1 else datasets[0], model, seed=args.seed,
+                   settings=_fit_settings(args), chains_dir=chains, restart=args.restart,
+                   tie_noise=args.tie_noise, substeps=args.substeps)
     save_fit(tree, out)
     info = fit_info(tree)
     conv = info["convergence"]
-    print(f"fit: {args.data} with {' + '.join(['base', *model.effect_names])}: "
+    data_text = " ".join(str(d) for d in args.data)
+    print(f"fit: {data_text} with {' + '.join(['base', *model.effect_names])}: "
           f"MAP RMS cost {info['map']['rms_cost_m'] * 1e6:.1f} um "
-          f"(noise floor {info['data']['noise_floor_m'] * 1e6:.1f} um); "
-          f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
+          + (f"({_floor_text(info['data']['noise_floor_m'])}); " if len(datasets) == 1
+             else f"(combined over {len(datasets)} experiments); ")
+          + f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
           f"{conv['n_walkers']} walkers in {info['timings_s']['total']:.1f} s")
+    if len(datasets) > 1:
+        for exp in info["experiments"]:
+            print(f"  experiment {exp['name']} ({exp['source']}): {exp['n_trials']} trial(s) x "
+                  f"{exp['n_samples']} samples on the {Rig.from_dict(exp['rig']).name} rig, "
+                  f"RMS cost {exp['rms_cost_m'] * 1e6:.1f} um "
+                  f"({_floor_text(exp['noise_floor_m'])}), noise {exp['noise']} "
+                  f"from the {exp['noise_source']}")
     if not conv["converged"]:
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
-    from pmabayes.report import fit_adequacy  # the model's fit, not the sampler's convergence
+    from pmabayes.report import experiment_adequacy  # the model's fit, not the sampler's
 
-    print("\n".join(fit_adequacy(tree, dataset=dataset).lines()))
+    for name, adequacy in experiment_adequacy(tree, datasets=datasets):
+        prefix = f"[{name}] " if len(datasets) > 1 else ""
+        print("\n".join(prefix + line for line in adequacy.lines()))
     print(f"wrote {out} (chains in {chains})")
     return tree
 
@@ -243,21 +322,34 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
                        "to write (e.g. fit.nc)")
-    dataset = load(args.data)
-    model = Model.for_dataset(dataset, args.effects)
+    datasets = _load_all(args)
+    model = _model_for(datasets[0], args)
     with _created(out.parent):
-        _do_fit(args, dataset, model, out)
+        _do_fit(args, datasets, model, out)
     return 0
 
 
+def _report_datasets(tree, paths: Sequence[str] | None) -> list[Dataset] | None:
+    """The data files given to ``report``, one per experiment of the fit, or None."""
+    if not paths:
+        return None
+    n_exp = len(fit_info(tree).get("experiments") or [None])
+    if len(paths) != n_exp:
+        raise CliError(f"--data got {len(paths)} file(s) but the fit has {n_exp} "
+                       "experiment(s); give one data file per experiment, in the fit's order")
+    return [load(p) for p in paths]
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
-    from pmabayes.report import fit_adequacy, write_report
+    from pmabayes.report import experiment_adequacy, write_report
 
     _out_folder(args.out)
     tree = load_fit(args.fit)
-    dataset = load(args.data) if args.data else None
-    index = write_report(tree, Path(args.out), dataset=dataset)
-    print("\n".join(fit_adequacy(tree, dataset=dataset).lines()))
+    datasets = _report_datasets(tree, args.data)
+    index = write_report(tree, Path(args.out), dataset=datasets)
+    for name, adequacy in experiment_adequacy(tree, datasets=datasets):
+        prefix = f"[{name}] " if len(fit_info(tree).get("experiments") or [None]) > 1 else ""
+        print("\n".join(prefix + line for line in adequacy.lines()))
     print(f"wrote the report {index}")
     return 0
 
@@ -267,23 +359,42 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = _out_folder(args.out)
-    dataset = load(args.data)  # the input is read and checked before anything is made
-    model = Model.for_dataset(dataset, args.effects)
+    datasets = _load_all(args)  # read and checked before anything is made
+    model = _model_for(datasets[0], args)
     with _created(out):
-        tree = _do_fit(args, dataset, model, out / "fit.nc")
-    index = write_report(tree, out, dataset=dataset)
+        tree = _do_fit(args, datasets, model, out / "fit.nc")
+    index = write_report(tree, out, dataset=datasets)
     print(f"wrote the report {index} ({time.perf_counter() - start:.1f} s in all)")
     return 0
+
+
+def _needs_repeats(dataset: Dataset, command: str) -> None:
+    """Refuse a single record where a command's errors are judged against the floor."""
+    if dataset.n_trials < 2:
+        raise CliError(
+            f"{dataset.source}: one trial; {command} judges errors per band against the noise "
+            "floor of repeated trials, which a single record does not have. Fit it with "
+            f"`pmabayes fit {dataset.source} --out FIT.nc` (its noise is identified from its "
+            "periods or from the record itself) and read the adequacy verdict of the fit's "
+            "report, or record repeated trials")
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pmabayes.criticism import diagnose
 
     start = time.perf_counter()
+    if len(args.data) > 1:
+        raise CliError(
+            f"diagnose got {len(args.data)} data files; it criticises one experiment at a "
+            "time (the search for a missing effect is per data set): run `pmabayes diagnose "
+            "FILE` on each of " + ", ".join(args.data) + ", then fit them together with "
+            "`pmabayes fit " + " ".join(args.data) + " --effects ... --out FIT.nc`")
     if args.out:
         _out_folder(args.out)
-    dataset = load(args.data)
-    result = diagnose(dataset, Model.for_dataset(dataset, args.effects),
+    dataset = _load_data(args, args.data[0], min_trials=2)
+    _needs_repeats(dataset, "diagnose")
+    print(check_trials(dataset).summary())  # the noise is learnt from their spread
+    result = diagnose(dataset, _model_for(dataset, args),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
     summary = result.to_dict()
@@ -317,9 +428,22 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise CliError(f"compare got {len(args.fits)} fit(s) and "
                        f"{'no' if labels is None else len(labels)} --labels; give two or more "
                        "fits of the same data, and one label per fit if any")
+    if len(args.data) > 1:
+        raise CliError(
+            f"compare got {len(args.data)} data files; it compares fits of one data set "
+            "(error per band, whiteness, ELPD per trial): compare fits of each experiment "
+            "on its own (`pmabayes fit FILE --out FIT.nc` per model), or compare "
+            "multi-experiment fits by their reports (`pmabayes report FIT.nc`)")
     _out_folder(args.out)
-    dataset = load(args.data)
+    dataset = load(args.data[0])
+    _needs_repeats(dataset, "compare")
     fits = [load_fit(f) for f in args.fits]
+    for path, tree in zip(args.fits, fits, strict=True):
+        if len(fit_info(tree).get("experiments") or [None]) > 1:
+            raise CliError(
+                f"{path} is a fit of {len(fit_info(tree)['experiments'])} experiments; compare "
+                "takes fits of one data set: fit each experiment on its own to compare "
+                "models on it, or read the multi-experiment fit's report (`pmabayes report`)")
     result = compare_fits(fits, dataset, labels=labels)
     for k in result.labels:
         b = result.bands[k][-1]
@@ -352,9 +476,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_effects(args: argparse.Namespace) -> int:
-    for name, eff in sorted(registered_effects().items()):
-        print(f"{name} [{eff.stage}]")
-        for p in eff.parameters:
+    groups = [("base model (p_dz only with a pressure input)", BASE_PARAMETERS)]
+    groups += [(f"{name} [{eff.stage}]", eff.parameters)
+               for name, eff in sorted(registered_effects().items())]
+    for title, parameters in groups:
+        print(title)
+        for p in parameters:
             fixed = " (fixed by default)" if not p.vary else ""
             print(f"    {p.name} [{p.unit}] default {p.default:g}, prior {p.prior}{fixed}: "
                   f"{p.description}")
@@ -417,6 +544,68 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from pmabayes.validation import validate
+
+    start = time.perf_counter()
+    if args.out:
+        _out_folder(args.out)
+    # paths: the fit is read first (a bad fit file is refused before the data), and
+    # its path names it in the outputs
+    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
+                      noise_from=args.noise_from, substeps=args.substeps)
+    print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
+          f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
+          "each:")
+    for line in result.lines():
+        print(f"  {line}")
+    if args.json:
+        _write_json(args.json, result.to_dict())
+        print(f"wrote {args.json}")
+    if args.out:
+        from pmabayes.report import write_validation
+
+        print(f"wrote {write_validation(result, Path(args.out))}")
+    print(f"({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _probability(text: str) -> float:
+    """argparse type of ``--ci-prob``: a probability strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a probability between 0 and 1 "
+                                         "(e.g. 0.9)")
+    return value
+
+
+def _validation_commands(sub) -> None:
+    """The ``validate`` subcommand: a fit's predictions of held-out experiments."""
+    val = sub.add_parser("validate", help="predict held-out experiments with a fit's "
+                         "posterior: error, noise floor, predictive band and its coverage")
+    val.add_argument("fit", help="a fit written by `pmabayes fit`")
+    val.add_argument("data", nargs="+", help="held-out data files (.csv with optional .json "
+                     "sidecar, or .nc), one experiment each, each on the rig its sidecar gives")
+    val.add_argument("--json", help="write the numbers and bands per experiment here")
+    val.add_argument("--out", help="folder for the figures and an HTML page")
+    val.add_argument("--draws", type=_positive, default=300,
+                     help="posterior draws simulated per experiment (300)")
+    val.add_argument("--ci-prob", type=_probability, default=0.9,
+                     help="probability of the predictive band (0.9)")
+    val.add_argument("--noise-from", metavar="NAME",
+                     help="for a fit of several experiments: the fitted experiment whose "
+                     "noise makes the band (default: the one on the held-out data's rig, "
+                     "else all pooled)")
+    val.add_argument("--seed", type=_seed, default=0,
+                     help="seed of the draws' choice and the predictive noise (0)")
+    val.add_argument("--substeps", type=_positive, default=1,
+                     help="simulator steps per sample interval, as the fit used (1)")
+    val.set_defaults(func=_cmd_validate)
+
+
 def _control_commands(sub) -> None:
     """The closed-loop subcommands (``track``, ``robustness``)."""
     tr = sub.add_parser("track", help="closed-loop tracking of the paper's sinusoid by PID "
@@ -456,10 +645,20 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     _fit_commands(sub)
+    _batch_commands(sub)
     _criticism_commands(sub)
     _data_commands(sub)
     _control_commands(sub)
+    _validation_commands(sub)
     return parser
+
+
+def _prior_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prior", action="append", default=[], type=_prior,
+                   metavar="NAME=SPEC",
+                   help="replace a parameter's prior, e.g. --prior 'K_e=LogNormal(5e4, 2)' "
+                   "(Uniform(low, high), Normal(mu, sigma), LogNormal(median, sigma), "
+                   "HalfNormal(sigma); repeatable); `pmabayes effects` lists the defaults")
 
 
 def _fit_options(p: argparse.ArgumentParser) -> None:
@@ -467,6 +666,7 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
                    help="comma-separated effects to add to the base model")
     p.add_argument("--seed", type=_seed, default=0,
                    help="seed of everything random (0)")
+    _prior_option(p)
     p.add_argument("--walkers", type=int, default=32, help="walkers per ensemble (32)")
     p.add_argument("--ensembles", type=_positive, default=2,
                    help="independent ensembles, for R-hat across them (2)")
@@ -476,31 +676,44 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true",
                    help="discard saved chains instead of resuming them")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--substeps", type=_positive, default=1,
+                   help="simulator steps per sample interval (1; more for a lightly damped "
+                   "oscillator near the sample rate, e.g. 16 for the Bouc-Wen benchmark)")
+    p.add_argument("--tie-noise", action="store_true",
+                   help="one noise model for all experiments (same sensor and disturbance) "
+                   "instead of one per experiment")
+    _exclude_option(p)
 
 
 
 def _fit_commands(sub) -> None:
     run = sub.add_parser("run", help="the main job: fit a data set and write the report")
-    run.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    run.add_argument("data", nargs="+", help="data files, one per experiment (.csv, .nc or "
+                     "MATLAB .mat v4-v7.3, each with an optional .json sidecar of the same "
+                     "stem); the experiments share the physical parameters")
     run.add_argument("--out", required=True, help="output folder (fit.nc and the report)")
     _fit_options(run)
     run.set_defaults(func=_cmd_run)
 
     fitp = sub.add_parser("fit", help="identify the parameters: MAP and posterior")
-    fitp.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    fitp.add_argument("data", nargs="+", help="data files, one per experiment (.csv, .nc or "
+                      "MATLAB .mat v4-v7.3, each with an optional .json sidecar of the same "
+                      "stem); the experiments share the physical parameters")
     fitp.add_argument("--out", required=True, help="the fit, a NetCDF file (FIT.nc)")
     _fit_options(fitp)
     fitp.set_defaults(func=_cmd_fit)
 
     rep = sub.add_parser("report", help="summary tables, diagnostics and figures of a fit")
     rep.add_argument("fit", help="a fit written by `pmabayes fit`")
-    rep.add_argument("--data", help="the data file, to check it matches the fit")
+    rep.add_argument("--data", nargs="+", help="the data files (one per experiment, in the "
+                     "fit's order), to check they match the fit")
     rep.add_argument("--out", required=True, help="output folder")
     rep.set_defaults(func=_cmd_report)
 
     pred = sub.add_parser("predict", help="simulate the model on a data set's input and "
                           "compare (no fitting)")
-    pred.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    pred.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
+                      "optional .json sidecar of the same stem")
     pred.add_argument("--out", required=True, help="output folder")
     pred.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
@@ -510,10 +723,71 @@ def _fit_commands(sub) -> None:
 
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from pmabayes.batch import BatchError, BatchJob, fit_batch
+
+    out = _out_folder(args.out)
+    if args.processes is not None and args.dask is not None:
+        raise CliError("give --processes or --dask, not both")
+    if args.tie_noise:
+        raise CliError("--tie-noise: each data set of a batch is fitted alone, as one "
+                       "experiment; to fit experiments together use `pmabayes fit A B ...`")
+    effects = tuple(args.effects)
+    try:
+        result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],
+                           out_dir=out,
+                           settings=_fit_settings(args), seed=args.seed,
+                           processes=args.processes, dask=args.dask, restart=args.restart,
+                           progress=not args.quiet, substeps=args.substeps)
+    except BatchError as err:
+        raise CliError(str(err)) from None
+    summary = result.summary()
+    for r in summary["datasets"]:
+        if r["status"] == "failed":  # the package's errors name the file already
+            where = "" if r["data"] in r["error"] else f" ({r['data']})"
+            print(f"{r['name']}: FAILED{where}: {r['error']}")
+            continue
+        rms = r["map_rms_cost_m"]
+        conv = "converged" if r["converged"] else "NOT CONVERGED"
+        took = (f"{r['seconds']:.1f} s" if r["status"] == "fitted"
+                else "skipped, up to date")
+        print(f"{r['name']}: {r['fit_file']}: MAP RMS cost "
+              f"{'n/a' if rms is None else f'{rms * 1e6:.1f} um'}, {conv} "
+              f"({r['n_steps']} steps), {took}")
+    print(f"{summary['n_datasets']} data sets: {summary['n_fitted']} fitted, "
+          f"{summary['n_skipped']} skipped, {summary['n_failed']} failed, "
+          f"{summary['n_not_converged']} not converged; {summary['seconds']:.1f} s on "
+          f"{summary['runner']}")
+    if args.json:
+        _write_json(args.json, summary)
+        print(f"wrote {args.json}")
+    return 0 if result.ok else 1
+
+
+def _batch_commands(sub) -> None:
+    """The ``batch`` subcommand: many independent data sets, one fit each."""
+    bat = sub.add_parser("batch", help="fit many independent data sets, each alone, on local "
+                         "processes or a Dask cluster")
+    bat.add_argument("data", nargs="+", help="data files: .csv, .nc or MATLAB .mat (v4-v7.3), "
+                     "each with an optional .json sidecar of the same stem; each fit is "
+                     "written to OUT/<file stem>.nc")
+    bat.add_argument("--out", required=True, help="output folder of the fits")
+    _fit_options(bat)
+    bat.add_argument("--processes", type=_positive, default=None,
+                     help="local worker processes, one data set each (all cores)")
+    bat.add_argument("--dask", metavar="ADDRESS", default=None,
+                     help="run on the Dask scheduler at ADDRESS (tcp://HOST:8786) instead; "
+                     "needs `pip install pmabayes[dask]`")
+    bat.add_argument("--json", help="write the batch's summary here")
+    bat.set_defaults(func=_cmd_batch)
+
+
 def _criticism_commands(sub) -> None:
     diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
                           "effect is missing")
-    diag.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    diag.add_argument("data", nargs="+", help="data file (.csv, .nc or MATLAB .mat v4-v7.3, "
+                      "with an optional .json sidecar of the same stem); one experiment at "
+                      "a time")
     diag.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
     diag.add_argument("--candidates", default="", type=_effect_list,
@@ -521,13 +795,16 @@ def _criticism_commands(sub) -> None:
     diag.add_argument("--out", help="folder for the figures and an HTML page")
     diag.add_argument("--json", help="write a machine-readable summary here")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
+    _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
+    _exclude_option(diag)
     diag.set_defaults(func=_cmd_diagnose)
 
     comp = sub.add_parser("compare", help="fits of the same data side by side: error per "
                           "band, whiteness, ELPD")
     comp.add_argument("fits", nargs="+", help="two or more fits (FIT.nc) of the same data")
-    comp.add_argument("--data", required=True, help="the data file the fits were made from")
+    comp.add_argument("--data", required=True, nargs="+",
+                      help="the data file the fits were made from (one)")
     comp.add_argument("--out", required=True, help="output folder")
     comp.add_argument("--labels", help="comma-separated names of the fits (default: their "
                       "models, base + effect + ...)")

@@ -48,7 +48,7 @@ import shutil
 import tempfile
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,11 +58,19 @@ import numpy as np
 import xarray as xr
 from scipy.optimize import differential_evolution, minimize
 
-from pmabayes.data import Dataset
-from pmabayes.likelihood import NOISE_PARAMETERS, Likelihood, LikelihoodError
-from pmabayes.model import Model
+from pmabayes.data import DataError, Dataset, check_same_input_kind
+from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, LikelihoodError
+from pmabayes.model import Model, ModelError, Rig
 from pmabayes.parallel import Runner
-from pmabayes.posterior import NoiseEstimate, Posterior, _log_sech2, fit_tree, set_fit_info
+from pmabayes.posterior import (
+    NoiseEstimate,
+    Posterior,
+    _log_sech2,
+    experiment_names,
+    fit_tree,
+    set_fit_info,
+)
+from pmabayes.trials import check_trials
 from pmabayes.util import Progress, fingerprint, local_cores
 
 __all__ = [
@@ -90,13 +98,16 @@ class ConvergenceWarning(RuntimeWarning):
 # the noise, from repeatability
 
 
-def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
-    """Posterior of the noise parameters from the deviations from the trial mean.
+def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstimate:
+    """Posterior of the noise parameters from the deviations of the repeats from their mean.
+
+    The repeats are an experiment's trials, or the periods of a single periodic
+    record (:attr:`pmabayes.likelihood.Likelihood.noise_source`).
 
     Parameters
     ----------
-    likelihood : Likelihood
-        Data and noise model.
+    likelihood : Likelihood or sequence of Likelihood
+        Data and noise model; several experiments that share (tie) their noise.
 
     Returns
     -------
@@ -105,14 +116,21 @@ def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
     Raises
     ------
     FitError
-        If the spread between trials does not identify the noise.
+        If there are no repeats, or their spread does not identify the noise.
     """
+    liks = [likelihood] if isinstance(likelihood, Likelihood) else list(likelihood)
+    where = ", ".join(str(lik.dataset.source or "the data set") for lik in liks)
+    liks = [lik for lik in liks if lik.n_repeats >= 2]
+    if not liks:
+        raise FitError(f"{where}: a single record without repeats (no second trial, no declared "
+                       "periods): its noise cannot be learnt from repeats; pmabayes.fit.fit "
+                       "identifies it with the model instead")
     sig_p, rho_p, white_p = NOISE_PARAMETERS
 
     def neg(u: np.ndarray) -> np.ndarray:
         u = np.atleast_2d(u)
         sigma, rho, white = np.exp(u[:, 0]), np.tanh(u[:, 1]), np.exp(u[:, 2])
-        ll = likelihood.deviation_log_likelihood(sigma, rho, white)
+        ll = sum(lik.deviation_log_likelihood(sigma, rho, white) for lik in liks)
         lp = sig_p.log_prior(sigma) + rho_p.log_prior(rho) + white_p.log_prior(white)
         jac = u[:, 0] + u[:, 2] + _log_sech2(u[:, 1])
         v = -(ll + lp + jac)
@@ -120,11 +138,15 @@ def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
 
     # start from moments of the deviations: total variance, lag-one correlation, and
     # the white part from the drop of the autocorrelation at lag one
-    d = likelihood._d
-    scale = likelihood.n_trials / (likelihood.n_trials - 1)
-    var = float(np.mean(d * d)) * scale
-    c1 = float(np.mean(d[:, 1:] * d[:, :-1])) * scale
-    c2 = float(np.mean(d[:, 2:] * d[:, :-2])) * scale
+    def moment(lag: int) -> float:
+        each = [float(np.mean(lik._d[:, lag:] * lik._d[:, : lik._d.shape[1] - lag]))
+                * (lik.n_repeats / (lik.n_repeats - 1)) for lik in liks]
+        if len(each) == 1:
+            return each[0]
+        sizes = [lik._d[:, lag:].size for lik in liks]
+        return float(np.average(each, weights=sizes))
+
+    var, c1, c2 = moment(0), moment(1), moment(2)
     rho0 = float(np.clip(c2 / c1, 0.0, 0.9999)) if c1 > 0 else 0.5
     ar_var = min(max(c1 / max(rho0, 1e-3), 1e-3 * var), var)
     white_var = max(var - ar_var, 1e-4 * var)
@@ -142,7 +164,7 @@ def estimate_noise(likelihood: Likelihood) -> NoiseEstimate:
         cov = np.linalg.inv(hess)
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        raise FitError(f"{likelihood.dataset.source or 'the data set'}: the noise parameters "
+        raise FitError(f"{where}: the noise parameters "
                        "are not identified by the spread between the trials; the trials must "
                        "be repeated measurements of one input with independent noise: check "
                        "that they are not copies of one another, and record more repetitions"
@@ -291,8 +313,7 @@ def find_map(
     lp, ll, x = posterior.evaluate(theta_map)
     cost = _check_fit_quality(posterior.likelihood, x[0])
     values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
-    values.update(sigma_noise_m=posterior.noise.sigma, rho_noise=posterior.noise.rho,
-                  sigma_white_m=posterior.noise.white)
+    values.update(posterior.noise_values(theta_map[0]))
     return MapResult(
         values=values,
         log_posterior=float(lp[0] + ll[0]),
@@ -399,18 +420,25 @@ def _laplace_covariance(hess: np.ndarray) -> np.ndarray:
     return cov
 
 
-def _check_fit_quality(lik: Likelihood, x: np.ndarray) -> float:
-    """The RMS cost of the MAP's output ``x``, refused when the data cannot be this model's."""
-    cost = float(lik.rms_cost(x)[0])
-    if not np.isfinite(cost) or cost > 0.25 * np.ptp(lik.y_mean):
-        raise FitError(
-            f"{lik.dataset.source or 'the data'}: the best fit leaves an RMS error of "
-            f"{cost * 1e3:.3g} mm on a motion of {np.ptp(lik.y_mean) * 1e3:.3g} mm, so the data "
-            "cannot be what this model describes. Check the units (positions in m, pressure "
-            "in Pa), that the input column is the commanded input, and the rig (masses, "
-            "gravity direction)."
-        )
-    return cost
+def _check_fit_quality(lik: Likelihood | JointLikelihood, x: np.ndarray) -> float:
+    """The RMS cost of the MAP's output ``x``, refused when the data cannot be this model's.
+
+    For several experiments, each is judged on its own part of ``x``, and the
+    combined cost (:meth:`JointLikelihood.rms_cost`) is returned.
+    """
+    parts = (zip(lik.likelihoods, lik.split(x), strict=True) if isinstance(lik, JointLikelihood)
+             else [(lik, x)])
+    for one, xe in parts:
+        cost = float(one.rms_cost(xe)[0])
+        if not np.isfinite(cost) or cost > 0.25 * np.ptp(one.y_mean):
+            raise FitError(
+                f"{one.dataset.source or 'the data'}: the best fit leaves an RMS error of "
+                f"{cost * 1e3:.3g} mm on a motion of {np.ptp(one.y_mean) * 1e3:.3g} mm, so the "
+                "data cannot be what this model describes. Check the units (positions in m, "
+                "pressure in Pa), that the input column is the commanded input, and the rig "
+                "(masses, gravity direction)."
+            )
+    return float(lik.rms_cost(np.atleast_2d(x))[0])
 
 
 # ---------------------------------------------------------------------------------
@@ -714,15 +742,21 @@ def _walker_rhat(theta: np.ndarray) -> np.ndarray:
                      for j in range(theta.shape[2])])
 
 
-def _fingerprint(likelihood: Likelihood, settings: FitSettings, seed) -> str:
-    """What makes chains resumable: the data, the model, the seed and the ensembles."""
-    model = likelihood.model
-    return fingerprint(
-        likelihood.dataset.position_m, likelihood.input,
-        {"model": model.describe(), "rig": model.rig.to_dict(),
-         "effects": model.effect_names, "seed": seed, "n_walkers": settings.n_walkers,
-         "n_ensembles": settings.n_ensembles, "substeps": likelihood.substeps},
-    )
+def _fingerprint(posterior: Posterior, settings: FitSettings, seed) -> str:
+    """What makes chains resumable: the data, the models, the noise, the seed and the
+    ensembles."""
+    liks = posterior.likelihoods
+    model = posterior.model
+    extra = {"model": model.describe(), "rig": model.rig.to_dict(),
+             "effects": model.effect_names, "seed": seed, "n_walkers": settings.n_walkers,
+             "n_ensembles": settings.n_ensembles, "substeps": liks[0].substeps}
+    if len(liks) > 1 or posterior.noise_sampled(0):
+        # a fit of one experiment with repeats keeps the fingerprint it always had
+        extra.update(rigs=[lik.model.rig.to_dict() for lik in liks],
+                     names=posterior.experiment_names, groups=posterior.groups,
+                     sampled_noise=list(posterior.names[posterior.n_model:]))
+    arrays = [a for lik in liks for a in (lik.dataset.position_m, lik.input)]
+    return fingerprint(*arrays, extra)
 
 
 def _round_line(diag: _Diagnostics, settings: FitSettings, seconds: float) -> str:
@@ -778,7 +812,7 @@ def _sample_rounds(posterior: Posterior, chains: _Chains, initials: list[np.ndar
 
 
 def fit(
-    dataset: Dataset,
+    datasets: Dataset | Sequence[Dataset],
     model: Model | None = None,
     *,
     seed: int | None = 0,
@@ -786,15 +820,26 @@ def fit(
     chains_dir: str | Path | None = None,
     restart: bool = False,
     substeps: int = 1,
+    tie_noise: bool = False,
 ) -> xr.DataTree:
-    """Identify a model's parameters from repeated trials: MAP, then posterior.
+    """Identify a model's parameters from one or more experiments: MAP, then posterior.
+
+    Each data set is an experiment: its own input, length, rig (its metadata's
+    ``rig``) and trials (one or more). The physical parameters are shared; the
+    noise belongs to each experiment unless ``tie_noise``. An experiment's noise is
+    learnt from its repeats (trials, or the periods of a single periodic record);
+    a record without repeats has it identified jointly with the model under a guard
+    (see :mod:`pmabayes.likelihood`).
 
     Parameters
     ----------
-    dataset : Dataset
-        Repeated trials sharing one input.
+    datasets : Dataset or sequence of Dataset
+        The experiments, all with the same kind of input (pressure or force).
     model : Model, optional
-        The model; the base model on the characterisation rig by default.
+        The model (effects, priors, fixed values); the base model by default. With
+        one experiment it is used as given. With several, each experiment gets it
+        on the rig its metadata records (``Model.for_dataset``), or on the
+        model's rig where the metadata records none.
     seed : int or None
         Seed of everything random (global search, walkers, emcee, predictive
         noise). The same seed gives the same numbers, to the bit.
@@ -809,6 +854,9 @@ def fit(
         Discard existing chains in ``chains_dir`` instead of resuming.
     substeps : int
         Simulator substeps per sample.
+    tie_noise : bool
+        One noise for all experiments (same sensor, same disturbance) instead of
+        one per experiment.
 
     Returns
     -------
@@ -818,7 +866,8 @@ def fit(
     Raises
     ------
     FitError
-        When the data cannot be fitted or the chains belong to another fit.
+        When the data cannot be fitted, the experiments' inputs are of different
+        kinds, or the chains belong to another fit.
 
     Warns
     -----
@@ -828,14 +877,14 @@ def fit(
     start = time.perf_counter()
     settings = FitSettings() if settings is None else settings
     model = Model() if model is None else model
-    posterior = _posterior(model, dataset, substeps)
+    posterior = _posterior(model, datasets, substeps, tie_noise=tie_noise)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
     say = Progress("fit", settings.progress)
     with _chains_folder(chains_dir) as folder:
         chains = _Chains(folder, settings.n_ensembles,
-                         _fingerprint(posterior.likelihood, settings, seed))
+                         _fingerprint(posterior, settings, seed))
         if restart:
             chains.clear()
         map_result, t_map, resumed = _map_or_resume(chains, posterior, s_map, say, start)
@@ -860,13 +909,51 @@ def fit(
     return tree
 
 
-def _posterior(model: Model, dataset: Dataset, substeps: int) -> Posterior:
-    """The posterior to sample, with the noise learnt from repeatability."""
+def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False) -> Posterior:
+    """The posterior to sample: a likelihood per experiment, and each noise group's
+    estimate from its repeats (None where it has none: sampled with the model)."""
+    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
+    if not datasets:
+        raise FitError("no data: give at least one data set")
+    for ds in datasets:
+        if not isinstance(ds, Dataset):
+            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
+                            f"{type(ds).__name__}")
     try:
-        likelihood = Likelihood(model, dataset, substeps=substeps)
-    except LikelihoodError as exc:
+        check_same_input_kind(datasets)
+    except DataError as err:
+        raise FitError(str(err)) from None
+    names = experiment_names([ds.source for ds in datasets])
+    try:
+        models = [model] if len(datasets) == 1 else [_on_rig(model, ds) for ds in datasets]
+        liks = [Likelihood(m, ds, substeps=substeps)
+                for m, ds in zip(models, datasets, strict=True)]
+    except (LikelihoodError, ModelError) as exc:
         raise FitError(str(exc)) from None
-    return Posterior(likelihood, estimate_noise(likelihood))
+    for ds in datasets:  # before their spread is taken for noise
+        check_trials(ds, warn=True)
+    groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
+    noises = []
+    for g in range(max(groups) + 1):
+        members = [lik for lik, gg in zip(liks, groups, strict=True) if gg == g]
+        noises.append(estimate_noise(members) if any(lik.n_repeats >= 2 for lik in members)
+                      else None)
+    return Posterior(liks, noises, names=names, noise_groups=groups)
+
+
+def _on_rig(model: Model, dataset: Dataset) -> Model:
+    """``model`` (effects, priors, fixed values) on the rig the data set's metadata
+    records, or on its own rig where it records none."""
+    rig_meta = dataset.metadata.get("rig") if dataset.metadata else None
+    if not isinstance(rig_meta, dict):
+        return model
+    try:
+        rig = Rig.from_dict(rig_meta)
+    except ModelError as err:  # name the file: the rig comes from its sidecar
+        raise ModelError(f"{dataset.source or 'data set'}: metadata 'rig': {err}") from None
+    kept_priors = {n: p for n, p in model.priors.items() if p is not model.parameter(n).prior}
+    return Model(model.effects, rig=rig, priors=kept_priors, fixed=dict(model.fixed),
+                 free=model.free_names)
 
 
 def _check_settings(settings: FitSettings, posterior: Posterior) -> None:

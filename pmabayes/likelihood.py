@@ -1,4 +1,4 @@
-"""The likelihood of repeated trials under a model and an AR(1) noise model.
+"""The likelihood of an experiment's trials under a model and an AR(1) noise model.
 
 Noise model
 -----------
@@ -50,6 +50,36 @@ have its error explained away as slow noise (``rho -> 1``, ``sigma`` inflated):
 the AR(1) likelihood barely penalises a slowly varying residual. With the noise
 fixed by repeatability, model error stays visible. When the model is right, this
 and the joint posterior agree to O(1/R).
+
+Single records
+--------------
+A record without repeated trials (:attr:`Likelihood.noise_source`):
+
+* **periodic** (``period_samples`` declared): its periods are the repeats. All of
+  them when the record starts in steady state; from the second on when it starts
+  from rest, since the first holds the transient. The noise is learnt from the
+  periods' deviations from their mean, model-free as for trials; the model's
+  likelihood is that of the whole record.
+* **not periodic**: nothing but the record identifies the noise, so it is fitted
+  with the model, and the guard above is replaced by one on the noise model
+  itself (:meth:`Likelihood.noise_parameters`): the disturbance's correlation
+  time is bounded by ``1 / (2 pi GUARD_FACTOR f_in)``, ``f_in`` the frequency
+  below which 99% of the input's variance lies. Its spectrum is then flat up to
+  ten times the input's band, where a model's misfit lives (the input's band and
+  the harmonics hysteresis makes of it). To absorb a misfit there the noise would
+  have to rise at all frequencies, against the record's own high-frequency
+  residual; what it cannot absorb stays in the innovations, whose whiteness test
+  then judges the model. The price: a disturbance that really is slow cannot be
+  told from model error in one record, and is not modelled; repeat the record, or
+  make it periodic.
+
+Several experiments
+-------------------
+Each experiment (a data set with its own input, rig and trials) has its own
+:class:`Likelihood`; :class:`pmabayes.posterior.Posterior` sums their log
+likelihoods, each given its experiment's noise. :class:`JointLikelihood` presents
+them as one output for the global search (a cost that weighs every experiment the
+same) and the quality check.
 """
 
 from __future__ import annotations
@@ -64,7 +94,8 @@ from pmabayes.model import Model
 from pmabayes.parameters import LogNormal, Parameter, Uniform
 from pmabayes.simulator import simulate_dataset
 
-__all__ = ["NOISE_PARAMETERS", "Likelihood", "LikelihoodError", "ar1_noise"]
+__all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
+           "LikelihoodError", "ar1_noise"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
@@ -180,28 +211,67 @@ def _kalman_innovations(y, scale, sigma, rho, white):
     return out
 
 
+#: What identifies the noise without the model, per experiment (see :class:`Likelihood`).
+NOISE_SOURCES: tuple[str, ...] = ("trials", "periods", "record")
+
+#: For a record without repeats, the disturbance's spectrum must stay flat up to this
+#: multiple of the input's upper frequency (see :attr:`Likelihood.rho_max`).
+GUARD_FACTOR: float = 10.0
+
+
+def _noise_repeats(dataset: Dataset) -> tuple[str, np.ndarray]:
+    """The noise source of a data set and the repeated series it offers.
+
+    Trials when there are two or more; else the periods in steady state of a
+    periodic record (all of them when it starts in steady state, from the second
+    on when it starts from rest); else the record alone.
+    """
+    if dataset.n_trials >= 2:
+        return "trials", np.ascontiguousarray(dataset.position_m)
+    y = dataset.position_m[0]
+    period, n_per = dataset.period_samples, dataset.n_periods
+    if period is not None and n_per is not None:
+        first = 0 if dataset.starts_in_steady_state else 1
+        if n_per - first >= 2:
+            segs = y[first * period: n_per * period].reshape(n_per - first, period)
+            return "periods", np.ascontiguousarray(segs)
+    return "record", np.ascontiguousarray(y[None, :])
+
+
 class LikelihoodError(ValueError):
     """The data cannot be fitted as given (too few trials, no motion, wrong rig)."""
 
 
 class Likelihood:
-    """AR(1) likelihood of repeated trials that share one input.
+    """AR(1) likelihood of the trials of one experiment, which share one input.
 
     Parameters
     ----------
     model : Model
-        The composed model.
+        The composed model, on this experiment's rig.
     dataset : Dataset
-        At least two repeated trials; all must share the input (the commanded
+        One experiment: one or more trials, all sharing the input (the commanded
         pressure or force).
     substeps : int
         Simulator substeps per sample (see :func:`pmabayes.simulate`).
 
+    Attributes
+    ----------
+    noise_source : str
+        What identifies the noise without the model (:data:`NOISE_SOURCES`):
+        ``"trials"`` (two or more repeated trials), ``"periods"`` (one record of a
+        declared periodic input, its periods in steady state taken as repeats) or
+        ``"record"`` (one record without repeats: the noise is identified jointly
+        with the model, under :meth:`noise_parameters`' guard).
+    n_repeats : int
+        The number of repeated series the noise is learnt from without the model
+        (trials or periods; 1 for ``"record"``).
+
     Raises
     ------
     LikelihoodError
-        With fewer than two trials, trials with different inputs, an input kind
-        that does not match the rig, or positions that never change.
+        With trials of different inputs, an input kind that does not match the rig,
+        or positions that never change.
     """
 
     def __init__(self, model: Model, dataset: Dataset, *, substeps: int = 1) -> None:
@@ -210,12 +280,6 @@ class Likelihood:
             raise LikelihoodError(
                 f"{where}: the input column is {dataset.input_name!r} but the model's rig "
                 f"({model.rig.name}) expects {model.rig.input_name!r}; use a matching rig"
-            )
-        if dataset.n_trials < 2:
-            raise LikelihoodError(
-                f"{where}: only one trial (id {int(dataset.trial_ids[0])}); pmabayes needs at "
-                "least 2 repeated trials of the same input to tell model error from the "
-                "trial-to-trial noise. Record more repetitions."
             )
         same = np.all(dataset.input == dataset.input[0], axis=1)
         if not same.all():
@@ -237,17 +301,81 @@ class Likelihood:
         self.input = np.ascontiguousarray(dataset.input[0])
         self.y_mean = dataset.mean_position_m
         self._trials = np.ascontiguousarray(dataset.position_m)
-        # Helmert contrasts: R - 1 orthonormal combinations of the trials that remove
-        # the mean; each is a series of the noise process alone
-        r = self.n_trials
-        helmert = np.zeros((r - 1, r))
-        for j in range(r - 1):
-            helmert[j, : j + 1] = 1.0
-            helmert[j, j + 1] = -(j + 1.0)
-            helmert[j] /= math.sqrt((j + 1.0) * (j + 2.0))
-        self._contrasts = np.ascontiguousarray(helmert @ dataset.position_m)
-        self._d = dataset.position_m - self.y_mean
+        self.noise_source, repeats = _noise_repeats(dataset)
+        self.n_repeats = repeats.shape[0]
+        self._repeats = repeats
+        if self.n_repeats >= 2:
+            # Helmert contrasts: R - 1 orthonormal combinations of the repeats that
+            # remove their mean; each is a series of the noise process alone
+            r = self.n_repeats
+            helmert = np.zeros((r - 1, r))
+            for j in range(r - 1):
+                helmert[j, : j + 1] = 1.0
+                helmert[j, j + 1] = -(j + 1.0)
+                helmert[j] /= math.sqrt((j + 1.0) * (j + 2.0))
+            self._contrasts = np.ascontiguousarray(helmert @ repeats)
+            self._d = repeats - repeats.mean(axis=0)
+        else:
+            self._contrasts = np.zeros((0, self.n_samples))
+            self._d = np.zeros((0, self.n_samples))
         self.motion_m = motion
+
+    # -- the noise guard for records without repeats ----------------------------
+    @property
+    def input_frequency_hz(self) -> float:
+        """The input's upper frequency: 99% of its variance lies below it.
+
+        Where a model's misfit lives (with the harmonics that hysteresis makes of
+        it); the noise guard of :meth:`noise_parameters` keeps the disturbance's
+        spectrum flat far above it.
+        """
+        u = self.input - self.input.mean()
+        power = np.abs(np.fft.rfft(u)) ** 2
+        power[0] = 0.0
+        total = power.sum()
+        if not total > 0:  # a constant input: no time scale of its own
+            return 0.5 * self.dataset.sample_rate_hz
+        freq = np.fft.rfftfreq(self.n_samples, self.dataset.dt_s)
+        k = int(np.searchsorted(np.cumsum(power) / total, 0.99))
+        return float(freq[min(k, freq.size - 1)])
+
+    @property
+    def rho_max(self) -> float:
+        """Largest lag-one correlation the noise of a record without repeats may have.
+
+        The disturbance's correlation time is bounded by
+        ``1 / (2 pi GUARD_FACTOR f_in)`` (``f_in``: :attr:`input_frequency_hz`),
+        i.e. its spectrum is flat up to ``GUARD_FACTOR`` times the input's upper
+        frequency. Returned for any noise source; used for ``"record"``.
+        """
+        f_in = max(self.input_frequency_hz, self.dataset.sample_rate_hz / self.n_samples)
+        tau_max = 1.0 / (2.0 * math.pi * GUARD_FACTOR * f_in)
+        return float(min(math.exp(-self.dataset.dt_s / tau_max), 0.999999))
+
+    def noise_parameters(self) -> tuple[Parameter, ...]:
+        """The noise parameters with their priors for this experiment.
+
+        :data:`NOISE_PARAMETERS`, except for a record without repeats
+        (``noise_source == "record"``): there ``rho_noise`` is bounded by
+        :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), so that the
+        disturbance cannot become the slow process that would explain a model's
+        misfit away.
+
+        Returns
+        -------
+        tuple of Parameter
+        """
+        if self.noise_source != "record":
+            return NOISE_PARAMETERS
+        sig, rho, white = NOISE_PARAMETERS
+        r = self.rho_max
+        guarded = Parameter(
+            "rho_noise", "1", 0.0, Uniform(-r, r), bounds=(-r, r),
+            description=(f"lag-one autocorrelation of the disturbance, at most {r:.4g} (its "
+                         "correlation time far below the input's time scales)"),
+            latex=r"\rho",
+        )
+        return (sig, guarded, white)
 
     # -- model output ---------------------------------------------------------
     def simulate(self, theta: np.ndarray) -> np.ndarray:
@@ -270,7 +398,9 @@ class Likelihood:
         """Log-likelihood of the deviations from the trial mean (model-free).
 
         The deviations are ``R - 1`` independent series of the noise process in
-        disguise: their Helmert contrasts.
+        disguise: their Helmert contrasts. The repeats are the trials, or the
+        periods of a single periodic record (:attr:`noise_source`); a record
+        without repeats has none (the result is 0).
 
         Parameters
         ----------
@@ -285,7 +415,7 @@ class Likelihood:
         """
         batch = np.broadcast(np.asarray(sigma), np.asarray(rho), np.asarray(white)).size
         pars = self._params(sigma, rho, white, batch)
-        zero = np.zeros((1, self.n_samples))
+        zero = np.zeros((1, self._contrasts.shape[1]))
         return _kalman_loglik(self._contrasts, zero, 1.0, *pars).sum(axis=1)
 
     def mean_log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
@@ -314,7 +444,10 @@ class Likelihood:
     def log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
         """Total log-likelihood of all trials, per batch member.
 
-        Equal to :meth:`deviation_log_likelihood` plus :meth:`mean_log_likelihood`.
+        Equal to :meth:`deviation_log_likelihood` plus :meth:`mean_log_likelihood`
+        for repeated trials; for a single record (periodic or not) the record's
+        likelihood, :meth:`mean_log_likelihood` (its periods identify the noise but
+        are not data beside the record).
 
         Parameters
         ----------
@@ -329,8 +462,10 @@ class Likelihood:
             ``(batch,)``.
         """
         x = np.atleast_2d(x)
-        return (self.deviation_log_likelihood(*self._params(sigma, rho, white, x.shape[0]))
-                + self.mean_log_likelihood(x, sigma, rho, white))
+        mean = self.mean_log_likelihood(x, sigma, rho, white)
+        if self.noise_source != "trials":
+            return mean
+        return self.deviation_log_likelihood(*self._params(sigma, rho, white, x.shape[0])) + mean
 
     def whiten(self, v: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
         """Standardised Kalman innovations of ``sqrt(R) v`` under the noise model.
@@ -390,3 +525,90 @@ class Likelihood:
         pars = self._params(sigma, rho, white, x.shape[0])
         return _kalman_loglik(self._trials, x, 1.0, *pars)
 
+
+
+class JointLikelihood:
+    """Several experiments seen as one, for the global search and the quality check.
+
+    Physical parameters are shared, so one parameter array simulates every
+    experiment; the outputs are concatenated along time. Each experiment keeps its
+    own :class:`Likelihood` (its data, rig, input and noise).
+
+    Parameters
+    ----------
+    likelihoods : sequence of Likelihood
+        One per experiment, with models that share their parameters (same effects
+        and fixed values; the rigs may differ).
+    names : sequence of str
+        The experiments' names.
+
+    Raises
+    ------
+    LikelihoodError
+        If the experiments' models do not share their parameters.
+    """
+
+    def __init__(self, likelihoods, names) -> None:
+        self.likelihoods = list(likelihoods)
+        self.names = list(names)
+        first = self.likelihoods[0].model
+        for lik in self.likelihoods[1:]:
+            if [p.name for p in lik.model.parameters] != [p.name for p in first.parameters]:
+                raise LikelihoodError(
+                    f"{lik.dataset.source or 'an experiment'}: its model has parameters "
+                    f"{[p.name for p in lik.model.parameters]}, the first experiment's "
+                    f"{[p.name for p in first.parameters]}; experiments of one fit share the "
+                    "model's effects")
+        self.model = first
+        self.dataset = self.likelihoods[0].dataset
+        self.substeps = self.likelihoods[0].substeps
+        self.sizes = [lik.n_samples for lik in self.likelihoods]
+        self._edges = np.cumsum([0, *self.sizes])
+        self.n_samples = int(self._edges[-1])
+        self.y_mean = np.concatenate([lik.y_mean for lik in self.likelihoods])
+        self.input = np.concatenate([lik.input for lik in self.likelihoods])
+        self.motions_m = np.array([float(np.ptp(lik.y_mean)) for lik in self.likelihoods])
+
+    def split(self, x: np.ndarray) -> list[np.ndarray]:
+        """Concatenated outputs ``(batch, n_samples)`` cut into each experiment's.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            ``(batch, n_samples)`` or ``(n_samples,)``.
+
+        Returns
+        -------
+        list of numpy.ndarray
+        """
+        x = np.atleast_2d(x)
+        return [x[:, a:b] for a, b in zip(self._edges[:-1], self._edges[1:], strict=True)]
+
+    def simulate(self, theta: np.ndarray) -> np.ndarray:
+        """Every experiment's model positions, concatenated: ``(batch, n_samples)``."""
+        return np.concatenate([lik.simulate(theta) for lik in self.likelihoods], axis=1)
+
+    def rms_costs(self, x: np.ndarray) -> np.ndarray:
+        """Each experiment's RMS cost, ``(batch, n_experiments)``."""
+        return np.stack([lik.rms_cost(xe) for lik, xe in
+                         zip(self.likelihoods, self.split(x), strict=True)], axis=1)
+
+    def rms_cost(self, x: np.ndarray) -> np.ndarray:
+        """The combined cost: the experiments' RMS costs, each relative to its motion.
+
+        ``mean_motion * sqrt(mean_e (rms_e / motion_e)^2)``, in metres: every
+        experiment weighs the same whatever its length or amplitude, and with one
+        experiment it is the paper's RMS cost.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Concatenated model positions ``(batch, n_samples)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)``.
+        """
+        rel = self.rms_costs(x) / self.motions_m
+        return self.motions_m.mean() * np.sqrt(np.mean(rel * rel, axis=1))

@@ -359,8 +359,9 @@ class Model:
         )
 
     @classmethod
-    def for_dataset(cls, dataset, effects: Iterable[str | type[Effect] | Effect] | str = ()
-                    ) -> Model:
+    def for_dataset(cls, dataset, effects: Iterable[str | type[Effect] | Effect] | str = (),
+                    *, priors: Mapping[str, Prior] | None = None,
+                    fixed: Mapping[str, float] | None = None) -> Model:
         """The model for a data set, on the rig its metadata records.
 
         Parameters
@@ -370,6 +371,10 @@ class Model:
             characterisation rig otherwise.
         effects : iterable or str
             Effects to add to the base model.
+        priors : mapping of str to Prior, optional
+            Overrides of the default priors.
+        fixed : mapping of str to float, optional
+            Parameters held fixed.
 
         Returns
         -------
@@ -380,7 +385,7 @@ class Model:
             rig = Rig.from_dict(rig_meta) if isinstance(rig_meta, dict) else Rig.characterisation()
         except ModelError as err:  # name the file: the rig comes from its sidecar
             raise ModelError(f"{dataset.source or 'data set'}: metadata 'rig': {err}") from None
-        return cls(effects, rig=rig)
+        return cls(effects, rig=rig, priors=priors, fixed=fixed)
 
     # -- parameter arrays -------------------------------------------------------
     @property

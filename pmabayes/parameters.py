@@ -8,12 +8,14 @@ one-line physical meaning.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Prior", "Uniform", "Normal", "LogNormal", "HalfNormal", "Parameter"]
+__all__ = ["Prior", "Uniform", "Normal", "LogNormal", "HalfNormal", "Parameter", "parse_prior"]
 
 
 class Prior:
@@ -65,7 +67,7 @@ class Uniform(Prior):
         return (self.low, self.high)
 
     def __str__(self) -> str:
-        return f"Uniform({self.low:g}, {self.high:g})"
+        return f"Uniform({self.low:.12g}, {self.high:.12g})"
 
 
 @dataclass(frozen=True)
@@ -95,7 +97,7 @@ class Normal(Prior):
         return rng.normal(self.mu, self.sigma, size)
 
     def __str__(self) -> str:
-        return f"Normal({self.mu:g}, {self.sigma:g})"
+        return f"Normal({self.mu:.12g}, {self.sigma:.12g})"
 
 
 @dataclass(frozen=True)
@@ -133,7 +135,7 @@ class LogNormal(Prior):
         return (0.0, math.inf)
 
     def __str__(self) -> str:
-        return f"LogNormal(median={self.median:g}, sigma={self.sigma:g})"
+        return f"LogNormal(median={self.median:.12g}, sigma={self.sigma:.12g})"
 
 
 @dataclass(frozen=True)
@@ -165,7 +167,7 @@ class HalfNormal(Prior):
         return (0.0, math.inf)
 
     def __str__(self) -> str:
-        return f"HalfNormal({self.sigma:g})"
+        return f"HalfNormal({self.sigma:.12g})"
 
 
 @dataclass(frozen=True)
@@ -242,3 +244,53 @@ class Parameter:
         """
         prior = self.prior if prior is None else prior
         return np.where(self.in_bounds(value), prior.logpdf(value), -np.inf)
+
+
+_PRIOR_SPEC = re.compile(r"^\s*([A-Za-z]+)\s*\((.*)\)\s*$")
+
+
+def parse_prior(text: str) -> Prior:
+    """A prior from its printed form, e.g. ``"LogNormal(5e4, 2)"`` or ``"Uniform(0, 1)"``.
+
+    The inverse of ``str(prior)``: the distribution's name (any case) and its
+    parameters in order or by name (``LogNormal(median=5e4, sigma=2)``).
+
+    Parameters
+    ----------
+    text : str
+        The specification.
+
+    Returns
+    -------
+    Prior
+
+    Raises
+    ------
+    ValueError
+        If the name is unknown, an argument is not a number, or the distribution
+        rejects the values; the message lists the forms accepted.
+    """
+    kinds = {cls.__name__.lower(): cls for cls in (Uniform, Normal, LogNormal, HalfNormal)}
+    forms = "Uniform(low, high), Normal(mu, sigma), LogNormal(median, sigma), HalfNormal(sigma)"
+    match = _PRIOR_SPEC.match(str(text))
+    if not match or match.group(1).lower() not in kinds:
+        raise ValueError(f"prior {text!r} is not understood; write one of {forms}")
+    cls = kinds[match.group(1).lower()]
+    names = [f.name for f in dataclasses.fields(cls)]
+    args: dict[str, float] = {}
+    parts = [a.strip() for a in match.group(2).split(",") if a.strip()]
+    for i, part in enumerate(parts):
+        key, _, value = part.rpartition("=")
+        key = key.strip() or (names[i] if i < len(names) else "")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"prior {text!r}: {value.strip()!r} is not a number; write one "
+                             f"of {forms}") from None
+        if key not in names or key in args:
+            raise ValueError(f"prior {text!r}: {cls.__name__} takes ({', '.join(names)}); "
+                             f"write one of {forms}")
+        args[key] = number
+    if len(args) != len(names):
+        raise ValueError(f"prior {text!r}: {cls.__name__} takes ({', '.join(names)})")
+    return cls(**args)

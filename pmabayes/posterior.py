@@ -33,7 +33,43 @@ the reports read):
 root attribute ``pmabayes``
     A JSON string: the model (effects, rig, fixed values, priors), the data
     source, the noise model, the MAP and the paper's RMS cost, convergence
-    diagnostics, seed and timings. :func:`fit_info` decodes it.
+    diagnostics, seed and timings. :func:`fit_info` decodes it. Its
+    ``experiments`` entry is a list with one dict per experiment, for one
+    experiment too (:func:`experiment_records`: ``name``, ``source``, ``rig``,
+    ``n_trials``, ``n_samples``, ``input_name``, ``input_between_samples``,
+    ``period_samples``, ``starts_in_steady_state``, ``noise`` ``"own"`` or
+    ``"tied"``, ``noise_source``, ``noise_estimate``, ``noise_floor_m``,
+    ``rms_cost_m``, ``metadata``).
+
+A fit of one experiment has exactly the layout above, whatever its noise source.
+For a record without repeats the noise parameters in ``/posterior`` are sampled
+with the model rather than drawn from the repeats' Laplace approximation, and
+``data.noise_floor_m`` is None.
+
+A fit of several experiments (``NAME`` is an experiment's name, unique, from its
+file's stem; :func:`experiment_names`):
+
+``/posterior``
+    The model's parameters ``(chain, draw)``, shared; the noise parameters
+    ``(chain, draw, experiment)``, coordinate ``experiment`` = the names (with
+    ``tie_noise`` the values are the same for every experiment).
+``/observed_data``
+    ``position_m__NAME``, ``(trial__NAME, time__NAME)``.
+``/constant_data``
+    The input of each, ``pressure_pa__NAME`` or ``force_n__NAME``,
+    ``(time__NAME,)``.
+``/posterior_predictive``
+    ``position_m__NAME`` ``(chain, draw, trial__NAME, time__NAME)`` and
+    ``model_position_m__NAME`` ``(chain, draw, time__NAME)``, the same draws for
+    every experiment.
+``/log_likelihood``
+    ``position_m``, ``(chain, draw, trial)``: every trial of every experiment
+    along one ``trial`` dimension (experiment after experiment), with the
+    coordinates ``experiment`` and ``trial_id`` along it, so that ``az.loo``
+    leaves one trial out of all of them.
+
+:func:`experiment_datasets` and :func:`experiment_models` rebuild each
+experiment's data set and model from either layout.
 """
 
 from __future__ import annotations
@@ -41,6 +77,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,12 +87,13 @@ import xarray as xr
 
 from pmabayes import __version__
 from pmabayes.data import DataError, Dataset
-from pmabayes.likelihood import NOISE_PARAMETERS, Likelihood, ar1_noise
+from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, ar1_noise
 from pmabayes.model import PAPER_VALUES, Model, Rig
-from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior
+from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior, parse_prior
 
 __all__ = ["Posterior", "NoiseEstimate", "fit_tree", "set_fit_info", "save_fit", "load_fit",
-           "fit_info", "model_from_fit", "check_dataset", "FitFileError"]
+           "fit_info", "model_from_fit", "check_dataset", "FitFileError", "experiment_records",
+           "experiment_names", "experiment_datasets", "experiment_models"]
 
 
 # ---------------------------------------------------------------------------------
@@ -104,32 +142,83 @@ class NoiseEstimate:
 
 
 class Posterior:
-    """Log posterior of a model's free parameters, given the noise.
+    """Log posterior of a model's free parameters, given the noise, over experiments.
 
     Parameters
     ----------
-    likelihood : Likelihood
-        Data, model and noise model.
-    noise : NoiseEstimate
-        The noise parameters (from :func:`estimate_noise`); the trial mean's
-        likelihood is evaluated at their mode.
+    likelihood : Likelihood or sequence of Likelihood
+        One per experiment: its data, its model (on its rig) and the noise model.
+        The experiments' models share their parameters.
+    noise : NoiseEstimate, None, or sequence of them
+        One per noise group (see ``noise_groups``): the estimate from repeats
+        (:func:`pmabayes.fit.estimate_noise`), at whose mode the likelihood is
+        evaluated, or None for a group without repeats, whose noise parameters
+        are then sampled with the model's (under the guard of
+        :meth:`pmabayes.likelihood.Likelihood.noise_parameters`).
+    names : sequence of str, optional
+        The experiments' names (``experiment_1``, ... by default).
+    noise_groups : sequence of int, optional
+        The noise group of each experiment: experiments of one group share their
+        noise (``tie_noise``). Each its own by default.
 
     Attributes
     ----------
     names : tuple of str
-        Identified model parameters (the model's free parameters).
+        Identified parameters: the model's free parameters, then any sampled noise
+        parameters (``sigma_noise_m``, ... for one group, ``sigma_noise_m[NAME]``,
+        ... per experiment otherwise).
+    likelihoods : list of Likelihood
+        One per experiment.
+    likelihood : Likelihood or JointLikelihood
+        The one experiment's, or all of them seen as one (for the global search).
     """
 
-    def __init__(self, likelihood: Likelihood, noise: NoiseEstimate) -> None:
-        self.likelihood = likelihood
-        self.noise = noise
-        self.model = likelihood.model
+    def __init__(self, likelihood, noise, *, names=None, noise_groups=None) -> None:
+        liks = [likelihood] if isinstance(likelihood, Likelihood) else list(likelihood)
+        if not liks:
+            raise ValueError("a posterior needs at least one experiment")
+        self.likelihoods: list[Likelihood] = liks
+        self.n_experiments = len(liks)
+        self.experiment_names: list[str] = (list(names) if names is not None else
+                                            [f"experiment_{i + 1}" for i in range(len(liks))])
+        self.groups: list[int] = (list(noise_groups) if noise_groups is not None
+                                  else list(range(len(liks))))
+        n_groups = max(self.groups) + 1
+        self.group_noise: list[NoiseEstimate | None] = (
+            [noise] if noise is None or isinstance(noise, NoiseEstimate) else list(noise))
+        if len(self.group_noise) != n_groups or len(self.groups) != len(liks):
+            raise ValueError(f"{len(liks)} experiments in {n_groups} noise groups need one noise "
+                             f"entry per group, got {len(self.group_noise)}")
+        self.likelihood = (liks[0] if len(liks) == 1
+                           else JointLikelihood(liks, self.experiment_names))
+        self.noise = self.group_noise[0]
+        self.model = liks[0].model
         model = self.model
-        self.parameters: tuple[Parameter, ...] = tuple(
-            model.parameter(n) for n in model.free_names
-        )
-        self.names: tuple[str, ...] = tuple(p.name for p in self.parameters)
-        self.priors: tuple[Prior, ...] = tuple(model.priors[n] for n in model.free_names)
+        model_params = tuple(model.parameter(n) for n in model.free_names)
+        self.n_model = len(model_params)
+        params: list[Parameter] = list(model_params)
+        priors: list[Prior] = [model.priors[n] for n in model.free_names]
+        names_out = [p.name for p in model_params]
+        # sampled noise: the columns of each group without repeats
+        self._noise_cols: dict[int, list[int]] = {}
+        for g in range(n_groups):
+            if self.group_noise[g] is not None:
+                continue
+            members = [e for e, gg in enumerate(self.groups) if gg == g]
+            # the strictest guard of the group's experiments
+            guarded = min((liks[e].noise_parameters() for e in members),
+                          key=lambda ps: ps[1].bounds[1])
+            label = (None if n_groups == 1 else
+                     "+".join(self.experiment_names[e] for e in members))
+            self._noise_cols[g] = []
+            for p in guarded:
+                self._noise_cols[g].append(len(params))
+                params.append(p)
+                priors.append(p.prior)
+                names_out.append(p.name if label is None else f"{p.name}[{label}]")
+        self.parameters: tuple[Parameter, ...] = tuple(params)
+        self.names: tuple[str, ...] = tuple(names_out)
+        self.priors: tuple[Prior, ...] = tuple(priors)
         self.kinds = tuple(
             _transform_kind(p, pr) for p, pr in zip(self.parameters, self.priors, strict=True)
         )
@@ -137,6 +226,53 @@ class Posterior:
         self._template = model.theta(model.defaults)[0]
         self.lower = np.array([p.bounds[0] for p in self.parameters])
         self.upper = np.array([p.bounds[1] for p in self.parameters])
+
+    def noise_of(self, experiment: int, theta: np.ndarray | None = None) -> tuple:
+        """The noise ``(sigma, rho, white)`` of an experiment.
+
+        Parameters
+        ----------
+        experiment : int
+            Its index.
+        theta : numpy.ndarray, optional
+            Identified values ``(batch, ndim)``; needed where the noise is sampled.
+
+        Returns
+        -------
+        tuple
+            Floats (noise from repeats, at its mode) or ``(batch,)`` arrays.
+        """
+        g = self.groups[experiment]
+        est = self.group_noise[g]
+        if est is not None:
+            return est.sigma, est.rho, est.white
+        if theta is None:
+            raise ValueError(f"the noise of experiment {self.experiment_names[experiment]} is "
+                             "sampled with the model: give theta")
+        theta = np.atleast_2d(theta)
+        return tuple(theta[:, c] for c in self._noise_cols[g])
+
+    def noise_sampled(self, experiment: int) -> bool:
+        """Whether an experiment's noise is sampled with the model (no repeats)."""
+        return self.group_noise[self.groups[experiment]] is None
+
+    def noise_values(self, theta: np.ndarray) -> dict:
+        """The noise at one point ``(ndim,)``, for the MAP's record.
+
+        Returns
+        -------
+        dict
+            ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``: floats for one
+            experiment, ``{experiment name: value}`` for several.
+        """
+        theta = np.asarray(theta, dtype=float).reshape(1, -1)
+        per = [[float(np.asarray(v).reshape(-1)[0]) for v in self.noise_of(e, theta)]
+               for e in range(self.n_experiments)]
+        keys = [p.name for p in NOISE_PARAMETERS]
+        if self.n_experiments == 1:
+            return dict(zip(keys, per[0], strict=True))
+        return {k: {n: per[e][j] for e, n in enumerate(self.experiment_names)}
+                for j, k in enumerate(keys)}
 
     @property
     def ndim(self) -> int:
@@ -179,7 +315,7 @@ class Posterior:
         """The model's full parameter array for identified values ``(batch, ndim)``."""
         theta = np.atleast_2d(theta)
         full = np.repeat(self._template[None, :], theta.shape[0], axis=0)
-        full[:, self._free_cols] = theta
+        full[:, self._free_cols] = theta[:, : self.n_model]
         return full
 
     # -- densities ----------------------------------------------------------------
@@ -212,11 +348,13 @@ class Posterior:
         -------
         log_prior, log_likelihood : numpy.ndarray
             ``(batch,)``; ``-inf`` where out of bounds or the simulation failed. The
-            likelihood is that of the trial mean given the noise (the deviations'
-            part does not depend on the model).
+            likelihood is the sum over experiments of that of the trial mean given
+            the experiment's noise (the deviations' part does not depend on the
+            model); for a sampled noise, the record's whole likelihood.
         x : numpy.ndarray or None
-            Model positions of the valid members (NaN rows elsewhere), or None if no
-            member was valid or ``return_x`` is false.
+            Model positions of the valid members (NaN rows elsewhere; several
+            experiments' outputs concatenated along time), or None if no member was
+            valid or ``return_x`` is false.
         """
         theta = np.atleast_2d(theta)
         lp = self.log_prior(theta)
@@ -225,18 +363,22 @@ class Posterior:
         if not ok.any():
             return lp, ll, None
         sub = theta[ok]
-        x_ok = self.likelihood.simulate(self.full_theta(sub))
-        finite = np.all(np.isfinite(x_ok), axis=1)
+        full = self.full_theta(sub)
+        xs = [lik.simulate(full) for lik in self.likelihoods]
+        finite = np.all([np.all(np.isfinite(x), axis=1) for x in xs], axis=0)
         ll_ok = np.full(sub.shape[0], -np.inf)
         if finite.any():
-            ll_ok[finite] = self.likelihood.mean_log_likelihood(
-                x_ok[finite], self.noise.sigma, self.noise.rho, self.noise.white
-            )
+            total = np.zeros(int(finite.sum()))
+            for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
+                sigma, rho, white = (np.asarray(v)[finite] if np.ndim(v) else v
+                                     for v in self.noise_of(e, sub))
+                total += lik.mean_log_likelihood(x[finite], sigma, rho, white)
+            ll_ok[finite] = total
         ll[ok] = ll_ok
         if not return_x:
             return lp, ll, None
         x = np.full((theta.shape[0], self.likelihood.n_samples), np.nan)
-        x[ok] = x_ok
+        x[ok] = np.concatenate(xs, axis=1)
         return lp, ll, x
 
     def log_prob_z(self, z: np.ndarray) -> np.ndarray:
@@ -292,25 +434,45 @@ def fit_tree(posterior: Posterior, z: np.ndarray, lp_z: np.ndarray, ensemble: np
         The layout at the top of this module, but for the root attribute
         ``pmabayes`` (:func:`set_fit_info`).
     """
-    lik = posterior.likelihood
     n_chain, n_draw = z.shape[:2]
     flat_z = z.reshape(-1, posterior.ndim)
     theta = posterior.to_natural(flat_z)
     lp = (lp_z.reshape(-1) - posterior.log_jacobian(flat_z)).reshape(n_chain, n_draw)
-    # the noise: independent draws from its posterior, paired with the model draws
-    sigma, rho, white = posterior.noise.draws(rng, theta.shape[0])
-    pointwise = _pointwise(posterior, theta, sigma, rho, white)
-    y_pp, x_pp = _predictive(posterior, theta, sigma, rho, white, ppc_draws, rng)
+    # the noise: sampled with the model where there are no repeats, else independent
+    # draws from its posterior paired with the model draws (one set per noise group)
+    group_draws = {g: est.draws(rng, theta.shape[0])
+                   for g, est in enumerate(posterior.group_noise) if est is not None}
+    noise = [group_draws[posterior.groups[e]] if not posterior.noise_sampled(e)
+             else posterior.noise_of(e, theta) for e in range(posterior.n_experiments)]
+    pointwise = [_pointwise(posterior, e, theta, *noise[e])
+                 for e in range(posterior.n_experiments)]
+    pick = rng.choice(theta.shape[0], size=min(ppc_draws, theta.shape[0]), replace=False)
+    preds = [_predictive(posterior, e, theta, *noise[e], pick, rng)
+             for e in range(posterior.n_experiments)]
+    model_post = {n: theta[:, j].reshape(n_chain, n_draw)
+                  for j, n in enumerate(posterior.names[: posterior.n_model])}
+    keys = [p.name for p in NOISE_PARAMETERS]
+    if posterior.n_experiments == 1:
+        tree = _single_tree(posterior.likelihoods[0], model_post, keys, noise[0], lp,
+                            pointwise[0], preds[0], n_chain, n_draw)
+    else:
+        tree = _multi_tree(posterior, model_post, keys, noise, lp, pointwise, preds,
+                           n_chain, n_draw)
+    ss = tree["sample_stats"].to_dataset()
+    ss["ensemble"] = ("chain", np.asarray(ensemble))
+    tree["sample_stats"] = xr.DataTree(ss)
+    return tree
+
+
+def _single_tree(lik: Likelihood, model_post: dict, keys, noise, lp, pointwise, pred,
+                 n_chain: int, n_draw: int) -> xr.DataTree:
+    """The layout of a one-experiment fit (unchanged since the first fit files)."""
+    y_pp, x_pp = pred
     ds = lik.dataset
     data = {
-        "posterior": {
-            **{n: theta[:, j].reshape(n_chain, n_draw) for j, n in enumerate(posterior.names)},
-            "sigma_noise_m": sigma.reshape(n_chain, n_draw),
-            "rho_noise": rho.reshape(n_chain, n_draw),
-            "sigma_white_m": white.reshape(n_chain, n_draw),
-        },
+        "posterior": {**model_post, **{k: np.asarray(v).reshape(n_chain, n_draw)
+                                       for k, v in zip(keys, noise, strict=True)}},
         "sample_stats": {"lp": lp},
-        "log_likelihood": {"position_m": pointwise.reshape(n_chain, n_draw, lik.n_trials)},
         "observed_data": {"position_m": ds.position_m},
         "constant_data": {ds.input_name: ds.input[0]},
         "posterior_predictive": {
@@ -331,15 +493,58 @@ def fit_tree(posterior: Posterior, z: np.ndarray, lp_z: np.ndarray, ensemble: np
         coords={"chain": np.arange(n_chain), "draw": np.arange(n_draw), "trial": ds.trial_ids},
     )
     tree["log_likelihood"] = xr.DataTree(ll_ds)
-    ss = tree["sample_stats"].to_dataset()
-    ss["ensemble"] = ("chain", np.asarray(ensemble))
-    tree["sample_stats"] = xr.DataTree(ss)
     return tree
 
 
-def _pointwise(posterior: Posterior, theta, sigma, rho, white) -> np.ndarray:
-    """Per-trial log-likelihood of every draw, simulated in chunks."""
-    lik = posterior.likelihood
+def _multi_tree(posterior: Posterior, model_post: dict, keys, noise, lp, pointwise, preds,
+                n_chain: int, n_draw: int) -> xr.DataTree:
+    """The layout of a fit of several experiments (see the module's docstring)."""
+    names = posterior.experiment_names
+    noise_post = {k: np.stack([np.broadcast_to(np.asarray(noise[e][j], dtype=float),
+                                               (n_chain * n_draw,))
+                               for e in range(len(names))], axis=1).reshape(n_chain, n_draw, -1)
+                  for j, k in enumerate(keys)}
+    tree = az.from_dict(
+        {"posterior": {**model_post, **noise_post}, "sample_stats": {"lp": lp}},
+        dims={k: ["experiment"] for k in keys}, coords={"experiment": names},
+        check_conventions=False)
+    chain_draw = {"chain": np.arange(n_chain), "draw": np.arange(n_draw)}
+    obs, const, pp = {}, {}, {}
+    coords: dict = {}
+    for e, name in enumerate(names):
+        ds = posterior.likelihoods[e].dataset
+        trial, time_ = f"trial__{name}", f"time__{name}"
+        coords[trial], coords[time_] = ds.trial_ids, ds.time_s
+        obs[f"position_m__{name}"] = ((trial, time_), ds.position_m)
+        const[f"{ds.input_name}__{name}"] = ((time_,), ds.input[0])
+        y_pp, x_pp = preds[e]
+        pp[f"position_m__{name}"] = (("chain", "draw", trial, time_),
+                                     y_pp[None].astype(np.float32))
+        pp[f"model_position_m__{name}"] = (("chain", "draw", time_),
+                                           x_pp[None].astype(np.float32))
+    n_pp = preds[0][1].shape[0]
+    tree["observed_data"] = xr.DataTree(xr.Dataset(obs, coords=coords))
+    tree["constant_data"] = xr.DataTree(xr.Dataset(const, coords=coords))
+    tree["posterior_predictive"] = xr.DataTree(xr.Dataset(
+        pp, coords={**coords, "chain": [0], "draw": np.arange(n_pp)}))
+    # LOO over all trials: one trial dimension across the experiments
+    ll = np.concatenate(pointwise, axis=1)
+    trial_exp = np.concatenate([[name] * p.shape[1] for name, p in zip(names, pointwise,
+                                                                        strict=True)])
+    trial_id = np.concatenate([posterior.likelihoods[e].dataset.trial_ids
+                               for e in range(len(names))])
+    tree["log_likelihood"] = xr.DataTree(xr.Dataset(
+        {"position_m": (("chain", "draw", "trial"), ll.reshape(n_chain, n_draw, -1))},
+        coords={**chain_draw, "trial": np.arange(ll.shape[1]),
+                "experiment": ("trial", trial_exp), "trial_id": ("trial", trial_id)}))
+    return tree
+
+
+def _pointwise(posterior: Posterior, e: int, theta, sigma, rho, white) -> np.ndarray:
+    """Per-trial log-likelihood of every draw for experiment ``e``, in chunks."""
+    lik = posterior.likelihoods[e]
+    sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
+                         for v in (sigma, rho, white))
     out = np.empty((theta.shape[0], lik.n_trials))
     for a in range(0, theta.shape[0], 512):
         sl = slice(a, a + 512)
@@ -348,11 +553,13 @@ def _pointwise(posterior: Posterior, theta, sigma, rho, white) -> np.ndarray:
     return out
 
 
-def _predictive(posterior: Posterior, theta, sigma, rho, white, ppc_draws: int,
+def _predictive(posterior: Posterior, e: int, theta, sigma, rho, white, pick: np.ndarray,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Random draws' model output, and trials made from it with fresh noise."""
-    lik = posterior.likelihood
-    pick = rng.choice(theta.shape[0], size=min(ppc_draws, theta.shape[0]), replace=False)
+    """Picked draws' model output for experiment ``e``, and trials made from it with
+    fresh noise."""
+    lik = posterior.likelihoods[e]
+    sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
+                         for v in (sigma, rho, white))
     x_pp = lik.simulate(posterior.full_theta(theta[pick]))
     noise = ar1_noise(len(pick) * lik.n_trials, lik.n_samples,
                       np.repeat(sigma[pick], lik.n_trials), np.repeat(rho[pick], lik.n_trials),
@@ -385,8 +592,9 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
     Returns
     -------
     dict
-        ``pmabayes_version``, ``model``, ``noise``, ``data``, ``paper_values``,
-        ``map``, ``convergence``, ``seed`` and ``timings_s``.
+        ``pmabayes_version``, ``model``, ``noise``, ``data``, ``experiments``
+        (:func:`experiment_records`), ``paper_values``, ``map``, ``convergence``,
+        ``seed`` and ``timings_s``.
     """
     model = posterior.model
     rows = model.describe()
@@ -396,31 +604,223 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
                      "description": p.description, "source": "noise"})
     for row in rows:
         row["bounds"] = [float(b) for b in row["bounds"]]
-    ds = posterior.likelihood.dataset
+    noise_map = {k: (map_record.get("values") or {}).get(k) for k in
+                 (p.name for p in NOISE_PARAMETERS)}
+    experiments = experiment_records(posterior, noise_map, map_record.get("values"))
+    sources = {e["noise_source"] for e in experiments}
+    estimated_from = "; ".join(
+        text for key, text in (
+            ("trials", "deviations of the trials from their mean (repeatability); posterior by "
+                       "Laplace approximation, independent draws"),
+            ("periods", "deviations of the periods of a single periodic record from their "
+                        "mean; posterior by Laplace approximation, independent draws"),
+            ("record", "the record itself, jointly with the model (sampled), the disturbance's "
+                       "correlation time bounded far below the input's time scales"))
+        if key in sources)
+    noise = {"model": "AR(1) disturbance plus white sensor noise per trial, stationary, "
+                      "independent between trials",
+             "parameters": [p.name for p in NOISE_PARAMETERS],
+             "estimated_from": estimated_from, **noise_map}
+    if posterior.n_experiments == 1:
+        ds = posterior.likelihoods[0].dataset
+        data = {"source": ds.source, "n_trials": ds.n_trials, "n_samples": ds.n_samples,
+                "dt_s": ds.dt_s, "input_name": ds.input_name,
+                "synthetic": bool(ds.metadata.get("synthetic", False)),
+                "noise_floor_m": _finite_or_none(ds.noise_floor_m)}
+    else:
+        dss = [lik.dataset for lik in posterior.likelihoods]
+        noise["tied"] = len(set(posterior.groups)) == 1
+        data = {"source": " + ".join(str(d.source or n) for d, n in
+                                     zip(dss, posterior.experiment_names, strict=True)),
+                "n_experiments": len(dss),
+                "n_trials": int(sum(d.n_trials for d in dss)),
+                "n_samples": int(sum(d.n_samples for d in dss)),
+                "input_name": dss[0].input_name,
+                "synthetic": all(bool(d.metadata.get("synthetic", False)) for d in dss),
+                "noise_floor_m": None}
     info = {
         "pmabayes_version": __version__,
         "model": {"effects": list(model.effect_names), "rig": model.rig.to_dict(),
                   "free": list(model.free_names), "fixed": dict(model.fixed),
                   "parameters": rows},
-        "noise": {"model": "AR(1) disturbance plus white sensor noise per trial, stationary, "
-                           "independent between trials",
-                  "parameters": [p.name for p in NOISE_PARAMETERS],
-                  "estimated_from": "deviations of the trials from their mean (repeatability); "
-                                    "posterior by Laplace approximation, independent draws",
-                  "sigma_noise_m": posterior.noise.sigma, "rho_noise": posterior.noise.rho,
-                  "sigma_white_m": posterior.noise.white},
-        "data": {"source": ds.source, "n_trials": ds.n_trials, "n_samples": ds.n_samples,
-                 "dt_s": ds.dt_s, "input_name": ds.input_name,
-                 "synthetic": bool(ds.metadata.get("synthetic", False)),
-                 "noise_floor_m": ds.noise_floor_m},
+        "noise": noise,
+        "data": data,
+        "experiments": experiments,
         "paper_values": dict(PAPER_VALUES),
         "map": map_record,
         "convergence": convergence,
         "seed": seed,
+        "substeps": int(posterior.likelihoods[0].substeps),
         "timings_s": timings,
     }
     tree.attrs["pmabayes"] = json.dumps(info)
     return info
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def experiment_records(posterior: Posterior, noise_map: dict | None = None,
+                       map_values: dict | None = None) -> list[dict]:
+    """The ``experiments`` entry of a fit's metadata: one dict per experiment.
+
+    Parameters
+    ----------
+    posterior : Posterior
+        The density that was sampled.
+    noise_map : dict, optional
+        The noise at the MAP (:meth:`Posterior.noise_values`), for the noise that
+        is sampled with the model.
+    map_values : dict, optional
+        The MAP (every identified parameter by name), for each experiment's RMS
+        cost there.
+
+    Returns
+    -------
+    list of dict
+        Each with ``name``, ``source``, ``rig`` (dict), ``n_trials``,
+        ``n_samples``, ``dt_s``, ``input_name``, ``input_between_samples``,
+        ``period_samples``, ``starts_in_steady_state``, ``noise`` (``"own"`` or
+        ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
+        ``"record"``), ``noise_estimate`` (the noise's mode), ``rms_cost_m``
+        (the paper's cost at the MAP, None without it),
+        ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
+        ``metadata`` (the data set's, to rebuild it).
+    """
+    noise_map = noise_map or {}
+    map_values = map_values or {}
+    theta = None
+    if all(n in map_values for n in posterior.names[: posterior.n_model]):
+        theta = posterior.full_theta(np.array([[float(map_values[n]) for n in
+                                                posterior.names[: posterior.n_model]]]))
+    out = []
+    tied = len(set(posterior.groups)) < len(posterior.groups)
+    for e, (lik, name) in enumerate(zip(posterior.likelihoods, posterior.experiment_names,
+                                        strict=True)):
+        ds = lik.dataset
+        if posterior.noise_sampled(e):
+            est = {}
+            for k in (p.name for p in NOISE_PARAMETERS):
+                v = noise_map.get(k)
+                est[k] = v.get(name) if isinstance(v, dict) else v
+        else:
+            g = posterior.group_noise[posterior.groups[e]]
+            est = {"sigma_noise_m": g.sigma, "rho_noise": g.rho, "sigma_white_m": g.white}
+        out.append({
+            "name": name, "source": ds.source, "rig": lik.model.rig.to_dict(),
+            "n_trials": int(ds.n_trials), "n_samples": int(ds.n_samples), "dt_s": ds.dt_s,
+            "input_name": ds.input_name, "input_between_samples": ds.input_between_samples,
+            "period_samples": ds.period_samples,
+            "starts_in_steady_state": ds.starts_in_steady_state,
+            "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
+            "noise_estimate": est, "noise_floor_m": _finite_or_none(ds.noise_floor_m),
+            "rms_cost_m": (None if theta is None
+                           else _finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
+            "synthetic": bool(ds.metadata.get("synthetic", False)),
+            "metadata": ds.metadata,
+        })
+    return out
+
+
+def experiment_names(sources) -> list[str]:
+    """Unique experiment names from data sources: their file stems.
+
+    Parameters
+    ----------
+    sources : sequence of str or None
+        The data sets' sources (file paths).
+
+    Returns
+    -------
+    list of str
+        Each stem with characters other than letters, digits, ``_`` and ``-``
+        replaced by ``_``; repeated stems get ``_2``, ``_3``, ...;
+        ``experiment_N`` where there is no source.
+    """
+    out: list[str] = []
+    for i, src in enumerate(sources):
+        stem = Path(str(src)).stem if src else f"experiment_{i + 1}"
+        base = re.sub(r"[^A-Za-z0-9_-]", "_", stem) or f"experiment_{i + 1}"
+        name, k = base, 2
+        while name in out:
+            name, k = f"{base}_{k}", k + 1
+        out.append(name)
+    return out
+
+
+def _experiments_of(tree: xr.DataTree) -> list[dict]:
+    """The fit's experiment records; a fit written before them counts as one."""
+    info = fit_info(tree)
+    exps = info.get("experiments")
+    if exps:
+        return exps
+    d = info.get("data") or {}
+    return [{"name": experiment_names([d.get("source")])[0], "source": d.get("source"),
+             "rig": (info.get("model") or {}).get("rig"), "input_name": d.get("input_name"),
+             "metadata": {"synthetic": bool(d.get("synthetic", False))}}]
+
+
+def experiment_datasets(tree: xr.DataTree) -> list[Dataset]:
+    """The data sets of a fit, one per experiment, rebuilt from the fit file.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    list of Dataset
+        Time, input, positions, trial ids, metadata and source of each experiment,
+        in the fit's order.
+    """
+    exps = _experiments_of(tree)
+    obs_g = tree["observed_data"]
+    const = tree["constant_data"] if "constant_data" in tree.children else None
+    out = []
+    for exp in exps:
+        single = len(exps) == 1
+        var = "position_m" if single else f"position_m__{exp['name']}"
+        time_dim = "time" if single else f"time__{exp['name']}"
+        trial_dim = "trial" if single else f"trial__{exp['name']}"
+        name = exp.get("input_name") or "pressure_pa"
+        u_var = name if single else f"{name}__{exp['name']}"
+        obs = obs_g[var].transpose(trial_dim, time_dim)
+        # without the stored input (an old fit), zeros
+        u = (np.asarray(const[u_var].values, dtype=float)
+             if const is not None and u_var in const.data_vars else np.zeros(obs.sizes[time_dim]))
+        out.append(Dataset(time_s=np.asarray(obs[time_dim].values, dtype=float),
+                           input=np.tile(u, (obs.sizes[trial_dim], 1)),
+                           position_m=np.asarray(obs.values, dtype=float),
+                           trial_ids=np.asarray(obs[trial_dim].values), input_name=name,
+                           metadata=dict(exp.get("metadata") or {}), source=exp.get("source")))
+    return out
+
+
+def experiment_models(tree: xr.DataTree) -> list[Model]:
+    """The fitted model on each experiment's rig (effects and fixed values shared).
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    list of Model
+        In the fit's experiment order; see :func:`model_from_fit`.
+    """
+    base = model_from_fit(tree)
+    priors = {n: p for n, p in base.priors.items() if p is not base.parameter(n).prior}
+    out = []
+    for exp in _experiments_of(tree):
+        rig = exp.get("rig")
+        out.append(Model(list(base.effect_names),
+                         rig=Rig.from_dict(rig) if isinstance(rig, dict) else base.rig,
+                         priors=priors or None, fixed=dict(base.fixed) or None))
+    return out
 
 
 class FitFileError(ValueError):
@@ -516,14 +916,19 @@ def model_from_fit(tree: xr.DataTree) -> Model:
     Returns
     -------
     Model
-        Priors are the effects' defaults; user effects must be registered first
+        Priors are those the fit used; user effects must be registered first
         (``pmabayes --plugin FILE.py`` on the command line).
     """
     m = fit_info(tree).get("model") or {}
     rig = m.get("rig")
-    return Model(list(m.get("effects") or []),
-                 rig=Rig.from_dict(rig) if isinstance(rig, dict) else None,
-                 fixed=m.get("fixed") or None)
+    kwargs = {"rig": Rig.from_dict(rig) if isinstance(rig, dict) else None,
+              "fixed": m.get("fixed") or None}
+    model = Model(list(m.get("effects") or []), **kwargs)
+    # the priors the fit used (a user's --prior), where they differ from the defaults
+    priors = {row["name"]: parse_prior(row["prior"]) for row in m.get("parameters") or []
+              if row.get("name") in model.priors and row.get("prior")
+              and row["prior"] != str(model.priors[row["name"]])}
+    return Model(list(m.get("effects") or []), priors=priors, **kwargs) if priors else model
 
 
 def check_dataset(tree: xr.DataTree, dataset: Dataset) -> None:

@@ -38,15 +38,24 @@ import arviz as az
 import numpy as np
 import xarray as xr
 
-from pmabayes.data import Dataset
+from pmabayes.data import DataError, Dataset
 from pmabayes.effects import EffectError
 from pmabayes.likelihood import Likelihood
 from pmabayes.model import Model, ModelError
-from pmabayes.posterior import FitFileError, check_dataset, fit_info, model_from_fit
+from pmabayes.posterior import (
+    FitFileError,
+    check_dataset,
+    experiment_datasets,
+    experiment_models,
+    fit_info,
+    model_from_fit,
+)
 from pmabayes.residuals import Adequacy, check_adequacy
+from pmabayes.trials import check_trials
 
 __all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
-           "write_comparison", "pair_figure", "predictive_band", "fit_adequacy"]
+           "write_comparison", "pair_figure", "predictive_band", "fit_adequacy",
+           "experiment_adequacy", "write_validation"]
 
 #: Keys of a summary row, in CSV column order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -86,6 +95,32 @@ _QUANTILE_BLOCK = 4_000_000  # values per block when taking quantiles of the pre
 
 
 # ----------------------------------------------------------------------------- helpers
+
+
+def _flat(tree: xr.DataTree) -> xr.DataTree:
+    """The fit with each per-experiment posterior variable split into one variable per
+    experiment (``sigma_noise_m[NAME]``), as the tables and figures read it."""
+    post = tree["posterior"].to_dataset()
+    if not any("experiment" in v.dims for v in post.data_vars.values()):
+        return tree
+    flat = {}
+    for name, var in post.data_vars.items():
+        if "experiment" in var.dims:
+            for e in post["experiment"].values:
+                flat[f"{name}[{e}]"] = var.sel(experiment=e, drop=True)
+        else:
+            flat[name] = var
+    out = tree.copy()
+    out["posterior"] = xr.DataTree(xr.Dataset(flat).drop_vars("experiment", errors="ignore"))
+    return out
+
+
+def _map_value(values: Mapping | None, name: str) -> float | None:
+    """The MAP of a posterior variable, ``NAME[EXPERIMENT]`` for per-experiment noise."""
+    base, _, exp = name.partition("[")
+    if exp and values and isinstance(values.get(base), Mapping):
+        return _opt_float(values[base], exp.rstrip("]"))
+    return _opt_float(values, name)
 
 
 def _opt_float(mapping: Mapping | None, name: str) -> float | None:
@@ -132,9 +167,10 @@ def _check_tree(tree: xr.DataTree, groups: Sequence[str]) -> dict:
             "pmabayes.posterior (write the fit with `pmabayes fit`)"
         )
     for name, var in tree["posterior"].data_vars.items():
-        if set(var.dims) != {"chain", "draw"}:
+        if set(var.dims) - {"experiment"} != {"chain", "draw"}:
             raise FitFileError(
-                f"posterior variable {name!r} has dims {var.dims}; expected (chain, draw)"
+                f"posterior variable {name!r} has dims {var.dims}; expected (chain, draw), "
+                "or (chain, draw, experiment) for a fit of several experiments"
             )
     return info
 
@@ -208,6 +244,7 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
         If ``tree`` is not a pmabayes fit.
     """
     ci_prob = _check_ci_prob(ci_prob)
+    tree = _flat(tree)
     info = _check_tree(tree, ["posterior"])
     stats = az.summary(
         tree,
@@ -241,7 +278,7 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
         rows.append(
             {
                 "name": str(name),
-                "unit": str(units.get(name, "")),
+                "unit": str(units.get(str(name).split("[")[0], "")),
                 "mean": get("mean"),
                 "sd": get("sd"),
                 "hdi_low": get(low),
@@ -253,7 +290,7 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
                 "ess_bulk": get("ess_bulk"),
                 "tau": _opt_float(conv.get("tau"), name),
                 "paper": _opt_float(info.get("paper_values"), name),
-                "map": _opt_float(point.get("values"), name),
+                "map": _map_value(point.get("values"), str(name)),
                 "global_search": _opt_float(
                     (point.get("global_search") or {}).get("values"), name
                 ),
@@ -474,9 +511,108 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     """
     ci_prob = _check_ci_prob(ci_prob)
     info = _check_tree(tree, ["observed_data", "posterior_predictive"])
+    if len(info.get("experiments") or [None]) > 1:
+        raise FitFileError(
+            f"a fit of {len(info['experiments'])} experiments has a verdict per experiment; "
+            "use pmabayes.report.experiment_adequacy")
     if dataset is not None:
         check_dataset(tree, dataset)
     return _adequacy(tree, info, dataset, _predictive(tree, ci_prob), ci_prob)
+
+
+def experiment_adequacy(tree: xr.DataTree, *, datasets: Sequence[Dataset] | None = None,
+                        ci_prob: float = 0.9) -> list[tuple[str, Adequacy]]:
+    """The adequacy verdict of each experiment of a fit (:func:`fit_adequacy` for one).
+
+    Each experiment's posterior median model is judged against its own trials with
+    its own noise (see :func:`fit_adequacy`).
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit of one or more experiments.
+    datasets : sequence of Dataset, optional
+        The experiments' data, in the fit's order (checked against it); rebuilt
+        from the fit when not given.
+    ci_prob : float, optional
+        Probability of the predictive band (0.9).
+
+    Returns
+    -------
+    list of (str, Adequacy)
+        The experiment's name and its verdict.
+
+    Raises
+    ------
+    ValueError
+        If the data do not match the fit, or ``ci_prob`` is not in (0, 1).
+    """
+    ci_prob = _check_ci_prob(ci_prob)
+    info = _check_tree(tree, ["observed_data", "posterior_predictive"])
+    exps = info.get("experiments") or [{"name": _source_name(info, None)}]
+    if len(exps) == 1:
+        ds = datasets[0] if datasets else None
+        return [(exps[0]["name"], fit_adequacy(tree, dataset=ds, ci_prob=ci_prob))]
+    datasets = _check_experiment_data(tree, datasets)
+    try:
+        models = experiment_models(tree)
+    except (ModelError, EffectError, TypeError):  # an unregistered user effect, an odd rig
+        models = [Model.for_dataset(ds) for ds in datasets]
+    out = []
+    for exp, ds, model in zip(exps, datasets, models, strict=True):
+        pred = _predictive_of(tree, exp["name"], ci_prob)
+        nz = exp.get("noise_estimate") or {}
+        noise = (SimpleNamespace(sigma=nz["sigma_noise_m"], rho=nz["rho_noise"],
+                                 white=nz["sigma_white_m"])
+                 if all(nz.get(k) is not None for k in
+                        ("sigma_noise_m", "rho_noise", "sigma_white_m")) else None)
+        command = _diagnose_command(info, ds)
+        out.append((exp["name"], check_adequacy(Likelihood(model, ds), pred["median"], noise,
+                                                coverage=pred["coverage"], ci_prob=ci_prob,
+                                                next_command=command)))
+    return out
+
+
+def _check_experiment_data(tree: xr.DataTree, datasets) -> list[Dataset]:
+    """The experiments' data sets: those given (checked against the fit), or the fit's."""
+    stored = experiment_datasets(tree)
+    if datasets is None:
+        return stored
+    datasets = list(datasets)
+    if len(datasets) != len(stored):
+        raise ValueError(f"{len(datasets)} data sets given for a fit of {len(stored)} "
+                         "experiments; give one per experiment, in the fit's order")
+    for ds, ref in zip(datasets, stored, strict=True):
+        if not isinstance(ds, Dataset):
+            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
+                            f"{type(ds).__name__}")
+        if ds.position_m.shape != ref.position_m.shape or not np.allclose(
+                ds.position_m, ref.position_m, rtol=0, atol=1e-12):
+            raise DataError(f"dataset {ds.source or '(no source)'} does not match the observed "
+                            f"data of the fit's experiment from {ref.source}: shape "
+                            f"{ds.position_m.shape} against {ref.position_m.shape} or positions "
+                            "differ by more than 1e-12 m; give the fit's data files in its order")
+    return datasets
+
+
+def _predictive_of(tree: xr.DataTree, name: str, ci_prob: float) -> dict[str, np.ndarray]:
+    """:func:`_predictive` for one experiment of a fit of several."""
+    trial, time_ = f"trial__{name}", f"time__{name}"
+    obs = tree["observed_data"][f"position_m__{name}"].transpose(trial, time_)
+    pp = tree["posterior_predictive"]
+    q = (1.0 - ci_prob) / 2.0
+    band = _quantiles_over_samples(pp[f"position_m__{name}"], [q, 1.0 - q], time_dim=time_)
+    median = _quantiles_over_samples(pp[f"model_position_m__{name}"], [0.5], time_dim=time_)[0]
+    data = np.asarray(obs.values, dtype=float)
+    return {
+        "time": np.asarray(obs[time_].values, dtype=float),
+        "trials": np.asarray(obs[trial].values),
+        "data": data,
+        "median": median,
+        "low": band[0],
+        "high": band[1],
+        "coverage": float(np.mean((data >= band[0]) & (data <= band[1]))),
+    }
 
 
 def _adequacy(tree: xr.DataTree, info: dict, dataset: Dataset | None, pred: Mapping,
@@ -579,10 +715,15 @@ def write_report(
     tree: xr.DataTree,
     out_dir: str | Path,
     *,
-    dataset: Dataset | None = None,
+    dataset: Dataset | Sequence[Dataset] | None = None,
     ci_prob: float = 0.9,
 ) -> Path:
     """Write the tables, the figures and a self-contained HTML report of a fit.
+
+    A fit of several experiments gets a section per experiment: its verdict, its
+    errors (RMS against the posterior median, the MAP's cost, the noise floor or
+    "no repeats", the predictive coverage) and its prediction-against-data and
+    residual figures (``ppc_NAME.png``, ``residual_NAME.png``).
 
     Parameters
     ----------
@@ -592,10 +733,10 @@ def write_report(
         Destination folder, created if needed. Written: ``summary.csv``,
         ``summary.md``, ``trace.png``, ``rank.png``, ``pair.png``, ``ppc.png``,
         ``residual.png`` and ``index.html`` (overwritten if present).
-    dataset : Dataset, optional
-        The data the fit was made from. When given, its trials must equal the fit's
-        observed positions (same shape, values within 1e-12 m), and its source names
-        the report.
+    dataset : Dataset or sequence of Dataset, optional
+        The data the fit was made from, one per experiment in the fit's order. When
+        given, its trials must equal the fit's observed positions (same shape,
+        values within 1e-12 m), and its source names the report.
     ci_prob : float, optional
         Probability of the HDIs in the table and of the central posterior predictive
         band, default 0.9.
@@ -625,6 +766,16 @@ def write_report(
     """
     ci_prob = _check_ci_prob(ci_prob)
     info = _check_tree(tree, ["posterior", "observed_data", "posterior_predictive"])
+    if isinstance(dataset, Sequence) and not isinstance(dataset, str):
+        datasets = list(dataset)
+        if len(info.get("experiments") or [None]) > 1:
+            return _write_experiments_report(tree, info, Path(out_dir), datasets, ci_prob)
+        if len(datasets) != 1:
+            raise ValueError(f"{len(datasets)} data sets given for a fit of one experiment")
+        dataset = datasets[0]
+    elif len(info.get("experiments") or [None]) > 1:
+        return _write_experiments_report(
+            tree, info, Path(out_dir), None if dataset is None else [dataset], ci_prob)
     if dataset is not None:
         check_dataset(tree, dataset)
     out_dir = Path(out_dir)
@@ -640,6 +791,7 @@ def write_report(
     body = [
         _meta_block(info, _source_name(info, dataset)),
         _adequacy_box(adequacy),
+        _trials_line(dataset if dataset is not None else _dataset_from_fit(tree, info)),
         _banner(info.get("convergence") or {}),
         _synthetic_note_of(info),
         *_parameter_section(rows, info, ci_prob),
@@ -652,6 +804,84 @@ def write_report(
     index = out_dir / "index.html"
     title = f"pmabayes fit report: {Path(_source_name(info, dataset)).name}"
     index.write_text(_page(title, body), encoding="utf-8")
+    return index
+
+
+def _trials_line(dataset: Dataset) -> str:
+    """The verdict of :func:`pmabayes.trials.check_trials` on the fitted trials, one line."""
+    check = check_trials(dataset)
+    text = html.escape(check.summary())
+    return f"<p>{text}</p>" if check.exchangeable else f'<p class="note">{text}</p>'
+
+
+def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
+                              datasets: list[Dataset] | None, ci_prob: float) -> Path:
+    """:func:`write_report` for a fit of several experiments: shared parameters, then a
+    section per experiment."""
+    from pmabayes import plots
+
+    datasets = _check_experiment_data(tree, datasets)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    flat = _flat(tree)
+    rows = summary_table(tree, ci_prob=ci_prob)
+    verdicts = experiment_adequacy(tree, datasets=datasets, ci_prob=ci_prob)
+    worst = next((a for _, a in verdicts if a.adequate is False), verdicts[0][1])
+    write_summary(rows, out_dir, adequacy=worst)
+    plots.plot_trace(flat, out_dir / "trace.png", units={r["name"]: r["unit"] for r in rows})
+    plots.plot_rank(flat, out_dir / "rank.png")
+    n_pair = plots.plot_pair(flat, out_dir / "pair.png", rows)
+    pct = f"{100 * ci_prob:.4g}%"
+    sections = []
+    for exp, (name, adequacy) in zip(info["experiments"], verdicts, strict=True):
+        pred = _predictive_of(tree, name, ci_prob)
+        residual = pred["data"].mean(axis=0) - pred["median"]
+        rms = float(np.sqrt(np.mean(residual**2)))
+        floor = exp.get("noise_floor_m")
+        plots.plot_predictive(pred, out_dir / f"ppc_{name}.png", ci_prob=ci_prob)
+        plots.plot_residual(pred["time"], residual, rms, floor, out_dir / f"residual_{name}.png")
+        est = exp.get("noise_estimate") or {}
+        table = _table(["quantity", "value"], [
+            ["data", str(exp.get("source") or name)],
+            ["rig", str((exp.get("rig") or {}).get("name", "?"))],
+            ["trials × samples", f"{exp['n_trials']} × {exp['n_samples']}"],
+            ["the paper's cost (RMS of trial mean − model) at the MAP",
+             _um(exp.get("rms_cost_m"))],
+            ["RMS of trial mean − posterior median model", _um(rms)],
+            ["trial-mean noise floor", _um(floor) if floor is not None else "no repeats"],
+            ["noise (own or tied), learnt from", f"{exp['noise']}, {exp['noise_source']}"],
+            ["noise mode: σ, ρ, σ_w", ", ".join(_fmt(est.get(k)) for k in
+                                                ("sigma_noise_m", "rho_noise", "sigma_white_m"))],
+            [f"data inside the {pct} posterior predictive band", f"{100 * pred['coverage']:.1f}%"],
+        ])
+        sections += [
+            f'<h2 id="experiment-{html.escape(name)}">Experiment {html.escape(name)}</h2>',
+            _adequacy_box(adequacy), table,
+            _img(out_dir / f"ppc_{name}.png", f"{name} predictive check",
+                 f"{name}: data (black), {pct} predictive band (blue), median model (red)."),
+            _img(out_dir / f"residual_{name}.png", f"{name} residual",
+                 f"{name}: trial-mean residual against the posterior median model (RMS "
+                 f"{rms * 1e6:.3g} µm)" + ("; no repeats, so no noise floor." if floor is None
+                                           else " and the noise floor (green).")),
+        ]
+    source = " + ".join(str(e.get("source") or e["name"]) for e in info["experiments"])
+    body = [
+        _meta_block(info, source),
+        *[f"<p><strong>{html.escape(n)}</strong></p>{_adequacy_box(a)}" for n, a in verdicts],
+        _banner(info.get("convergence") or {}),
+        _synthetic_note_of(info),
+        *_parameter_section(rows, info, ci_prob),
+        *sections,
+        *_convergence_section(info, flat),
+        *_timings_section(info),
+        "<h2>Figures of the shared posterior</h2>",
+        _img(out_dir / "trace.png", "trace plot", "Trace of every walker and the pooled "
+             "marginal density."),
+        _img(out_dir / "rank.png", "rank plot", "Fractional-rank Δ-ECDF per walker."),
+        _img(out_dir / "pair.png", "pair plot", f"Corner plot of {n_pair} evenly spaced draws."),
+    ]
+    index = out_dir / "index.html"
+    index.write_text(_page(f"pmabayes fit report: {len(datasets)} experiments", body),
+                     encoding="utf-8")
     return index
 
 
@@ -855,11 +1085,14 @@ def _synthetic_note(dataset: Dataset) -> str:
 def _band_rows(rows) -> list[list[Any]]:
     out = []
     for b in rows:
-        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, b.floor_m * 1e6, b.ratio])
+        floor = b.floor_m * 1e6 if np.isfinite(b.floor_m) else None  # one trial: no floor
+        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, floor,
+                    b.ratio if floor is not None else None])
     return out
 
 
-_BAND_HEADER = ["band", "RMS [µm]", "normalised RMS", "max [µm]", "floor [µm]", "RMS / floor"]
+_BAND_HEADER = ["frequency band", "RMS [µm]", "RMS / motion RMS", "max [µm]", "floor [µm]",
+                "RMS / floor"]
 
 
 def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
@@ -938,9 +1171,10 @@ def _diagnosis_figures(d, label: str, out_dir: Path) -> dict[str, str]:
                        "Trials, their mean and the model at its MAP; the residual beside the "
                        "noise floor; the hysteresis loop."),
         "bands": (plots.plot_band_errors({label: d.signature.bands}),
-                  "RMS error of the trial mean per band of the chirp's instantaneous "
-                  "frequency, with the noise floor (black): the error a perfect model would "
-                  "have, from the spread between the trials."),
+                  "RMS error of the trial mean per frequency band (octaves over the band the "
+                  "input excites, from the residual's spectrum; the bands' mean squares add "
+                  "up to the total), with the noise floor (black): the error a perfect model "
+                  "would have, from the spectrum of the deviations between the trials."),
         "signature": (plots.plot_residual_signature(ds, d.simulation, d.frequency_hz,
                                                     label=label),
                       "Where the model fails: the residual against time, frequency, velocity, "
@@ -1020,4 +1254,80 @@ def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None
     ]
     index = out_dir / "index.html"
     index.write_text(_page(f"pmabayes comparison: {name}", body), encoding="utf-8")
+    return index
+
+
+# ------------------------------------------------------------------- validation
+
+
+def write_validation(validation, out_dir: str | Path) -> Path:
+    """Write the figures, ``validation.json`` and an HTML page of a validation.
+
+    Parameters
+    ----------
+    validation : pmabayes.validation.Validation
+        The result of :func:`pmabayes.validation.validate`.
+    out_dir : str or Path
+        Destination folder, created if needed. Written: one
+        ``validation_<i>_<name>.png`` per experiment, ``validation.json`` and
+        ``index.html``.
+
+    Returns
+    -------
+    Path
+        The path of ``index.html`` (self-contained: figures embedded, no script).
+    """
+    from pmabayes import plots
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    v = validation
+    (out_dir / "validation.json").write_text(json.dumps(v.to_dict(), indent=2) + "\n")
+    settings = v.settings
+    pct = f"{100 * settings['ci_prob']:.4g}%"
+    model = " + ".join(["base", *v.effects])
+    body = [
+        f'<p class="meta">fit: <code>{html.escape(str(v.fit_source or "(in memory)"))}</code>'
+        f" · model: {html.escape(model)} · {len(v.experiments)} held-out experiment(s) · "
+        f"{settings['n_draws']} posterior draws each · seed {html.escape(str(settings['seed']))}"
+        "</p>",
+    ]
+    if any(e.synthetic for e in v.experiments):
+        body.append('<p class="note"><strong>Synthetic data.</strong> Experiments marked '
+                    "synthetic were simulated, not measured on hardware.</p>")
+    body += [
+        f"<p>Each experiment is simulated on its own rig with posterior draws of the fit. The "
+        f"{pct} predictive band is the model's prediction plus the fit's noise (AR(1) "
+        "disturbance and white sensor noise drawn from the fit's noise posterior), not the "
+        "held-out data's own noise. RMSE: RMS of the trial mean minus the posterior-mean "
+        "prediction. NRMSE: RMSE over the RMS of the trial mean's variation about its own "
+        "mean. Noise floor: the error a perfect model would have, from the spread between "
+        "repeated trials (none with one trial). Coverage: the share of all measured "
+        f"samples inside the {pct} band (about {pct} for a model and noise that describe "
+        "the data).</p>",
+        _table(["experiment", "rig", "noise from", "trials", "samples", "RMSE [µm]",
+                "noise floor [µm]", "RMSE / floor", "NRMSE", f"inside the {pct} band"],
+               [[e.name, e.rig.get("name"), e.noise["from"], e.n_trials, e.n_samples,
+                 e.rmse_m * 1e6, None if e.noise_floor_m is None else e.noise_floor_m * 1e6,
+                 e.ratio_to_floor, e.nrmse, f"{100 * e.band_coverage:.1f}%"]
+                for e in v.experiments], num_from=3),
+    ]
+    for i, e in enumerate(v.experiments):
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in e.name)
+        png = out_dir / f"validation_{i}_{safe}.png"
+        plots.plot_validation(e, path=png)
+        src = f" (<code>{html.escape(e.source)}</code>)" if e.source else ""
+        body.append(f"<h2>{html.escape(e.name)}{src}</h2>")
+        body.append(f"<p>{html.escape(e.summary())}.</p>")
+        for note in e.notes:
+            body.append(f'<p class="note">{html.escape(note)}</p>')
+        if e.band_errors:
+            body.append(_table(_BAND_HEADER, _band_rows(e.band_errors)))
+        body.append(_img(png, f"validation of {e.name}",
+                         f"{e.name}: measured trials (grey), the {pct} predictive band "
+                         "(blue) and the posterior-mean prediction (red); bottom: the same "
+                         "less the prediction, with the trial mean (black)."))
+    index = out_dir / "index.html"
+    index.write_text(_page("pmabayes validation on held-out experiments", body),
+                     encoding="utf-8")
     return index

@@ -25,7 +25,13 @@ from pmabayes.fit import (
     fit,
 )
 from pmabayes.likelihood import Likelihood
-from pmabayes.posterior import fit_info, load_fit, save_fit
+from pmabayes.posterior import (
+    experiment_datasets,
+    experiment_models,
+    fit_info,
+    load_fit,
+    save_fit,
+)
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0)
@@ -91,6 +97,19 @@ def test_fit_tree_layout(small_fit, small_data, tmp_path):
     assert set(info["map"]["values"]) == {*BASE, "sigma_noise_m", "rho_noise",
                                           "sigma_white_m"}
     assert info["map"]["rms_cost_m"] > 0 and info["data"]["n_trials"] == 3
+    # one experiment: today's layout, plus its record in "experiments"
+    (exp,) = info["experiments"]
+    assert {"name", "source", "rig", "n_trials", "n_samples", "input_name",
+            "input_between_samples", "period_samples", "starts_in_steady_state",
+            "noise"} <= set(exp)
+    assert exp["noise"] == "own" and exp["noise_source"] == "trials" and exp["n_trials"] == 3
+    assert exp["rms_cost_m"] == pytest.approx(info["map"]["rms_cost_m"], rel=1e-9)
+    (back,) = experiment_datasets(tree)
+    assert np.array_equal(back.position_m, small_data.position_m)
+    assert np.array_equal(back.input, small_data.input)
+    assert back.metadata == small_data.metadata
+    (model,) = experiment_models(tree)
+    assert model.rig == pb.Model().rig and model.free_names == pb.Model().free_names
     # leave-one-trial-out works on the per-trial log-likelihood (with 3 trials each
     # is influential, so Pareto k warnings are expected here)
     with warnings.catch_warnings():

@@ -50,18 +50,17 @@ def test_rms_cost_is_the_papers(lik):
     assert lik.rms_cost(x)[0] == pytest.approx(expected, rel=1e-12)
 
 
-def make(position, inputs=None, input_name="pressure_pa"):
+def make(position, inputs=None, input_name="pressure_pa", metadata=None):
     n = position.shape[1]
     inputs = np.full(position.shape, 2e5) if inputs is None else inputs
     return Dataset(time_s=np.arange(n) * 1e-3, input=inputs, position_m=position,
                    trial_ids=np.arange(position.shape[0]), input_name=input_name,
-                   source="test.csv")
+                   source="test.csv", metadata=metadata or {})
 
 
 @pytest.mark.parametrize(
     ("dataset", "model", "match"),
     [
-        (make(np.full((1, 50), 0.01)), pb.Model(), "only one trial .* at least 2 repeated"),
         (make(np.zeros((3, 50))), pb.Model(), "every position is 0.0 m"),
         (make(np.ones((2, 50)) * 0.01, inputs=np.vstack([np.full(50, 2e5), np.full(50, 3e5)])),
          pb.Model(), "trial 1 has a different input"),
@@ -91,3 +90,53 @@ def test_factorises_into_deviations_and_mean(lik):
     expected = sum(brute_force(c, 0.0, 7e-5, 0.9, 5e-6) for c in contrasts)
     assert lik.deviation_log_likelihood(7e-5, 0.9, 5e-6)[0] == pytest.approx(expected,
                                                                              rel=1e-10)
+
+
+def _periodic_record(steady: bool, n_periods: int = 4, period: int = 100):
+    rng = np.random.default_rng(5)
+    t = np.arange(n_periods * period) * 1e-3
+    u = 2e5 + 1e5 * np.sin(2 * np.pi * t / (period * 1e-3))
+    y = 0.01 + 1e-3 * np.sin(2 * np.pi * t / (period * 1e-3)) + 1e-5 * rng.standard_normal(t.size)
+    return make(y[None], inputs=u[None],
+                metadata={"period_samples": period, "starts_in_steady_state": steady})
+
+
+@pytest.mark.parametrize(("steady", "n_repeats", "first"), [(True, 4, 0), (False, 3, 1)])
+def test_periods_of_a_single_record_are_its_repeats(steady, n_repeats, first):
+    """All periods in steady state, periods 2..P from rest (the first holds the transient);
+    the model's likelihood is that of the whole record."""
+    ds = _periodic_record(steady)
+    lik = Likelihood(pb.Model(), ds)
+    assert lik.noise_source == "periods" and lik.n_repeats == n_repeats
+    segs = ds.position_m[0, first * 100:].reshape(n_repeats, 100)
+    r = n_repeats
+    helmert = np.array([[1.0] * (j + 1) + [-(j + 1.0)] + [0.0] * (r - j - 2)
+                        for j in range(r - 1)])
+    helmert /= np.linalg.norm(helmert, axis=1, keepdims=True)
+    expected = sum(brute_force(c, 0.0, 2e-5, 0.3, 5e-6) for c in helmert @ segs)
+    assert lik.deviation_log_likelihood(2e-5, 0.3, 5e-6)[0] == pytest.approx(expected, rel=1e-10)
+    x = np.full((1, ds.n_samples), 0.01)
+    whole = brute_force(ds.position_m[0], x[0], 2e-5, 0.3, 5e-6)
+    assert lik.log_likelihood(x, 2e-5, 0.3, 5e-6)[0] == pytest.approx(whole, rel=1e-10)
+    assert math.isnan(ds.noise_floor_m)
+
+
+def test_a_record_without_repeats_gets_a_guarded_noise_model():
+    """One non-periodic record: no model-free repeats, and the disturbance's correlation
+    time is bounded far below the input's time scales (rho_max from the input's band)."""
+    t = np.arange(2000) * 1e-3
+    u = 2e5 + 1e5 * np.sin(2 * np.pi * 2.0 * t)  # 2 Hz
+    ds = make((0.01 + 1e-3 * np.sin(2 * np.pi * 2.0 * t))[None], inputs=u[None])
+    lik = Likelihood(pb.Model(), ds)
+    assert lik.noise_source == "record" and lik.n_repeats == 1
+    assert lik.deviation_log_likelihood(1e-5, 0.5, 1e-6)[0] == 0.0
+    assert lik.input_frequency_hz == pytest.approx(2.0, abs=0.5)
+    tau_max = 1.0 / (2 * np.pi * 10.0 * lik.input_frequency_hz)
+    assert lik.rho_max == pytest.approx(math.exp(-1e-3 / tau_max), rel=1e-12)
+    rho = lik.noise_parameters()[1]
+    assert rho.bounds == (-lik.rho_max, lik.rho_max)
+    assert np.isneginf(rho.log_prior(np.array([0.99])))[0]
+    # with repeats the noise model is unbounded as before
+    lik2 = Likelihood(pb.Model(), make(np.vstack([ds.position_m, ds.position_m + 1e-6]),
+                                       inputs=np.vstack([u, u])))
+    assert lik2.noise_parameters()[1].bounds[1] > 0.999

@@ -148,3 +148,58 @@ def test_every_base_parameter_is_documented():
         assert p.in_bounds(p.default)
         lo, hi = p.prior.support()
         assert lo <= p.default <= hi and not math.isinf(p.prior.logpdf(p.default))
+
+
+@pytest.mark.parametrize("text", ["LogNormal(median=25, sigma=1.5)", "Uniform(0, 300000)",
+                                  "Normal(-1100, 500)", "HalfNormal(50)",
+                                  "LogNormal(1.2345678901e-07, 0.5)"])
+def test_a_prior_reads_back_from_its_printed_form(text):
+    from pmabayes.parameters import parse_prior
+
+    prior = parse_prior(text)
+    assert parse_prior(str(prior)) == prior
+    assert parse_prior(text.lower().replace(" ", "")) == prior
+
+
+@pytest.mark.parametrize(("text", "pattern"), [
+    ("Beta(1, 2)", r"not understood; write one of Uniform\(low, high\)"),
+    ("Normal(0)", r"Normal takes \(mu, sigma\)"),
+    ("Normal(0, wide)", r"'wide' is not a number"),
+    ("LogNormal(-1, 1)", r"median > 0"),
+])
+def test_a_bad_prior_says_what_is_accepted(text, pattern):
+    from pmabayes.parameters import parse_prior
+
+    with pytest.raises(ValueError, match=pattern):
+        parse_prior(text)
+
+
+def test_the_priors_a_fit_used_come_back_with_its_model():
+    import json
+
+    from conftest import fake_fit
+
+    from pmabayes.parameters import LogNormal
+    from pmabayes.posterior import model_from_fit
+
+    tree = fake_fit()
+    info = json.loads(tree.attrs["pmabayes"])
+    for row in info["model"]["parameters"]:
+        if row["name"] == "K_e":
+            row["prior"] = "LogNormal(median=50000, sigma=2)"
+    tree.attrs["pmabayes"] = json.dumps(info)
+    model = model_from_fit(tree)
+    assert model.priors["K_e"] == LogNormal(5e4, 2.0)
+    assert model.priors["alpha"] == pb.Model().priors["alpha"]
+
+
+def test_the_cli_takes_priors_and_refuses_bad_ones(capsys):
+    from pmabayes.cli import _parser
+    from pmabayes.parameters import LogNormal
+
+    args = _parser().parse_args(["fit", "d.csv", "--out", "f.nc",
+                                 "--prior", "K_e=LogNormal(5e4, 2)"])
+    assert dict(args.prior) == {"K_e": LogNormal(5e4, 2.0)}
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["fit", "d.csv", "--out", "f.nc", "--prior", "K_e=Gamma(2, 1)"])
+    assert "not understood" in capsys.readouterr().err
