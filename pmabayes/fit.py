@@ -453,11 +453,12 @@ class FitSettings:
     ----------
     n_walkers : int
         Walkers per ensemble, at least twice the number of parameters: the
-        default, 16, allows 8 (the base model and two one-parameter effects);
-        larger models need more. The run's length is set by ``tau_multiple``, not
-        by ``min_ess``: on the bundled data 2 x 16 walkers reach an ESS of about
-        1,700 where 400 is asked, so more walkers cost time and buy ESS no one
-        asked for.
+        default, 24, allows 12 (the base model with every built-in effect, or
+        with three one-parameter effects on a single record, whose noise is
+        sampled too); larger models need more. The run's length is set by
+        ``tau_multiple``, not by ``min_ess``: on the bundled data 2 x 16 walkers
+        reach an ESS of about 1,700 where 400 is asked, so more walkers than the
+        parameters need cost time and buy ESS no one asked for.
     n_ensembles : int
         Independent ensembles (R-hat across them needs two or more).
     max_steps : int
@@ -486,7 +487,7 @@ class FitSettings:
         Print progress to stderr.
     """
 
-    n_walkers: int = 16
+    n_walkers: int = 24
     n_ensembles: int = 2
     max_steps: int = 20000
     max_seconds: float | None = None
