@@ -601,8 +601,8 @@ def _validation_commands(sub) -> None:
                      "else all pooled)")
     val.add_argument("--seed", type=_seed, default=0,
                      help="seed of the draws' choice and the predictive noise (0)")
-    val.add_argument("--substeps", type=_positive, default=1,
-                     help="simulator steps per sample interval, as the fit used (1)")
+    val.add_argument("--substeps", type=_positive, default=None,
+                     help="simulator steps per sample interval (default: as the fit used)")
     val.set_defaults(func=_cmd_validate)
 
 

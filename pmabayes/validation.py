@@ -593,7 +593,7 @@ def validate(
     seed: int | None = 0,
     rng: np.random.Generator | None = None,
     noise_from: str | None = None,
-    substeps: int = 1,
+    substeps: int | None = None,
 ) -> Validation:
     """Predict held-out experiments with a fit's posterior and compare with their data.
 
@@ -618,9 +618,9 @@ def validate(
         For a fit of several experiments: the fitted experiment whose noise makes the
         predictive band (by default the one on the held-out data's rig; see the
         module's docstring).
-    substeps : int
-        Simulator steps per sample interval (see :func:`pmabayes.simulate`): as many
-        as the fit used, for a lightly damped fast oscillator more than 1.
+    substeps : int, optional
+        Simulator steps per sample interval (see :func:`pmabayes.simulate`); by default
+        as many as the fit used (its file records them).
 
     Returns
     -------
@@ -653,6 +653,8 @@ def validate(
         if not isinstance(d, Dataset):
             raise TypeError(f"datasets must be Datasets or paths, got {type(d).__name__}")
     fit = _read_fit(tree, fit_path or "the fit")
+    if substeps is None:
+        substeps = int(fit_info(tree).get("substeps", 1))
     recorded_seed = None if rng is not None else seed
     if rng is None:
         rng = np.random.default_rng(seed)
