@@ -516,7 +516,9 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
         Whether one input signal, passed as ``(n, 1)``, drives the whole batch, or
         each member has its own row of a ``(batch, n)`` array.
     between_samples : str
-        What the input does between samples: ``"hold"`` or ``"linear"``.
+        What the input does between samples: ``"hold"``, ``"linear"`` or
+        ``"bandlimited"``; for the last, ``p_in`` holds the reconstructed input at every
+        substep boundary, ``(n - 1) * substeps + 1`` values.
 
     Returns
     -------
