@@ -4,6 +4,9 @@
     The main job: fit the data (MAP and posterior) and write the report.
 ``pmabayes fit DATA.csv --out FIT.nc``
     Identify the parameters; chains are kept beside the fit and resumed.
+``pmabayes batch A.csv B.csv ... --out DIR [--processes N | --dask ADDRESS]``
+    Fit many independent data sets, each alone, to ``DIR/<stem>.nc``; one progress
+    bar, failures reported per file, resumable.
 ``pmabayes report FIT.nc --out DIR``
     Summary tables (CSV, Markdown), diagnostics and figures in an HTML page.
 ``pmabayes predict DATA.csv --out DIR``
@@ -24,6 +27,9 @@
     Closed-loop tracking of the paper's sinusoid by PID and computed torque.
 ``pmabayes robustness FIT.nc --out DIR``
     Posterior samples through both controllers across tracking frequencies.
+``pmabayes validate FIT.nc DATA.csv [DATA2.csv ...] [--json OUT.json] [--out DIR]``
+    Predict held-out experiments with the fit's posterior, each on its own rig:
+    error against the noise floor, NRMSE, error per band, predictive band coverage.
 
 ``--plugin FILE.py`` (before the command) imports a file that registers user
 effects, so they work on the command line exactly like the built-in ones.
@@ -538,6 +544,68 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from pmabayes.validation import validate
+
+    start = time.perf_counter()
+    if args.out:
+        _out_folder(args.out)
+    # paths: the fit is read first (a bad fit file is refused before the data), and
+    # its path names it in the outputs
+    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
+                      noise_from=args.noise_from, substeps=args.substeps)
+    print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
+          f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
+          "each:")
+    for line in result.lines():
+        print(f"  {line}")
+    if args.json:
+        _write_json(args.json, result.to_dict())
+        print(f"wrote {args.json}")
+    if args.out:
+        from pmabayes.report import write_validation
+
+        print(f"wrote {write_validation(result, Path(args.out))}")
+    print(f"({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _probability(text: str) -> float:
+    """argparse type of ``--ci-prob``: a probability strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a probability between 0 and 1 "
+                                         "(e.g. 0.9)")
+    return value
+
+
+def _validation_commands(sub) -> None:
+    """The ``validate`` subcommand: a fit's predictions of held-out experiments."""
+    val = sub.add_parser("validate", help="predict held-out experiments with a fit's "
+                         "posterior: error, noise floor, predictive band and its coverage")
+    val.add_argument("fit", help="a fit written by `pmabayes fit`")
+    val.add_argument("data", nargs="+", help="held-out data files (.csv with optional .json "
+                     "sidecar, or .nc), one experiment each, each on the rig its sidecar gives")
+    val.add_argument("--json", help="write the numbers and bands per experiment here")
+    val.add_argument("--out", help="folder for the figures and an HTML page")
+    val.add_argument("--draws", type=_positive, default=300,
+                     help="posterior draws simulated per experiment (300)")
+    val.add_argument("--ci-prob", type=_probability, default=0.9,
+                     help="probability of the predictive band (0.9)")
+    val.add_argument("--noise-from", metavar="NAME",
+                     help="for a fit of several experiments: the fitted experiment whose "
+                     "noise makes the band (default: the one on the held-out data's rig, "
+                     "else all pooled)")
+    val.add_argument("--seed", type=_seed, default=0,
+                     help="seed of the draws' choice and the predictive noise (0)")
+    val.add_argument("--substeps", type=_positive, default=None,
+                     help="simulator steps per sample interval (default: as the fit used)")
+    val.set_defaults(func=_cmd_validate)
+
+
 def _control_commands(sub) -> None:
     """The closed-loop subcommands (``track``, ``robustness``)."""
     tr = sub.add_parser("track", help="closed-loop tracking of the paper's sinusoid by PID "
@@ -577,9 +645,11 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     _fit_commands(sub)
+    _batch_commands(sub)
     _criticism_commands(sub)
     _data_commands(sub)
     _control_commands(sub)
+    _validation_commands(sub)
     return parser
 
 
@@ -651,6 +721,65 @@ def _fit_commands(sub) -> None:
                       help="override a parameter value (repeatable)")
     pred.set_defaults(func=_cmd_predict)
 
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from pmabayes.batch import BatchError, BatchJob, fit_batch
+
+    out = _out_folder(args.out)
+    if args.processes is not None and args.dask is not None:
+        raise CliError("give --processes or --dask, not both")
+    if args.tie_noise:
+        raise CliError("--tie-noise: each data set of a batch is fitted alone, as one "
+                       "experiment; to fit experiments together use `pmabayes fit A B ...`")
+    effects = tuple(args.effects)
+    try:
+        result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],
+                           out_dir=out,
+                           settings=_fit_settings(args), seed=args.seed,
+                           processes=args.processes, dask=args.dask, restart=args.restart,
+                           progress=not args.quiet, substeps=args.substeps)
+    except BatchError as err:
+        raise CliError(str(err)) from None
+    summary = result.summary()
+    for r in summary["datasets"]:
+        if r["status"] == "failed":  # the package's errors name the file already
+            where = "" if r["data"] in r["error"] else f" ({r['data']})"
+            print(f"{r['name']}: FAILED{where}: {r['error']}")
+            continue
+        rms = r["map_rms_cost_m"]
+        conv = "converged" if r["converged"] else "NOT CONVERGED"
+        took = (f"{r['seconds']:.1f} s" if r["status"] == "fitted"
+                else "skipped, up to date")
+        print(f"{r['name']}: {r['fit_file']}: MAP RMS cost "
+              f"{'n/a' if rms is None else f'{rms * 1e6:.1f} um'}, {conv} "
+              f"({r['n_steps']} steps), {took}")
+    print(f"{summary['n_datasets']} data sets: {summary['n_fitted']} fitted, "
+          f"{summary['n_skipped']} skipped, {summary['n_failed']} failed, "
+          f"{summary['n_not_converged']} not converged; {summary['seconds']:.1f} s on "
+          f"{summary['runner']}")
+    if args.json:
+        _write_json(args.json, summary)
+        print(f"wrote {args.json}")
+    return 0 if result.ok else 1
+
+
+def _batch_commands(sub) -> None:
+    """The ``batch`` subcommand: many independent data sets, one fit each."""
+    bat = sub.add_parser("batch", help="fit many independent data sets, each alone, on local "
+                         "processes or a Dask cluster")
+    bat.add_argument("data", nargs="+", help="data files: .csv, .nc or MATLAB .mat (v4-v7.3), "
+                     "each with an optional .json sidecar of the same stem; each fit is "
+                     "written to OUT/<file stem>.nc")
+    bat.add_argument("--out", required=True, help="output folder of the fits")
+    _fit_options(bat)
+    bat.add_argument("--processes", type=_positive, default=None,
+                     help="local worker processes, one data set each (all cores)")
+    bat.add_argument("--dask", metavar="ADDRESS", default=None,
+                     help="run on the Dask scheduler at ADDRESS (tcp://HOST:8786) instead; "
+                     "needs `pip install pmabayes[dask]`")
+    bat.add_argument("--json", help="write the batch's summary here")
+    bat.set_defaults(func=_cmd_batch)
 
 
 def _criticism_commands(sub) -> None:

@@ -960,9 +960,10 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
 def _map_residual(tree, model: Model, dataset: Dataset):
     """Band errors, whiteness and whitened residual of a fit's MAP model."""
     info = fit_info(tree)
-    lik = Likelihood(model, dataset)
+    substeps = int(info.get("substeps", 1))
+    lik = Likelihood(model, dataset, substeps=substeps)
     vals = _model_values(model, info["map"]["values"])
-    x = simulate_dataset(model, vals, dataset)[0]
+    x = simulate_dataset(model, vals, dataset, substeps=substeps)[0]
     nz = info["noise"]
     noise = NoiseEstimate(nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"], None, None)
     e, white, _ = judged_whiteness(lik, x, noise)  # AR(1) + white unless the repeats reject it

@@ -776,7 +776,9 @@ def simulate(
         given (exact for a periodic input), otherwise by a degree-9 interpolating
         spline with not-a-knot ends (near the first and last few samples it is the
         polynomial through the end samples, less accurate than inside). Give it
-        substeps: with ``substeps=1`` it is ``"linear"``.
+        substeps: with ``substeps=1`` it is ``"linear"``. With pressure effects or
+        per-member inputs the kernel keeps the reconstruction per member (16 bytes
+        per substep and member).
     period_samples : int, optional
         Samples in one period, when the input is whole periods of a periodic signal
         (it must divide ``n_samples``). Used by ``"bandlimited"`` and

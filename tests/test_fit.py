@@ -424,3 +424,37 @@ def test_an_ensemble_already_ahead_is_left_as_it_is(tmp_path, monkeypatch):
     assert fit_module._advance((path, 0, np.zeros((4, 2)), 1, "de")) == 3
     assert not Path(path + ".tmp").exists()
     assert Path(path).read_bytes() == before
+
+
+# -- speed: one global search stopped when its population agrees; default walkers ----
+
+
+def test_global_search_stops_when_its_population_agrees(small_data, monkeypatch):
+    """The search ends well before its generation budget once its population is in one
+    basin, and the polish from there finds the MAP a search run to the end finds."""
+    from pmabayes import fit as fit_module
+
+    lik = Likelihood(pb.Model(), small_data)
+    post = Posterior(lik, estimate_noise(lik))
+    simulated = []
+    original = Likelihood.simulate
+    monkeypatch.setattr(Likelihood, "simulate",
+                        lambda self, theta: simulated.append(len(theta)) or original(self, theta))
+    stopped = find_map(post, rng=np.random.default_rng(0))
+    n_stopped = sum(simulated)
+    simulated.clear()
+    monkeypatch.setattr(fit_module, "_DE_TOL", 1e-12)  # never: every generation runs
+    full = find_map(post, rng=np.random.default_rng(0))
+    assert n_stopped < 0.85 * sum(simulated), (n_stopped, sum(simulated))
+    assert stopped.log_posterior == pytest.approx(full.log_posterior, abs=0.01)
+    sd = np.sqrt(np.diag(full.covariance_z))
+    assert np.all(np.abs(stopped.z - full.z) < 0.05 * sd), (stopped.z - full.z) / sd
+
+
+def test_default_walkers_suffice_for_every_built_in_effect():
+    """Fewer walkers make fits faster; the default still allows the base model with
+    every built-in effect (and a single record's sampled noise with three of them)."""
+    from pmabayes.effects import registered_effects
+
+    largest = pb.Model(list(registered_effects()))
+    assert FitSettings().n_walkers >= 2 * len(largest.free_names)

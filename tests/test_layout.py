@@ -24,6 +24,7 @@ RANK = {
     "posterior": 6,
     "fit": 7,
     "residuals": 8, "criticism": 8, "control": 8, "robustness": 8, "reproduction": 8,
+    "batch": 8, "validation": 8,
     "plots": 9,
     "report": 10,
     "cli": 11,
