@@ -7,6 +7,10 @@ least 400 and a kept chain at least 50 autocorrelation times long. Compiling the
 simulator (first use on a machine) is done before the clock starts and reported
 separately.
 
+It also prints the work done, which load on a shared machine does not change: the
+model simulations of the global search and MAP (counted in this process) and the
+walker-steps of the sampler (each at most one simulation).
+
 Usage::
 
     python analyses/bench_posterior.py [--data PATH] [--seed S]
@@ -17,6 +21,7 @@ The last line printed is ``posterior_seconds: <number>``. A benchmark, not a tes
 from __future__ import annotations
 
 import argparse
+import resource
 import sys
 import time
 from pathlib import Path
@@ -26,6 +31,7 @@ import numpy as np
 from pmabayes import Model, simulate
 from pmabayes.data import load
 from pmabayes.fit import FitSettings, fit
+from pmabayes.likelihood import Likelihood
 from pmabayes.posterior import fit_info
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1] / "data" / "pma_chirp_paper.csv"
@@ -42,9 +48,12 @@ def main(argv: list[str] | None = None) -> int:
     simulate(Model(), None, dataset.input[0][:10], dt_s=dataset.dt_s)  # compile or load
     compile_s = time.perf_counter() - start
 
+    counted = _count_simulations()
+    cpu_start = _cpu_seconds()
     start = time.perf_counter()
     tree = fit(dataset, Model(), seed=args.seed, settings=FitSettings(progress=True))
     seconds = time.perf_counter() - start
+    cpu = _cpu_seconds() - cpu_start
     info = fit_info(tree)
     conv = info["convergence"]
     print(f"data: {args.data} ({dataset.n_trials} trials x {dataset.n_samples} samples)")
@@ -57,12 +66,37 @@ def main(argv: list[str] | None = None) -> int:
         rhat_e = conv["rhat_ensembles"][name] if conv["rhat_ensembles"] else float("nan")
         print(f"{name:<15}{conv['tau'][name]:>8.1f}{conv['ess'][name]:>9.0f}"
               f"{rhat_e:>11.4f}{conv['rhat'][name]:>15.4f}")
+    n_walker_steps = conv["n_steps"] * conv["n_ensembles"] * conv["n_walkers"]
+    print(f"work: {counted['map']} simulations in the global search and MAP, "
+          f"{n_walker_steps} walker-steps in sampling; {cpu:.1f} CPU s (this process and "
+          f"its sampler processes; less sensitive than the wall time to a shared machine)")
     t = info["timings_s"]
     print(f"MAP {t['map']:.1f} s, sampling {t['sampling']:.1f} s, total {t['total']:.1f} s; "
           f"min ESS {min(conv['ess'].values()):.0f}, "
           f"max R-hat across ensembles {max(conv['rhat_ensembles'].values()):.4f}")
     print(f"posterior_seconds: {seconds:.1f}")
     return 0 if np.isfinite(seconds) else 1
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process and its finished child processes."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def _count_simulations() -> dict:
+    """Count the parameter sets simulated in this process (the global search and MAP;
+    the sampler runs in its own processes and is counted by its walker-steps)."""
+    counted = {"map": 0}
+    simulate_rows = Likelihood.simulate
+
+    def counting(self, theta):
+        counted["map"] += int(np.atleast_2d(theta).shape[0])
+        return simulate_rows(self, theta)
+
+    Likelihood.simulate = counting
+    return counted
 
 
 if __name__ == "__main__":

@@ -9,11 +9,14 @@ for every parameter (20 data sets give a binomial standard error of 6.7%).
 Usage::
 
     python analyses/calibration.py [--datasets 20] [--seed 0] [--out DIR] [--quick]
-                                   [--processes N] [--single {record,periodic}]
+                                   [--processes N | --dask ADDRESS]
+                                   [--single {record,periodic}]
 
 Writes ``calibration.csv`` and ``calibration.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``coverage_min: <fraction>``. ``--quick``
-uses 4 short data sets (as in the tests).
+uses 4 short data sets (as in the tests). ``--dask tcp://HOST:8786`` runs the fits on
+that Dask scheduler's workers instead of local processes (``pip install pmabayes[dask]``
+here and on the workers); the rows are the same.
 
 ``--single`` calibrates fits of single records instead of repeated chirps (files
 ``calibration_single_MODE.*``):
@@ -32,6 +35,7 @@ uses 4 short data sets (as in the tests).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import sys
 import time
@@ -42,6 +46,7 @@ import arviz as az
 import numpy as np
 
 from pmabayes import Model, simulate
+from pmabayes.batch import dask_client
 from pmabayes.data import Dataset
 from pmabayes.fit import FitSettings, fit
 from pmabayes.parallel import Runner
@@ -82,12 +87,16 @@ def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods:
 
 def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trials: int = 10,
               settings: FitSettings | None = None, verbose: bool = True,
-              processes: int | None = None, single: str | None = None) -> list[dict]:
+              processes: int | None = None, single: str | None = None,
+              client=None) -> list[dict]:
     """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter.
 
     The data sets are drawn here, in order, from ``seed``; their fits run on
     :class:`pmabayes.parallel.Runner` (``processes`` local workers, every core by
-    default), each fit in one process, so the rows do not depend on how they ran.
+    default, or the Dask ``client``'s workers), each fit in one process, so the rows do
+    not depend on how they ran. Run as a script, Dask sends this module's functions by
+    value; called from Python with a client, the scheduler and the workers must be able
+    to import this module (``analyses/`` on their ``PYTHONPATH``).
     ``single`` (``"record"`` or ``"periodic"``) fits single records instead of
     ``n_trials`` repeated chirps (see the module's docstring).
     """
@@ -99,7 +108,7 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
         truth = draw_plausible(rng)
         jobs.append({"index": i, "truth": truth, "seed": int(rng.integers(2**31)),
                      "chirp": chirp, "n_trials": n_trials, "single": single})
-    runner = Runner(processes, tasks=n_datasets)
+    runner = Runner(processes, client=client, tasks=n_datasets)
     settings = FitSettings() if settings is None else settings
     if not runner.local:  # the data sets share the cores; a fit needs no pool of its own
         settings = replace(settings, processes=1)
@@ -175,15 +184,22 @@ def main(argv: list[str] | None = None) -> int:
                         "repeats) or 'periodic' (one multisine record, its periods as repeats)")
     parser.add_argument("--steps", type=int, default=None,
                         help="budget of sampler steps per ensemble (FitSettings' default)")
+    parser.add_argument("--dask", metavar="ADDRESS", default=None,
+                        help="run the fits on this Dask scheduler (tcp://HOST:8786)")
     args = parser.parse_args(argv)
+    if args.dask is not None and args.processes is not None:
+        parser.error("give --processes or --dask, not both")
     chirp, n_trials, n = None, 10, args.datasets
     if args.quick:
         chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, 4
     settings = FitSettings() if args.steps is None else FitSettings(max_steps=args.steps)
     stem = "calibration" if args.single is None else f"calibration_single_{args.single}"
     start = time.perf_counter()
-    rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials, processes=args.processes,
-                     single=args.single, settings=settings)
+    with (dask_client(args.dask) if args.dask is not None
+          else contextlib.nullcontext()) as client:
+        rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
+                         processes=args.processes, single=args.single, settings=settings,
+                         client=client)
     cov = coverage(rows)
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,7 @@ Usage::
 
     python analyses/detection.py [--null 20] [--seeds 5] [--sizes 4] [--max-refits 3]
                                  [--effects NAME ...] [--seed 0] [--out DIR] [--quick]
-                                 [--processes N]
+                                 [--processes N | --dask ADDRESS]
 
 Writes ``detection.csv``, ``detection.md`` and ``null.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``false_alarm_rate: <fraction>``.
@@ -25,12 +25,15 @@ Writes ``detection.csv``, ``detection.md`` and ``null.md`` into ``--out`` (defau
 short data, for CI; ``--null``, ``--seeds`` and ``--sizes`` given explicitly override
 those counts (``--sizes k`` keeps the k largest sizes of each effect); ``--effects``
 sweeps only the named effects (of ``regulator_lag``, ``coulomb_friction``,
-``position_offset``).
+``position_offset``). ``--dask tcp://HOST:8786`` runs the diagnoses on that Dask
+scheduler's workers instead of local processes (``pip install pmabayes[dask]`` here and
+on the workers); the rows are the same.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import sys
 import time
@@ -39,6 +42,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from pmabayes.batch import dask_client
 from pmabayes.criticism import diagnose
 from pmabayes.parallel import Runner
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
@@ -165,7 +169,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="a small version for CI")
     parser.add_argument("--processes", type=int, default=None,
                         help="local worker processes (every core by default)")
+    parser.add_argument("--dask", metavar="ADDRESS", default=None,
+                        help="run the diagnoses on this Dask scheduler (tcp://HOST:8786)")
     args = parser.parse_args(argv)
+    if args.dask is not None and args.processes is not None:
+        parser.error("give --processes or --dask, not both")
     chirp, n_trials = Chirp(duration_s=8.0, f0_hz=0.3, f1_hz=3.0), 6
     n_null, n_seeds, n_sizes = 20, 5, 4
     if args.quick:
@@ -190,7 +198,9 @@ def main(argv: list[str] | None = None) -> int:
                               "size": size},
                              _draw(rng, chirp, n_trials, {effect: size}, args.max_refits)))
     rows = []
-    with Runner(args.processes, tasks=len(jobs)) as runner:
+    with (dask_client(args.dask) if args.dask is not None
+          else contextlib.nullcontext()) as client, \
+            Runner(args.processes, client=client, tasks=len(jobs)) as runner:
         for (what, _), (data_seed, d, secs) in zip(
                 jobs, runner.map(_run, [job for _, job in jobs]), strict=True):
             rows.append(_row(what, data_seed, d, secs, n_null))

@@ -4,6 +4,9 @@
     The main job: fit the data (MAP and posterior) and write the report.
 ``pmabayes fit DATA.csv --out FIT.nc``
     Identify the parameters; chains are kept beside the fit and resumed.
+``pmabayes batch A.csv B.csv ... --out DIR [--processes N | --dask ADDRESS]``
+    Fit many independent data sets, each alone, to ``DIR/<stem>.nc``; one progress
+    bar, failures reported per file, resumable.
 ``pmabayes report FIT.nc --out DIR``
     Summary tables (CSV, Markdown), diagnostics and figures in an HTML page.
 ``pmabayes predict DATA.csv --out DIR``
@@ -24,6 +27,9 @@
     Closed-loop tracking of the paper's sinusoid by PID and computed torque.
 ``pmabayes robustness FIT.nc --out DIR``
     Posterior samples through both controllers across tracking frequencies.
+``pmabayes validate FIT.nc DATA.csv [DATA2.csv ...] [--json OUT.json] [--out DIR]``
+    Predict held-out experiments with the fit's posterior, each on its own rig:
+    error against the noise floor, NRMSE, error per band, predictive band coverage.
 
 ``--plugin FILE.py`` (before the command) imports a file that registers user
 effects, so they work on the command line exactly like the built-in ones.
@@ -56,6 +62,7 @@ from pmabayes.parameters import Prior, parse_prior
 from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+from pmabayes.trials import check_trials, exclude_trials, parse_trial_ids
 
 __all__ = ["main", "load_plugin", "CliError"]
 
@@ -156,6 +163,38 @@ def _effect_list(text: str) -> list[str]:
     return [e.strip() for e in text.split(",") if e.strip()]
 
 
+def _trial_ids(text: str) -> list[int]:
+    try:
+        return parse_trial_ids(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _exclude_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--exclude-trials", type=_trial_ids, default=[], metavar="ID,ID",
+                   help="leave these trial ids out (e.g. 3,7: trials the check of the "
+                   "trials names as drifting or outlying)")
+
+
+def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1) -> Dataset:
+    """A data file, without the trials ``--exclude-trials`` names (said, not silent)."""
+    dataset = load(path)
+    if args.exclude_trials:
+        dataset = exclude_trials(dataset, args.exclude_trials, min_trials=min_trials)
+        print(f"excluded trials {','.join(map(str, args.exclude_trials))} of {path} "
+              f"(--exclude-trials); {dataset.n_trials} remain")
+    return dataset
+
+
+def _load_all(args: argparse.Namespace) -> list[Dataset]:
+    """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
+    if args.exclude_trials and len(args.data) > 1:
+        raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
+                       "were given; leave the trials out of that file first (pmabayes.trials."
+                       "exclude_trials, then pmabayes.data.save), or fit it alone")
+    return [_load_data(args, p) for p in args.data]
+
+
 def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
     """``NAME=VALUE`` (first varying parameter) or ``NAME.PARAM=VALUE``."""
     effects: dict[str, dict[str, float]] = {}
@@ -190,6 +229,7 @@ def load_plugin(spec: str) -> None:
 
 def _cmd_predict(args: argparse.Namespace) -> int:
     from pmabayes.plots import plot_comparison  # matplotlib only where figures are made
+    from pmabayes.residuals import band_errors, band_label
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -209,6 +249,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "rms_m": float(np.sqrt(np.mean(resid**2))),
         "max_error_m": float(np.max(np.abs(resid))),
         "noise_floor_m": None if math.isnan(floor) else floor,  # JSON has no NaN
+        "bands": [b.to_dict() for b in band_errors(dataset, x)],
     }
     with _created(out):
         plot_comparison(dataset, x, label="model (paper values)" if not params else "model",
@@ -221,6 +262,10 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     print(f"model: base{' + ' + ' + '.join(model.effect_names) if model.effect_names else ''}")
     print(f"RMS error of the trial mean: {summary['rms_m'] * 1e6:.1f} um "
           f"({floor_text}, max error {summary['max_error_m'] * 1e6:.1f} um)")
+    for b in summary["bands"][:-1]:
+        print(f"  {band_label(tuple(b['band_hz'][:1]) + (b['band_hz'][1] or math.inf,)):>12s}: "
+              f"RMS {b['rms_m'] * 1e6:.1f} um = {b['nrms']:.3g} of the motion"
+              + (f", {b['ratio']:.3g}x the floor" if b["ratio"] is not None else ""))
     print(f"wrote {out / 'comparison.png'} and {out / 'summary.json'} "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
@@ -241,7 +286,7 @@ def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out
         warnings.simplefilter("ignore", ConvergenceWarning)
         tree = fit(datasets if len(datasets) > 1 else datasets[0], model, seed=args.seed,
                    settings=_fit_settings(args), chains_dir=chains, restart=args.restart,
-                   tie_noise=args.tie_noise)
+                   tie_noise=args.tie_noise, substeps=args.substeps)
     save_fit(tree, out)
     info = fit_info(tree)
     conv = info["convergence"]
@@ -277,7 +322,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise CliError(f"--out {out}: this is a folder; give the name of the fit file "
                        "to write (e.g. fit.nc)")
-    datasets = [load(p) for p in args.data]
+    datasets = _load_all(args)
     model = _model_for(datasets[0], args)
     with _created(out.parent):
         _do_fit(args, datasets, model, out)
@@ -314,7 +359,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = _out_folder(args.out)
-    datasets = [load(p) for p in args.data]  # read and checked before anything is made
+    datasets = _load_all(args)  # read and checked before anything is made
     model = _model_for(datasets[0], args)
     with _created(out):
         tree = _do_fit(args, datasets, model, out / "fit.nc")
@@ -346,8 +391,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             "`pmabayes fit " + " ".join(args.data) + " --effects ... --out FIT.nc`")
     if args.out:
         _out_folder(args.out)
-    dataset = load(args.data[0])
+    dataset = _load_data(args, args.data[0], min_trials=2)
     _needs_repeats(dataset, "diagnose")
+    print(check_trials(dataset).summary())  # the noise is learnt from their spread
     result = diagnose(dataset, _model_for(dataset, args),
                       candidates=args.candidates or None, seed=args.seed,
                       progress=not args.quiet)
@@ -498,6 +544,68 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from pmabayes.validation import validate
+
+    start = time.perf_counter()
+    if args.out:
+        _out_folder(args.out)
+    # paths: the fit is read first (a bad fit file is refused before the data), and
+    # its path names it in the outputs
+    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
+                      noise_from=args.noise_from, substeps=args.substeps)
+    print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
+          f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
+          "each:")
+    for line in result.lines():
+        print(f"  {line}")
+    if args.json:
+        _write_json(args.json, result.to_dict())
+        print(f"wrote {args.json}")
+    if args.out:
+        from pmabayes.report import write_validation
+
+        print(f"wrote {write_validation(result, Path(args.out))}")
+    print(f"({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _probability(text: str) -> float:
+    """argparse type of ``--ci-prob``: a probability strictly between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a probability between 0 and 1 "
+                                         "(e.g. 0.9)")
+    return value
+
+
+def _validation_commands(sub) -> None:
+    """The ``validate`` subcommand: a fit's predictions of held-out experiments."""
+    val = sub.add_parser("validate", help="predict held-out experiments with a fit's "
+                         "posterior: error, noise floor, predictive band and its coverage")
+    val.add_argument("fit", help="a fit written by `pmabayes fit`")
+    val.add_argument("data", nargs="+", help="held-out data files (.csv with optional .json "
+                     "sidecar, or .nc), one experiment each, each on the rig its sidecar gives")
+    val.add_argument("--json", help="write the numbers and bands per experiment here")
+    val.add_argument("--out", help="folder for the figures and an HTML page")
+    val.add_argument("--draws", type=_positive, default=300,
+                     help="posterior draws simulated per experiment (300)")
+    val.add_argument("--ci-prob", type=_probability, default=0.9,
+                     help="probability of the predictive band (0.9)")
+    val.add_argument("--noise-from", metavar="NAME",
+                     help="for a fit of several experiments: the fitted experiment whose "
+                     "noise makes the band (default: the one on the held-out data's rig, "
+                     "else all pooled)")
+    val.add_argument("--seed", type=_seed, default=0,
+                     help="seed of the draws' choice and the predictive noise (0)")
+    val.add_argument("--substeps", type=_positive, default=1,
+                     help="simulator steps per sample interval, as the fit used (1)")
+    val.set_defaults(func=_cmd_validate)
+
+
 def _control_commands(sub) -> None:
     """The closed-loop subcommands (``track``, ``robustness``)."""
     tr = sub.add_parser("track", help="closed-loop tracking of the paper's sinusoid by PID "
@@ -537,9 +645,11 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     _fit_commands(sub)
+    _batch_commands(sub)
     _criticism_commands(sub)
     _data_commands(sub)
     _control_commands(sub)
+    _validation_commands(sub)
     return parser
 
 
@@ -566,25 +676,29 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--restart", action="store_true",
                    help="discard saved chains instead of resuming them")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--substeps", type=_positive, default=1,
+                   help="simulator steps per sample interval (1; more for a lightly damped "
+                   "oscillator near the sample rate, e.g. 16 for the Bouc-Wen benchmark)")
     p.add_argument("--tie-noise", action="store_true",
                    help="one noise model for all experiments (same sensor and disturbance) "
                    "instead of one per experiment")
+    _exclude_option(p)
 
 
 
 def _fit_commands(sub) -> None:
     run = sub.add_parser("run", help="the main job: fit a data set and write the report")
-    run.add_argument("data", nargs="+", help="data files, one per experiment (.csv with "
-                     "optional .json sidecar, or .nc); the experiments share the physical "
-                     "parameters")
+    run.add_argument("data", nargs="+", help="data files, one per experiment (.csv, .nc or "
+                     "MATLAB .mat v4-v7.3, each with an optional .json sidecar of the same "
+                     "stem); the experiments share the physical parameters")
     run.add_argument("--out", required=True, help="output folder (fit.nc and the report)")
     _fit_options(run)
     run.set_defaults(func=_cmd_run)
 
     fitp = sub.add_parser("fit", help="identify the parameters: MAP and posterior")
-    fitp.add_argument("data", nargs="+", help="data files, one per experiment (.csv with "
-                      "optional .json sidecar, or .nc); the experiments share the physical "
-                      "parameters")
+    fitp.add_argument("data", nargs="+", help="data files, one per experiment (.csv, .nc or "
+                      "MATLAB .mat v4-v7.3, each with an optional .json sidecar of the same "
+                      "stem); the experiments share the physical parameters")
     fitp.add_argument("--out", required=True, help="the fit, a NetCDF file (FIT.nc)")
     _fit_options(fitp)
     fitp.set_defaults(func=_cmd_fit)
@@ -598,7 +712,8 @@ def _fit_commands(sub) -> None:
 
     pred = sub.add_parser("predict", help="simulate the model on a data set's input and "
                           "compare (no fitting)")
-    pred.add_argument("data", help="data file (.csv with optional .json sidecar, or .nc)")
+    pred.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
+                      "optional .json sidecar of the same stem")
     pred.add_argument("--out", required=True, help="output folder")
     pred.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
@@ -608,11 +723,71 @@ def _fit_commands(sub) -> None:
 
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from pmabayes.batch import BatchError, BatchJob, fit_batch
+
+    out = _out_folder(args.out)
+    if args.processes is not None and args.dask is not None:
+        raise CliError("give --processes or --dask, not both")
+    if args.tie_noise:
+        raise CliError("--tie-noise: each data set of a batch is fitted alone, as one "
+                       "experiment; to fit experiments together use `pmabayes fit A B ...`")
+    effects = tuple(args.effects)
+    try:
+        result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],
+                           out_dir=out,
+                           settings=_fit_settings(args), seed=args.seed,
+                           processes=args.processes, dask=args.dask, restart=args.restart,
+                           progress=not args.quiet, substeps=args.substeps)
+    except BatchError as err:
+        raise CliError(str(err)) from None
+    summary = result.summary()
+    for r in summary["datasets"]:
+        if r["status"] == "failed":  # the package's errors name the file already
+            where = "" if r["data"] in r["error"] else f" ({r['data']})"
+            print(f"{r['name']}: FAILED{where}: {r['error']}")
+            continue
+        rms = r["map_rms_cost_m"]
+        conv = "converged" if r["converged"] else "NOT CONVERGED"
+        took = (f"{r['seconds']:.1f} s" if r["status"] == "fitted"
+                else "skipped, up to date")
+        print(f"{r['name']}: {r['fit_file']}: MAP RMS cost "
+              f"{'n/a' if rms is None else f'{rms * 1e6:.1f} um'}, {conv} "
+              f"({r['n_steps']} steps), {took}")
+    print(f"{summary['n_datasets']} data sets: {summary['n_fitted']} fitted, "
+          f"{summary['n_skipped']} skipped, {summary['n_failed']} failed, "
+          f"{summary['n_not_converged']} not converged; {summary['seconds']:.1f} s on "
+          f"{summary['runner']}")
+    if args.json:
+        _write_json(args.json, summary)
+        print(f"wrote {args.json}")
+    return 0 if result.ok else 1
+
+
+def _batch_commands(sub) -> None:
+    """The ``batch`` subcommand: many independent data sets, one fit each."""
+    bat = sub.add_parser("batch", help="fit many independent data sets, each alone, on local "
+                         "processes or a Dask cluster")
+    bat.add_argument("data", nargs="+", help="data files: .csv, .nc or MATLAB .mat (v4-v7.3), "
+                     "each with an optional .json sidecar of the same stem; each fit is "
+                     "written to OUT/<file stem>.nc")
+    bat.add_argument("--out", required=True, help="output folder of the fits")
+    _fit_options(bat)
+    bat.add_argument("--processes", type=_positive, default=None,
+                     help="local worker processes, one data set each (all cores)")
+    bat.add_argument("--dask", metavar="ADDRESS", default=None,
+                     help="run on the Dask scheduler at ADDRESS (tcp://HOST:8786) instead; "
+                     "needs `pip install pmabayes[dask]`")
+    bat.add_argument("--json", help="write the batch's summary here")
+    bat.set_defaults(func=_cmd_batch)
+
+
 def _criticism_commands(sub) -> None:
     diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
                           "effect is missing")
-    diag.add_argument("data", nargs="+", help="data file (.csv with optional .json sidecar, "
-                      "or .nc); one experiment at a time")
+    diag.add_argument("data", nargs="+", help="data file (.csv, .nc or MATLAB .mat v4-v7.3, "
+                      "with an optional .json sidecar of the same stem); one experiment at "
+                      "a time")
     diag.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
     diag.add_argument("--candidates", default="", type=_effect_list,
@@ -622,6 +797,7 @@ def _criticism_commands(sub) -> None:
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
     _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
+    _exclude_option(diag)
     diag.set_defaults(func=_cmd_diagnose)
 
     comp = sub.add_parser("compare", help="fits of the same data side by side: error per "

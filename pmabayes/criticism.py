@@ -33,7 +33,7 @@ from pmabayes.likelihood import Likelihood
 from pmabayes.model import Model
 from pmabayes.posterior import check_dataset, fit_info, model_from_fit
 from pmabayes.residuals import (
-    DEFAULT_BANDS_HZ,
+    DEFAULT_BANDS_HZ,  # noqa: F401
     ENERGY_TOLERANCE,
     LEVEL_ADEQUATE,
     BandError,  # noqa: F401
@@ -43,12 +43,14 @@ from pmabayes.residuals import (
     autocorrelation,  # noqa: F401
     band_errors,
     band_label,
+    band_rms,
     cross_correlation,  # noqa: F401
     innovations,
+    input_bands,
     instantaneous_frequency,
+    judged_whiteness,
     ljung_box,  # noqa: F401
     residual_signature,
-    whiteness,
     whiteness_curves,
 )
 from pmabayes.simulator import Simulation, simulate_dataset
@@ -491,19 +493,14 @@ def _model_values(model, values: dict) -> dict:
 
 
 def _contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
-                       freq_hz: np.ndarray, bands_hz) -> str:
+                       dt_s: float, bands_hz) -> str:
     if not np.std(contribution_m) > 0:
         return ""
     corr = float(np.corrcoef(contribution_m, base_residual_m)[0, 1])
-    best, best_rms = None, -1.0
-    for lo, hi in bands_hz:
-        sel = (freq_hz >= lo) & (freq_hz < hi)
-        if sel.any():
-            rms = float(np.sqrt(np.mean(contribution_m[sel] ** 2)))
-            if rms > best_rms:
-                best, best_rms = (lo, hi), rms
+    rms = band_rms(contribution_m, dt_s, bands_hz)
+    k = int(np.argmax(rms))
     return (f" Its contribution to the output correlates {corr:+.2f} with the base model's "
-            f"residual and is largest at {band_label(best)} ({best_rms * 1e6:.4g} µm RMS).")
+            f"residual and is largest at {band_label(bands_hz[k])} ({rms[k] * 1e6:.4g} µm RMS).")
 
 
 def _explanation(eff, evidence: float, p_value: float, significant: bool,
@@ -653,7 +650,7 @@ def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[F
     """Every candidate with its estimate and explanation; the refitted ones first, by ELPD."""
     dataset = base.likelihood.dataset
     base_resid = base.likelihood.y_mean - base.simulation.position_m[0]
-    freq = instantaneous_frequency(dataset)
+    bands = input_bands(dataset)
     findings = []
     for ev in ranked:
         eff = get_effect(ev.effect)
@@ -661,8 +658,8 @@ def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[F
         if refit is not None:
             estimate = {k: refit.values[k] for k in refit.interval}
             interval, explained = refit.interval, refit.explained
-            contrib = _contribution_text(refit.contribution_m, base_resid, freq,
-                                         DEFAULT_BANDS_HZ)
+            contrib = _contribution_text(refit.contribution_m, base_resid, dataset.dt_s,
+                                         bands)
         else:
             estimate, interval, explained, contrib = ev.estimate, ev.interval, ev.explained, ""
         findings.append(Finding(
@@ -963,12 +960,14 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
 def _map_residual(tree, model: Model, dataset: Dataset):
     """Band errors, whiteness and whitened residual of a fit's MAP model."""
     info = fit_info(tree)
-    lik = Likelihood(model, dataset)
+    substeps = int(info.get("substeps", 1))
+    lik = Likelihood(model, dataset, substeps=substeps)
     vals = _model_values(model, info["map"]["values"])
-    x = simulate_dataset(model, vals, dataset)[0]
+    x = simulate_dataset(model, vals, dataset, substeps=substeps)[0]
     nz = info["noise"]
-    e = lik.innovations(x, nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"])
-    return band_errors(dataset, x), whiteness(e), e
+    noise = NoiseEstimate(nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"], None, None)
+    e, white, _ = judged_whiteness(lik, x, noise)  # AR(1) + white unless the repeats reject it
+    return band_errors(dataset, x), white, e
 
 
 def _loo_table(fits: list, labels: list) -> tuple[dict, list]:

@@ -170,7 +170,8 @@ class Runner:
         except ImportError as exc:  # pragma: no cover - a client implies distributed
             raise RuntimeError("a Dask client needs `pip install pmabayes[dask]`") from exc
         futures = self.client.map(fn, jobs, pure=False)
-        for fut in (futures if ordered else dask_completed(futures)):
+        # the client's loop: as_completed would look for a default client otherwise
+        for fut in (futures if ordered else dask_completed(futures, loop=self.client.loop)):
             yield fut.result()
 
     def close(self) -> None:

@@ -45,6 +45,7 @@ __all__ = [
     "plot_pair",
     "plot_predictive",
     "plot_residual",
+    "plot_validation",
 ]
 
 #: Resolution of the report's figures.
@@ -145,6 +146,9 @@ def plot_band_errors(
 ) -> Figure:
     """RMS error per frequency band for one or more models, beside the noise floor.
 
+    The bands are those of :func:`pmabayes.residuals.band_errors` (spectral, for
+    any input); with a single trial there is no floor and no ratio to draw.
+
     Parameters
     ----------
     errors : dict
@@ -172,17 +176,21 @@ def plot_band_errors(
         bars = ax.bar(xs - 0.4 + width * (i + 0.5), rms, width,
                       color=cmap(i / max(len(labels) - 1, 1)), label=label)
         for bar, row in zip(bars, errors[label], strict=True):
+            if not np.isfinite(row.ratio):  # one trial: no floor to compare with
+                continue
             ax.annotate(f"{row.ratio:.3g}x", (bar.get_x() + bar.get_width() / 2,
                                                bar.get_height()),
                         ha="center", va="bottom", fontsize=7, rotation=90,
                         xytext=(0, 2), textcoords="offset points")
     floors = [b.floor_m * 1e6 for b in errors[labels[0]]]
     for x, f in zip(xs, floors, strict=True):
-        ax.hlines(f, x - 0.45, x + 0.45, color="k", lw=2,
-                  label="noise floor" if x == 0 else None)
+        if np.isfinite(f):
+            ax.hlines(f, x - 0.45, x + 0.45, color="k", lw=2,
+                      label="noise floor" if x == 0 else None)
     ax.set_yscale("log")
     ax.set_xticks(xs, [b.label for b in errors[labels[0]]])
-    ax.set_xlabel("instantaneous frequency of the chirp")
+    ax.set_xlabel("frequency band (octaves over the band the input excites; from the spectra "
+                  "of the residual and of the deviations between trials)", fontsize=8)
     ax.set_ylabel("RMS error of the trial mean [µm]")
     ax.set_title(title or "error per frequency band (label: multiple of the floor)",
                  fontsize=10)
@@ -817,3 +825,65 @@ def plot_residual(time_s: np.ndarray, residual_m: np.ndarray, rms_m: float,
     ax.legend(fontsize=8, loc="upper left")
     axz.set_title(f"last {t[-1] - t[z][0]:.2g} s", fontsize=9, loc="left")
     fig.savefig(path, dpi=REPORT_DPI)
+
+
+def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
+    """A held-out experiment: measurement, the posterior's prediction and its band.
+
+    Parameters
+    ----------
+    experiment : pmabayes.validation.ExperimentValidation
+        One experiment of :func:`pmabayes.validation.validate`.
+    path : str or Path, optional
+        Where to save the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Top: every trial (grey), the predictive band (blue, the model's draws plus the
+        fit's noise) and the posterior-mean prediction (red), with the run's end
+        enlarged; bottom: the same less the prediction, with the trial mean (black).
+    """
+    e = experiment
+    t, data, pred = e.time_s, e.position_m, e.prediction_m
+    lo, hi = e.low_m, e.high_m
+    z = _zoom_slice(t)
+    pct = f"{100 * e.ci_prob:.4g}%"
+    fig = Figure(figsize=(12, 6), layout="constrained")
+    axes = fig.subplots(2, 2, width_ratios=(3, 1))
+    alpha = float(np.clip(2.0 / e.n_trials, 0.15, 0.8))
+    for col, s in enumerate((slice(None), z)):
+        top, bottom = axes[0, col], axes[1, col]
+        top.fill_between(t[s], lo[s] * 1e3, hi[s] * 1e3, color="tab:blue", alpha=0.35, lw=0,
+                         label=f"{pct} predictive band")
+        for r in range(e.n_trials):
+            top.plot(t[s], data[r, s] * 1e3, color="0.3", lw=0.5, alpha=alpha,
+                     label="measured trials" if r == 0 else None)
+        top.plot(t[s], pred[s] * 1e3, color="tab:red", lw=0.8, ls="--",
+                 label="posterior-mean prediction")
+        bottom.fill_between(t[s], (lo[s] - pred[s]) * 1e6, (hi[s] - pred[s]) * 1e6,
+                            color="tab:blue", alpha=0.3, lw=0)
+        for r in range(e.n_trials):
+            bottom.plot(t[s], (data[r, s] - pred[s]) * 1e6, color="0.3", lw=0.4, alpha=alpha)
+        if e.n_trials > 1:
+            bottom.plot(t[s], (data[:, s].mean(axis=0) - pred[s]) * 1e6, color="k", lw=0.8,
+                        label="trial mean − prediction")
+        bottom.axhline(0.0, color="tab:red", lw=0.7, ls="--")
+        bottom.set_xlabel("time [s]")
+        for a in (top, bottom):
+            a.tick_params(labelsize=8)
+    axes[0, 0].set_ylabel("x [mm]")
+    axes[1, 0].set_ylabel("minus prediction [µm]")
+    axes[0, 0].legend(fontsize=7, loc="upper left", ncols=3)
+    if e.n_trials > 1:
+        axes[1, 0].legend(fontsize=7, loc="upper left")
+    axes[0, 1].set_title(f"last {t[-1] - t[z][0]:.2g} s", fontsize=9, loc="left")
+    floor = ("no floor (one trial)" if e.noise_floor_m is None
+             else f"{e.ratio_to_floor:.3g}× floor")
+    axes[0, 0].set_title(
+        f"{e.name}: RMSE {e.rmse_m * 1e6:.3g} µm ({floor}), NRMSE {e.nrmse:.3g}, "
+        f"{100 * e.band_coverage:.1f}% of the samples inside the {pct} band",
+        fontsize=9, loc="left")
+    if path is not None:
+        fig.savefig(path, dpi=REPORT_DPI)
+    return fig

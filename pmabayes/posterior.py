@@ -654,6 +654,7 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         "map": map_record,
         "convergence": convergence,
         "seed": seed,
+        "substeps": int(posterior.likelihoods[0].substeps),
         "timings_s": timings,
     }
     tree.attrs["pmabayes"] = json.dumps(info)

@@ -51,10 +51,11 @@ from pmabayes.posterior import (
     model_from_fit,
 )
 from pmabayes.residuals import Adequacy, check_adequacy
+from pmabayes.trials import check_trials
 
 __all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
            "write_comparison", "pair_figure", "predictive_band", "fit_adequacy",
-           "experiment_adequacy"]
+           "experiment_adequacy", "write_validation"]
 
 #: Keys of a summary row, in CSV column order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -790,6 +791,7 @@ def write_report(
     body = [
         _meta_block(info, _source_name(info, dataset)),
         _adequacy_box(adequacy),
+        _trials_line(dataset if dataset is not None else _dataset_from_fit(tree, info)),
         _banner(info.get("convergence") or {}),
         _synthetic_note_of(info),
         *_parameter_section(rows, info, ci_prob),
@@ -803,6 +805,13 @@ def write_report(
     title = f"pmabayes fit report: {Path(_source_name(info, dataset)).name}"
     index.write_text(_page(title, body), encoding="utf-8")
     return index
+
+
+def _trials_line(dataset: Dataset) -> str:
+    """The verdict of :func:`pmabayes.trials.check_trials` on the fitted trials, one line."""
+    check = check_trials(dataset)
+    text = html.escape(check.summary())
+    return f"<p>{text}</p>" if check.exchangeable else f'<p class="note">{text}</p>'
 
 
 def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
@@ -1076,11 +1085,14 @@ def _synthetic_note(dataset: Dataset) -> str:
 def _band_rows(rows) -> list[list[Any]]:
     out = []
     for b in rows:
-        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, b.floor_m * 1e6, b.ratio])
+        floor = b.floor_m * 1e6 if np.isfinite(b.floor_m) else None  # one trial: no floor
+        out.append([b.label, b.rms_m * 1e6, b.nrms, b.max_m * 1e6, floor,
+                    b.ratio if floor is not None else None])
     return out
 
 
-_BAND_HEADER = ["band", "RMS [µm]", "normalised RMS", "max [µm]", "floor [µm]", "RMS / floor"]
+_BAND_HEADER = ["frequency band", "RMS [µm]", "RMS / motion RMS", "max [µm]", "floor [µm]",
+                "RMS / floor"]
 
 
 def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
@@ -1159,9 +1171,10 @@ def _diagnosis_figures(d, label: str, out_dir: Path) -> dict[str, str]:
                        "Trials, their mean and the model at its MAP; the residual beside the "
                        "noise floor; the hysteresis loop."),
         "bands": (plots.plot_band_errors({label: d.signature.bands}),
-                  "RMS error of the trial mean per band of the chirp's instantaneous "
-                  "frequency, with the noise floor (black): the error a perfect model would "
-                  "have, from the spread between the trials."),
+                  "RMS error of the trial mean per frequency band (octaves over the band the "
+                  "input excites, from the residual's spectrum; the bands' mean squares add "
+                  "up to the total), with the noise floor (black): the error a perfect model "
+                  "would have, from the spectrum of the deviations between the trials."),
         "signature": (plots.plot_residual_signature(ds, d.simulation, d.frequency_hz,
                                                     label=label),
                       "Where the model fails: the residual against time, frequency, velocity, "
@@ -1241,4 +1254,80 @@ def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None
     ]
     index = out_dir / "index.html"
     index.write_text(_page(f"pmabayes comparison: {name}", body), encoding="utf-8")
+    return index
+
+
+# ------------------------------------------------------------------- validation
+
+
+def write_validation(validation, out_dir: str | Path) -> Path:
+    """Write the figures, ``validation.json`` and an HTML page of a validation.
+
+    Parameters
+    ----------
+    validation : pmabayes.validation.Validation
+        The result of :func:`pmabayes.validation.validate`.
+    out_dir : str or Path
+        Destination folder, created if needed. Written: one
+        ``validation_<i>_<name>.png`` per experiment, ``validation.json`` and
+        ``index.html``.
+
+    Returns
+    -------
+    Path
+        The path of ``index.html`` (self-contained: figures embedded, no script).
+    """
+    from pmabayes import plots
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    v = validation
+    (out_dir / "validation.json").write_text(json.dumps(v.to_dict(), indent=2) + "\n")
+    settings = v.settings
+    pct = f"{100 * settings['ci_prob']:.4g}%"
+    model = " + ".join(["base", *v.effects])
+    body = [
+        f'<p class="meta">fit: <code>{html.escape(str(v.fit_source or "(in memory)"))}</code>'
+        f" · model: {html.escape(model)} · {len(v.experiments)} held-out experiment(s) · "
+        f"{settings['n_draws']} posterior draws each · seed {html.escape(str(settings['seed']))}"
+        "</p>",
+    ]
+    if any(e.synthetic for e in v.experiments):
+        body.append('<p class="note"><strong>Synthetic data.</strong> Experiments marked '
+                    "synthetic were simulated, not measured on hardware.</p>")
+    body += [
+        f"<p>Each experiment is simulated on its own rig with posterior draws of the fit. The "
+        f"{pct} predictive band is the model's prediction plus the fit's noise (AR(1) "
+        "disturbance and white sensor noise drawn from the fit's noise posterior), not the "
+        "held-out data's own noise. RMSE: RMS of the trial mean minus the posterior-mean "
+        "prediction. NRMSE: RMSE over the RMS of the trial mean's variation about its own "
+        "mean. Noise floor: the error a perfect model would have, from the spread between "
+        "repeated trials (none with one trial). Coverage: the share of all measured "
+        f"samples inside the {pct} band (about {pct} for a model and noise that describe "
+        "the data).</p>",
+        _table(["experiment", "rig", "noise from", "trials", "samples", "RMSE [µm]",
+                "noise floor [µm]", "RMSE / floor", "NRMSE", f"inside the {pct} band"],
+               [[e.name, e.rig.get("name"), e.noise["from"], e.n_trials, e.n_samples,
+                 e.rmse_m * 1e6, None if e.noise_floor_m is None else e.noise_floor_m * 1e6,
+                 e.ratio_to_floor, e.nrmse, f"{100 * e.band_coverage:.1f}%"]
+                for e in v.experiments], num_from=3),
+    ]
+    for i, e in enumerate(v.experiments):
+        safe = "".join(c if c.isalnum() or c in "-_" else "_" for c in e.name)
+        png = out_dir / f"validation_{i}_{safe}.png"
+        plots.plot_validation(e, path=png)
+        src = f" (<code>{html.escape(e.source)}</code>)" if e.source else ""
+        body.append(f"<h2>{html.escape(e.name)}{src}</h2>")
+        body.append(f"<p>{html.escape(e.summary())}.</p>")
+        for note in e.notes:
+            body.append(f'<p class="note">{html.escape(note)}</p>')
+        if e.band_errors:
+            body.append(_table(_BAND_HEADER, _band_rows(e.band_errors)))
+        body.append(_img(png, f"validation of {e.name}",
+                         f"{e.name}: measured trials (grey), the {pct} predictive band "
+                         "(blue) and the posterior-mean prediction (red); bottom: the same "
+                         "less the prediction, with the trial mean (black)."))
+    index = out_dir / "index.html"
+    index.write_text(_page("pmabayes validation on held-out experiments", body),
+                     encoding="utf-8")
     return index

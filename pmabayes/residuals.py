@@ -5,15 +5,22 @@ data set and a model output (and, for the whiteness tests, the identified noise)
 and measures the misfit against what repeatability allows; nothing fits or
 samples:
 
-* :func:`band_errors`: RMS, normalised RMS and maximum error of the trial mean in
-  bands of the chirp's instantaneous frequency (:func:`instantaneous_frequency`),
-  each beside the noise floor in that band (the error a perfect model would have,
-  from the spread between repeated trials);
+* :func:`band_errors`: RMS, normalised RMS and maximum error of the trial mean per
+  frequency band, for any input, from the spectra of the residual and of the
+  deviations between trials (:func:`power_spectrum`), each beside the noise floor
+  in that band (the error a perfect model would have); the bands are octaves over
+  the frequencies the command excites (:func:`input_bands`), and their mean
+  squares add up to the total;
 * :func:`innovations`, :func:`autocorrelation`, :func:`cross_correlation`,
   :func:`ljung_box` and :func:`whiteness`: the classic whiteness and independence
   tests of system identification, applied to the residual whitened by the
   identified noise model. That residual is independent N(0, 1) when the model
   describes the data;
+* :func:`check_noise_model` and :func:`judged_whiteness`: whether the AR(1) +
+  white noise model whitens the deviations between trials (model-free), and
+  when it does not, an AR model of the repeats to whiten the trial mean's
+  residual with, so that the adequacy verdict judges the physics and not the
+  noise model;
 * :func:`residual_signature`: all of these for one model, with the correlations
   that say where it fails;
 * :func:`is_adequate` and :func:`check_adequacy`: the one adequacy rule (the
@@ -40,14 +47,24 @@ __all__ = [
     "LEVEL_ADEQUATE",
     "BandErrors",
     "BandError",
+    "EXCITED_POWER_FRACTION",
+    "MIN_BINS",
     "band_label",
     "instantaneous_frequency",
+    "power_spectrum",
+    "excited_band",
+    "input_bands",
+    "band_rms",
     "band_errors",
     "innovations",
     "autocorrelation",
     "cross_correlation",
     "ljung_box",
     "whiteness",
+    "MAX_AR_ORDER",
+    "NoiseModelCheck",
+    "check_noise_model",
+    "judged_whiteness",
     "is_adequate",
     "Signature",
     "residual_signature",
@@ -57,7 +74,9 @@ __all__ = [
     "check_adequacy",
 ]
 
-#: Bands of the chirp's instantaneous frequency (Hz) for error tables.
+#: Fixed frequency bands (Hz) of earlier versions, for callers that pass them as
+#: ``bands_hz``; :func:`band_errors` now takes its bands from the input
+#: (:func:`input_bands`).
 DEFAULT_BANDS_HZ: tuple[tuple[float, float], ...] = (
     (0.1, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 3.0),
 )
@@ -107,25 +126,29 @@ def instantaneous_frequency(dataset: Dataset) -> np.ndarray:
 class BandErrors:
     """Errors of the trial mean in one frequency band: a result row of :func:`band_errors`.
 
-    ``BandError`` is a deprecated alias of this class (the same class under its old
-    name, which read like an exception's).
+    The band's share of each quantity comes from a spectrum (periodogram), so
+    the mean squares of bands that partition the frequency axis add up to the
+    overall one (Parseval). ``BandError`` is a deprecated alias of this class (the
+    same class under its old name, which read like an exception's).
 
     Parameters
     ----------
     band_hz : tuple of float
-        ``(low, high)`` instantaneous frequency.
+        ``(low, high)`` frequency in Hz, ``low <= f < high``.
     n_samples : int
-        Samples in the band.
+        Periodogram bins (frequencies ``k / T``) in the band.
     rms_m : float
-        RMS of trial mean minus model.
+        RMS of the part of trial mean minus model in the band.
     nrms : float
         ``rms_m`` divided by the RMS of the trial mean's motion (about its mean)
         in the band.
     max_m : float
-        Largest absolute error.
+        Largest absolute value of the residual's part in the band (the residual
+        with its other frequencies removed); for the overall row, of the residual.
     floor_m : float
-        RMS a perfect model would have: the spread between trials in the band,
-        divided by the square root of the number of trials.
+        RMS a perfect model would have in the band: the spectrum of the
+        deviations between trials divided by the number of trials; NaN with a
+        single trial (no repeats, no floor).
     """
 
     band_hz: tuple[float, float]
@@ -137,20 +160,26 @@ class BandErrors:
 
     @property
     def ratio(self) -> float:
-        """``rms_m / floor_m``: about 1 for a model that describes the data."""
-        return self.rms_m / self.floor_m
+        """``rms_m / floor_m``: about 1 for a model that describes the data (NaN, no floor)."""
+        if math.isnan(self.floor_m):
+            return math.nan
+        return self.rms_m / self.floor_m if self.floor_m > 0 else math.inf
 
     @property
     def label(self) -> str:
-        """The band in words: ``"0.5-1 Hz"``, or ``"all"`` for the overall row."""
+        """The band in words: ``"0.5-1 Hz"``, ``"> 4 Hz"``, or ``"all"`` for the overall row."""
         return band_label(self.band_hz)
 
     def to_dict(self) -> dict:
-        """JSON-ready values (an open upper edge as None)."""
+        """JSON-ready values (an open upper edge, a missing floor and its ratio as None)."""
         lo, hi = self.band_hz
-        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "rms_m": self.rms_m,
-                "nrms": self.nrms, "max_m": self.max_m, "floor_m": self.floor_m,
-                "ratio": self.ratio}
+        return {"band_hz": [lo, hi if math.isfinite(hi) else None], "n_bins": self.n_samples,
+                "rms_m": self.rms_m, "nrms": self.nrms, "max_m": self.max_m,
+                "floor_m": _finite_or_none(self.floor_m), "ratio": _finite_or_none(self.ratio)}
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 #: Deprecated alias of :class:`BandErrors` (a result, not an exception); kept so that
@@ -159,7 +188,7 @@ BandError = BandErrors
 
 
 def band_label(band: tuple[float, float]) -> str:
-    """A frequency band in words: ``"0.5-1 Hz"``, or ``"all"`` for ``(0, inf)``.
+    """A frequency band in words: ``"0.5-1 Hz"``, ``"> 4 Hz"``, or ``"all"`` for ``(0, inf)``.
 
     Parameters
     ----------
@@ -171,59 +200,212 @@ def band_label(band: tuple[float, float]) -> str:
     str
     """
     lo, hi = band
-    return "all" if lo == 0.0 and not math.isfinite(hi) else f"{lo:g}-{hi:g} Hz"
+    if not math.isfinite(hi):
+        return "all" if lo == 0.0 else f"> {lo:g} Hz"
+    return f"{lo:g}-{hi:g} Hz"
+
+
+def power_spectrum(x: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided periodogram scaled so that its sum is the mean square of ``x``.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Series along the last axis.
+    dt_s : float
+        Sample interval.
+
+    Returns
+    -------
+    freq_hz : numpy.ndarray
+        ``k / (n dt)`` for ``k = 0 .. n // 2``.
+    power_m2 : numpy.ndarray
+        Mean square at each frequency (same leading axes as ``x``): summed over
+        any set of frequencies it is the mean square of the part of ``x`` at those
+        frequencies (Parseval), with no window, so nothing is lost or counted twice.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.shape[-1]
+    p = np.abs(np.fft.rfft(x, axis=-1)) ** 2 / float(n) ** 2
+    # the negative frequencies fold onto the positive ones, except DC and Nyquist
+    p[..., 1:] *= 2.0
+    if n % 2 == 0:
+        p[..., -1] /= 2.0
+    return np.fft.rfftfreq(n, dt_s), p
+
+
+#: Power, relative to the command's strongest frequency, above which a frequency
+#: counts as excited by :func:`excited_band` (-20 dB).
+EXCITED_POWER_FRACTION = 0.01
+
+#: Fewest periodogram bins in a band of :func:`input_bands`: narrower low octaves are
+#: merged, since an RMS over one or two bins is mostly chance.
+MIN_BINS = 4
+
+
+def excited_band(dataset: Dataset) -> tuple[float, float]:
+    """The frequencies the command excites: where its power is within 20 dB of its peak.
+
+    From the periodogram of the command (about its mean): the band runs from the
+    lowest to the highest frequency whose power is at least
+    :data:`EXCITED_POWER_FRACTION` of the largest. Any input will do (chirp,
+    steps, sines, multisines); no generator settings are needed.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data (the command is averaged over the trials).
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)`` in Hz; the whole axis above 0 Hz for a constant command.
+
+    Raises
+    ------
+    ValueError
+        With fewer than 3 samples (no frequency above 0 Hz).
+    """
+    u = np.asarray(dataset.input, dtype=float).mean(axis=0)  # the command, over the trials
+    f, p = power_spectrum(u - u.mean(), dataset.dt_s)
+    f, p = f[1:], p[1:]
+    if f.size == 0:
+        raise ValueError(f"{dataset.source or 'the data'} has too few samples for a spectrum")
+    if not p.max() > 0:
+        return float(f[0]), float(f[-1])
+    excited = np.flatnonzero(p >= EXCITED_POWER_FRACTION * p.max())
+    return float(f[excited[0]]), float(f[excited[-1]])
+
+
+def input_bands(dataset: Dataset) -> tuple[tuple[float, float], ...]:
+    """Frequency bands for error tables: octaves over the band the command excites.
+
+    Octaves ``[2^k, 2^(k+1))`` Hz that span :func:`excited_band`; the lowest reaches
+    down to 0 Hz (so that an offset counts), low octaves holding fewer than
+    :data:`MIN_BINS` periodogram bins are merged with the next, and a last band
+    holds everything above. The bands partition the frequency axis, so their mean
+    squares add up to the total.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data.
+
+    Returns
+    -------
+    tuple of (low, high)
+        In Hz, the last one ``(high edge, inf)``.
+    """
+    lo, hi = excited_band(dataset)
+    k0 = math.floor(math.log2(lo))
+    k1 = math.floor(math.log2(hi)) + 1
+    edges = [0.0, *(2.0 ** k for k in range(k0 + 1, k1 + 1))]
+    df = 1.0 / (dataset.n_samples * dataset.dt_s)
+    inner = list(zip(edges[:-1], edges[1:], strict=True))
+    merged: list[tuple[float, float]] = []
+    for band in inner:
+        if merged and _n_bins(merged[-1], df) < MIN_BINS:
+            band = (merged.pop()[0], band[1])
+        merged.append(band)
+    if len(merged) > 1 and _n_bins(merged[-1], df) < MIN_BINS:
+        last = merged.pop()
+        merged[-1] = (merged[-1][0], last[1])
+    return (*merged, (edges[-1], math.inf))
+
+
+def _n_bins(band: tuple[float, float], df: float) -> int:
+    return int(np.ceil(band[1] / df - 1e-9) - np.ceil(band[0] / df - 1e-9))
+
+
+def band_rms(x: np.ndarray, dt_s: float,
+             bands_hz: tuple[tuple[float, float], ...]) -> np.ndarray:
+    """RMS of a series' part in each frequency band (from :func:`power_spectrum`).
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        The series, ``(n_samples,)``.
+    dt_s : float
+        Sample interval.
+    bands_hz : tuple of (low, high)
+        Bands in Hz, ``low <= f < high``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(len(bands_hz),)``.
+    """
+    f, p = power_spectrum(x, dt_s)
+    return np.array([math.sqrt(float(p[(f >= lo) & (f < hi)].sum())) for lo, hi in bands_hz])
 
 
 def band_errors(
     dataset: Dataset,
     model_position_m: np.ndarray,
     *,
-    bands_hz: tuple[tuple[float, float], ...] = DEFAULT_BANDS_HZ,
+    bands_hz: tuple[tuple[float, float], ...] | None = None,
 ) -> list[BandErrors]:
-    """Errors of the trial mean against the model, per band and overall.
+    """Errors of the trial mean against the model, per frequency band and overall.
+
+    For any input (chirp, steps, sines, multisines): each band's share comes
+    from the periodogram of the residual (trial mean minus model), of the trial
+    mean's motion (for the normalised RMS) and of the deviations of the trials
+    from their mean (for the noise floor: their summed spectrum over ``R - 1``,
+    divided by ``R``, which is the variance of the mean). No window is applied, so
+    over bands that partition the frequency axis the mean squares add up exactly
+    to the overall one (Parseval); the price is that a residual's component
+    between two bins leaks a little into the neighbouring ones.
 
     Parameters
     ----------
     dataset : Dataset
-        Repeated trials.
+        The trials.
     model_position_m : numpy.ndarray
         Model output on the data's time grid, ``(n_samples,)``.
-    bands_hz : tuple of (low, high)
-        Frequency bands; a last row covers all samples.
+    bands_hz : tuple of (low, high), optional
+        Frequency bands in Hz; by default :func:`input_bands` (octaves over the
+        band the command excites, then everything above). A last row covers all
+        frequencies.
 
     Returns
     -------
     list of BandErrors
-        One per band that holds samples, then the overall one (band ``(0, inf)``).
+        One per band that holds a periodogram bin, then the overall one (band
+        ``(0, inf)``). With a single trial the floors (and ratios) are NaN.
 
     Raises
     ------
     ValueError
-        If the model output does not match the data's length, or there is only
-        one trial (no floor without repeats).
+        If the model output does not match the data's length.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
     if x.shape != (dataset.n_samples,):
         raise ValueError(f"model output has {x.size} samples, the data {dataset.n_samples}")
-    if dataset.n_trials < 2:
-        raise ValueError("the noise floor needs at least 2 repeated trials")
-    freq = instantaneous_frequency(dataset)
+    bands = input_bands(dataset) if bands_hz is None else tuple(bands_hz)
+    dt = dataset.dt_s
     mean = dataset.mean_position_m
     resid = mean - x
-    spread = dataset.position_m.var(axis=0, ddof=1) / dataset.n_trials
+    spec = np.fft.rfft(resid)
+    f, p_resid = power_spectrum(resid, dt)
+    _, p_motion = power_spectrum(mean - mean.mean(), dt)
+    n_trials = dataset.n_trials
+    if n_trials >= 2:
+        p_floor = power_spectrum(dataset.position_m - mean, dt)[1].sum(axis=0) / (
+            (n_trials - 1) * n_trials)
+    else:
+        p_floor = np.full_like(p_resid, np.nan)
     rows = []
-    for lo, hi in (*bands_hz, (0.0, math.inf)):
-        sel = (freq >= lo) & (freq < hi)
+    for lo, hi in (*bands, (0.0, math.inf)):
+        sel = (f >= lo) & (f < hi)
         if not sel.any():
             continue
-        r = resid[sel]
-        motion = mean[sel] - mean[sel].mean()
+        rms = math.sqrt(float(p_resid[sel].sum()))
+        motion = math.sqrt(float(p_motion[sel].sum()))
+        part = resid if sel.all() else np.fft.irfft(np.where(sel, spec, 0.0), n=resid.size)
         rows.append(BandErrors(
-            band_hz=(lo, hi), n_samples=int(sel.sum()),
-            rms_m=float(np.sqrt(np.mean(r * r))),
-            nrms=float(np.sqrt(np.mean(r * r)) / max(np.sqrt(np.mean(motion**2)), 1e-300)),
-            max_m=float(np.max(np.abs(r))),
-            floor_m=float(np.sqrt(np.mean(spread[sel]))),
+            band_hz=(float(lo), float(hi)), n_samples=int(sel.sum()), rms_m=rms,
+            nrms=rms / max(motion, 1e-300), max_m=float(np.max(np.abs(part))),
+            floor_m=math.sqrt(float(p_floor[sel].sum())),
         ))
     return rows
 
@@ -364,6 +546,10 @@ class Signature:
         That correlation.
     ccf_bound : float
         Its 99% bound for independent series.
+    noise_model : str
+        The noise model the residual was whitened with: ``"AR(1) + white"``, or an
+        AR model of the repeats when those reject AR(1) + white
+        (:func:`judged_whiteness`).
     """
 
     bands: list
@@ -374,6 +560,7 @@ class Signature:
     ccf_lag_s: float
     ccf_peak: float
     ccf_bound: float
+    noise_model: str = "AR(1) + white"
 
     @property
     def ratio(self) -> float:
@@ -400,9 +587,17 @@ class Signature:
 
     def describe(self) -> str:
         """The signature in one or two plain sentences, from the numbers."""
-        bands = [b for b in self.bands[:-1] if b.n_samples > 0]
-        ratios = [b.ratio for b in bands]
+        # the band above the command's carries mostly noise, and the lowest one the
+        # offset and the leakage of the ends' mismatch: either would hide a trend
+        bands = [b for b in self.bands[:-1] if b.n_samples > 0 and math.isfinite(b.band_hz[1])]
+        if sum(b.band_hz[0] > 0 for b in bands) >= 2:
+            bands = [b for b in bands if b.band_hz[0] > 0]
         overall = self.bands[-1]
+        if math.isnan(overall.floor_m):
+            text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS ({overall.nrms:.3g} of the "
+                    "motion; one trial, so no noise floor)")
+            return text + "." + self._describe_correlations()
+        ratios = [b.ratio for b in bands]
         text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS against a noise floor of "
                 f"{overall.floor_m * 1e6:.4g} µm ({overall.ratio:.3g}x)")
         if len(bands) >= 2:
@@ -414,9 +609,12 @@ class Signature:
             elif lo.ratio > 2.0 * hi.ratio:
                 text += f"; it is largest at low frequency, {span}"
             else:
-                text += (f"; it is spread over the whole chirp ({min(ratios):.3g}x to "
-                         f"{max(ratios):.3g}x the floor per band)")
-        text += "."
+                text += (f"; it is spread over the band the input excites ({min(ratios):.3g}x "
+                         f"to {max(ratios):.3g}x the floor per band)")
+        return text + "." + self._describe_correlations()
+
+    def _describe_correlations(self) -> str:
+        text = ""
         if self.correlations:
             name, value = max(self.correlations.items(), key=lambda kv: abs(kv[1]))
             text += f" The residual correlates most with the {name} (r = {value:+.2f})."
@@ -432,7 +630,46 @@ class Signature:
                      f"bound): {how}.")
         if self.ljung_box_p < 0.01:
             text += f" The whitened residual is not white (Ljung-Box p = {self.ljung_box_p:.2g})."
+        if self.noise_model != "AR(1) + white":
+            text += (f" (Whitened with an {self.noise_model}: the deviations between trials "
+                     "reject the AR(1) + white noise model.)")
         return text
+
+
+def judged_whiteness(likelihood: Likelihood, model_position_m: np.ndarray, noise
+                     ) -> tuple[np.ndarray, dict, NoiseModelCheck]:
+    """The whitened residual and its whiteness, under the noise model the repeats support.
+
+    With AR(1) + white when :func:`check_noise_model` finds that it whitens the
+    deviations between trials (:func:`innovations`, :func:`whiteness`: as
+    before); otherwise with the AR model of the repeats
+    (:meth:`NoiseModelCheck.residual_whiteness`), so that the adequacy verdict
+    judges the physics and not the noise model.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        Data and noise model.
+    model_position_m : numpy.ndarray
+        Model output ``(n_samples,)``.
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+
+    Returns
+    -------
+    e : numpy.ndarray
+        The whitened residual.
+    white : dict
+        ``ljung_box_p``, ``energy``, ``energy_p``.
+    check : NoiseModelCheck
+    """
+    x = np.asarray(model_position_m, dtype=float).reshape(-1)
+    check = check_noise_model(likelihood, noise)
+    if check.adequate:
+        e = innovations(likelihood, x, noise)
+        return e, whiteness(e), check
+    r = likelihood.y_mean - x
+    return check.whiten_residual(r), check.residual_whiteness(r), check
 
 
 def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
@@ -457,8 +694,7 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
     ds = likelihood.dataset
     x = sim.position_m[0]
     r = likelihood.y_mean - x
-    e = innovations(likelihood, x, noise)
-    white = whiteness(e)
+    e, white, noise_check = judged_whiteness(likelihood, x, noise)
     rate = np.gradient(ds.input[0], ds.time_s)
     signals = {"position": x, "velocity": sim.velocity_m_s[0], "pressure": sim.pressure_pa[0],
                "pressure rate": rate}
@@ -474,8 +710,251 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
         bands=band_errors(ds, x), ljung_box_p=white["ljung_box_p"], energy=white["energy"],
         energy_p=white["energy_p"], correlations=corr,
         ccf_lag_s=float(lags_r[pos][k] * ds.dt_s), ccf_peak=float(ccf_r[pos][k]),
-        ccf_bound=bound,
+        ccf_bound=bound, noise_model=noise_check.noise_model,
     )
+
+
+#: Largest order of the autoregressive noise model fitted to the deviations between
+#: trials when AR(1) + white does not whiten them (:func:`check_noise_model`).
+MAX_AR_ORDER = 60
+
+
+def _levinson(acov: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Durbin-Levinson: predictor coefficients and innovation variances of orders 0..order.
+
+    Row ``m`` of the first output holds the order-``m`` coefficients in its first
+    ``m`` entries.
+    """
+    phi = np.zeros((order + 1, max(order, 1)))
+    var = np.empty(order + 1)
+    var[0] = acov[0]
+    for m in range(1, order + 1):
+        prev = phi[m - 1, : m - 1]
+        k = (acov[m] - prev @ acov[m - 1:0:-1]) / var[m - 1]
+        phi[m, : m - 1] = prev - k * prev[::-1]
+        phi[m, m - 1] = k
+        var[m] = var[m - 1] * (1.0 - k * k)
+    return phi, var
+
+
+@dataclass(frozen=True)
+class NoiseModelCheck:
+    """Does AR(1) + white describe the trial-to-trial noise? Result of :func:`check_noise_model`.
+
+    Model-free: it looks at the deviations between the trials only (their Helmert
+    contrasts, series of the noise process alone).
+
+    Parameters
+    ----------
+    ljung_box_p : float
+        Ljung-Box p-value (25 lags, pooled over the contrasts) of the contrasts'
+        Kalman innovations under the identified AR(1) + white noise.
+    energy : float
+        Mean square of those innovations (about 1 whatever the model, since the
+        noise was fitted to the same deviations).
+    adequate : bool
+        ``ljung_box_p >= level``: the AR(1) + white noise model whitens the
+        deviations.
+    ar_order : int
+        Order of the autoregressive noise model fitted to the deviations
+        (Yule-Walker, pooled over the contrasts, order by AIC up to
+        :data:`MAX_AR_ORDER`): the spectrum of the repeats, used to whiten the
+        trial mean's residual when AR(1) + white is rejected.
+    ar_ljung_box_p : float
+        Ljung-Box p-value of the contrasts whitened by that model.
+    coefficients : numpy.ndarray
+        Durbin-Levinson predictor coefficients of orders ``0 .. ar_order``
+        (row ``m``, first ``m`` entries).
+    variances : numpy.ndarray
+        One-step prediction variances of those orders, in m^2 (of one trial's
+        noise).
+    n_trials : int
+        Trials (the trial mean's residual is scaled by ``sqrt(n_trials)``).
+    reference_acf : numpy.ndarray
+        Autocorrelation at lags 1..25 of the contrasts whitened by the AR model,
+        pooled: what the trial mean's whitened residual is compared with, so that
+        the AR model's own small misfit cancels.
+    reference_energy : float
+        Mean square of the contrasts whitened by the AR model.
+    reference_samples : int
+        Samples in all the contrasts (0 without repeats: nothing tested).
+    level : float
+        Level of the test.
+    """
+
+    ljung_box_p: float
+    energy: float
+    adequate: bool
+    ar_order: int
+    ar_ljung_box_p: float
+    coefficients: np.ndarray
+    variances: np.ndarray
+    n_trials: int
+    reference_acf: np.ndarray
+    reference_energy: float
+    reference_samples: int
+    level: float = LEVEL_ADEQUATE
+
+    @property
+    def noise_model(self) -> str:
+        """The noise model the adequacy verdict whitens with."""
+        return "AR(1) + white" if self.adequate else f"AR({self.ar_order}) from the repeats"
+
+    def whiten_series(self, v: np.ndarray) -> np.ndarray:
+        """Exact standardised innovations of a series of one trial's noise (AR model).
+
+        Parameters
+        ----------
+        v : numpy.ndarray
+            ``(n_samples,)``, e.g. a Helmert contrast, or ``sqrt(R)`` times the
+            trial mean's residual.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_samples,)``; independent N(0, 1) when the AR model holds.
+        """
+        v = np.asarray(v, dtype=float).reshape(-1)
+        p = min(self.ar_order, v.size)
+        out = np.empty(v.size)
+        for t in range(p):  # the start: predictors of growing order (Durbin-Levinson)
+            out[t] = (v[t] - self.coefficients[t, :t] @ v[t - 1::-1][:t]) / math.sqrt(
+                self.variances[t])
+        a = np.concatenate(([1.0], -self.coefficients[p, :p]))
+        out[p:] = signal.lfilter(a, [1.0], v)[p:] / math.sqrt(self.variances[p])
+        return out
+
+    def whiten_residual(self, residual_m: np.ndarray) -> np.ndarray:
+        """The trial mean's residual whitened by the AR model of the repeats.
+
+        Parameters
+        ----------
+        residual_m : numpy.ndarray
+            Trial mean minus model, ``(n_samples,)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            Independent N(0, 1) when the model describes the data.
+        """
+        return self.whiten_series(math.sqrt(self.n_trials) * np.asarray(residual_m, float))
+
+    def residual_whiteness(self, residual_m: np.ndarray) -> dict:
+        """Whiteness of the trial mean's residual against the repeats, under the AR model.
+
+        The residual and the contrasts are whitened by the same AR model; the
+        residual's autocorrelation (lags 1..25) is compared with the contrasts'
+        (a Ljung-Box-like statistic on the difference, chi-squared with 25
+        degrees of freedom), and its energy is relative to theirs. Both are about
+        those of pure noise for a model that describes the data.
+
+        Parameters
+        ----------
+        residual_m : numpy.ndarray
+            Trial mean minus model, ``(n_samples,)``.
+
+        Returns
+        -------
+        dict
+            As :func:`whiteness`: ``ljung_box_p``, ``energy`` and ``energy_p``.
+        """
+        e = self.whiten_residual(residual_m)
+        n = e.size
+        max_lag = self.reference_acf.size
+        _, acf, _ = autocorrelation(e, max_lag=max_lag)
+        var = 1.0 / n + 1.0 / self.reference_samples
+        q = float(np.sum((acf - self.reference_acf) ** 2) / var)
+        energy = float(np.mean(e * e)) / self.reference_energy
+        return {"ljung_box_p": float(stats.chi2.sf(q, max_lag)), "energy": energy,
+                "energy_p": float(stats.chi2.sf(energy * n, n))}
+
+    def summary(self) -> str:
+        """The verdict in one line."""
+        if self.reference_samples == 0:
+            return "Noise model AR(1) + white: not tested (no repeats to test it on)."
+        if self.adequate:
+            return (f"Noise model AR(1) + white: it whitens the deviations between trials "
+                    f"(Ljung-Box {_p_text(self.ljung_box_p)}).")
+        return (f"Noise model AR(1) + white is REJECTED by the deviations between trials "
+                f"(Ljung-Box {_p_text(self.ljung_box_p)}): the disturbance has more "
+                f"structure (several time scales, vibration, drift). The adequacy verdict "
+                f"whitens with an AR({self.ar_order}) model of the repeats instead (its "
+                f"Ljung-Box {_p_text(self.ar_ljung_box_p)}); the sampler's likelihood is "
+                "still AR(1) + white, so its intervals may be too narrow.")
+
+    def to_dict(self) -> dict:
+        """JSON-ready values."""
+        return {"noise_model": self.noise_model, "ljung_box_p": self.ljung_box_p,
+                "energy": self.energy, "adequate": self.adequate, "ar_order": self.ar_order,
+                "ar_ljung_box_p": self.ar_ljung_box_p, "level": self.level}
+
+
+def _pooled_ljung_box(series: list, max_lag: int = 25) -> float:
+    q = sum(ljung_box(e, max_lag=max_lag)[0] for e in series)
+    return float(stats.chi2.sf(q, max_lag * len(series)))
+
+
+def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_ORDER,
+                      level: float = LEVEL_ADEQUATE) -> NoiseModelCheck:
+    """Test the AR(1) + white noise model on the deviations between trials (model-free).
+
+    The Helmert contrasts of the trials are series of the noise alone. Whitened
+    by the identified noise (Kalman innovations, :meth:`Likelihood.whiten`) they
+    are white when the noise model holds: a pooled Ljung-Box test says whether it
+    does. Real disturbances often have more structure (two time scales,
+    vibration, slow drift), and then the whiteness test of the trial mean's
+    residual would reject the noise model, not the physics. So an autoregressive
+    model of the repeats is also fitted (Yule-Walker on the contrasts, order by
+    AIC), which :func:`check_adequacy` and :func:`residual_signature` whiten with
+    when AR(1) + white is rejected.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        The data (at least 2 trials).
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+    max_order : int
+        Largest AR order tried.
+    level : float
+        Level of the Ljung-Box test.
+
+    Returns
+    -------
+    NoiseModelCheck
+    """
+    contrasts = np.asarray(likelihood._contrasts, dtype=float)
+    r = likelihood.n_trials
+    if contrasts.shape[0] == 0:  # a single record without periods: nothing to test on
+        return NoiseModelCheck(ljung_box_p=math.nan, energy=math.nan, adequate=True, ar_order=0,
+                               ar_ljung_box_p=math.nan, coefficients=np.zeros((1, 1)),
+                               variances=np.ones(1), n_trials=r, reference_acf=np.zeros(25),
+                               reference_energy=1.0, reference_samples=0, level=level)
+    n = contrasts.shape[1]
+    # whiten() takes the trial mean's residual and scales it by sqrt(R)
+    innov = [likelihood.whiten(c / math.sqrt(r), noise.sigma, noise.rho, noise.white)
+             for c in contrasts]
+    lb_p = _pooled_ljung_box(innov)
+    energy = float(np.mean(np.square(innov)))
+    # Yule-Walker on the contrasts, pooled: the autocovariance of one trial's noise
+    order_max = int(max(1, min(max_order, n // 10)))
+    spec = np.fft.rfft(contrasts, n=2 * n, axis=1)
+    acov = np.fft.irfft(np.sum(np.abs(spec) ** 2, axis=0), axis=0)[: order_max + 1] / (
+        contrasts.shape[0] * n)
+    phi, var = _levinson(acov, order_max)
+    n_eff = contrasts.shape[0] * n
+    aic = n_eff * np.log(np.maximum(var, 1e-300)) + 2.0 * np.arange(order_max + 1)
+    order = int(np.argmin(aic[1:]) + 1)
+    check = NoiseModelCheck(ljung_box_p=lb_p, energy=energy, adequate=bool(lb_p >= level),
+                            ar_order=order, ar_ljung_box_p=math.nan,
+                            coefficients=phi[: order + 1, :order], variances=var[: order + 1],
+                            n_trials=r, reference_acf=np.zeros(25), reference_energy=1.0,
+                            reference_samples=int(contrasts.size), level=level)
+    white = [check.whiten_series(c) for c in contrasts]
+    pooled = np.mean([autocorrelation(w, max_lag=25)[1] for w in white], axis=0)
+    return NoiseModelCheck(**{**check.__dict__, "ar_ljung_box_p": _pooled_ljung_box(white),
+                              "reference_acf": pooled,
+                              "reference_energy": float(np.mean(np.square(white)))})
 
 
 def whiteness(e: np.ndarray) -> dict:
@@ -619,6 +1098,8 @@ class Adequacy:
         Tolerance used for ``adequate``.
     level_adequate : float
         Ljung-Box level used for ``adequate``.
+    noise_model : str
+        The noise model the residual was whitened with (:func:`judged_whiteness`).
     """
 
     adequate: bool | None
@@ -631,10 +1112,13 @@ class Adequacy:
     next_command: str = ""
     energy_tolerance: float = ENERGY_TOLERANCE
     level_adequate: float = LEVEL_ADEQUATE
+    noise_model: str = "AR(1) + white"
 
     @property
     def ratio(self) -> float:
         """``rms_m / floor_m``: about 1 for a model that describes the data."""
+        if math.isnan(self.floor_m):
+            return math.nan
         return self.rms_m / self.floor_m if self.floor_m > 0 else math.inf
 
     @property
@@ -655,6 +1139,9 @@ class Adequacy:
                      f"noise, at most {1 + self.energy_tolerance:g} allowed) and its "
                      f"Ljung-Box {_p_text(self.ljung_box_p)} (at least "
                      f"{self.level_adequate:g} needed)")
+            if self.noise_model != "AR(1) + white":
+                text += (f", whitened with an {self.noise_model} since the deviations between "
+                         "trials reject AR(1) + white")
         if self.coverage is not None:
             text += (f"; {self.coverage:.1%} of the data lie inside the {self.ci_prob:.0%} "
                      "posterior predictive band")
@@ -699,11 +1186,12 @@ class Adequacy:
         -------
         dict
         """
-        return {"adequate": self.adequate, "rms_m": self.rms_m, "floor_m": self.floor_m,
-                "ratio": self.ratio, "energy": self.energy, "ljung_box_p": self.ljung_box_p,
+        return {"adequate": self.adequate, "rms_m": self.rms_m,
+                "floor_m": _finite_or_none(self.floor_m), "ratio": _finite_or_none(self.ratio),
+                "energy": self.energy, "ljung_box_p": self.ljung_box_p,
                 "coverage": self.coverage, "ci_prob": self.ci_prob,
                 "next_command": self.next_command, "energy_tolerance": self.energy_tolerance,
-                "level_adequate": self.level_adequate}
+                "level_adequate": self.level_adequate, "noise_model": self.noise_model}
 
 
 def _p_text(p: float) -> str:
@@ -750,10 +1238,12 @@ def check_adequacy(
         r = likelihood.y_mean - x
         overall = SimpleNamespace(rms_m=float(np.sqrt(np.mean(r * r))), floor_m=math.nan)
     energy = lb_p = adequate = None
+    noise_model = "AR(1) + white"
     if noise is not None:
-        white = whiteness(innovations(likelihood, x, noise))
+        _, white, noise_check = judged_whiteness(likelihood, x, noise)
         energy, lb_p = white["energy"], white["ljung_box_p"]
         adequate = is_adequate(energy, lb_p)
+        noise_model = noise_check.noise_model
     return Adequacy(adequate=adequate, rms_m=overall.rms_m, floor_m=overall.floor_m,
                     energy=energy, ljung_box_p=lb_p, coverage=coverage, ci_prob=ci_prob,
-                    next_command=next_command)
+                    next_command=next_command, noise_model=noise_model)

@@ -23,10 +23,14 @@ the 15 s chirp of the paper is about 3e-7 m at 1 kHz (see ``tests/test_simulator
 
 Conventions
 -----------
-``input[k]`` (pressure in Pa, or force in N) is held from ``time_s[k]`` to
-``time_s[k+1]``; ``position_m[k]`` is the position at ``time_s[k]``. Each trial
-starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium under the
-first input sample.
+By default ``input[k]`` (pressure in Pa, or force in N) is held from ``time_s[k]``
+to ``time_s[k+1]``; ``between_samples`` chooses a straight line between samples, or
+a band-limited reconstruction (FFT interpolation of a periodic record, else a
+degree-9 interpolating spline) that each substep follows as a straight line between
+its reconstructed end values. ``position_m[k]`` is the position at ``time_s[k]``.
+Each trial starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium
+under the first input sample; or, with ``steady_state``, in the periodic steady state
+reached from rest through repeated periods of the input.
 
 Kernels are generated per composition of effects, compiled with numba and cached
 on disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``), so the first
@@ -40,6 +44,7 @@ import os
 import sys
 import tempfile
 import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +56,8 @@ from pmabayes.model import Model
 from pmabayes.util import fingerprint, source_text
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
-           "SimulationError", "BETWEEN_SAMPLES"]
+           "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "STEADY_STATE_TOL_M",
+           "MAX_WARMUP_PERIODS"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -340,21 +346,35 @@ def _generate(model: Model, record: bool, shared_input: bool,
     body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
     # within a sample interval the pressure is linear from pp[0] to pp[1]
     linear = between_samples == "linear"
-    ramps = bool(pressure) or linear
-    via_pp = (
-        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if ramps else "pp[0, k, i]",
-        "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if ramps else "pp[0, k, i]",
-        "pp[0, k + 1, i]",
-        "pp[0, 0, i]",
-    )
-    shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
     body += ["st = np.zeros((3, batch))"]
-    # one loop per kernel: a second copy in the same function does not vectorise
-    if ramps or not shared_input:
-        body += (_pressure_fill(plant, shared_input, linear)
-                 + _sample_loops(plant, record, *via_pp))
+    if between_samples == "bandlimited":
+        # p_in holds the reconstructed input at every substep boundary (fine index
+        # k * substeps + j); each substep takes the straight line between two of them
+        fine = "k * substeps + j"
+        if shared_input and not pressure:
+            body += _sample_loops(plant, record, "pa", "pb", "p_in[(k + 1) * substeps, 0]",
+                                  "p_in[0, 0]",
+                                  substep_lines=[f"pa = p_in[{fine}, 0]",
+                                                 f"pb = p_in[{fine} + 1, 0]"])
+        else:
+            body += (_pressure_fill(plant, shared_input, True, fine=True)
+                     + _sample_loops(plant, record, f"pp[0, {fine}, i]", f"pp[1, {fine}, i]",
+                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]"))
     else:
-        body += _sample_loops(plant, record, *shared)
+        ramps = bool(pressure) or linear
+        via_pp = (
+            "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if ramps else "pp[0, k, i]",
+            "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if ramps else "pp[0, k, i]",
+            "pp[0, k + 1, i]",
+            "pp[0, 0, i]",
+        )
+        shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
+        # one loop per kernel: a second copy in the same function does not vectorise
+        if ramps or not shared_input:
+            body += (_pressure_fill(plant, shared_input, linear)
+                     + _sample_loops(plant, record, *via_pp))
+        else:
+            body += _sample_loops(plant, record, *shared)
     if record:
         body += ["out_true[:, :] = out_x"]
     body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
@@ -371,37 +391,47 @@ def _generate(model: Model, record: bool, shared_input: bool,
     return text, plant.inject
 
 
-def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False) -> list[str]:
+def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False,
+                   fine: bool = False) -> list[str]:
     """Lines that fill ``pp`` (the start and end pressure of each interval) from the
-    input, held or linear between samples, and pass it through the pressure effects."""
-    fill = [
-        "pp = np.empty((2, n, batch))",
+    input, held or linear between samples, and pass it through the pressure effects.
+
+    With ``fine`` the input holds one value per substep boundary and each of ``pp``'s
+    intervals is one substep, ``dt / substeps`` long.
+    """
+    rows = "p_in.shape[0]" if shared_input else "p_in.shape[1]"
+    m = "m" if fine else "n"
+    fill = [f"m = {rows}"] if fine else []
+    fill += [
+        f"pp = np.empty((2, {m}, batch))",
     ]
     if shared_input:  # p_in is (n, 1)
-        fill += ["for k in range(n):", "    pp[0, k, :] = p_in[k, 0]"]
+        fill += [f"for k in range({m}):", "    pp[0, k, :] = p_in[k, 0]"]
     else:  # p_in is (batch, n): transpose in cache-sized blocks
         fill += [
-            "for k0 in range(0, n, 64):",
+            f"for k0 in range(0, {m}, 64):",
             "    for i in range(batch):",
-            "        for k in range(k0, min(k0 + 64, n)):",
+            f"        for k in range(k0, min(k0 + 64, {m})):",
             "            pp[0, k, i] = p_in[i, k]",
         ]
     fill += [
         "pp[1] = pp[0]",
     ]
     if linear:  # each interval ramps to the next sample
-        fill += ["for k in range(n - 1):", "    pp[1, k, :] = pp[0, k + 1, :]"]
+        fill += [f"for k in range({m} - 1):", "    pp[1, k, :] = pp[0, k + 1, :]"]
+    step = "dt / substeps" if fine else "dt"
     fill += [
-        f"{plant.name_of[e]}(theta[:, {s.start}:{s.stop}], pp[0], pp[1], dt)"
+        f"{plant.name_of[e]}(theta[:, {s.start}:{s.stop}], pp[0], pp[1], {step})"
         for e, s in plant.pressure
     ]
     return fill
 
 
 def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
-                  p_first: str) -> list[str]:
+                  p_first: str, substep_lines: tuple[str, ...] | list[str] = ()) -> list[str]:
     """Lines of the initial state and the time loop, given how the pressure at the
-    start and end of a substep, at the next sample and at the first is read."""
+    start and end of a substep, at the next sample and at the first is read
+    (``substep_lines`` run once per substep, before the batch loop)."""
     out = ["for i in range(batch):", f"    p0 = {p_first}"]
     out += ["    " + ln for ln in plant.rest("p0", "xi")]
     out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
@@ -428,6 +458,9 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
         "    for j in range(substeps):",
         "        fa = j / substeps",
         "        fb = (j + 1) / substeps",
+    ]
+    out += ["        " + ln for ln in substep_lines]
+    out += [
         "        for i in range(batch):",
     ]
     out += ["            " + ln for ln in step]
@@ -592,6 +625,106 @@ def _time_axis(n: int, dt_s: float | None, time_s: np.ndarray | None) -> tuple[n
     return np.arange(n) * float(dt_s), float(dt_s)
 
 
+#: Default tolerance of the periodic steady state in m: the warm-up stops when the
+#: record's estimated offset from the steady state (from the last two warm-up periods'
+#: changes of position, extrapolated geometrically) is at most this.
+STEADY_STATE_TOL_M = 1e-9
+#: Default most periods simulated from rest before a record that starts in steady state.
+MAX_WARMUP_PERIODS = 256
+#: Degree of the interpolating spline that reconstructs a band-limited input that is
+#: not declared periodic (odd, so its knots sit on the samples).
+SPLINE_DEGREE = 9
+
+_FINE: dict[tuple, np.ndarray] = {}  # reconstructed inputs, keyed by content
+_FINE_MAX = 8
+
+
+def _fine_periodic(u: np.ndarray, substeps: int) -> np.ndarray:
+    """Trigonometric interpolation of ``u`` (period: its whole length) at ``substeps``
+    points per sample interval; ``(..., n * substeps)``, exact for a periodic input
+    without content at the Nyquist frequency."""
+    n = u.shape[-1]
+    spec = np.fft.rfft(u, axis=-1)
+    fine = np.zeros((*u.shape[:-1], n * substeps // 2 + 1), dtype=complex)
+    fine[..., : n // 2 + 1] = spec
+    if n % 2 == 0:  # the Nyquist line is a cosine: split it between +- fs / 2
+        fine[..., n // 2] *= 0.5
+    return np.fft.irfft(fine, n * substeps, axis=-1) * substeps
+
+
+def _fine_spline(u: np.ndarray, substeps: int) -> np.ndarray:
+    """Degree-``SPLINE_DEGREE`` interpolating spline of ``u`` at ``substeps`` points per
+    sample interval, ``(..., (n - 1) * substeps + 1)``; not-a-knot ends."""
+    from scipy.interpolate import make_interp_spline
+
+    n = u.shape[-1]
+    degree = min(SPLINE_DEGREE, n - 1)
+    degree -= 1 - degree % 2  # odd
+    spline = make_interp_spline(np.arange(n, dtype=float), u, k=degree, axis=-1)
+    return spline(np.arange((n - 1) * substeps + 1) / substeps)
+
+
+def _fine_input(u: np.ndarray, substeps: int, periodic: bool) -> np.ndarray:
+    """Band-limited reconstruction of ``u`` at every substep boundary, memoised by
+    content (a likelihood simulates the same input many times)."""
+    key = (fingerprint(u.tobytes(), str(u.shape), length=20), substeps, periodic)
+    with _LOCK:
+        hit = _FINE.get(key)
+    if hit is not None:
+        return hit
+    n = u.shape[-1]
+    if substeps == 1:
+        fine = u.copy()
+    elif periodic:
+        fine = _fine_periodic(u, substeps)[..., : (n - 1) * substeps + 1]
+    else:
+        fine = _fine_spline(u, substeps)
+    fine[..., ::substeps] = u  # the samples themselves, not their rounding
+    fine.flags.writeable = False
+    with _LOCK:
+        if len(_FINE) >= _FINE_MAX:
+            _FINE.pop(next(iter(_FINE)))
+        _FINE[key] = fine
+    return fine
+
+
+def _kernel_input(u: np.ndarray, substeps: int, between_samples: str, period: int | None,
+                  warmup: int) -> np.ndarray:
+    """The array the kernel reads: the samples, or the band-limited reconstruction at
+    every substep boundary; preceded by ``warmup`` copies of the first period."""
+    if between_samples != "bandlimited":
+        if warmup:
+            u = np.concatenate([np.tile(u[..., :period], warmup), u], axis=-1)
+        return u
+    fine = _fine_input(u, substeps, period is not None)
+    if warmup:
+        one = (_fine_periodic(u[..., :period], substeps) if substeps > 1
+               else u[..., :period])
+        fine = np.concatenate([np.tile(one, warmup), fine], axis=-1)
+    return fine
+
+
+def _check_period(period_samples, steady_state, n: int) -> int | None:
+    if not isinstance(steady_state, bool | np.bool_):
+        raise SimulationError(f"steady_state must be True or False, got {steady_state!r}")
+    if period_samples is None:
+        if steady_state:
+            raise SimulationError(
+                "steady_state=True needs period_samples (the samples in one period of the "
+                "periodic input): a steady state exists only for a periodic input")
+        return None
+    if not (isinstance(period_samples, int | np.integer) and not isinstance(period_samples, bool)
+            and period_samples >= 2):
+        raise SimulationError(
+            f"period_samples must be an integer >= 2 (samples in one period), got "
+            f"{period_samples!r}")
+    if n % period_samples:
+        raise SimulationError(
+            f"period_samples={period_samples} does not divide the input's {n} samples "
+            f"({n / period_samples:.4g} periods); pass whole periods only")
+    return int(period_samples)
+
+
 def simulate(
     model: Model,
     params=None,
@@ -602,6 +735,10 @@ def simulate(
     substeps: int = 1,
     states: bool = False,
     between_samples: str = "hold",
+    period_samples: int | None = None,
+    steady_state: bool = False,
+    steady_state_tol_m: float = STEADY_STATE_TOL_M,
+    max_warmup_periods: int = MAX_WARMUP_PERIODS,
 ):
     """Simulate ``model`` for a batch of parameter sets.
 
@@ -628,10 +765,41 @@ def simulate(
     states : bool
         Return a :class:`Simulation` with all recorded states instead of positions.
     between_samples : str
-        What the input does between samples: ``"hold"`` (the default: a DAQ's
-        zero-order hold of a commanded pressure, each sample acting until the next)
-        or ``"linear"`` (straight lines between samples, for the samples of a
-        continuous signal). See :data:`BETWEEN_SAMPLES`.
+        What the input does between samples (see :data:`BETWEEN_SAMPLES`):
+        ``"hold"`` (the default: a DAQ's zero-order hold of a commanded pressure,
+        each sample acting until the next); ``"linear"`` (straight lines between
+        samples); or ``"bandlimited"`` (the samples of a continuous band-limited
+        signal, such as a measured pressure or a generated multisine). A
+        band-limited input is reconstructed at every substep boundary, and each
+        substep takes the straight line between two of those values: by
+        trigonometric (FFT) interpolation of the record when ``period_samples`` is
+        given (exact for a periodic input), otherwise by a degree-9 interpolating
+        spline with not-a-knot ends (near the first and last few samples it is the
+        polynomial through the end samples, less accurate than inside). Give it
+        substeps: with ``substeps=1`` it is ``"linear"``. With pressure effects or
+        per-member inputs the kernel keeps the reconstruction per member (16 bytes
+        per substep and member).
+    period_samples : int, optional
+        Samples in one period, when the input is whole periods of a periodic signal
+        (it must divide ``n_samples``). Used by ``"bandlimited"`` and
+        ``steady_state``.
+    steady_state : bool
+        The record starts in periodic steady state: the model is first driven from
+        rest by the record's first period, repeated, and the record continues from
+        the state so reached. False (default): the record starts from rest.
+    steady_state_tol_m : float
+        Tolerance of the steady state in m (default :data:`STEADY_STATE_TOL_M`):
+        enough warm-up periods that the position's change over the last one, ``d``,
+        and the record's estimated remaining offset ``d r / (1 - r)`` (``r`` the
+        ratio of the last two changes: the transient's decay per period) are both
+        at most this.
+    max_warmup_periods : int
+        Most warm-up periods (default :data:`MAX_WARMUP_PERIODS`). The first try
+        has 3; the next as many as the decay ``r`` says are needed (or twice as
+        many). If the tolerance is not reached, a :class:`SteadyStateWarning` says
+        by how much, and the record follows the last warm-up. The muscle at the
+        paper's values creeps towards its steady state by about ``r = 0.84`` a
+        period (the hysteresis' slow shakedown), so it can take a hundred.
 
     Returns
     -------
@@ -641,7 +809,7 @@ def simulate(
     Raises
     ------
     SimulationError
-        On inconsistent shapes, a bad time axis, or non-finite inputs.
+        On inconsistent shapes, a bad time axis, non-finite inputs or a bad period.
     ModelError
         On bad parameters (unknown names, out of bounds).
     """
@@ -650,51 +818,127 @@ def simulate(
     if between_samples not in BETWEEN_SAMPLES:
         raise SimulationError(
             f"between_samples must be one of {', '.join(map(repr, BETWEEN_SAMPLES))}, got "
-            f"{between_samples!r}; a band-limited reconstruction is not available yet: "
-            "use 'linear' with more substeps, or resample the input finer")
+            f"{between_samples!r}")
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
     theta = model.theta(params)
     u = np.asarray(input_signal, dtype=float)
-    if u.ndim == 1:
-        p_in = np.ascontiguousarray(u[:, None])
-    elif u.ndim == 2 and u.shape[0] == theta.shape[0]:
-        p_in = np.ascontiguousarray(u)  # (batch, n); the kernel transposes it
-    else:
+    if not (u.ndim == 1 or (u.ndim == 2 and u.shape[0] == theta.shape[0])):
         raise SimulationError(
             f"input_signal has shape {u.shape}; expected (n_samples,) or "
             f"({theta.shape[0]}, n_samples) for a batch of {theta.shape[0]}"
         )
-    if not np.all(np.isfinite(p_in)):
+    if not np.all(np.isfinite(u)):
         raise SimulationError("input_signal contains NaN or inf")
     n = u.shape[-1]
     if n < 2:
         raise SimulationError("need at least 2 samples")
     t, dt = _time_axis(n, dt_s, time_s)
+    period = _check_period(period_samples, steady_state, n)
+    run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=int(substeps),
+               states=states, between_samples=between_samples, period=period)
+    if not steady_state:
+        return _run(**run, warmup=0)
+    if not steady_state_tol_m > 0:
+        raise SimulationError(f"steady_state_tol_m must be > 0, got {steady_state_tol_m!r}")
+    if not (isinstance(max_warmup_periods, int | np.integer) and max_warmup_periods >= 3):
+        raise SimulationError(
+            f"max_warmup_periods must be an integer >= 3, got {max_warmup_periods!r}")
+    tol = float(steady_state_tol_m)
+    warmup = min(3, int(max_warmup_periods))
+    while True:
+        record, warm = _run(**run, warmup=warmup)
+        x = warm.true_position_m if states else warm
+        change, offset, ratio = _transient(x, period)
+        if offset <= tol:
+            return record
+        if warmup >= max_warmup_periods or not np.isfinite(change):
+            warnings.warn(
+                f"simulate: no periodic steady state within {tol:g} m after {warmup} "
+                f"warm-up periods of {period} samples: the last period still changed by "
+                f"{change:.3g} m (by {ratio:.3g} times the change before). The record starts "
+                "from that state; pass a larger max_warmup_periods or steady_state_tol_m.",
+                SteadyStateWarning, stacklevel=2)
+            return record
+        if 0.0 < ratio < 1.0:  # geometric decay: periods until the offset is below tol
+            target = tol * min(1.0, (1.0 - ratio) / ratio)
+            more = int(np.ceil(np.log(target / change) / np.log(ratio))) + 1
+            warmup = min(max(warmup + more, warmup + 1), 4 * warmup)
+        else:
+            warmup *= 2
+        warmup = min(warmup, int(max_warmup_periods))
+
+
+def _transient(x: np.ndarray, period: int) -> tuple[float, float, float]:
+    """How far warm-up positions ``x`` (``(B, k * period)``, ``k >= 3``) are from
+    periodic: the largest change over the last period, the record's estimated
+    remaining offset (``change r / (1 - r)``, ``r`` the ratio of the last two changes;
+    infinite if they do not shrink) and ``r``."""
+    last = x[:, -period:] - x[:, -2 * period:-period]
+    before = x[:, -2 * period:-period] - x[:, -3 * period:-2 * period]
+    change = float(np.max(np.abs(last)))
+    prior = float(np.max(np.abs(before)))
+    ratio = change / prior if prior > 0.0 else 0.0
+    if not np.isfinite(change):
+        return change, np.inf, ratio
+    if change <= 1e-15 * max(float(np.max(np.abs(x[:, -period:]))), 1e-300):
+        return change, change, ratio  # changes at rounding level: periodic
+    offset = change * ratio / (1.0 - ratio) if ratio < 1.0 else np.inf
+    return change, max(change, offset), ratio
+
+
+class SteadyStateWarning(RuntimeWarning):
+    """The periodic steady state was not reached within the warm-up allowed."""
+
+
+def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
+         substeps: int, states: bool, between_samples: str, period: int | None,
+         warmup: int):
+    """One kernel call over ``warmup`` periods and the record.
+
+    Returns the positions ``(B, n)`` (or the :class:`Simulation`) of the record; with
+    a warm-up, ``(record, warm-up positions ((B, warmup * period)))``, the latter the
+    true positions when ``states``.
+    """
+    n = u.shape[-1]
+    p_in = _kernel_input(u, substeps, between_samples, period, warmup)
+    shared = u.ndim == 1
+    p_in = np.ascontiguousarray(p_in[:, None] if shared else p_in)
+    lead = warmup * (period or 0)
+    if lead:
+        t = np.concatenate([t[0] + dt * np.arange(-lead, 0), t])
     rig = model.rig
     batch = theta.shape[0]
-    out_x = np.empty((n, batch))
-    args = (theta, p_in, t, dt, int(substeps), rig.moving_mass_kg, rig.gravity_force_n,
+    out_x = np.empty((n + lead, batch))
+    args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
             rig.area_m2, out_x)
-    shared = u.ndim == 1
     if not states:
         kernel_for(model, shared_input=shared, between_samples=between_samples)(*args)
-        return out_x.T
-    rec = [np.empty((n, batch)) for _ in range(5)]
+        x = out_x.T
+        return (x[:, lead:], x[:, :lead]) if lead else x
+    rec = [np.empty((n + lead, batch)) for _ in range(5)]
     kernel_for(model, record=True, shared_input=shared,
                between_samples=between_samples)(*args, *rec)
-    v, z, p, f, true_x = rec
-    return Simulation(t, out_x.T, true_x.T, v.T, z.T, p.T, f.T)
+    v, z, p, f, true_x = (a.T for a in rec)
+    x = out_x.T
+    sim = Simulation(t[lead:], x[:, lead:], true_x[:, lead:], v[:, lead:], z[:, lead:],
+                     p[:, lead:], f[:, lead:])
+    if not lead:
+        return sim
+    return sim, Simulation(t[:lead], x[:, :lead], true_x[:, :lead], v[:, :lead],
+                           z[:, :lead], p[:, :lead], f[:, :lead])
 
 
 def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
                      states: bool = False):
     """Simulate ``model`` on a data set's input, as the data set declares it.
 
-    The one place where a data set's declarations (what its input does between
-    samples, see :attr:`pmabayes.data.Dataset.input_between_samples`) become
-    simulator options; the likelihood, diagnostics and validation all simulate
-    through it.
+    The one place where a data set's declarations become simulator options: what
+    its input does between samples (:attr:`pmabayes.data.Dataset.input_between_samples`),
+    its period (:attr:`~pmabayes.data.Dataset.period_samples`) and whether each trial
+    starts in periodic steady state
+    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`). The likelihood,
+    diagnostics and validation all simulate through it.
 
     Parameters
     ----------
@@ -717,4 +961,6 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
     """
     return simulate(model, params, dataset.input[0], time_s=dataset.time_s,
                     substeps=substeps, states=states,
-                    between_samples=dataset.input_between_samples)
+                    between_samples=dataset.input_between_samples,
+                    period_samples=dataset.period_samples,
+                    steady_state=dataset.starts_in_steady_state)

@@ -16,7 +16,10 @@ definitions:
   stiffness ``K_p p x`` (``p`` the acting pressure);
 * position offset: measured position ``x + x_offset``.
 
-The commanded input is a zero-order hold: ``u[k]`` acts on ``[t_k, t_{k+1})``. The
+The commanded input is a zero-order hold: ``u[k]`` acts on ``[t_k, t_{k+1})``; or a
+straight line between samples (``linear``); or any continuous function of time
+(``input_fn``, e.g. the exact band-limited signal whose samples ``u`` are), which
+every Runge-Kutta stage evaluates at its own time. The
 delayed command jumps inside a sample interval; each interval is therefore cut at
 that instant into two pieces on which the delayed command is constant, so every
 Runge-Kutta stage sees ``p_cmd(t - t_delay)`` exactly and no step straddles a jump.
@@ -107,6 +110,31 @@ def _integrate_linear(c, u, dt, substeps, x_init, out):
 
 
 @numba.njit(cache=True)
+def _integrate_stages(c, uh, dt, substeps, x_init, out):
+    """:func:`_integrate` for an input given at every RK4 stage time: ``uh[q]`` is the
+    input at ``q h / 2`` (``h = dt / substeps``)."""
+    n = out.shape[1]
+    h = dt / substeps
+    y = np.array([x_init, 0.0, 0.0, uh[0]])
+    out[:, 0] = y
+    for k in range(n - 1):
+        for s in range(substeps):
+            q = 2 * (k * substeps + s)
+            x, v, z, pa = y[0], y[1], y[2], y[3]
+            k1 = _rhs(c, x, v, z, pa, uh[q])
+            k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
+                      pa + 0.5 * h * k1[3], uh[q + 1])
+            k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
+                      pa + 0.5 * h * k2[3], uh[q + 1])
+            k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3], uh[q + 2])
+            for j in range(4):
+                y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        out[:, k + 1] = y
+        if c[C_TAU] <= 0.0:
+            out[3, k + 1] = uh[2 * (k + 1) * substeps]
+
+
+@numba.njit(cache=True)
 def _integrate(c, u, dt, t_delay, substeps, x_init, out):
     """Integrate a whole trial; ``out[:, k]`` receives (x, v, z, p_act) at ``t_k``."""
     n = u.shape[0]
@@ -182,6 +210,7 @@ def reference_simulate(
     x_offset: float = 0.0,
     substeps: int = 64,
     linear: bool = False,
+    input_fn=None,
 ) -> ReferenceResult:
     """Simulate one trial with RK4 on ``substeps`` steps per sample interval.
 
@@ -204,6 +233,11 @@ def reference_simulate(
         RK4 steps per sample interval.
     linear : bool
         The input is a straight line between samples instead of held (no delay).
+    input_fn : callable, optional
+        The continuous input: ``input_fn(t)`` for an array of times ``t`` in s (the
+        samples ``u[k]`` are at ``t = k dt``) gives the command there; ``u`` then only
+        sets the number of samples. With a delay, the command at ``t`` is
+        ``input_fn(max(t - t_delay, 0))``.
 
     Returns
     -------
@@ -217,11 +251,19 @@ def reference_simulate(
     c[C_D], c[C_K_E], c[C_P_DZ] = d, K_e, p_dz
     c[C_DEAD_ZONE] = 1.0 if dead_zone else 0.0
     c[C_TAU], c[C_F_C], c[C_V_C], c[C_K3], c[C_K_P] = tau_reg, F_c, v_c, K3, K_p
+    if input_fn is not None:
+        if linear:
+            raise ValueError("give either linear or input_fn")
+        times = np.arange((u.shape[0] - 1) * 2 * substeps + 1) * (dt / (2 * substeps))
+        uh = np.ascontiguousarray(input_fn(np.maximum(times - t_delay, 0.0)), dtype=float)
+        u = uh[:: 2 * substeps]
     p0 = u[0]
     drive0 = area * (max(p0 - p_dz, 0.0) if dead_zone else p0)
     x_init = _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p, p0)
     out = np.empty((4, u.shape[0]))
-    if linear:
+    if input_fn is not None:
+        _integrate_stages(c, uh, float(dt), int(substeps), x_init, out)
+    elif linear:
         if t_delay:
             raise ValueError("the reference's linear input takes no transport delay")
         _integrate_linear(c, u, float(dt), int(substeps), x_init, out)

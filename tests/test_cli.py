@@ -322,11 +322,11 @@ def test_run_on_bad_data_leaves_no_folder(small_data, tmp_path, capsys):
     bad.write_text("trial,time_s,pressure_pa,position_m\n1,0,0,0\n")
     assert main(["run", str(bad), "--out", str(tmp_path / "r1")]) == 2
     assert "only 1 sample" in capsys.readouterr().err
-    one = tmp_path / "one.csv"  # reads, but cannot be fitted: fails inside the fit
+    still = tmp_path / "still.csv"  # reads, but cannot be fitted: fails inside the fit
     ds = load(small_data)
     save(Dataset(time_s=ds.time_s, input=ds.input, position_m=ds.position_m * 0.0,
-                 trial_ids=ds.trial_ids), one)
-    assert main(["run", str(one), "--out", str(tmp_path / "r2"), "--quiet"]) == 2
+                 trial_ids=ds.trial_ids), still)
+    assert main(["run", str(still), "--out", str(tmp_path / "r2"), "--quiet"]) == 2
     assert "every position is" in capsys.readouterr().err
     assert not (tmp_path / "r1").exists() and not (tmp_path / "r2").exists()
 

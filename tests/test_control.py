@@ -404,7 +404,9 @@ def test_gain_rule_is_not_knife_edge():
         theta = base * (1 + 1e-3 * rng.standard_normal(base.shape))
         with warnings.catch_warnings():
             warnings.simplefilter("error", GainGridWarning)
-            assert tune_gains("ct", params=theta) == DEFAULT_GAINS["ct"]
+            gains = tune_gains("ct", params=theta)
+        # the same grid point; the gains may differ in the last bit between installs
+        assert gains == pytest.approx(DEFAULT_GAINS["ct"], rel=1e-12)
 
 
 def test_gain_rule_neighbours_must_be_stable_too():

@@ -191,7 +191,7 @@ def test_load_save_dispatch(tmp_path: Path, suffix: str) -> None:
 
 def test_load_save_reject_unknown_suffix(tmp_path: Path) -> None:
     ds = make_dataset()
-    pattern = r": unsupported file type '\.txt'.*\.csv or \.nc"
+    pattern = r": unsupported file type '\.txt'.*\.csv, \.nc"
     with pytest.raises(DataError, match=at(tmp_path / "x.txt", pattern)):
         save(ds, tmp_path / "x.txt")
     path = write(tmp_path, rows(*GOOD), "x.dat")

@@ -26,6 +26,7 @@ MODULES = [
     "pmabayes.control",
     "pmabayes.robustness",
     "pmabayes.reproduction",
+    "pmabayes.validation",
     "pmabayes.cli",
 ]
 # missing docstring or summary, parameters undocumented or unknown, returns undocumented

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.data import Dataset
-from pmabayes.fit import FitError, FitSettings, check_same_input_kind, fit
+from pmabayes.data import DataError, Dataset, check_same_input_kind
+from pmabayes.fit import FitError, FitSettings, fit
 from pmabayes.likelihood import Likelihood
 from pmabayes.model import PAPER_VALUES, Rig
 from pmabayes.posterior import (
@@ -88,9 +88,9 @@ def test_experiments_of_different_input_kinds_are_refused():
     f = Dataset(time_s=a.time_s, input=np.full((1, a.n_samples), 1.0),
                 position_m=a.position_m[:1], trial_ids=np.arange(1), input_name="force_n",
                 source="lab/force.csv")
-    with pytest.raises(FitError, match=r"lab/force.csv.*'force_n'.*lab/chirp.csv.*'pressure_pa'"):
+    with pytest.raises(DataError, match=r"lab/force.csv.*'force_n'.*lab/chirp.csv.*'pressure_pa'"):
         check_same_input_kind([a, f])
-    with pytest.raises(FitError, match="same kind of input"):
+    with pytest.raises(FitError, match="one input kind.*fit them separately"):
         fit([a, f], pb.Model(), settings=QUICK)
 
 

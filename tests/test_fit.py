@@ -424,3 +424,38 @@ def test_an_ensemble_already_ahead_is_left_as_it_is(tmp_path, monkeypatch):
     assert fit_module._advance((path, 0, np.zeros((4, 2)), 1, "de")) == 3
     assert not Path(path + ".tmp").exists()
     assert Path(path).read_bytes() == before
+
+
+# -- speed: one global search stopped when its population agrees; default walkers ----
+
+
+def test_global_search_stops_when_its_population_agrees(small_data, monkeypatch):
+    """The search ends well before its generation budget once its population is in one
+    basin, and the polish from there finds the MAP a search run to the end finds."""
+    from pmabayes import fit as fit_module
+
+    lik = Likelihood(pb.Model(), small_data)
+    post = Posterior(lik, estimate_noise(lik))
+    simulated = []
+    original = Likelihood.simulate
+    monkeypatch.setattr(Likelihood, "simulate",
+                        lambda self, theta: simulated.append(len(theta)) or original(self, theta))
+    stopped = find_map(post, rng=np.random.default_rng(0))
+    n_stopped = sum(simulated)
+    simulated.clear()
+    monkeypatch.setattr(fit_module, "_DE_TOL", 1e-12)  # never: every generation runs
+    full = find_map(post, rng=np.random.default_rng(0))
+    assert n_stopped < 0.85 * sum(simulated), (n_stopped, sum(simulated))
+    assert stopped.log_posterior == pytest.approx(full.log_posterior, abs=0.01)
+    sd = np.sqrt(np.diag(full.covariance_z))
+    assert np.all(np.abs(stopped.z - full.z) < 0.05 * sd), (stopped.z - full.z) / sd
+
+
+def test_default_walkers_suffice_for_the_lab_model(small_data):
+    """Fewer walkers make fits faster; the default still allows base + two effects,
+    and a larger model is told how many it needs."""
+    lab = pb.Model(["regulator_lag", "coulomb_friction"])
+    assert FitSettings().n_walkers >= 2 * len(lab.free_names)
+    larger = pb.Model(["regulator_lag", "coulomb_friction", "transport_delay"])
+    with pytest.raises(FitError, match="n_walkers must be at least 18"):
+        fit(small_data, larger, settings=FitSettings())

@@ -389,6 +389,23 @@ def test_a_right_model_is_called_adequate(no_hidden):
     verdict = fit_adequacy(tree)  # without the data set: rebuilt from the fit
     assert verdict.adequate is True and verdict.energy < 1.1
     assert not any(line.startswith("Next:") for line in verdict.lines())
+    assert verdict.noise_model == "AR(1) + white"  # the repeats support it
+    # the check of the trials, in one line
+    assert f"Trials: {ds.n_trials} exchangeable" in text
+
+
+def test_the_report_line_says_when_the_trials_drift():
+    from pmabayes.report import _trials_line
+
+    rng = np.random.default_rng(5)
+    t = np.arange(3000) * 1e-3
+    u = 3e5 * (1 + np.sin(2 * np.pi * t))
+    y = 1e-9 * u + 1e-5 * rng.standard_normal((8, t.size))
+    y += 3e-6 * np.arange(8)[:, None]  # a warm-up: 3 µm more offset per trial
+    ds = Dataset(time_s=t, input=np.tile(u, (8, 1)), position_m=y, trial_ids=np.arange(8))
+    line = _trials_line(ds)
+    assert line.startswith('<p class="note">Trials NOT exchangeable')
+    assert "drift with trial order" in line and "µm" in line
 
 
 def test_the_verdict_names_the_effects_to_diagnose_with(hidden_lag):

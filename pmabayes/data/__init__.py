@@ -4,7 +4,7 @@ A data set is a set of trials that share one uniformly sampled time grid. Each t
 has one input signal (commanded gauge pressure in Pa, or force in N for a generic
 force-driven oscillator) and one measured position signal in m.
 
-Two file formats are supported:
+Three file formats are supported:
 
 CSV
     Header ``trial,time_s,pressure_pa,position_m`` (any column order; ``force_n`` may
@@ -14,6 +14,18 @@ CSV
 NetCDF
     Written and read through xarray with the ``h5netcdf`` engine; metadata is stored
     as a JSON string attribute. Intended for large data.
+MATLAB (read only)
+    ``.mat`` v4 to v7 through scipy, v7.3 (HDF5) through h5py (:func:`read_mat`):
+    numeric arrays (a vector per trial, or a 2-D array of trials, one per column or
+    per row), one variable per trial (a list or a pattern), and Simulink's
+    "Structure with time". The JSON sidecar's ``"mat_variables"`` (or keywords) maps
+    the roles to variables, e.g. ``{"time_s": "t", "pressure_pa": "p_cmd",
+    "position_m": ["x1", "x2"]}``, and ``"mat_trials"`` (``"columns"`` or ``"rows"``)
+    says how a 2-D array holds its trials. Without a time variable,
+    ``"sample_rate_hz"`` gives the grid. Values must be SI; see
+    :mod:`pmabayes.data.matlab` for the full schema.
+
+:func:`load` picks the reader from the suffix (``.csv``, ``.nc``, ``.mat``).
 
 Bad input raises :class:`DataError` with a message that names the file, the line or
 trial, and says how to fix it. Nothing is dropped, repaired or clipped silently.
@@ -22,7 +34,9 @@ Data that read but look suspect (pressure that looks absolute, not gauge) give a
 ``"pressure_reference"`` (``"gauge"``, or ``"absolute"`` to convert to gauge on
 reading) and ``"check_units": false``; ``"input_between_samples"`` says what the
 input does between samples (:data:`BETWEEN_SAMPLES`). A metadata key close to one
-pmabayes reads (:data:`METADATA_KEYS`) is taken for a misspelling and refused.
+pmabayes reads (:data:`METADATA_KEYS`) is taken for a misspelling and refused. A
+``"rig"`` whose ``input_kind`` does not drive the data's input column is refused, and
+:func:`check_same_input_kind` refuses experiments of different input kinds in one fit.
 """
 
 from pmabayes.data.dataset import (
@@ -32,9 +46,11 @@ from pmabayes.data.dataset import (
     DataError,
     Dataset,
     DataWarning,
+    check_same_input_kind,
     check_time_grid,
 )
 from pmabayes.data.files import load, read_csv, read_netcdf, save, write_csv, write_netcdf
+from pmabayes.data.matlab import MAT_ROLES, MAT_TRIALS, read_mat
 
 __all__ = [
     "INPUT_NAMES",
@@ -43,9 +59,13 @@ __all__ = [
     "DataError",
     "DataWarning",
     "Dataset",
+    "MAT_ROLES",
+    "MAT_TRIALS",
+    "check_same_input_kind",
     "check_time_grid",
     "load",
     "read_csv",
+    "read_mat",
     "read_netcdf",
     "save",
     "write_csv",

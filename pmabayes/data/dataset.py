@@ -21,7 +21,7 @@ import xarray as xr
 from numpy.typing import ArrayLike
 
 __all__ = ["INPUT_NAMES", "BETWEEN_SAMPLES", "METADATA_KEYS", "DataError", "DataWarning",
-           "Dataset", "check_time_grid"]
+           "Dataset", "check_same_input_kind", "check_time_grid"]
 
 INPUT_NAMES: tuple[str, ...] = ("pressure_pa", "force_n")
 """Allowed names of the input column: commanded gauge pressure (Pa) or force (N)."""
@@ -31,14 +31,16 @@ _REL_TOL = 1e-6  # relative tolerance on sample intervals, sample times and samp
 
 #: What an input does between its samples, as a sidecar's ``input_between_samples``
 #: declares it: ``"hold"`` (the default: a DAQ's zero-order hold of a commanded
-#: pressure) or ``"linear"`` (the samples of a continuous signal, joined by lines).
-BETWEEN_SAMPLES = ("hold", "linear")
+#: pressure), ``"linear"`` (the samples of a continuous signal, joined by lines) or
+#: ``"bandlimited"`` (the samples of a continuous band-limited signal, reconstructed
+#: between them: exactly, by FFT interpolation, where ``period_samples`` is declared).
+BETWEEN_SAMPLES = ("hold", "linear", "bandlimited")
 #: The metadata (sidecar) keys pmabayes reads or writes; a key close to one of
 #: these is taken for a misspelling. Any other key is free-form and kept.
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
                  "pressure_reference", "ambient_pressure_pa", "check_units",
                  "converted_from_absolute", "input_between_samples", "period_samples",
-                 "starts_in_steady_state")
+                 "starts_in_steady_state", "mat_variables", "mat_trials")
 
 
 class DataError(ValueError):
@@ -193,8 +195,7 @@ def _check_declarations(metadata: dict, where: str) -> None:
         raise DataError(
             f"{where}: metadata 'input_between_samples' is {between!r}; it must be one of "
             f"{', '.join(map(repr, BETWEEN_SAMPLES))} ('hold' for a commanded input held by "
-            "the DAQ, 'linear' for samples of a continuous signal). A band-limited "
-            "reconstruction is not available yet: declare 'linear'.")
+            "the DAQ, 'linear' or 'bandlimited' for samples of a continuous signal).")
     period = metadata.get("period_samples")
     if period is not None and (isinstance(period, bool) or not isinstance(period, int)
                                or period < 2):
@@ -232,6 +233,75 @@ def _check_period(metadata: dict, n_samples: int, where: str) -> None:
             f"record's {n_samples} samples ({n_samples / period:.4g} periods); keep whole "
             f"periods only (trim the record to {n_samples // period * period} samples) or "
             "correct 'period_samples'.")
+
+
+#: The input column each rig ``input_kind`` drives (a rig's kind, as pmabayes.model's
+#: ``Rig`` names it, read here from the sidecar's dict: data do not import the model).
+_INPUT_OF_KIND = {"pressure": "pressure_pa", "force": "force_n"}
+
+
+def _check_rig_input(metadata: dict, input_name: str, where: str) -> None:
+    """A sidecar ``rig`` must drive the data's input column: pressure_pa or force_n."""
+    rig = metadata.get("rig")
+    if not isinstance(rig, dict):
+        return
+    # a pmabayes rig without input_kind is a pressure rig (the Rig default); a dict
+    # without moving_mass_kg or input_kind is free-form notes about the rig
+    kind = rig.get("input_kind", "pressure" if "moving_mass_kg" in rig else None)
+    expected = _INPUT_OF_KIND.get(kind) if isinstance(kind, str) else None
+    if expected is None or expected == input_name:
+        return
+    other = next(k for k, v in _INPUT_OF_KIND.items() if v == input_name)
+    name = rig.get("name", "the rig")
+    raise DataError(
+        f"{where}: metadata 'rig' ({name}) has input_kind {kind!r}, which drives "
+        f"{expected!r}, but the data's input is {input_name!r}; fix the rig in the sidecar "
+        f"(a {other}-driven rig has \"input_kind\": \"{other}\") or the data's input "
+        f"(rename the column to {expected!r} if it really holds "
+        f"{'pressure in Pa' if kind == 'pressure' else 'force in N'}).")
+
+
+def check_same_input_kind(datasets: Sequence[Dataset]) -> str:
+    """Check that experiments fitted together have one input kind.
+
+    Pressure-driven muscles and force-driven oscillators have different parameters
+    (a force input has no dead zone ``p_dz``) and different units, so one fit cannot
+    share parameters across them.
+
+    Parameters
+    ----------
+    datasets : sequence of Dataset
+        The experiments of one fit, at least one.
+
+    Returns
+    -------
+    str
+        Their common input name, ``"pressure_pa"`` or ``"force_n"``.
+
+    Raises
+    ------
+    TypeError
+        If an element is not a :class:`Dataset`.
+    DataError
+        If no data set is given, or two have different inputs; the message names the
+        first file of each kind.
+    """
+    datasets = list(datasets)
+    for d in datasets:
+        if not isinstance(d, Dataset):
+            raise TypeError(f"check_same_input_kind needs Dataset objects, got "
+                            f"{type(d).__name__}")
+    if not datasets:
+        raise DataError("no data sets given: a fit needs at least one experiment.")
+    first = datasets[0]
+    for i, d in enumerate(datasets[1:], start=2):
+        if d.input_name != first.input_name:
+            raise DataError(
+                f"{d.source or f'experiment {i}'}: its input is {d.input_name!r} but "
+                f"{first.source or 'experiment 1'} has {first.input_name!r}; the experiments "
+                "of one fit share their physical parameters, so they must have one input "
+                "kind (all pressure-driven, or all force-driven): fit them separately.")
+    return first.input_name
 
 
 class DataWarning(UserWarning):
@@ -319,6 +389,7 @@ class Dataset:
                 "pass a dict (possibly empty)."
             )
         _check_declarations(self.metadata, where)
+        _check_rig_input(self.metadata, self.input_name, where)
 
         time_s = self._as_float(self.time_s, "time_s", where)
         check_time_grid(time_s, source=where)

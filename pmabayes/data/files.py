@@ -1,4 +1,5 @@
-"""Data files: CSV with a JSON sidecar, and NetCDF; reading, checking and writing.
+"""Data files: CSV with a JSON sidecar, NetCDF, and MATLAB (read only); reading,
+checking and writing.
 
 Bad input raises :class:`~pmabayes.data.DataError` naming the file, the line or
 trial, and the fix; the plausibility checks of :mod:`pmabayes.data.plausibility`
@@ -33,6 +34,7 @@ from pmabayes.data.dataset import (
     _json_roundtrip_check,
     check_time_grid,
 )
+from pmabayes.data.matlab import read_mat
 from pmabayes.data.plausibility import _checked
 
 __all__ = ["load", "read_csv", "read_netcdf", "save", "write_csv", "write_netcdf"]
@@ -270,19 +272,24 @@ def _trial_blocks(trial: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
-def _rounded_grid(trial: np.ndarray, time: np.ndarray, rows: list[str], column: int,
-                  rate_hz: float | None, where: str) -> np.ndarray:
+def _rounded_grid(trial: np.ndarray, time: np.ndarray, step_of: Callable[[], float | None],
+                  rate_hz: float | None, where: str, stored: str = "is printed to",
+                  fix: str = "Write times with more digits (or sample_rate_hz in the "
+                  "sidecar) to make this exact.") -> np.ndarray:
     """The times, rebuilt as ``t0 + k / rate`` where they are a uniform grid rounded to
-    the precision they are printed with; unchanged where they are uniform already, or
+    the precision they are stored with; unchanged where they are uniform already, or
     where they are not uniform even to that precision (the grid check then says where).
 
     A 750 Hz clock printed to microseconds (0.001333, 0.002667, ...) moves each interval
     by far more than the grid check's 1e-6 relative tolerance, yet the grid is uniform.
+    ``step_of()`` gives that precision in s (called only when the grid is not uniform:
+    it may be slow), ``stored`` and ``fix`` complete the warning: how the times are
+    stored (CSV: printed; MATLAB: single precision), and how to make them exact.
     """
     blocks = [(s, e) for s, e in _trial_blocks(trial) if e - s >= 3]
     if all(_first_nonuniform(time[s:e]) is None for s, e in blocks):
         return time
-    step = _printed_step(rows, column)
+    step = step_of()
     if step is None:
         return time
     out = np.array(time, dtype=float)
@@ -302,10 +309,9 @@ def _rounded_grid(trial: np.ndarray, time: np.ndarray, rows: list[str], column: 
     source = (f"the sidecar's sample_rate_hz = {float(rate_hz):g}" if rate_hz
               else f"a straight-line fit of the times, {1.0 / dt:.7g} Hz")
     warnings.warn(DataWarning(
-        f"{where}: time_s is printed to {step:g} s, so its intervals vary by up to "
+        f"{where}: time_s {stored} {step:g} s, so its intervals vary by up to "
         f"{step:g} s; the times are a uniform grid to that precision, so the grid was "
-        f"rebuilt as t0 + k / rate from {source}. Write times with more digits (or "
-        "sample_rate_hz in the sidecar) to make this exact."), stacklevel=4)
+        f"rebuilt as t0 + k / rate from {source}. {fix}"), stacklevel=4)
     return out
 
 
@@ -425,7 +431,8 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
     if sidecar != path and sidecar.is_file():
         metadata = _read_sidecar(sidecar)
     rate = metadata.get("sample_rate_hz")
-    time = _rounded_grid(table["trial"], table["time_s"], rows, names.index("time_s"),
+    column = names.index("time_s")
+    time = _rounded_grid(table["trial"], table["time_s"], lambda: _printed_step(rows, column),
                          rate if isinstance(rate, int | float) and rate > 0 else None, where)
     run_ids, times, dt_s = _shared_grid(table["trial"], time, where)
     n_trials, n_samples = times.shape
@@ -577,18 +584,25 @@ def write_netcdf(dataset: Dataset, path: PathLike) -> None:
 
 # ----------------------------------------------------------------------------- dispatch
 
-_READERS: dict[str, Callable[..., Dataset]] = {".csv": read_csv, ".nc": read_netcdf}
+_READERS: dict[str, Callable[..., Dataset]] = {
+    ".csv": read_csv,
+    ".nc": read_netcdf,
+    ".mat": read_mat,
+}
 _WRITERS: dict[str, Callable[[Dataset, PathLike], None]] = {
     ".csv": write_csv,
     ".nc": write_netcdf,
 }
 
 
-def _suffix(path: Path) -> str:
+def _suffix(path: Path, table: dict[str, Any]) -> str:
     suffix = path.suffix.lower()
-    if suffix not in _READERS:
+    if suffix not in table:
+        kinds = ", ".join(table)
+        writes = "" if table is _WRITERS else " (.mat: MATLAB v4 to v7.3)"
         raise DataError(
-            f"{path}: unsupported file type {path.suffix or '(no suffix)'!r}; use .csv or .nc."
+            f"{path}: unsupported file type {path.suffix or '(no suffix)'!r}; use one of "
+            f"{kinds}{writes}."
         )
     return suffix
 
@@ -596,12 +610,24 @@ def _suffix(path: Path) -> str:
 def load(path: PathLike, **kwargs: Any) -> Dataset:
     """Read a data file, choosing the reader from the suffix.
 
+    Three formats are read, each with an optional JSON sidecar of the same stem
+    (``foo.csv`` -> ``foo.json``) holding the metadata:
+
+    - ``.csv`` (:func:`read_csv`): ``trial,time_s,pressure_pa,position_m`` (or
+      ``force_n``), one row per sample;
+    - ``.nc`` (:func:`read_netcdf`): NetCDF written by :func:`write_netcdf`;
+    - ``.mat`` (:func:`~pmabayes.data.matlab.read_mat`): MATLAB v4 to v7 (scipy) and
+      v7.3 (HDF5, h5py), numeric arrays or Simulink structures; the sidecar's
+      ``"mat_variables"`` (or keywords) say which variable is time, input and
+      position.
+
     Parameters
     ----------
     path : str or os.PathLike
-        ``.csv`` (:func:`read_csv`) or ``.nc`` (:func:`read_netcdf`), any case.
+        ``.csv``, ``.nc`` or ``.mat``, any case.
     **kwargs
-        Forwarded to the reader (e.g. ``check_units=False``); unknown names raise
+        Forwarded to the reader (e.g. ``check_units=False``; for ``.mat`` also
+        ``time_s=``, ``pressure_pa=``, ``position_m=``, ...); unknown names raise
         TypeError.
 
     Returns
@@ -615,7 +641,7 @@ def load(path: PathLike, **kwargs: Any) -> Dataset:
         If the suffix is not supported, or the reader rejects the file.
     """
     path = Path(path)
-    return _READERS[_suffix(path)](path, **kwargs)
+    return _READERS[_suffix(path, _READERS)](path, **kwargs)
 
 
 def save(dataset: Dataset, path: PathLike) -> None:
@@ -634,4 +660,4 @@ def save(dataset: Dataset, path: PathLike) -> None:
         If the suffix is not supported, or the writer rejects the data.
     """
     path = Path(path)
-    _WRITERS[_suffix(path)](dataset, path)
+    _WRITERS[_suffix(path, _WRITERS)](dataset, path)

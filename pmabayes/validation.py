@@ -1,0 +1,667 @@
+"""Validation on held-out experiments: the posterior's predictions against new data.
+
+Stage 8 (diagnostics). :func:`validate` takes a fit and data sets the fit has not
+seen (other inputs, other rigs) and, for each of them:
+
+* simulates a seeded random subset of the posterior's draws on that data set's
+  input, on **its own rig** (from its sidecar's ``rig``) with the fit's effects
+  and fixed values, through :func:`pmabayes.simulator.simulate_dataset` (which
+  applies the data set's input conventions), all draws in one batched call;
+* adds the fit's noise to each simulated draw (AR(1) disturbance plus white sensor
+  noise, drawn from the fit's noise posterior) to make the *predictive band*: the
+  central ``ci_prob`` interval of what one measured trial should look like. The
+  band is the model's prediction plus **the fit's noise**, not the held-out data's
+  own noise: a held-out experiment noisier than the fitted ones falls outside it
+  more often, and that is part of what validation checks;
+* compares with the measurements (:class:`ExperimentValidation`).
+
+Definitions (per held-out experiment, ``ybar`` its trial mean and ``xbar`` the
+posterior-mean prediction, the mean over the simulated draws of the model's
+noise-free position):
+
+``rmse_m``
+    ``sqrt(mean_k (ybar_k - xbar_k)^2)``: the RMS error of the trial mean.
+``nrmse``
+    ``rmse_m / sqrt(mean_k (ybar_k - mean(ybar))^2)``: the RMS error over the RMS of
+    the measured trial mean's variation about its own mean (0 for a perfect
+    prediction, about 1 for predicting nothing but the mean).
+``noise_floor_m``
+    The RMS error a perfect model would have against the trial mean, from the
+    spread between repeated trials (:attr:`pmabayes.data.Dataset.noise_floor_m`);
+    None with a single trial.
+``band_coverage``
+    The fraction of all measured samples (every trial) inside the predictive band.
+    About ``ci_prob`` when the model and the fit's noise describe the data.
+``band_errors``
+    The error of the trial mean per frequency band, from
+    :func:`pmabayes.residuals.band_errors`.
+
+Fits of several experiments (one noise per fitted experiment, the noise variables
+then having an ``experiment`` dimension): the noise of the fitted experiment whose
+rig has the held-out data's rig name is used; when several match, their draws are
+pooled; when none does, the draws are pooled over all fitted experiments.
+``noise_from=NAME`` picks a fitted experiment by name instead. The disturbance's
+lag-one correlation ``rho`` is per sample: for held-out data sampled at another
+rate it is rescaled as a continuous-time exponential correlation,
+``rho ** (dt_held_out / dt_fit)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from pmabayes.data import DataError, Dataset, DataWarning, load
+from pmabayes.effects import EffectError
+from pmabayes.likelihood import ar1_noise
+from pmabayes.model import Model, ModelError, Rig
+from pmabayes.posterior import check_dataset, fit_info, load_fit, model_from_fit
+from pmabayes.residuals import band_errors
+from pmabayes.simulator import simulate_dataset
+
+__all__ = ["DEFAULT_DRAWS", "NOISE_NAMES", "ValidationError", "ExperimentValidation",
+           "Validation", "validate"]
+
+#: Posterior draws simulated per held-out experiment by default.
+DEFAULT_DRAWS = 300
+#: The fit's noise variables, in the order :func:`pmabayes.likelihood.ar1_noise` and
+#: the white noise take them.
+NOISE_NAMES: tuple[str, str, str] = ("sigma_noise_m", "rho_noise", "sigma_white_m")
+#: Predictive noise series per simulated draw: more series make the band's edges
+#: steadier at no extra simulation.
+_NOISE_PER_DRAW = 2
+
+
+class ValidationError(DataError):
+    """A held-out data set that a fit cannot validate (wrong input kind, a rig the
+    fit's parameters do not cover, trials with different inputs, a fit without its
+    noise). The message names the file and the fix."""
+
+
+@dataclass(frozen=True, eq=False)
+class ExperimentValidation:
+    """The posterior's prediction of one held-out experiment, against its data.
+
+    Parameters
+    ----------
+    name : str
+        The experiment's name (the file's stem).
+    source : str or None
+        The file it was read from.
+    synthetic : bool
+        Whether its metadata says the data are synthetic.
+    rig : dict
+        The rig it was simulated on (:meth:`pmabayes.model.Rig.to_dict`).
+    input_name : str
+        ``"pressure_pa"`` or ``"force_n"``.
+    time_s : numpy.ndarray
+        Sample times, ``(n_samples,)``.
+    input : numpy.ndarray
+        The input shared by the trials, ``(n_samples,)``.
+    position_m : numpy.ndarray
+        The measured trials, ``(n_trials, n_samples)``.
+    prediction_m : numpy.ndarray
+        The posterior-mean prediction (mean model position over the draws).
+    model_low_m, model_high_m : numpy.ndarray
+        Central ``ci_prob`` band of the noise-free model position over the draws
+        (the parameters' uncertainty alone).
+    low_m, high_m : numpy.ndarray
+        Central ``ci_prob`` predictive band of one measured trial (parameters and
+        the fit's noise).
+    rmse_m : float
+        RMS error of the trial mean against ``prediction_m``.
+    nrmse : float
+        ``rmse_m`` over the RMS of the trial mean's variation about its mean.
+    max_error_m : float
+        Largest absolute error of the trial mean.
+    noise_floor_m : float or None
+        The trial mean's noise floor; None with a single trial.
+    band_coverage : float
+        Fraction of measured samples inside ``[low_m, high_m]``.
+    band_errors : list of pmabayes.residuals.BandErrors or None
+        Error of the trial mean per frequency band and overall
+        (:func:`pmabayes.residuals.band_errors`), None when they cannot be computed
+        (see ``notes``).
+    noise : dict
+        Where the predictive noise came from, and its median values.
+    n_draws : int
+        Posterior draws simulated.
+    ci_prob : float
+        Probability of the bands.
+    notes : list of str
+        What the numbers need said beside them (a rescaled noise correlation, band
+        errors not available, ...).
+    """
+
+    name: str
+    source: str | None
+    synthetic: bool
+    rig: dict
+    input_name: str
+    time_s: np.ndarray
+    input: np.ndarray
+    position_m: np.ndarray
+    prediction_m: np.ndarray
+    model_low_m: np.ndarray
+    model_high_m: np.ndarray
+    low_m: np.ndarray
+    high_m: np.ndarray
+    rmse_m: float
+    nrmse: float
+    max_error_m: float
+    noise_floor_m: float | None
+    band_coverage: float
+    band_errors: list | None
+    noise: dict
+    n_draws: int
+    ci_prob: float
+    notes: list = field(default_factory=list)
+
+    @property
+    def n_trials(self) -> int:
+        """Number of measured trials."""
+        return int(self.position_m.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per trial."""
+        return int(self.time_s.size)
+
+    @property
+    def ratio_to_floor(self) -> float | None:
+        """``rmse_m / noise_floor_m`` (about 1 for a model that describes the data);
+        None without a floor."""
+        if self.noise_floor_m is None or not self.noise_floor_m > 0:
+            return None
+        return self.rmse_m / self.noise_floor_m
+
+    def summary(self) -> str:
+        """One line for the command line: error, floor, NRMSE and coverage."""
+        floor = ("(no noise floor: one trial)" if self.noise_floor_m is None
+                 else f"= {self.ratio_to_floor:.3g}x the noise floor "
+                      f"{self.noise_floor_m * 1e6:.3g} um")
+        synth = ", synthetic" if self.synthetic else ""
+        return (f"{self.name}: {self.n_trials} trial(s) x {self.n_samples} samples"
+                f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um "
+                f"{floor}; NRMSE {self.nrmse:.3g}; {100 * self.band_coverage:.1f}% of the "
+                f"samples inside the {100 * self.ci_prob:.4g}% predictive band")
+
+    def to_dict(self, *, arrays: bool = True) -> dict:
+        """JSON-ready values (no NaN: a missing number is None).
+
+        Parameters
+        ----------
+        arrays : bool
+            Include the bands over time (``predictive_band``).
+
+        Returns
+        -------
+        dict
+            ``name``, ``source``, ``synthetic``, ``rig``, ``input_name``,
+            ``n_trials``, ``n_samples``, ``dt_s``, ``rmse_m``, ``nrmse``,
+            ``max_error_m``, ``noise_floor_m``, ``ratio_to_floor``,
+            ``band_coverage``, ``ci_prob``, ``n_draws``, ``band_errors``, ``noise``,
+            ``notes`` and, with ``arrays``, ``predictive_band`` (``time_s``,
+            ``prediction_m``, ``low_m``, ``high_m``, ``model_low_m``,
+            ``model_high_m``).
+        """
+        out = {
+            "name": self.name, "source": self.source, "synthetic": self.synthetic,
+            "rig": dict(self.rig), "input_name": self.input_name,
+            "n_trials": self.n_trials, "n_samples": self.n_samples,
+            "dt_s": float(self.time_s[-1] - self.time_s[0]) / (self.n_samples - 1),
+            "rmse_m": _json_float(self.rmse_m), "nrmse": _json_float(self.nrmse),
+            "max_error_m": _json_float(self.max_error_m),
+            "noise_floor_m": _json_float(self.noise_floor_m),
+            "ratio_to_floor": _json_float(self.ratio_to_floor),
+            "band_coverage": _json_float(self.band_coverage),
+            "ci_prob": self.ci_prob, "n_draws": self.n_draws,
+            "band_errors": None if self.band_errors is None else [
+                # JSON has no NaN: a number that cannot be had (a floor without repeats)
+                {k: _json_float(v) if isinstance(v, float) else v for k, v in b.to_dict().items()}
+                for b in self.band_errors],
+            "noise": dict(self.noise),
+            "notes": list(self.notes),
+        }
+        if arrays:
+            out["predictive_band"] = {
+                k: [float(v) for v in getattr(self, a)]
+                for k, a in (("time_s", "time_s"), ("prediction_m", "prediction_m"),
+                             ("low_m", "low_m"), ("high_m", "high_m"),
+                             ("model_low_m", "model_low_m"), ("model_high_m", "model_high_m"))
+            }
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class Validation:
+    """The validation of one fit on held-out experiments.
+
+    Parameters
+    ----------
+    experiments : list of ExperimentValidation
+        One per held-out data set, in the order given.
+    fit_source : str or None
+        The fit file, or the data the fit was made from.
+    effects : tuple of str
+        The fit's effects.
+    settings : dict
+        ``n_draws``, ``ci_prob``, ``seed`` and ``noise_from``.
+    """
+
+    experiments: list
+    fit_source: str | None
+    effects: tuple
+    settings: dict
+
+    def to_dict(self, *, arrays: bool = True) -> dict:
+        """JSON-ready values.
+
+        Parameters
+        ----------
+        arrays : bool
+            Include each experiment's bands over time.
+
+        Returns
+        -------
+        dict
+            ``fit``, ``effects``, ``settings``, ``definitions`` and ``experiments``
+            (:meth:`ExperimentValidation.to_dict` of each).
+        """
+        return {
+            "fit": self.fit_source, "effects": list(self.effects),
+            "settings": dict(self.settings), "definitions": dict(DEFINITIONS),
+            "experiments": [e.to_dict(arrays=arrays) for e in self.experiments],
+        }
+
+    def lines(self) -> list[str]:
+        """The command line's short per-experiment summary.
+
+        Returns
+        -------
+        list of str
+        """
+        return [e.summary() for e in self.experiments]
+
+
+#: The numbers' definitions, as the JSON states them.
+DEFINITIONS = {
+    "rmse_m": "RMS over samples of (trial mean - posterior-mean prediction), in m",
+    "nrmse": "rmse_m / RMS of (trial mean - its time average): 0 is perfect, 1 predicts "
+             "only the mean",
+    "noise_floor_m": "RMS error a perfect model would have against the trial mean, from "
+                     "the spread between repeated trials; null with one trial",
+    "band_coverage": "fraction of all measured samples inside the central ci_prob "
+                     "predictive band (model draws plus the fit's noise, not the held-out "
+                     "data's own noise)",
+    "prediction": "mean over the simulated posterior draws of the noise-free model position",
+}
+
+
+def _json_float(value) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+# ----------------------------------------------------------------------------- the fit
+
+
+@dataclass(frozen=True)
+class _FitDraws:
+    """What validation reads from a fit: the model's recipe and flattened draws."""
+
+    effects: tuple       # Effect classes
+    fixed: dict
+    input_kind: str | None
+    draws: dict          # posterior variable -> DataArray (chain, draw[, experiment])
+    noise: dict          # noise name -> (n_total,) or (n_total, n_experiment)
+    experiments: list    # [{"name", "rig_name", "dt_s"}], one per noise column
+    dt_s: float | None   # the fit's sample interval (single-experiment fits)
+    source: str | None
+    n_total: int
+
+
+def _flat(da: xr.DataArray, name: str, where: str) -> np.ndarray:
+    dims = [d for d in da.dims if d not in ("chain", "draw")]
+    if "chain" not in da.dims or "draw" not in da.dims or len(dims) > 1:
+        raise ValidationError(
+            f"{where}: posterior variable {name!r} has dims {da.dims}; expected (chain, draw) "
+            "or (chain, draw, experiment); write the fit with `pmabayes fit`")
+    arr = np.asarray(da.transpose("chain", "draw", *dims).values, dtype=float)
+    return arr.reshape(arr.shape[0] * arr.shape[1], *arr.shape[2:])
+
+
+def _experiments(info: dict, names: Sequence[str]) -> list[dict]:
+    """Name, rig name and sample interval of each fitted experiment (noise column)."""
+    raw = info.get("experiments") or []
+    if isinstance(raw, Mapping):
+        raw = [{"name": k, **(v if isinstance(v, Mapping) else {})} for k, v in raw.items()]
+    by_name = {}
+    for i, e in enumerate(raw):
+        if isinstance(e, Mapping):
+            by_name[str(e.get("name", i))] = e
+    out = []
+    for i, n in enumerate(names):
+        e = by_name.get(str(n)) or (raw[i] if i < len(raw) and isinstance(raw[i], Mapping)
+                                    else {})
+        rig = e.get("rig")
+        rig_name = rig.get("name") if isinstance(rig, Mapping) else rig
+        out.append({"name": str(n), "rig_name": None if rig_name is None else str(rig_name),
+                    "dt_s": e.get("dt_s"), "source": e.get("source")})
+    return out
+
+
+def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
+    info = fit_info(tree)
+    if "posterior" not in tree.children:
+        raise ValidationError(f"{where}: the fit has no posterior group; write it with "
+                              "`pmabayes fit`")
+    post = tree["posterior"].to_dataset()
+    try:  # the fit's effects and fixed values, read where every command reads them
+        fitted = model_from_fit(tree)
+    except EffectError as err:
+        raise ValidationError(f"{where}: the fit's effects cannot be built: {err}; register "
+                              "a user effect first (pmabayes --plugin FILE.py)") from None
+    except ModelError as err:
+        raise ValidationError(f"{where}: the fit's model cannot be rebuilt: {err}") from None
+    rig = (info.get("model") or {}).get("rig")
+    input_kind = fitted.rig.input_kind if isinstance(rig, Mapping) else None
+    exp_names: list = []
+    missing = [n for n in NOISE_NAMES if n not in post.data_vars]
+    if missing:
+        raise ValidationError(
+            f"{where}: the fit's posterior has no {', '.join(missing)}, so it holds no noise "
+            "to make a predictive band from; validate a fit written by `pmabayes fit`")
+    noise = {n: _flat(post[n], n, where) for n in NOISE_NAMES}
+    shapes = {v.shape for v in noise.values()}
+    if len(shapes) != 1:
+        raise ValidationError(f"{where}: the noise variables have different shapes "
+                              f"{sorted(shapes)}; the fit file is inconsistent")
+    for n in NOISE_NAMES:
+        if "experiment" in post[n].dims:
+            coord = post[n]["experiment"].values if "experiment" in post[n].coords else \
+                np.arange(post[n].sizes["experiment"])
+            exp_names = [str(c) for c in coord]
+            break
+    experiments = _experiments(info, exp_names) if exp_names else []
+    kinds = set()
+    for e in info.get("experiments") or []:
+        if isinstance(e, Mapping) and isinstance(e.get("rig"), Mapping):
+            kinds.add(e["rig"].get("input_kind"))
+    if input_kind is None and len(kinds) == 1:
+        input_kind = kinds.pop()
+    # the model's parameters are flattened when a held-out data set asks for them: other
+    # variables a fit may hold are not this module's business
+    draws = {n: v for n, v in post.data_vars.items() if n not in NOISE_NAMES}
+    data = info.get("data") or {}
+    dt_s = data.get("dt_s")
+    recorded = [e for e in info.get("experiments") or [] if isinstance(e, Mapping)]
+    if dt_s is None and len(recorded) == 1:
+        dt_s = recorded[0].get("dt_s")
+    n_total = next(iter(noise.values())).shape[0]
+    return _FitDraws(
+        effects=fitted.effects, fixed=dict(fitted.fixed),
+        input_kind=input_kind, draws=draws, noise=noise, experiments=experiments,
+        dt_s=dt_s, source=data.get("source"), n_total=n_total)
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
+    """The model for a held-out data set, or a clear refusal."""
+    kind = "pressure" if ds.input_name == "pressure_pa" else "force"
+    if fit.input_kind is not None and kind != fit.input_kind:
+        raise ValidationError(
+            f"{where}: its input is {ds.input_name!r} ({kind}), but the fit was made on a "
+            f"{fit.input_kind}-driven rig; a fit can only predict data of its own input kind: "
+            "validate it on data with the same input column")
+    try:
+        model = Model.for_dataset(ds, fit.effects, fixed=fit.fixed)
+    except ModelError as err:
+        raise ValidationError(f"{where}: the fit's model cannot be built on this data set's "
+                              f"rig: {err}") from None
+    if model.rig.input_name != ds.input_name:
+        raise ValidationError(
+            f"{where}: the sidecar's rig ({model.rig.name}) is {model.rig.input_kind}-driven "
+            f"but the input column is {ds.input_name!r}; correct the sidecar's 'rig' or the "
+            "input column")
+    per_experiment = [n for n in model.free_names
+                      if n in fit.draws and set(fit.draws[n].dims) - {"chain", "draw"}]
+    if per_experiment:
+        raise ValidationError(
+            f"{where}: the fit's {', '.join(per_experiment)} differ between its experiments, "
+            "so there is no one value to predict a new experiment with; validation needs "
+            "physical parameters shared by the fitted experiments")
+    lacking = [n for n in model.free_names if n not in fit.draws]
+    if lacking:
+        raise ValidationError(
+            f"{where}: the fit has no posterior for {', '.join(lacking)}, which the model "
+            f"needs on this data set's rig ({model.rig.name}); the fit's effects cannot "
+            "simulate it: validate data from a rig of the fit's kind, or refit with them")
+    same = np.all(ds.input == ds.input[0], axis=1)
+    if not same.all():
+        bad = int(ds.trial_ids[np.argmin(same)])
+        raise ValidationError(
+            f"{where}: trial {bad} has a different input from trial {int(ds.trial_ids[0])}; "
+            "the trials of one experiment must share the input: put each input in its own "
+            "file, one experiment per file")
+    return model
+
+
+def _noise_columns(fit: _FitDraws, rig: Rig, noise_from: str | None
+                   ) -> tuple[list[int] | None, str]:
+    """Which fitted experiments' noise a held-out data set takes, and why."""
+    if not fit.experiments:
+        if noise_from is not None:
+            raise ValidationError(
+                f"noise_from={noise_from!r}: this fit has one noise for all its data (one "
+                "experiment, or a noise tied across experiments), so there is nothing to "
+                "choose; leave --noise-from out")
+        return None, "the fit's noise"
+    names = [e["name"] for e in fit.experiments]
+    if noise_from is not None:
+        hits = [i for i, e in enumerate(fit.experiments)
+                if noise_from in (e["name"], e.get("source"),
+                                  Path(str(e.get("source") or "")).stem)]
+        if not hits:
+            raise ValidationError(
+                f"noise_from={noise_from!r} names no fitted experiment; the fit's experiments "
+                f"are {', '.join(names)}")
+        return hits[:1], f"fitted experiment {names[hits[0]]!r} (chosen)"
+    hits = [i for i, e in enumerate(fit.experiments) if e["rig_name"] == rig.name]
+    if len(hits) == 1:
+        return hits, f"fitted experiment {names[hits[0]]!r} (same rig, {rig.name!r})"
+    if hits:
+        return hits, (f"pooled over the fitted experiments on rig {rig.name!r}: "
+                      + ", ".join(names[i] for i in hits))
+    return list(range(len(names))), (f"pooled over all fitted experiments ({', '.join(names)}):"
+                                     f" none was on rig {rig.name!r}")
+
+
+def _noise_draws(fit: _FitDraws, pick: np.ndarray, columns: list[int] | None,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                    float | None]:
+    """The noise parameters paired with the chosen draws, and their sample interval."""
+    if columns is None:
+        return (*(fit.noise[n][pick] for n in NOISE_NAMES), fit.dt_s)
+    col = np.asarray(columns)[rng.integers(len(columns), size=pick.size)]
+    dts = {fit.experiments[c]["dt_s"] for c in columns}
+    dt = dts.pop() if len(dts) == 1 else None
+    return (*(fit.noise[n][pick, col] for n in NOISE_NAMES), dt)
+
+
+# ----------------------------------------------------------------------------- validate
+
+
+def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list) -> list | None:
+    try:
+        return band_errors(ds, prediction)
+    except ValueError as err:
+        notes.append(f"error per frequency band not available: {err}")
+        return None
+
+
+def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,
+         substeps: int, rng: np.random.Generator, tree: xr.DataTree) -> ExperimentValidation:
+    where = ds.source or "held-out data set"
+    model = _check_dataset(fit, ds, where)
+    try:
+        check_dataset(tree, ds)
+    except (DataError, KeyError, ValueError):
+        pass  # different from the fit's data, as held-out data should be
+    else:
+        warnings.warn(f"{where}: these are the data the fit was made from, not held-out "
+                      "data; the numbers say how well it fits, not how well it predicts",
+                      DataWarning, stacklevel=3)
+    columns, noise_text = _noise_columns(fit, model.rig, noise_from)
+    pick = rng.choice(fit.n_total, size=min(n_draws, fit.n_total), replace=False)
+    theta = model.theta({n: _flat(fit.draws[n], n, where)[pick] for n in model.free_names})
+    x = simulate_dataset(model, theta, ds, substeps=substeps)
+    sigma, rho, white, fit_dt = _noise_draws(fit, pick, columns, rng)
+    notes: list[str] = []
+    ok = np.all(np.isfinite(x), axis=1)
+    if not ok.any():
+        raise ValidationError(f"{where}: the simulation failed (non-finite positions) for "
+                              f"every one of {pick.size} posterior draws on this input")
+    if not ok.all():
+        warnings.warn(f"{where}: {int((~ok).sum())} of {pick.size} posterior draws gave "
+                      "non-finite positions on this input and are left out of the bands",
+                      DataWarning, stacklevel=3)
+        notes.append(f"{int((~ok).sum())} of {pick.size} draws failed to simulate (left out)")
+        x, sigma, rho, white = x[ok], sigma[ok], rho[ok], white[ok]
+    if fit_dt is not None and abs(ds.dt_s - fit_dt) > 1e-9 * fit_dt:
+        ratio = ds.dt_s / fit_dt
+        rho = np.sign(rho) * np.abs(rho) ** ratio
+        notes.append(f"the fit's noise correlation (per sample at {1 / fit_dt:.6g} Hz) is "
+                     f"rescaled to this data set's {ds.sample_rate_hz:.6g} Hz as rho ** "
+                     f"{ratio:.6g}")
+    elif fit_dt is None:
+        notes.append("the fit's sample interval is not recorded; its noise correlation is "
+                     "used per sample as it is")
+    k = _NOISE_PER_DRAW
+    n = ds.n_samples
+    # in place: a long record (40,960 samples) times hundreds of series is large
+    y = ar1_noise(x.shape[0] * k, n, np.repeat(sigma, k), np.repeat(rho, k), rng)
+    w = rng.standard_normal(y.shape)
+    w *= np.repeat(white, k)[:, None]
+    y += w
+    del w
+    y.reshape(x.shape[0], k, n)[...] += x[:, None, :]
+    q = (1.0 - ci_prob) / 2.0
+    low, high = np.quantile(y, [q, 1.0 - q], axis=0)
+    model_low, model_high = np.quantile(x, [q, 1.0 - q], axis=0)
+    prediction = x.mean(axis=0)
+    ybar = ds.mean_position_m
+    resid = ybar - prediction
+    rmse = float(np.sqrt(np.mean(resid**2)))
+    motion = float(np.sqrt(np.mean((ybar - ybar.mean()) ** 2)))
+    floor = ds.noise_floor_m
+    data = ds.position_m
+    coverage = float(np.mean((data >= low) & (data <= high)))
+    return ExperimentValidation(
+        name=Path(ds.source).stem if ds.source else "data set",
+        source=ds.source, synthetic=bool(ds.metadata.get("synthetic", False)),
+        rig=model.rig.to_dict(), input_name=ds.input_name, time_s=np.array(ds.time_s),
+        input=np.array(ds.input[0]), position_m=np.array(data), prediction_m=prediction,
+        model_low_m=model_low, model_high_m=model_high, low_m=low, high_m=high,
+        rmse_m=rmse, nrmse=rmse / motion if motion > 0 else math.inf,
+        max_error_m=float(np.max(np.abs(resid))),
+        noise_floor_m=None if math.isnan(floor) else float(floor),
+        band_coverage=coverage, band_errors=_band_errors(ds, prediction, notes),
+        noise={"from": noise_text,
+               **{f"{n}_median": float(np.median(v))
+                  for n, v in zip(NOISE_NAMES, (sigma, rho, white), strict=True)}},
+        n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes)
+
+
+def validate(
+    tree: xr.DataTree | str | os.PathLike,
+    datasets: Dataset | str | os.PathLike | Sequence[Dataset | str | os.PathLike],
+    *,
+    n_draws: int = DEFAULT_DRAWS,
+    ci_prob: float = 0.9,
+    seed: int | None = 0,
+    rng: np.random.Generator | None = None,
+    noise_from: str | None = None,
+    substeps: int = 1,
+) -> Validation:
+    """Predict held-out experiments with a fit's posterior and compare with their data.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree or path
+        A fit (:func:`pmabayes.posterior.load_fit` reads a path).
+    datasets : Dataset, path, or a sequence of them
+        The held-out experiments, one per data set (a path is read with
+        :func:`pmabayes.data.load`). Each is simulated on the rig its metadata gives.
+    n_draws : int
+        Posterior draws to simulate per experiment (all of them if the fit has fewer),
+        a seeded random subset, simulated in one batch.
+    ci_prob : float
+        Probability of the central bands and of ``band_coverage`` (0.9).
+    seed : int or None
+        Seed of the draws' choice and of the predictive noise; ignored when ``rng``
+        is given.
+    rng : numpy.random.Generator, optional
+        The generator to draw from instead.
+    noise_from : str, optional
+        For a fit of several experiments: the fitted experiment whose noise makes the
+        predictive band (by default the one on the held-out data's rig; see the
+        module's docstring).
+    substeps : int
+        Simulator steps per sample interval (see :func:`pmabayes.simulate`): as many
+        as the fit used, for a lightly damped fast oscillator more than 1.
+
+    Returns
+    -------
+    Validation
+        One :class:`ExperimentValidation` per data set.
+
+    Raises
+    ------
+    ValidationError
+        For a data set the fit cannot predict (a different input kind, a rig whose
+        parameters the fit lacks, trials with different inputs), a fit without
+        noise draws, or bad settings.
+    """
+    if not (isinstance(n_draws, int | np.integer) and not isinstance(n_draws, bool)
+            and n_draws >= 2):
+        raise ValidationError(f"n_draws must be an integer >= 2, got {n_draws!r}")
+    ci_prob = float(ci_prob)
+    if not 0.0 < ci_prob < 1.0:
+        raise ValidationError(f"ci_prob must be in (0, 1), got {ci_prob!r} (e.g. 0.9)")
+    fit_path = None
+    if isinstance(tree, str | os.PathLike):
+        fit_path = os.fspath(tree)
+        tree = load_fit(tree)
+    if isinstance(datasets, Dataset | str | os.PathLike):
+        datasets = [datasets]
+    datasets = [load(d) if isinstance(d, str | os.PathLike) else d for d in datasets]
+    if not datasets:
+        raise ValidationError("no held-out data set given; give one or more data files")
+    for d in datasets:
+        if not isinstance(d, Dataset):
+            raise TypeError(f"datasets must be Datasets or paths, got {type(d).__name__}")
+    fit = _read_fit(tree, fit_path or "the fit")
+    recorded_seed = None if rng is not None else seed
+    if rng is None:
+        rng = np.random.default_rng(seed)
+    experiments = [_one(fit, ds, n_draws=int(n_draws), ci_prob=ci_prob,
+                        noise_from=noise_from, substeps=substeps, rng=rng, tree=tree)
+                   for ds in datasets]
+    return Validation(
+        experiments=experiments, fit_source=fit_path or fit.source,
+        effects=tuple(e.name for e in fit.effects),
+        settings={"n_draws": int(n_draws), "ci_prob": ci_prob,
+                  "seed": recorded_seed,
+                  "noise_from": noise_from, "substeps": substeps})
