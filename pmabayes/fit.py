@@ -902,11 +902,17 @@ def fit(
     ensemble = np.repeat(np.arange(settings.n_ensembles), settings.n_walkers)
     tree = fit_tree(posterior, z, lp_z, ensemble, ppc_draws=settings.ppc_draws,
                     rng=np.random.default_rng(s_ppc))
-    rhat = _walker_rhat(posterior.to_natural(z.reshape(-1, posterior.ndim)).reshape(z.shape))
+    theta = posterior.to_natural(z.reshape(-1, posterior.ndim))
+    rhat = _walker_rhat(theta.reshape(z.shape))
+    # a noise sampled with the model is recorded at its posterior median (robust where
+    # the MAP's noise is poorly polished); a noise from repeats at its mode
+    noise = (posterior.noise_values(np.median(theta, axis=0))
+             if any(posterior.noise_sampled(e) for e in range(posterior.n_experiments))
+             else None)
     set_fit_info(tree, posterior, map_record=map_result.summary(),
                  convergence=diag.record(settings, posterior.names, rhat, resumed), seed=seed,
                  timings={"map": t_map, "sampling": t_sampling,
-                          "total": time.perf_counter() - start})
+                          "total": time.perf_counter() - start}, noise_values=noise)
     return tree
 
 

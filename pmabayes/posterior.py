@@ -570,7 +570,8 @@ def _predictive(posterior: Posterior, e: int, theta, sigma, rho, white, pick: np
 
 
 def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
-                 convergence: dict, seed, timings: dict) -> dict:
+                 convergence: dict, seed, timings: dict,
+                 noise_values: dict | None = None) -> dict:
     """Store a fit's metadata: the root attribute ``pmabayes`` (read by :func:`fit_info`).
 
     Parameters
@@ -588,6 +589,9 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         The fit's seed.
     timings : dict
         Wall times in seconds.
+    noise_values : dict, optional
+        The noise to record (:meth:`Posterior.noise_values`): the posterior median
+        where it is sampled with the model. The MAP's noise by default.
 
     Returns
     -------
@@ -604,8 +608,8 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
                      "description": p.description, "source": "noise"})
     for row in rows:
         row["bounds"] = [float(b) for b in row["bounds"]]
-    noise_map = {k: (map_record.get("values") or {}).get(k) for k in
-                 (p.name for p in NOISE_PARAMETERS)}
+    source = noise_values if noise_values is not None else (map_record.get("values") or {})
+    noise_map = {k: source.get(k) for k in (p.name for p in NOISE_PARAMETERS)}
     experiments = experiment_records(posterior, noise_map, map_record.get("values"))
     sources = {e["noise_source"] for e in experiments}
     estimated_from = "; ".join(
