@@ -125,6 +125,11 @@ class ExperimentValidation:
         The trial mean's noise floor; None with a single trial.
     band_coverage : float
         Fraction of measured samples inside ``[low_m, high_m]``.
+    model_band_coverage : float
+        Fraction of the trial mean's samples inside ``[model_low_m, model_high_m]``,
+        the band of the parameters alone: the telling number for noiseless held-out
+        data (a benchmark's test set), where the predictive band's noise makes
+        ``band_coverage`` trivially high.
     band_errors : list of pmabayes.residuals.BandErrors or None
         Error of the trial mean per frequency band and overall
         (:func:`pmabayes.residuals.band_errors`), None when they cannot be computed
@@ -158,6 +163,7 @@ class ExperimentValidation:
     max_error_m: float
     noise_floor_m: float | None
     band_coverage: float
+    model_band_coverage: float
     band_errors: list | None
     noise: dict
     n_draws: int
@@ -191,7 +197,9 @@ class ExperimentValidation:
         return (f"{self.name}: {self.n_trials} trial(s) x {self.n_samples} samples"
                 f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um "
                 f"{floor}; NRMSE {self.nrmse:.3g}; {100 * self.band_coverage:.1f}% of the "
-                f"samples inside the {100 * self.ci_prob:.4g}% predictive band")
+                f"samples inside the {100 * self.ci_prob:.4g}% predictive band, "
+                f"{100 * self.model_band_coverage:.1f}% of the trial mean inside the "
+                "model-only band")
 
     def to_dict(self, *, arrays: bool = True) -> dict:
         """JSON-ready values (no NaN: a missing number is None).
@@ -222,6 +230,7 @@ class ExperimentValidation:
             "noise_floor_m": _json_float(self.noise_floor_m),
             "ratio_to_floor": _json_float(self.ratio_to_floor),
             "band_coverage": _json_float(self.band_coverage),
+            "model_band_coverage": _json_float(self.model_band_coverage),
             "ci_prob": self.ci_prob, "n_draws": self.n_draws,
             "band_errors": None if self.band_errors is None else [
                 # JSON has no NaN: a number that cannot be had (a floor without repeats)
@@ -301,6 +310,8 @@ DEFINITIONS = {
     "band_coverage": "fraction of all measured samples inside the central ci_prob "
                      "predictive band (model draws plus the fit's noise, not the held-out "
                      "data's own noise)",
+    "model_band_coverage": "fraction of the trial mean's samples inside the central "
+                           "ci_prob band of the noise-free model draws (parameters alone)",
     "prediction": "mean over the simulated posterior draws of the noise-free model position",
 }
 
@@ -577,7 +588,9 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
         rmse_m=rmse, nrmse=rmse / motion if motion > 0 else math.inf,
         max_error_m=float(np.max(np.abs(resid))),
         noise_floor_m=None if math.isnan(floor) else float(floor),
-        band_coverage=coverage, band_errors=_band_errors(ds, prediction, notes),
+        band_coverage=coverage,
+        model_band_coverage=float(np.mean((ybar >= model_low) & (ybar <= model_high))),
+        band_errors=_band_errors(ds, prediction, notes),
         noise={"from": noise_text,
                **{f"{n}_median": float(np.median(v))
                   for n, v in zip(NOISE_NAMES, (sigma, rho, white), strict=True)}},

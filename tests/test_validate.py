@@ -284,3 +284,25 @@ def test_validation_after_a_real_fit():
     for e in v.experiments:
         assert 0.8 <= e.band_coverage <= 0.97, (e.name, e.band_coverage)
         assert e.rmse_m < 1.5 * e.noise_floor_m, (e.name, e.rmse_m, e.noise_floor_m)
+
+
+def test_noiseless_held_out_data_are_judged_by_the_model_only_band(fit_tree):
+    """A benchmark's noiseless test set: the predictive band (with the fit's noise) holds
+    it trivially; the band of the parameters alone tells a right model from a wrong one."""
+    model, values = hidden_effects_model(None)
+    p = sine_pa(1.0)
+    t = np.arange(p.size) / RATE_HZ
+    truth = simulate(model, values, p, time_s=t)
+    clean = Dataset(time_s=t, input=p[None], position_m=truth, trial_ids=np.array([1]),
+                    metadata={"synthetic": True, "rig": model.rig.to_dict()},
+                    source="clean.csv")
+    right = validate(fit_tree, clean, n_draws=200, seed=0).experiments[0]
+    assert right.band_coverage == 1.0
+    assert right.model_band_coverage > 0.8
+    lag_model, lag_values = hidden_effects_model({"regulator_lag": 0.045})
+    lagged = Dataset(time_s=t, input=p[None],
+                     position_m=simulate(lag_model, lag_values, p, time_s=t),
+                     trial_ids=np.array([1]), metadata=dict(clean.metadata), source="lag.csv")
+    wrong = validate(fit_tree, lagged, n_draws=200, seed=0).experiments[0]
+    assert wrong.model_band_coverage < 0.2
+    assert json.loads(json.dumps(right.to_dict()))["model_band_coverage"] > 0.8
