@@ -179,14 +179,30 @@ def test_the_paper_builds_cleanly(tmp_path):
 
 # --- the committed inputs --------------------------------------------------------------
 
-def _check_inputs(tex: str, root: Path) -> None:
+#: inputs that analyses/boucwen_benchmark.py writes, not run_all.py: the benchmark's data
+#: live outside the repository (../shared) and its fit takes minutes
+MADE_BY_THE_BENCHMARK = {"tables/boucwen.tex", "tables/numbers_boucwen.tex"}
+
+
+def _check_inputs(tex: str, root: Path, *, elsewhere: Path | None = None) -> None:
+    """Every input of ``tex`` is in ``root``; with ``elsewhere``, the benchmark's in that
+    folder instead (the committed paper) and every other input in ``root``."""
     files = included_files(tex)
     assert any(f.startswith("figures/") for f in files)
     assert any(f.startswith("tables/") for f in files)
-    assert missing_inputs(tex, root) == []
+    missing = missing_inputs(tex, root)
+    if elsewhere is not None:
+        assert MADE_BY_THE_BENCHMARK <= set(files)
+        assert missing_inputs(tex, elsewhere) == []
+        missing = [f for f in missing if f not in MADE_BY_THE_BENCHMARK]
+    assert missing == []
     for f in files:
-        assert (root / f).stat().st_size > 0, f
+        where = elsewhere if elsewhere is not None and f in MADE_BY_THE_BENCHMARK else root
+        assert (where / f).stat().st_size > 0, f
     numbers = sorted((root / "tables").glob("numbers_*.tex"))
+    if elsewhere is not None:
+        numbers += [elsewhere / f for f in sorted(MADE_BY_THE_BENCHMARK)
+                    if Path(f).name.startswith("numbers_")]
     assert numbers
     # main.tex inputs every numbers file the analyses write
     assert {f"tables/{p.name}" for p in numbers} <= set(files)
@@ -230,7 +246,7 @@ def quick_root(tmp_path_factory):
 
 @pytest.mark.slow
 def test_the_quick_run_makes_every_input(quick_root):
-    _check_inputs(MAIN_TEX.read_text(), quick_root)
+    _check_inputs(MAIN_TEX.read_text(), quick_root, elsewhere=MAIN_TEX.parent)
 
 
 @pytest.mark.slow
