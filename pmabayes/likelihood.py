@@ -95,7 +95,7 @@ from pmabayes.parameters import LogNormal, Parameter, Uniform
 from pmabayes.simulator import simulate_dataset
 
 __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
-           "LikelihoodError", "ar1_noise"]
+           "LikelihoodError", "ar1_noise", "measurement_noise"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
@@ -145,6 +145,32 @@ def ar1_noise(
     e[:, 0] = sigma * white[:, 0]
     for k in range(1, n_samples):
         e[:, k] = rho * e[:, k - 1] + innov * white[:, k]
+    return e
+
+
+def measurement_noise(n_series: int, n_samples: int, sigma, rho, white,
+                      rng: np.random.Generator) -> np.ndarray:
+    """Draw the noise model's whole noise: the AR(1) disturbance plus white sensor noise.
+
+    Parameters
+    ----------
+    n_series, n_samples : int
+        Output shape.
+    sigma, rho, white : float or array_like
+        ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``, scalars or one per
+        series.
+    rng : numpy.random.Generator
+        Source of the noise (the disturbance's draws first, then the sensor's).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n_series, n_samples)``.
+    """
+    e = ar1_noise(n_series, n_samples, sigma, rho, rng)
+    w = rng.standard_normal(e.shape)  # in place: long records times many series are large
+    w *= np.broadcast_to(np.asarray(white, dtype=float), (n_series,))[:, None]
+    e += w
     return e
 
 

@@ -87,7 +87,7 @@ import xarray as xr
 
 from pmabayes import __version__
 from pmabayes.data import DataError, Dataset
-from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, ar1_noise
+from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, measurement_noise
 from pmabayes.model import PAPER_VALUES, Model, Rig
 from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior, parse_prior
 
@@ -561,10 +561,9 @@ def _predictive(posterior: Posterior, e: int, theta, sigma, rho, white, pick: np
     sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
                          for v in (sigma, rho, white))
     x_pp = lik.simulate(posterior.full_theta(theta[pick]))
-    noise = ar1_noise(len(pick) * lik.n_trials, lik.n_samples,
-                      np.repeat(sigma[pick], lik.n_trials), np.repeat(rho[pick], lik.n_trials),
-                      rng)
-    noise += np.repeat(white[pick], lik.n_trials)[:, None] * rng.standard_normal(noise.shape)
+    noise = measurement_noise(len(pick) * lik.n_trials, lik.n_samples,
+                              *(np.repeat(v[pick], lik.n_trials) for v in (sigma, rho, white)),
+                              rng)
     y_pp = x_pp[:, None, :] + noise.reshape(len(pick), lik.n_trials, lik.n_samples)
     return y_pp, x_pp
 

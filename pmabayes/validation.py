@@ -60,7 +60,7 @@ import xarray as xr
 
 from pmabayes.data import DataError, Dataset, DataWarning, load
 from pmabayes.effects import EffectError
-from pmabayes.likelihood import ar1_noise
+from pmabayes.likelihood import measurement_noise
 from pmabayes.model import Model, ModelError, Rig
 from pmabayes.posterior import check_dataset, fit_info, load_fit, model_from_fit
 from pmabayes.residuals import band_errors
@@ -71,8 +71,8 @@ __all__ = ["DEFAULT_DRAWS", "NOISE_NAMES", "ValidationError", "ExperimentValidat
 
 #: Posterior draws simulated per held-out experiment by default.
 DEFAULT_DRAWS = 300
-#: The fit's noise variables, in the order :func:`pmabayes.likelihood.ar1_noise` and
-#: the white noise take them.
+#: The fit's noise variables, in the order :func:`pmabayes.likelihood.measurement_noise`
+#: takes them.
 NOISE_NAMES: tuple[str, str, str] = ("sigma_noise_m", "rho_noise", "sigma_white_m")
 #: Predictive noise series per simulated draw: more series make the band's edges
 #: steadier at no extra simulation.
@@ -561,12 +561,8 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                      "used per sample as it is")
     k = _NOISE_PER_DRAW
     n = ds.n_samples
-    # in place: a long record (40,960 samples) times hundreds of series is large
-    y = ar1_noise(x.shape[0] * k, n, np.repeat(sigma, k), np.repeat(rho, k), rng)
-    w = rng.standard_normal(y.shape)
-    w *= np.repeat(white, k)[:, None]
-    y += w
-    del w
+    y = measurement_noise(x.shape[0] * k, n, *(np.repeat(v, k) for v in (sigma, rho, white)),
+                          rng)
     y.reshape(x.shape[0], k, n)[...] += x[:, None, :]
     q = (1.0 - ci_prob) / 2.0
     low, high = np.quantile(y, [q, 1.0 - q], axis=0)
