@@ -223,7 +223,7 @@ def reference_simulate(
     kappa_ph: float = 0.0,
     p_ref_ph: float = 5e5,
     k_m: float = 0.0,
-    tau_m: float = 0.5,
+    tau_m: float = 0.2,
     n_bw: float = 1.0,
     z_ref_bw: float = 10.0,
     substeps: int = 64,
