@@ -1366,11 +1366,6 @@ def compare_fits(fits, dataset: Dataset | Sequence[Dataset], *, labels=None,
         raise ValueError("compare needs at least two fits of the same data")
     sources = list(sources) if sources is not None else [f"fit {i + 1}" for i in range(len(fits))]
     datasets = [dataset] if isinstance(dataset, Dataset) else list(dataset)
-    if labels is None:
-        labels = [" + ".join(["base", *model_from_fit(t).effect_names]) for t in fits]
-    labels = list(labels)
-    if len(labels) != len(fits) or len(set(labels)) != len(labels):
-        raise ValueError(f"need {len(fits)} distinct labels, got {labels}")
     exps = [[e["name"] for e in (fit_info(t).get("experiments") or [{"name": None}])]
             for t in fits]
     for src, names in zip(sources, exps, strict=True):
@@ -1380,6 +1375,11 @@ def compare_fits(fits, dataset: Dataset | Sequence[Dataset], *, labels=None,
                 f"{src} is a fit of {len(names)} experiment(s) {names}, but {sources[0]} of "
                 f"{len(exps[0])} {exps[0]}; compare takes fits of the same experiments, in "
                 "the same order: refit one of them with the other's data files")
+    if labels is None:
+        labels = [" + ".join(["base", *model_from_fit(t).effect_names]) for t in fits]
+    labels = list(labels)
+    if len(labels) != len(fits) or len(set(labels)) != len(labels):
+        raise ValueError(f"need {len(fits)} distinct labels, got {labels}")
     if len(exps[0]) == 1:
         if len(datasets) != 1:
             raise DataError(f"the fits are of one data set, but {len(datasets)} were given: "
