@@ -181,8 +181,9 @@ def _kalman_loglik(y, x, scale, sigma, rho, white):
     ``y`` is ``(series, n)``, ``x`` is ``(batch, n)`` or ``(1, n)`` (shared), and
     the noise parameters are ``(batch,)``. Returns ``(batch, series)``. A scalar
     Kalman filter, with the AR(1) disturbance as its state, started from the
-    stationary distribution. The gains depend only on the noise, so they are shared
-    by the series.
+    stationary distribution. The gains and innovation variances depend only on the
+    noise, not on the data: they are computed once for each run of batch members with
+    the same noise (the whole batch when the noise is fixed) and shared by the series.
     """
     batch = sigma.shape[0]
     n = y.shape[1]
@@ -190,24 +191,34 @@ def _kalman_loglik(y, x, scale, sigma, rho, white):
     shared = x.shape[0] == 1
     out = np.zeros((batch, n_series))
     est = np.empty(n_series)
+    gains = np.empty(n)
+    variances = np.empty(n)
     log2pi = math.log(2.0 * math.pi)
+    const = 0.0
     for b in range(batch):
-        s2 = sigma[b] * sigma[b]
-        q = s2 * (1.0 - rho[b] * rho[b])
-        r = white[b] * white[b]
-        p = s2
+        if b == 0 or not (sigma[b] == sigma[b - 1] and rho[b] == rho[b - 1]
+                          and white[b] == white[b - 1]):
+            s2 = sigma[b] * sigma[b]
+            q = s2 * (1.0 - rho[b] * rho[b])
+            r = white[b] * white[b]
+            p = s2
+            const = 0.0
+            for k in range(n):
+                s_k = p + r
+                gain = p / s_k
+                const += math.log(s_k)
+                variances[k] = s_k
+                gains[k] = gain
+                p = rho[b] * rho[b] * (1.0 - gain) * p + q
         for m in range(n_series):
             est[m] = 0.0
-        const = 0.0
         for k in range(n):
-            s_k = p + r
-            gain = p / s_k
-            const += math.log(s_k)
+            s_k = variances[k]
+            gain = gains[k]
             for m in range(n_series):
                 v = scale * (y[m, k] - x[0 if shared else b, k]) - est[m]
                 out[b, m] -= 0.5 * v * v / s_k
                 est[m] = rho[b] * (est[m] + gain * v)
-            p = rho[b] * rho[b] * (1.0 - gain) * p + q
         for m in range(n_series):
             out[b, m] -= 0.5 * (const + n * log2pi)
     return out
