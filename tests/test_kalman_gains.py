@@ -1,13 +1,14 @@
 """The likelihood's Kalman filter computes its gains once for each run of batch members
-that share the noise (the whole batch when the noise is fixed by repeats): the result
-is bit for bit what each member alone gives, and it is the dense Gaussian's."""
+that share the noise (the whole batch when the noise is fixed by repeats), and runs a
+batch that shares one noise side by side: the result is bit for bit what each member
+alone gives, and it is the dense Gaussian's."""
 
 from __future__ import annotations
 
 import numpy as np
 from test_likelihood import brute_force
 
-from pmabayes.likelihood import _kalman_loglik
+from pmabayes.likelihood import _kalman_loglik, _noise_loglik
 
 
 def _members_alone(y, x, scale, sigma, rho, white):
@@ -43,3 +44,25 @@ def test_a_fixed_noise_batch_matches_the_dense_gaussian():
     expected = [[brute_force(y[m], x[b], 8e-6, 0.95, 2e-6) for m in range(2)]
                 for b in range(4)]
     assert np.allclose(got, expected, rtol=1e-10, atol=1e-6)
+
+
+def test_every_route_of_the_likelihood_gives_the_same_bits():
+    """Fixed noise (side by side, from a row-major or the simulator's transposed
+    layout), a shared model output (once, repeated), and sampled noise (member by
+    member) all equal the general filter."""
+    rng = np.random.default_rng(7)
+    n, batch = 300, 6
+    y = 1e-5 * rng.standard_normal((4, n))
+    x = 1e-5 * rng.standard_normal((batch, n))
+    fixed = (np.full(batch, 8e-6), np.full(batch, 0.7), np.full(batch, 1e-6))
+    sampled = (np.linspace(6e-6, 9e-6, batch), np.full(batch, 0.7), np.full(batch, 1e-6))
+    for noise in (fixed, sampled):
+        general = _kalman_loglik(y, x, 2.0, *noise)
+        assert np.array_equal(_noise_loglik(y, x, 2.0, *noise), general)
+        assert np.array_equal(_noise_loglik(y, np.ascontiguousarray(x.T).T, 2.0, *noise),
+                              general)
+        one = x[:1]
+        assert np.array_equal(_noise_loglik(y, one, 2.0, *noise),
+                              _kalman_loglik(y, one, 2.0, *noise))
+    assert not np.array_equal(_noise_loglik(y, x, 2.0, *fixed),
+                              _noise_loglik(y, x, 2.0, *sampled))
