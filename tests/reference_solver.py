@@ -229,6 +229,7 @@ def reference_simulate(
     substeps: int = 64,
     linear: bool = False,
     input_fn=None,
+    zero_state: bool = False,
 ) -> ReferenceResult:
     """Simulate one trial with RK4 on ``substeps`` steps per sample interval.
 
@@ -259,6 +260,9 @@ def reference_simulate(
         samples ``u[k]`` are at ``t = k dt``) gives the command there; ``u`` then only
         sets the number of samples. With a delay, the command at ``t`` is
         ``input_fn(max(t - t_delay, 0))``.
+    zero_state : bool
+        Start at ``x = x' = z = 0`` whatever the first input, instead of at rest in
+        static equilibrium under it.
 
     Returns
     -------
@@ -282,7 +286,8 @@ def reference_simulate(
         u = uh[:: 2 * substeps]
     p0 = u[0]
     drive0 = area * (max(p0 - p_dz, 0.0) if dead_zone else p0)
-    x_init = _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p, p0)
+    x_init = 0.0 if zero_state else _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p,
+                                                        p0)
     out = np.empty((N_STATES, u.shape[0]))
     if input_fn is not None:
         _integrate_stages(c, uh, float(dt), int(substeps), x_init, out)
