@@ -27,6 +27,7 @@ import numpy as np
 from scipy import stats
 
 from pmabayes.data import Dataset
+from pmabayes.discrepancy import Discrepancy, estimate_discrepancy
 from pmabayes.effects import get_effect, registered_effects
 from pmabayes.fit import NoiseEstimate, Posterior, estimate_noise, find_map
 from pmabayes.likelihood import Likelihood
@@ -384,6 +385,10 @@ class Diagnosis:
         The conclusion in words.
     settings : dict
         The settings used (level, thresholds, ci_prob, seed).
+    discrepancy : Discrepancy or None
+        The missing force estimated from the data, when the model is above the floor
+        and no candidate in the library accounts for it (see
+        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise.
     """
 
     dataset: Dataset
@@ -398,6 +403,7 @@ class Diagnosis:
     elpd: float
     verdict: str
     settings: dict
+    discrepancy: Discrepancy | None = None
 
     @property
     def rms_m(self) -> float:
@@ -456,6 +462,7 @@ class Diagnosis:
             "signature": sig.describe(),
             "bands": [b.to_dict() for b in sig.bands],
             "settings": dict(self.settings),
+            "discrepancy": None if self.discrepancy is None else self.discrepancy.to_dict(),
         }
 
 
@@ -699,6 +706,8 @@ def diagnose(
     seed: int | np.random.Generator = 0,
     substeps: int = 1,
     progress: bool = False,
+    discrepancy: bool = True,
+    plugin_dir=None,
 ) -> Diagnosis:
     """Fit a model, criticise it and find which effect in the library is missing.
 
@@ -724,6 +733,10 @@ def diagnose(
        (so that two missing effects of similar size are found one after the
        other). If none qualifies, nothing is named: a misfit above the floor is
        reported as unexplained instead of naming the least bad candidate.
+    6. Then, with ``discrepancy``, the missing force is estimated from the data
+       (:func:`pmabayes.discrepancy.estimate_discrepancy`): the states it depends
+       on, with their evidence, and a closed form written as a ready user effect
+       (a ``.py`` file for ``--plugin``, in ``plugin_dir``).
 
     Parameters
     ----------
@@ -761,6 +774,12 @@ def diagnose(
         Simulator substeps per sample.
     progress : bool
         Print what is being done to stderr.
+    discrepancy : bool
+        Estimate the missing force from the data when the model is above the floor
+        and no candidate accounts for it.
+    plugin_dir : str or Path, optional
+        Where the proposed effect's ``.py`` file is written (the current folder by
+        default; an existing file is never overwritten).
 
     Returns
     -------
@@ -793,6 +812,13 @@ def diagnose(
     missing = _missing(refits, s)
     verdict = _verdict(name, model.effect_names, base.signature, adequate, missing, refits,
                        findings, min_explained)
+    found = None
+    if discrepancy and not adequate and missing is None:
+        say.say("estimating the missing force from the data (discrepancy)")
+        found = estimate_discrepancy(base.likelihood, base.noise, base.values, base.simulation,
+                                     plugin_dir=plugin_dir, command=dataset.source,
+                                     effects=model.effect_names)
+        verdict += " " + found.text
     say.say(verdict)
     return Diagnosis(
         dataset=dataset, model=model, values=base.values, noise=base.noise,
@@ -803,6 +829,7 @@ def diagnose(
                   "min_explained": min_explained, "ci_prob": ci_prob, "n_draws": n_draws,
                   "seed": seed if isinstance(seed, int) else None, "substeps": substeps,
                   "candidates": [f.effect for f in findings]},
+        discrepancy=found,
     )
 
 
