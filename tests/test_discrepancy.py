@@ -234,3 +234,30 @@ def test_null_data_propose_nothing(tmp_path):
     d = diagnosis(ds, plugin_dir=tmp_path)
     assert d.discrepancy is None and d.to_dict()["discrepancy"] is None
     assert not list(tmp_path.iterdir())
+
+
+def test_the_discrepancy_figure_and_page_section():
+    """The partial-dependence figure and the diagnosis page's section, from a small result."""
+    from pmabayes.discrepancy import Discrepancy, Proposal, StateEvidence
+    from pmabayes.plots import plot_discrepancy
+    from pmabayes.report import _discrepancy_section
+
+    grid = np.linspace(-0.1, 0.1, 50)
+    states = [StateEvidence("velocity", "m/s", 120.0, 8.0, 1.3, True),
+              StateEvidence("direction", "1", 0.4, 1.0, 0.01, False)]
+    pdep = {"velocity": {"grid": grid, "force_n": 300 * grid * abs(grid),
+                         "sd_n": np.full(50, 0.05), "unit": "m/s"},
+            "direction": {"grid": np.array([-1.0, 1.0]), "force_n": np.zeros(2),
+                          "sd_n": np.full(2, 0.01), "unit": "1"}}
+    prop = Proposal("proposed_vabsv", "300 N s^2/m^2 * v|v|", "a quadratic drag", [],
+                    "closed form", -1.0, 2.0, "proposed_vabsv.py", None)
+    d = Discrepancy(states, 0.97, 1.05, 130.0, 9.0, 0.4, pdep, prop, True, None, "text <x>")
+    fig = plot_discrepancy(d)
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == 2 and "velocity" in axes[0].get_title()
+    html = "".join(_discrepancy_section(d))
+    assert "text &lt;x&gt;" in html and "proposed_vabsv.py" in html and "+120.0" in html
+    out = d.to_dict()
+    assert out["states"][0]["state"] == "velocity" and out["explained"] == 0.97
+    assert out["proposal"]["plugin"] == "proposed_vabsv.py"
+    assert "partial_dependence" not in out  # arrays stay out of the JSON
