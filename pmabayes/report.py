@@ -1254,7 +1254,8 @@ def _experiment_figures(e, label: str, out_dir: Path, suffix: str = "") -> dict[
                       "Whiteness and independence tests: the residual whitened by the noise "
                       "model should stay inside the bounds at almost every lag."),
     }
-XX, dpi=plots.REPORT_DPI)
+    for name, (fig, _) in figs.items():
+        fig.savefig(out_dir / f"{name}{suffix}.png", dpi=plots.REPORT_DPI)
     return {f"{name}{suffix}": caption for name, (_, caption) in figs.items()}
 
 
