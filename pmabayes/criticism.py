@@ -167,11 +167,14 @@ def _score_test(likelihood: Likelihood, noise, values: dict, name: str) -> Effec
     ext = likelihood.model.with_effects(name)
     lik = Likelihood(ext, likelihood.dataset, substeps=likelihood.substeps)
     eff = ext.effects[-1]
-    tested = [p.name for p in eff.parameters if p.vary]
+    # a parameter without a null (a shape, such as a damping ratio) is not identified
+    # when the effect vanishes: it stays at its default and is not tested
+    tested = [p.name for p in eff.parameters if p.vary and p.null is not None]
     point = dict(ext.defaults)
     point.update({k: v for k, v in values.items() if k in point})  # not the noise
-    point.update({p.name: p.null for p in eff.parameters if p.vary})
-    free = list(ext.free_names)
+    point.update({n: ext.parameter(n).null for n in tested})
+    shapes = {p.name for p in eff.parameters if p.null is None}
+    free = [n for n in ext.free_names if n not in shapes]
     base = ext.theta(point)[0]
     steps, rows = [], [base]
     for n in free:
@@ -609,7 +612,7 @@ def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> 
                                               tested)
     ext_sim = _simulate(ext, ext_map.values, base.likelihood, s.substeps)
     off = dict(ext_map.values)
-    off.update({p.name: p.null for p in eff.parameters if p.vary})
+    off.update({p.name: p.null for p in eff.parameters if p.vary and p.null is not None})
     contribution = (ext_sim.position_m[0]
                     - _simulate(ext, off, base.likelihood, s.substeps).position_m[0])
     ext_sig = residual_signature(ext_lik, noise, ext_sim)
