@@ -278,6 +278,8 @@ class Refit:
         Fraction of the base model's excess removed by the refit and, to first
         order, by ``next_effect`` after it: near 1 when the two together account
         for the misfit.
+    elpd_i : numpy.ndarray or None
+        Per-trial leave-one-out ELPD, for paired comparisons of refits.
     """
 
     effect: str
@@ -292,6 +294,7 @@ class Refit:
     contribution_m: np.ndarray
     next_effect: str | None = None
     explained_with_next: float = 0.0
+    elpd_i: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -377,7 +380,8 @@ class Diagnosis:
         ELPD among those that account for the misfit and improve the ELPD by more
         than two standard errors (see :func:`diagnose`). None when nothing
         significant is missing, or when no candidate explains the misfit (see
-        ``verdict``).
+        ``verdict``, which also says when another candidate cannot be told apart
+        from it).
     ranking : list of Finding
         Every candidate, most evidence first: the refitted ones by ELPD, then the
         others by score statistic.
@@ -635,6 +639,7 @@ def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> 
         elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
         contribution_m=contribution, next_effect=nxt.effect if nxt else None,
         explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
+        elpd_i=e_elpd_i,
     )
 
 
@@ -677,13 +682,34 @@ def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[F
     return findings
 
 
+def _explaining(refits: dict, s: _Settings) -> list[Refit]:
+    """The refits that account for the misfit and predict left-out trials better."""
+    return [r for r in refits.values()
+            if (max(r.explained, r.explained_with_next) >= s.min_explained
+                or s.adequate(r.signature))
+            and r.elpd_diff > 2.0 * r.elpd_diff_se]
+
+
 def _missing(refits: dict, s: _Settings) -> str | None:
     """The refit that accounts for the misfit and predicts left-out trials best, if any."""
-    explaining = [r for r in refits.values()
-                  if (max(r.explained, r.explained_with_next) >= s.min_explained
-                      or s.adequate(r.signature))
-                  and r.elpd_diff > 2.0 * r.elpd_diff_se]
+    explaining = _explaining(refits, s)
     return max(explaining, key=lambda r: r.elpd).effect if explaining else None
+
+
+def _twins(refits: dict, missing: str | None, s: _Settings) -> list[tuple[str, float, float]]:
+    """The other explaining refits whose ELPD is within two standard errors of the
+    missing one's (paired over trials): ``(effect, elpd difference, its SE)``."""
+    if missing is None or refits[missing].elpd_i is None:
+        return []
+    best, out = refits[missing], []
+    for r in _explaining(refits, s):
+        if r.effect == missing or r.elpd_i is None:
+            continue
+        diff = best.elpd_i - r.elpd_i
+        se = float(math.sqrt(diff.size * np.var(diff)))
+        if float(diff.sum()) <= 2.0 * se:
+            out.append((r.effect, float(diff.sum()), se))
+    return out
 
 
 def diagnose(
@@ -726,7 +752,11 @@ def diagnose(
        together with the candidate that the refit's own score test finds next
        (so that two missing effects of similar size are found one after the
        other). If none qualifies, nothing is named: a misfit above the floor is
-       reported as unexplained instead of naming the least bad candidate.
+       reported as unexplained instead of naming the least bad candidate. When
+       another qualifying refit's ELPD is within two standard errors of the
+       named one's (paired over the trials), the verdict says that the two cannot
+       be told apart by these data (near twins, such as a regulator lag and a
+       well-damped second-order regulator).
 
     Parameters
     ----------
@@ -795,7 +825,7 @@ def diagnose(
     adequate = s.adequate(base.signature)
     missing = _missing(refits, s)
     verdict = _verdict(name, model.effect_names, base.signature, adequate, missing, refits,
-                       findings, min_explained)
+                       findings, min_explained, _twins(refits, missing, s))
     say.say(verdict)
     return Diagnosis(
         dataset=dataset, model=model, values=base.values, noise=base.noise,
@@ -810,17 +840,26 @@ def diagnose(
 
 
 def _verdict(name: str, effects: tuple, signature: Signature, adequate: bool,
-             missing: str | None, refits: dict, findings: list, min_explained: float) -> str:
+             missing: str | None, refits: dict, findings: list, min_explained: float,
+             twins: list | None = None) -> str:
     sig = (f"RMS error {signature.bands[-1].rms_m * 1e6:.4g} µm against a floor of "
            f"{signature.bands[-1].floor_m * 1e6:.4g} µm; whitened residual energy "
            f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
            f"p = {signature.ljung_box_p:.2g}")
     if missing is not None:
         r = refits[missing]
-        others = [f.effect for f in findings if f.refit is not None and f.effect != missing]
+        tied = [t[0] for t in twins or ()]
+        others = [f.effect for f in findings
+                  if f.refit is not None and f.effect != missing and f.effect not in tied]
         text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
                 f"{r.rms_m * 1e6:.4g} µm ({r.signature.ratio:.3g}x the floor) and removes "
                 f"{r.explained:.0%} of the excess residual.")
+        for twin, diff, se in twins or ():
+            text += (f" But {missing} and {twin} cannot be told apart by these data: both "
+                     f"account for the misfit and their leave-one-trial-out ELPDs differ by "
+                     f"only {diff:+.1f} ± {se:.1f} (less than two standard errors), so "
+                     f"{missing} is named for its slightly better ELPD, not proven; data "
+                     "that excite where they differ would separate them.")
         if others:
             text += (f" It predicts left-out trials better than the other refitted "
                      f"candidate(s) ({', '.join(others)}).")

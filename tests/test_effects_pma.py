@@ -269,3 +269,55 @@ def test_the_null_of_each_effect_is_the_base_model():
         x = pb.simulate(model, {**LAB[name], **pb.get_effect(name).null_values()},
                         CHIRP[:3000], dt_s=DT)[0]
         assert max_err(x, base) < 1e-12, name
+
+
+# ---------------------------------------------------------------------------------
+# near twins: what the verdict says when two refits predict equally well
+
+
+def _refit(effect, elpd_i, explained=0.99):
+    from types import SimpleNamespace
+
+    from pmabayes.criticism import Refit
+
+    elpd_i = np.asarray(elpd_i, dtype=float)
+    base_i = np.zeros_like(elpd_i)
+    diff = elpd_i - base_i
+    return Refit(effect=effect, values={}, interval={}, rms_m=30e-6,
+                 signature=SimpleNamespace(ratio=1.1), explained=explained,
+                 elpd=float(elpd_i.sum()), elpd_diff=float(diff.sum()),
+                 elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
+                 contribution_m=np.zeros(3), elpd_i=elpd_i)
+
+
+def test_the_verdict_says_when_two_refits_cannot_be_told_apart():
+    from types import SimpleNamespace
+
+    from pmabayes.criticism import _missing, _Settings, _twins, _verdict
+
+    s = _Settings(level=0.05, level_adequate=0.01, energy_tolerance=0.1, max_refits=3,
+                  min_explained=0.9, ci_prob=0.9, n_draws=400, substeps=1, candidates=None)
+    signature = SimpleNamespace(bands=[SimpleNamespace(rms_m=1e-3, floor_m=25e-6)],
+                                energy=20.0, energy_p=0.0, ljung_box_p=0.0)
+    rng = np.random.default_rng(0)
+    lag = 1000.0 + rng.normal(0.0, 5.0, 6)
+    cases = {
+        # within two paired standard errors: a tie, said in the verdict
+        "tie": (lag + rng.normal(0.3, 2.0, 6), True),
+        # far apart: the better one is named, no tie
+        "apart": (lag + 40.0 + rng.normal(0.0, 2.0, 6), False),
+    }
+    for what, (second, tied) in cases.items():
+        refits = {"regulator_lag": _refit("regulator_lag", lag),
+                  "regulator_second_order": _refit("regulator_second_order", second)}
+        missing = _missing(refits, s)
+        twins = _twins(refits, missing, s)
+        findings = [SimpleNamespace(effect=k, refit=r) for k, r in refits.items()]
+        text = _verdict("base", (), signature, False, missing, refits, findings, 0.9, twins)
+        assert missing in text
+        assert ("cannot be told apart" in text) is tied, (what, text)
+        if tied:
+            assert len(twins) == 1 and abs(twins[0][1]) <= 2 * twins[0][2]
+        else:
+            assert missing == "regulator_second_order" and twins == []
+            assert "predicts left-out trials better" in text
