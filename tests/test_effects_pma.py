@@ -283,8 +283,9 @@ def _refit(effect, elpd_i, explained=0.99):
     elpd_i = np.asarray(elpd_i, dtype=float)
     base_i = np.zeros_like(elpd_i)
     diff = elpd_i - base_i
+    sig = SimpleNamespace(ratio=1.1, bands=[SimpleNamespace(rms_m=30e-6, floor_m=27e-6)])
     return Refit(effect=effect, values={}, interval={}, rms_m=30e-6,
-                 signature=SimpleNamespace(ratio=1.1), explained=explained,
+                 signature=sig, signatures=(sig,), explained=explained,
                  elpd=float(elpd_i.sum()), elpd_diff=float(diff.sum()),
                  elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
                  contribution_m=np.zeros(3), elpd_i=elpd_i)
@@ -313,7 +314,10 @@ def test_the_verdict_says_when_two_refits_cannot_be_told_apart():
         missing = _missing(refits, s)
         twins = _twins(refits, missing, s)
         findings = [SimpleNamespace(effect=k, refit=r) for k, r in refits.items()]
-        text = _verdict("base", (), signature, False, missing, refits, findings, 0.9, twins)
+        experiment = SimpleNamespace(name="chirp", signature=signature, adequate=False,
+                                     floor_note=lambda: "")
+        text = _verdict("base", (), (experiment,), False, missing, refits, findings, 0.9,
+                        twins)
         assert missing in text
         assert ("cannot be told apart" in text) is tied, (what, text)
         if tied:
