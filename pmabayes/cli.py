@@ -382,7 +382,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     model = _model_for(datasets[0], args)
     result = diagnose(datasets if len(datasets) > 1 else datasets[0], model,
                       candidates=args.candidates or None, seed=args.seed,
-                      progress=not args.quiet)
+                      progress=not args.quiet,
+                      plugin_dir=args.proposal_dir or args.out or Path.cwd())
     summary = result.to_dict()
     label = " + ".join(["base", *result.model.effect_names])
     print(f"model: {label}")
@@ -787,6 +788,9 @@ def _criticism_commands(sub) -> None:
                       help="effects to test (all registered effects by default)")
     diag.add_argument("--out", help="folder for the figures and an HTML page")
     diag.add_argument("--json", help="write a machine-readable summary here")
+    diag.add_argument("--proposal-dir", help="folder for the proposed effect's .py file when "
+                      "the discrepancy step proposes one (default: --out, else the current "
+                      "folder; an existing file is never overwritten)")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
     _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -27,6 +27,7 @@ import numpy as np
 from scipy import stats
 
 from pmabayes.data import DataError, Dataset, check_same_input_kind
+from pmabayes.discrepancy import Discrepancy, estimate_discrepancy
 from pmabayes.effects import get_effect, registered_effects
 from pmabayes.fit import NoiseEstimate, Posterior, _on_rig, estimate_noise, find_map
 from pmabayes.likelihood import Likelihood
@@ -539,6 +540,10 @@ class Diagnosis:
     experiments : tuple of ExperimentDiagnosis
         Each experiment's data, model, noise, simulation, signature and verdict, in
         the given order (one entry for one data set).
+    discrepancy : Discrepancy or None
+        The missing force estimated from the data, when the model is above the floor
+        and no candidate in the library accounts for it (see
+        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise.
     """
 
     dataset: Dataset
@@ -554,6 +559,7 @@ class Diagnosis:
     verdict: str
     settings: dict
     experiments: tuple = ()
+    discrepancy: Discrepancy | None = None
 
     @property
     def rms_m(self) -> float:
@@ -657,6 +663,7 @@ class Diagnosis:
             "signature": sig.describe(),
             "bands": [b.to_dict() for b in sig.bands],
             "settings": dict(self.settings),
+            "discrepancy": None if self.discrepancy is None else self.discrepancy.to_dict(),
         }
 
 
@@ -1007,6 +1014,8 @@ def diagnose(
     seed: int | np.random.Generator = 0,
     substeps: int = 1,
     progress: bool = False,
+    discrepancy: bool = True,
+    plugin_dir=None,
 ) -> Diagnosis:
     """Fit a model, criticise it and find which effect in the library is missing.
 
@@ -1032,6 +1041,10 @@ def diagnose(
        (so that two missing effects of similar size are found one after the
        other). If none qualifies, nothing is named: a misfit above the floor is
        reported as unexplained instead of naming the least bad candidate.
+    6. Then, with ``discrepancy``, the missing force is estimated from the data
+       (:func:`pmabayes.discrepancy.estimate_discrepancy`): the states it depends
+       on, with their evidence, and a closed form written as a ready user effect
+       (a ``.py`` file for ``--plugin``, in ``plugin_dir``).
 
     Several experiments (a sequence of data sets, each with its own input, rig
     and trials, as :func:`pmabayes.fit.fit` takes them) are diagnosed together:
@@ -1087,6 +1100,12 @@ def diagnose(
         Simulator substeps per sample.
     progress : bool
         Print what is being done to stderr.
+    discrepancy : bool
+        Estimate the missing force from the data when the model is above the floor
+        and no candidate accounts for it.
+    plugin_dir : str or Path, optional
+        Where the proposed effect's ``.py`` file is written (the current folder by
+        default; an existing file is never overwritten).
 
     Returns
     -------
@@ -1128,6 +1147,17 @@ def diagnose(
                                                strict=True))
     verdict = _verdict(name, model.effect_names, experiments, adequate, missing, refits,
                        findings, min_explained)
+    found = None
+    if discrepancy and not adequate and missing is None and len(datasets) > 1:
+        verdict += (" The data-driven discrepancy step takes one experiment for now; "
+                    "diagnose each experiment alone to estimate the missing force.")
+    elif discrepancy and not adequate and missing is None:
+        say.say("estimating the missing force from the data (discrepancy)")
+        found = estimate_discrepancy(base.likelihoods[0], base.noises[0], base.values,
+                                     base.simulations[0], plugin_dir=plugin_dir,
+                                     command=datasets[0].source,
+                                     effects=model.effect_names)
+        verdict += " " + found.text
     say.say(verdict)
     return Diagnosis(
         dataset=datasets[0], model=model, values=base.values, noise=base.noises[0],
@@ -1139,6 +1169,7 @@ def diagnose(
                   "seed": seed if isinstance(seed, int) else None, "substeps": substeps,
                   "candidates": [f.effect for f in findings]},
         experiments=experiments,
+        discrepancy=found,
     )
 
 

@@ -1108,9 +1108,10 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     out_dir : str or Path
         Destination folder, created if needed. Written: ``comparison.png``,
         ``bands.png``, ``signature.png``, ``whiteness.png``, ``ranking.png``,
-        ``diagnosis.json`` and ``index.html``. For several experiments the first
-        four are per experiment (``comparison_NAME.png``, ...), and the page has a
-        section per experiment (``id="experiment-NAME"``).
+        ``discrepancy.png`` (when the diagnosis has a discrepancy), ``diagnosis.json``
+        and ``index.html``. For several experiments the first four are per experiment
+        (``comparison_NAME.png``, ...), and the page has a section per experiment
+        (``id="experiment-NAME"``).
 
     Returns
     -------
@@ -1161,6 +1162,12 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     fig.savefig(out_dir / "ranking.png", dpi=plots.REPORT_DPI)
     figs["ranking"] = ("Score-test evidence that each candidate effect is missing (red: "
                        "significant)" + (", all experiments together" if several else "") + ".")
+    if d.discrepancy is not None:
+        fig = plots.plot_discrepancy(d.discrepancy)
+        fig.savefig(out_dir / "discrepancy.png", dpi=plots.REPORT_DPI)
+        figs["discrepancy"] = ("The missing force estimated from the data: its partial "
+                               "dependence on each state (centred; band: two posterior sd), "
+                               "red where dropping the state loses predictive accuracy.")
     body += [
         "<h2>What is missing: the candidate effects</h2>",
         "<p>Refitted candidates first (by leave-one-trial-out ELPD"
@@ -1182,6 +1189,8 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     for f in d.ranking:
         if f.significant:
             body.append(f"<h3>{html.escape(f.effect)}</h3><p>{html.escape(f.explanation)}</p>")
+    if d.discrepancy is not None:
+        body += _discrepancy_section(d.discrepancy)
     body.append("<h2>Figures</h2>")
     for name, caption in figs.items():
         body.append(_img(out_dir / f"{name}.png", f"{name} plot", caption))
@@ -1189,6 +1198,22 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     title = " + ".join(Path(src).name for src in sources) if sources else "data"
     index.write_text(_page(f"pmabayes diagnosis: {title}", body), encoding="utf-8")
     return index
+
+
+def _discrepancy_section(disc) -> list[str]:
+    """The discrepancy's states, evidence and proposal, for the diagnosis page."""
+    out = ["<h2>Beyond the library: the missing force estimated from the data</h2>",
+           f"<p>{html.escape(disc.text)}</p>",
+           _table(["state", "ΔELPD if dropped ± se", "force amplitude [N]", "needed"],
+                  [[s.state, f"{s.elpd_loss:+.1f} ± {s.se:.1f}", s.amplitude_n,
+                    "yes" if s.needed else "no"] for s in disc.states], num_from=2)]
+    if disc.proposal is not None:
+        pr = disc.proposal
+        out.append(f"<p>Proposed ({html.escape(pr.kind)}): <code>{html.escape(pr.expression)}"
+                   f"</code>; ΔELPD against the flexible estimate {pr.elpd_diff:+.1f} ± "
+                   f"{pr.elpd_diff_se:.1f}. Plugin: <code>{html.escape(str(pr.plugin))}</code>"
+                   "</p>")
+    return out
 
 
 def _diagnosis_experiment_section(e, several: bool) -> list[str]:

@@ -16,7 +16,12 @@ integrated as follows.
   derivatives ``dz/dx`` and each force effect's ``df/dx``, ``df/dv``.
 * ``z`` is advanced by the exact solution of ``dz/dx = alpha - c|z|`` for the
   step's displacement (``c`` fixed by the signs of ``dx`` and ``z``), so the
-  hysteresis is integrated without a step-size limit of its own.
+  hysteresis is integrated without a step-size limit of its own. A hysteresis
+  effect's factor ``g(|z|)`` (``dz/dx = alpha - c|z| g``) is frozen at the step's
+  mean ``|z|``.
+* Force effects may read ``z`` (their ``z`` derivative joins the implicit step
+  through ``dz/dx``) and carry a state, advanced exactly over the step with ``x``
+  linear in time; its slope in the end position joins the implicit step too.
 
 The scheme is second order. Against a Radau solution at rtol 1e-10 the error over
 the 15 s chirp of the paper is about 3e-7 m at 1 kHz (see ``tests/test_simulator.py``).
@@ -29,8 +34,10 @@ a band-limited reconstruction (FFT interpolation of a periodic record, else a
 degree-9 interpolating spline) that each substep follows as a straight line between
 its reconstructed end values. ``position_m[k]`` is the position at ``time_s[k]``.
 Each trial starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium
-under the first input sample; or, with ``steady_state``, in the periodic steady state
-reached from rest through repeated periods of the input.
+under the first input sample; or, with ``initial_state="zero"``, at ``x = x' = z = 0``
+whatever the first input (a simulation switched on at t = 0, as the Bouc-Wen
+benchmark's); or, with ``steady_state``, in the periodic steady state reached from that
+initial state through repeated periods of the input.
 
 Kernels are generated per composition of effects, compiled with numba and cached
 on disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``), so the first
@@ -51,13 +58,13 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from pmabayes.data import BETWEEN_SAMPLES, check_time_grid
+from pmabayes.data import BETWEEN_SAMPLES, INITIAL_STATES, check_time_grid
 from pmabayes.model import Model
 from pmabayes.util import fingerprint, source_text
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
-           "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "STEADY_STATE_TOL_M",
-           "MAX_WARMUP_PERIODS"]
+           "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "INITIAL_STATES",
+           "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -137,7 +144,8 @@ def _phi_lines(y: str, out: str) -> list[str]:
     ]
 
 
-def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
+def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst",
+                    scale: str | None = None) -> list[str]:
     """Code setting ``out`` to the exact Bouc-Wen ``z`` after displacement ``dx``.
 
     Emitted inline (a call would stop the batch loop from vectorising); uses ``c``
@@ -147,7 +155,9 @@ def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
     changes branch there: it is split at the zero (distance ``d0``, exact on the
     approach branch) and finished on the departing branch, where ``sgn(dx z) = +1``.
     Getting this wrong is not a local error: the hysteresis remembers it. Both are
-    computed and one selected, to stay branch-free.
+    computed and one selected, to stay branch-free. With ``scale`` (a hysteresis
+    effect's factor ``g``, frozen over the step) the departing branch's ``c`` is
+    scaled too (``c`` and ``kz`` must already be).
     """
     lines = [f"sz = 1.0 if {z} >= 0.0 else -1.0"]
     lines += _phi_lines(f"-c * sz * {dx}", "ph")
@@ -163,7 +173,7 @@ def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
         "1 / 30240 - y02 / 1209600)))",
         f"rem = {dx} - d0",
         f"cross = ({z} * {dx} < 0.0) & (kz > 0.0) & (abs({dx}) > abs(d0))",
-        f"c2 = {cst}[9, i] + {cst}[10, i]",
+        f"c2 = {cst}[9, i] + {cst}[10, i]" + (f"; c2 *= {scale}" if scale else ""),
     ]
     lines += _phi_lines("-c2 * abs(rem)", "ph2")
     lines += [f"{out} = rem * {cst}[8, i] * ph2 if cross else z_nc"]
@@ -211,7 +221,9 @@ class PlantCode:
     ``cst`` (per-member constants, rows: 8 discretisation coefficients, alpha,
     beta, gamma, p_dz) can be renamed so that two models share one kernel; ``i`` is
     the batch member; ``mass``, ``f_grav``, ``area``, ``dt`` and ``substeps`` are
-    kernel arguments.
+    kernel arguments. The state lives in rows of ``st``: ``x``, ``v``, ``z``, then
+    one row per force effect with a state (:attr:`n_rows` in all); :meth:`step`
+    reads and writes the effects' rows itself.
     """
 
     def __init__(self, model: Model, *, theta: str = "theta", cst: str = "cst",
@@ -223,13 +235,26 @@ class PlantCode:
         self.pressure = [(e, s) for e, s in slices if e.stage == "pressure"]
         self.force = [(e, s) for e, s in slices if e.stage == "force"]
         self.measure = [(e, s) for e, s in slices if e.stage == "measurement"]
+        self.law = [(e, s) for e, s in slices if e.stage == "hysteresis"]  # at most one
         self.dead_zone = model.rig.input_kind == "pressure"
-        # force physics is inlined at numba's IR level so the batch loop can vectorise
+        # force and hysteresis physics is inlined at numba's IR level so the batch loop
+        # can vectorise
         self.inject = {
-            f"{prefix}{j}": (_inlined(e.physics) if e.stage == "force" else e.physics)
+            f"{prefix}{j}": (_inlined(e.physics) if e.stage in ("force", "hysteresis")
+                             else e.physics)
             for j, (e, _) in enumerate(slices)
         }
         self.name_of = {e: f"{prefix}{j}" for j, (e, _) in enumerate(slices)}
+        stateful = [e for e, _ in self.force if e.state is not None]
+        self.inject.update({f"{self.name_of[e]}_adv": _inlined(e.advance) for e in stateful})
+        #: row of ``st`` holding each stateful force effect's state
+        self.state_row = {e: 3 + j for j, e in enumerate(stateful)}
+        self.reads_z = any(e.reads_z for e, _ in self.force)
+
+    @property
+    def n_rows(self) -> int:
+        """Rows of the state array ``st``: ``x``, ``v``, ``z`` and the effects' states."""
+        return 3 + len(self.state_row)
 
     def q(self, e) -> str:
         """Name of the contiguous parameter rows of force effect ``e``."""
@@ -252,7 +277,8 @@ class PlantCode:
             f"    {c}[11, i] = {t + '[i, 5]' if self.dead_zone else '0.0'}",
         ]
         # contiguous per-effect parameter rows: a strided slice defeats vectorisation
-        lines += [f"{self.q(e)} = {t}[:, {s.start}:{s.stop}].copy()" for e, s in self.force]
+        lines += [f"{self.q(e)} = {t}[:, {s.start}:{s.stop}].copy()"
+                  for e, s in self.force + self.law]
         return lines
 
     def actuator(self, p: str) -> str:
@@ -261,15 +287,69 @@ class PlantCode:
             return f"area * max({p} - {self.cst}[11, i], 0.0) - f_grav"
         return f"area * {p} - f_grav"
 
-    def forces(self, x: str, v: str, p: str, out: str, derivs: bool) -> list[str]:
-        """Lines summing the force effects into ``out`` (and ``out_x``, ``out_v``)."""
+    def forces(self, x: str, v: str, p: str, out: str, derivs: bool, z: str = "0.0",
+               states: dict | None = None, slopes: dict | None = None) -> list[str]:
+        """Lines summing the force effects into ``out`` (and ``out_x``, ``out_v``).
+
+        Effects that read ``z`` or carry a state get ``z`` and ``states[effect]`` (0
+        by default: the rest state). With ``derivs`` and ``reads_z``, ``out_z`` sums
+        the derivatives in ``z``; a state's derivative enters ``out_x`` through
+        ``slopes[effect]``, the state's derivative in the end position.
+        """
         lines = [f"{out} = 0.0"] + ([f"{out}_x = 0.0", f"{out}_v = 0.0"] if derivs else [])
+        if derivs and self.reads_z:
+            lines += [f"{out}_z = 0.0"]
         for e, _ in self.force:
-            lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p})")
+            if not e.extended():
+                lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p})")
+            else:
+                state = (states or {}).get(e, "0.0")
+                lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p}, {z}, "
+                             f"{state})")
             lines.append(f"{out} += r[0]")
             if derivs:
                 lines += [f"{out}_x += r[1]", f"{out}_v += r[2]"]
+                if e.reads_z:
+                    lines += [f"{out}_z += r[3]"]
+                if e in (slopes or {}):
+                    lines += [f"{out}_x += r[4] * {slopes[e]}"]
         return lines
+
+    def advance(self, e, state: str, x0: str, x1: str, h: str, out: str) -> list[str]:
+        """Lines advancing stateful force effect ``e``'s state over a step into ``out``
+        (and its derivative in ``x1`` into ``out_d``)."""
+        return [f"r = {self.name_of[e]}_adv({self.q(e)}[i], {state}, {x0}, {x1}, {h})",
+                f"{out} = r[0]", f"{out}_d = r[1]"]
+
+    def rate_lines(self, z: str, dx: str) -> list[str]:
+        """Lines setting ``c`` and ``kz = dz/dx`` at ``z`` (the hysteresis effect's law)."""
+        if not self.law:
+            return bw_rate_lines(z, dx, self.cst)
+        e, c = self.law[0][0], self.cst
+        return [
+            f"c = {c}[9, i] * (1.0 if {dx} * {z} >= 0.0 else -1.0) + {c}[10, i]",
+            f"gz = {self.name_of[e]}({self.q(e)}[i], abs({z}))",
+            f"kz = {c}[8, i] - c * abs({z}) * gz",
+        ]
+
+    def update_lines(self, z: str, dx: str, out: str) -> list[str]:
+        """Lines setting ``out`` to ``z`` after displacement ``dx`` (after :meth:`rate_lines`).
+
+        With a hysteresis effect its factor ``g`` is frozen at the step's mean ``|z|``
+        (from the ends predicted with ``kz``), and the Bouc-Wen step is exact for that
+        ``g``: second order. ``kz`` is left as :meth:`rate_lines` set it.
+        """
+        if not self.law:
+            return bw_update_lines(z, dx, out, self.cst)
+        e, c = self.law[0][0], self.cst
+        lines = [
+            "kzp = kz",
+            f"zm = 0.5 * (abs({z}) + abs({z} + kz * {dx}))",
+            f"gm = {self.name_of[e]}({self.q(e)}[i], zm)",
+            "c *= gm",
+            f"kz = {c}[8, i] - c * abs({z})",
+        ]
+        return lines + bw_update_lines(z, dx, out, c, scale="gm") + ["kz = kzp"]
 
     def rest(self, p: str, out: str) -> list[str]:
         """Lines setting ``out`` to the static equilibrium with ``z = 0`` at pressure ``p``."""
@@ -290,15 +370,22 @@ class PlantCode:
              x1: str, v1: str, z1: str) -> list[str]:
         """Lines advancing the state over one step with pressure from ``p_start`` to ``p_end``."""
         c = self.cst
-        step = [
+        step = []
+        start, pred, slope = {}, {}, {}  # stateful effects: the start and predicted states
+        for e, row in self.state_row.items():
+            start[e], pred[e], slope[e] = f"sv{row}", f"sp{row}", f"sp{row}_d"
+            step += [f"sv{row} = st[{row}, i]"]
+            # the state at the step's end if x stayed put, and its slope in the end x
+            step += self.advance(e, start[e], x0, x0, "dt / substeps", pred[e])
+        step += [
             f"r0 = {z0} - {c}[8, i] * {x0}",
             f"fs = {self.actuator(p_start)}",
             f"fe = {self.actuator(p_end)}" if p_end != p_start else "fe = fs",
         ]
         if self.force:
-            step += self.forces(x0, v0, p_end, "efs", True)
-            if p_end != p_start:
-                step += self.forces(x0, v0, p_start, "ef0", False)
+            step += self.forces(x0, v0, p_end, "efs", True, z0, pred, slope)
+            if p_end != p_start or start:
+                step += self.forces(x0, v0, p_start, "ef0", False, z0, start)
             else:
                 step += ["ef0 = efs"]
             step += ["g0 = fs - r0 - ef0", "gs = fe - r0 - efs"]
@@ -309,32 +396,39 @@ class PlantCode:
             f"vs = {c}[2, i] * {x0} + {c}[3, i] * {v0} + {c}[5, i] * g0 + {c}[7, i] * (gs - g0)",
             f"dxs = xs - {x0}",
         ]
-        step += bw_rate_lines(z0, "dxs", c)
+        step += self.rate_lines(z0, "dxs")
         # The end-of-step force (z and effects) is linearly implicit; z then advances
         # exactly over the displacement dx, and x1 = x0 + dx keeps z and x consistent,
         # so the rate-independent hysteresis cannot drift.
         # s is the end-of-step increment of the remainder force r (and of the effects)
         if self.force:
             step += [
-                f"ax = kz - {c}[8, i] + efs_x",
+                f"ax = kz - {c}[8, i] + efs_x" + (" + efs_z * kz" if self.reads_z else ""),
                 f"s = (ax * dxs + efs_v * (vs - {v0})) / (1.0 + {c}[6, i] * ax + {c}[7, i] "
                 "* efs_v)",
                 f"dx = dxs - {c}[6, i] * s",
             ]
-            step += bw_update_lines(z0, "dx", z1, c)
-            step += [f"s += ({z1} - {z0}) - kz * dx"]
+            step += self.update_lines(z0, "dx", z1)
+            if self.reads_z:  # the z-reading forces follow z's exact change too
+                step += [f"s += (1.0 + efs_z) * (({z1} - {z0}) - kz * dx)"]
+            else:
+                step += [f"s += ({z1} - {z0}) - kz * dx"]
         else:
             step += [f"dx = dxs / (1.0 + {c}[6, i] * (kz - {c}[8, i]))"]
-            step += bw_update_lines(z0, "dx", z1, c)
+            step += self.update_lines(z0, "dx", z1)
             step += [f"s = {z1} - {z0} - {c}[8, i] * dx"]
         step += [f"{x1} = {x0} + dx", f"{v1} = vs - {c}[7, i] * s"]
+        for e, row in self.state_row.items():
+            step += self.advance(e, start[e], x0, f"{x0} + dx", "dt / substeps", f"sv{row}")
+            step += [f"st[{row}, i] = sv{row}"]
         return step
 
 
 def _generate(model: Model, record: bool, shared_input: bool,
-              between_samples: str = "hold") -> tuple[str, dict]:
+              between_samples: str = "hold", initial_state: str = "rest") -> tuple[str, dict]:
     """Source of the kernel for ``model`` and the globals it needs injected."""
     plant = PlantCode(model)
+    zero = initial_state == "zero"
     pressure, measure = plant.pressure, plant.measure
     name_of = plant.name_of
 
@@ -346,7 +440,7 @@ def _generate(model: Model, record: bool, shared_input: bool,
     body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
     # within a sample interval the pressure is linear from pp[0] to pp[1]
     linear = between_samples == "linear"
-    body += ["st = np.zeros((3, batch))"]
+    body += [f"st = np.zeros(({plant.n_rows}, batch))"]
     if between_samples == "bandlimited":
         # p_in holds the reconstructed input at every substep boundary (fine index
         # k * substeps + j); each substep takes the straight line between two of them
@@ -355,11 +449,11 @@ def _generate(model: Model, record: bool, shared_input: bool,
             body += _sample_loops(plant, record, "pa", "pb", "p_in[(k + 1) * substeps, 0]",
                                   "p_in[0, 0]",
                                   substep_lines=[f"pa = p_in[{fine}, 0]",
-                                                 f"pb = p_in[{fine} + 1, 0]"])
+                                                 f"pb = p_in[{fine} + 1, 0]"], zero=zero)
         else:
             body += (_pressure_fill(plant, shared_input, True, fine=True)
                      + _sample_loops(plant, record, f"pp[0, {fine}, i]", f"pp[1, {fine}, i]",
-                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]"))
+                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]", zero=zero))
     else:
         ramps = bool(pressure) or linear
         via_pp = (
@@ -372,9 +466,9 @@ def _generate(model: Model, record: bool, shared_input: bool,
         # one loop per kernel: a second copy in the same function does not vectorise
         if ramps or not shared_input:
             body += (_pressure_fill(plant, shared_input, linear)
-                     + _sample_loops(plant, record, *via_pp))
+                     + _sample_loops(plant, record, *via_pp, zero=zero))
         else:
-            body += _sample_loops(plant, record, *shared)
+            body += _sample_loops(plant, record, *shared, zero=zero)
     if record:
         body += ["out_true[:, :] = out_x"]
     body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
@@ -382,6 +476,8 @@ def _generate(model: Model, record: bool, shared_input: bool,
     text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
     text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
     text += f"# input between samples: {between_samples}\n"
+    if zero:  # only then, so that the rest kernels' text (and disk cache) is unchanged
+        text += "# initial state: zero\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in plant.inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -428,12 +524,14 @@ def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False,
 
 
 def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
-                  p_first: str, substep_lines: tuple[str, ...] | list[str] = ()) -> list[str]:
+                  p_first: str, substep_lines: tuple[str, ...] | list[str] = (),
+                  zero: bool = False) -> list[str]:
     """Lines of the initial state and the time loop, given how the pressure at the
     start and end of a substep, at the next sample and at the first is read
-    (``substep_lines`` run once per substep, before the batch loop)."""
+    (``substep_lines`` run once per substep, before the batch loop). The state starts
+    at rest under the first input, or with ``zero`` at ``x = x' = z = 0``."""
     out = ["for i in range(batch):", f"    p0 = {p_first}"]
-    out += ["    " + ln for ln in plant.rest("p0", "xi")]
+    out += ["    xi = 0.0"] if zero else ["    " + ln for ln in plant.rest("p0", "xi")]
     out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     if record:
         out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
@@ -449,7 +547,8 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
             "out_z[k + 1, i] = st[2, i]",
             f"out_p[k + 1, i] = {p_next}",
         ]
-        sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False)
+        sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False, "st[2, i]",
+                               {e: f"st[{row}, i]" for e, row in plant.state_row.items()})
         sample += ["out_f[k + 1, i] = fn"]
     out += ["for k in range(n - 1):"]
     if p_start == "pk":
@@ -490,19 +589,21 @@ _LOCK = threading.Lock()
 
 
 def structure_key(model: Model, record: bool, shared_input: bool,
-                  between_samples: str = "hold") -> tuple:
-    """Key of a kernel's composition: the effects (by identity) and the input kind."""
+                  between_samples: str = "hold", initial_state: str = "rest") -> tuple:
+    """Key of a kernel's composition: the effects (by identity), the input kind and
+    the conventions of the input between samples and of the initial state."""
     key = (
         tuple((e.__module__, e.__qualname__, id(e)) for e in model.effects),
         model.rig.input_kind,
         record,
         shared_input,
     )
-    return key if between_samples == "hold" else (*key, between_samples)
+    key = key if between_samples == "hold" else (*key, between_samples)
+    return key if initial_state == "rest" else (*key, "initial_state", initial_state)
 
 
 def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
-               between_samples: str = "hold"):
+               between_samples: str = "hold", initial_state: str = "rest"):
     """The compiled kernel for ``model``'s composition (generated and cached once).
 
     Parameters
@@ -519,17 +620,24 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
         What the input does between samples: ``"hold"``, ``"linear"`` or
         ``"bandlimited"``; for the last, ``p_in`` holds the reconstructed input at every
         substep boundary, ``(n - 1) * substeps + 1`` values.
+    initial_state : str
+        ``"rest"`` (static equilibrium under the first input, ``x' = z = 0``) or
+        ``"zero"`` (``x = x' = z = 0``); see :data:`INITIAL_STATES`.
 
     Returns
     -------
     numba dispatcher
         ``kernel(theta, p_in, time_s, dt, mass, f_grav, area, out_x[, ...])``.
     """
-    key = structure_key(model, record, shared_input, between_samples)
+    if initial_state not in INITIAL_STATES:
+        raise SimulationError(
+            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
+            f"{initial_state!r}")
+    key = structure_key(model, record, shared_input, between_samples, initial_state)
     kernel = cached_kernel(key)
     if kernel is not None:
         return kernel
-    text, inject = _generate(model, record, shared_input, between_samples)
+    text, inject = _generate(model, record, shared_input, between_samples, initial_state)
     return compile_kernel(key, text, inject)
 
 
@@ -741,6 +849,7 @@ def simulate(
     steady_state: bool = False,
     steady_state_tol_m: float = STEADY_STATE_TOL_M,
     max_warmup_periods: int = MAX_WARMUP_PERIODS,
+    initial_state: str = "rest",
 ):
     """Simulate ``model`` for a batch of parameter sets.
 
@@ -802,6 +911,14 @@ def simulate(
         by how much, and the record follows the last warm-up. The muscle at the
         paper's values creeps towards its steady state by about ``r = 0.84`` a
         period (the hysteresis' slow shakedown), so it can take a hundred.
+    initial_state : str
+        The state each trial (or its warm-up, with ``steady_state``) starts from (see
+        :data:`INITIAL_STATES`): ``"rest"`` (the default: ``x' = 0``, ``z = 0`` and
+        ``x`` at static equilibrium under the first input sample, as after a long
+        hold of it) or ``"zero"`` (``x = x' = z = 0`` whatever the first input: a
+        plant at rest at zero input that the input switches on at the first sample,
+        as the Bouc-Wen benchmark's simulations start). Pressure effects start as
+        under ``"rest"``.
 
     Returns
     -------
@@ -823,6 +940,10 @@ def simulate(
             f"{between_samples!r}")
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
+    if initial_state not in INITIAL_STATES:
+        raise SimulationError(
+            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
+            f"{initial_state!r}")
     theta = model.theta(params)
     u = np.asarray(input_signal, dtype=float)
     if not (u.ndim == 1 or (u.ndim == 2 and u.shape[0] == theta.shape[0])):
@@ -838,7 +959,8 @@ def simulate(
     t, dt = _time_axis(n, dt_s, time_s)
     period = _check_period(period_samples, steady_state, n)
     run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=int(substeps),
-               states=states, between_samples=between_samples, period=period)
+               states=states, between_samples=between_samples, period=period,
+               initial_state=initial_state)
     if not steady_state:
         return _run(**run, warmup=0)
     if not steady_state_tol_m > 0:
@@ -895,7 +1017,7 @@ class SteadyStateWarning(RuntimeWarning):
 
 def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
          substeps: int, states: bool, between_samples: str, period: int | None,
-         warmup: int):
+         warmup: int, initial_state: str = "rest"):
     """One kernel call over ``warmup`` periods and the record.
 
     Returns the positions ``(B, n)`` (or the :class:`Simulation`) of the record; with
@@ -915,12 +1037,13 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
     args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
             rig.area_m2, out_x)
     if not states:
-        kernel_for(model, shared_input=shared, between_samples=between_samples)(*args)
+        kernel_for(model, shared_input=shared, between_samples=between_samples,
+                   initial_state=initial_state)(*args)
         x = out_x.T
         return (x[:, lead:], x[:, :lead]) if lead else x
     rec = [np.empty((n + lead, batch)) for _ in range(5)]
-    kernel_for(model, record=True, shared_input=shared,
-               between_samples=between_samples)(*args, *rec)
+    kernel_for(model, record=True, shared_input=shared, between_samples=between_samples,
+               initial_state=initial_state)(*args, *rec)
     v, z, p, f, true_x = (a.T for a in rec)
     x = out_x.T
     sim = Simulation(t[lead:], x[:, lead:], true_x[:, lead:], v[:, lead:], z[:, lead:],
@@ -937,9 +1060,10 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
 
     The one place where a data set's declarations become simulator options: what
     its input does between samples (:attr:`pmabayes.data.Dataset.input_between_samples`),
-    its period (:attr:`~pmabayes.data.Dataset.period_samples`) and whether each trial
+    its period (:attr:`~pmabayes.data.Dataset.period_samples`), whether each trial
     starts in periodic steady state
-    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`). The likelihood,
+    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`) and from which state
+    (:attr:`~pmabayes.data.Dataset.initial_state`). The likelihood,
     diagnostics and validation all simulate through it.
 
     Parameters
@@ -965,4 +1089,5 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
                     substeps=substeps, states=states,
                     between_samples=dataset.input_between_samples,
                     period_samples=dataset.period_samples,
-                    steady_state=dataset.starts_in_steady_state)
+                    steady_state=dataset.starts_in_steady_state,
+                    initial_state=dataset.initial_state)
