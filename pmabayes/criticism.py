@@ -622,11 +622,13 @@ class Diagnosis:
 
         One experiment: ``data``, ``synthetic``, ``effects``, ``rms_m``,
         ``noise_floor_m``, ``adequate``, ``missing``, ``verdict``, ``ranking``,
-        ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands`` and
-        ``settings``. Several: the same keys, with ``data`` the sources joined by
-        `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the experiments (the
-        floor None when one has no repeats), ``whiteness`` and ``bands`` None (they
-        are per experiment), ``signature`` each experiment's in turn, and two more:
+        ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands``,
+        ``settings`` and ``discrepancy``. Several: the same keys, with ``data`` the
+        sources joined by `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the
+        experiments (the floor None when one has no repeats), ``whiteness``,
+        ``bands`` and ``discrepancy`` None (the first two are per experiment, the
+        last is estimated for one experiment only), ``signature`` each experiment's
+        in turn, and two more:
         ``experiments`` (one :meth:`ExperimentDiagnosis.to_dict` each) and
         ``misfit_experiments`` (the names of those that are not adequate).
         """
@@ -649,6 +651,7 @@ class Diagnosis:
                 "signature": " ".join(f"{e.name}: {e.signature.describe()}" for e in exps),
                 "bands": None,
                 "settings": dict(self.settings),
+                "discrepancy": None,  # estimated for one experiment only, for now
                 "experiments": [e.to_dict() for e in exps],
                 "misfit_experiments": self.misfit_experiments,
             }
