@@ -1,8 +1,10 @@
 """Simulator throughput against the C reference, measured in one run.
 
 Times a batch of 64 parameter sets over the paper's 15 s chirp at 1 kHz, for the
-base model and with each built-in effect switched on, as microseconds per trial
-(best of 7 repetitions, after compilation), and divides by the figure that
+base model and with each built-in effect switched on (every registered one, the PMA's
+``stribeck_friction``, ``mckibben_force`` and ``regulator_second_order`` included), as
+microseconds per trial (best of 7 repetitions, after compilation), and divides by the
+figure that
 ``../shared/bench/c_reference`` prints in the same run. Two more lines time the base
 model with a band-limited input (``between_samples="bandlimited"``, the chirp not
 declared periodic, so its degree-9 spline) at 1 and 4 substeps; the reconstruction is
