@@ -283,6 +283,10 @@ class Model:
     ) -> None:
         self.rig = Rig.characterisation() if rig is None else rig
         self.effects: tuple[type[Effect], ...] = resolve_effects(effects)
+        laws = [e.name for e in self.effects if e.stage == "hysteresis"]
+        if len(laws) > 1:
+            raise ModelError(f"effects {', '.join(laws)} each change the hysteresis law; a "
+                             "model holds at most one hysteresis effect")
         base = BASE_PARAMETERS
         if self.rig.input_kind == "force":
             base = tuple(p for p in base if p.name != "p_dz")

@@ -16,7 +16,12 @@ integrated as follows.
   derivatives ``dz/dx`` and each force effect's ``df/dx``, ``df/dv``.
 * ``z`` is advanced by the exact solution of ``dz/dx = alpha - c|z|`` for the
   step's displacement (``c`` fixed by the signs of ``dx`` and ``z``), so the
-  hysteresis is integrated without a step-size limit of its own.
+  hysteresis is integrated without a step-size limit of its own. A hysteresis
+  effect's factor ``g(|z|)`` (``dz/dx = alpha - c|z| g``) is frozen at the step's
+  mean ``|z|``.
+* Force effects may read ``z`` (their ``z`` derivative joins the implicit step
+  through ``dz/dx``) and carry a state, advanced exactly over the step with ``x``
+  linear in time; its slope in the end position joins the implicit step too.
 
 The scheme is second order. Against a Radau solution at rtol 1e-10 the error over
 the 15 s chirp of the paper is about 3e-7 m at 1 kHz (see ``tests/test_simulator.py``).
@@ -139,7 +144,8 @@ def _phi_lines(y: str, out: str) -> list[str]:
     ]
 
 
-def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
+def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst",
+                    scale: str | None = None) -> list[str]:
     """Code setting ``out`` to the exact Bouc-Wen ``z`` after displacement ``dx``.
 
     Emitted inline (a call would stop the batch loop from vectorising); uses ``c``
@@ -149,7 +155,9 @@ def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
     changes branch there: it is split at the zero (distance ``d0``, exact on the
     approach branch) and finished on the departing branch, where ``sgn(dx z) = +1``.
     Getting this wrong is not a local error: the hysteresis remembers it. Both are
-    computed and one selected, to stay branch-free.
+    computed and one selected, to stay branch-free. With ``scale`` (a hysteresis
+    effect's factor ``g``, frozen over the step) the departing branch's ``c`` is
+    scaled too (``c`` and ``kz`` must already be).
     """
     lines = [f"sz = 1.0 if {z} >= 0.0 else -1.0"]
     lines += _phi_lines(f"-c * sz * {dx}", "ph")
@@ -165,7 +173,7 @@ def bw_update_lines(z: str, dx: str, out: str, cst: str = "cst") -> list[str]:
         "1 / 30240 - y02 / 1209600)))",
         f"rem = {dx} - d0",
         f"cross = ({z} * {dx} < 0.0) & (kz > 0.0) & (abs({dx}) > abs(d0))",
-        f"c2 = {cst}[9, i] + {cst}[10, i]",
+        f"c2 = {cst}[9, i] + {cst}[10, i]" + (f"; c2 *= {scale}" if scale else ""),
     ]
     lines += _phi_lines("-c2 * abs(rem)", "ph2")
     lines += [f"{out} = rem * {cst}[8, i] * ph2 if cross else z_nc"]
@@ -213,7 +221,9 @@ class PlantCode:
     ``cst`` (per-member constants, rows: 8 discretisation coefficients, alpha,
     beta, gamma, p_dz) can be renamed so that two models share one kernel; ``i`` is
     the batch member; ``mass``, ``f_grav``, ``area``, ``dt`` and ``substeps`` are
-    kernel arguments.
+    kernel arguments. The state lives in rows of ``st``: ``x``, ``v``, ``z``, then
+    one row per force effect with a state (:attr:`n_rows` in all); :meth:`step`
+    reads and writes the effects' rows itself.
     """
 
     def __init__(self, model: Model, *, theta: str = "theta", cst: str = "cst",
@@ -225,13 +235,26 @@ class PlantCode:
         self.pressure = [(e, s) for e, s in slices if e.stage == "pressure"]
         self.force = [(e, s) for e, s in slices if e.stage == "force"]
         self.measure = [(e, s) for e, s in slices if e.stage == "measurement"]
+        self.law = [(e, s) for e, s in slices if e.stage == "hysteresis"]  # at most one
         self.dead_zone = model.rig.input_kind == "pressure"
-        # force physics is inlined at numba's IR level so the batch loop can vectorise
+        # force and hysteresis physics is inlined at numba's IR level so the batch loop
+        # can vectorise
         self.inject = {
-            f"{prefix}{j}": (_inlined(e.physics) if e.stage == "force" else e.physics)
+            f"{prefix}{j}": (_inlined(e.physics) if e.stage in ("force", "hysteresis")
+                             else e.physics)
             for j, (e, _) in enumerate(slices)
         }
         self.name_of = {e: f"{prefix}{j}" for j, (e, _) in enumerate(slices)}
+        stateful = [e for e, _ in self.force if e.state is not None]
+        self.inject.update({f"{self.name_of[e]}_adv": _inlined(e.advance) for e in stateful})
+        #: row of ``st`` holding each stateful force effect's state
+        self.state_row = {e: 3 + j for j, e in enumerate(stateful)}
+        self.reads_z = any(e.reads_z for e, _ in self.force)
+
+    @property
+    def n_rows(self) -> int:
+        """Rows of the state array ``st``: ``x``, ``v``, ``z`` and the effects' states."""
+        return 3 + len(self.state_row)
 
     def q(self, e) -> str:
         """Name of the contiguous parameter rows of force effect ``e``."""
@@ -254,7 +277,8 @@ class PlantCode:
             f"    {c}[11, i] = {t + '[i, 5]' if self.dead_zone else '0.0'}",
         ]
         # contiguous per-effect parameter rows: a strided slice defeats vectorisation
-        lines += [f"{self.q(e)} = {t}[:, {s.start}:{s.stop}].copy()" for e, s in self.force]
+        lines += [f"{self.q(e)} = {t}[:, {s.start}:{s.stop}].copy()"
+                  for e, s in self.force + self.law]
         return lines
 
     def actuator(self, p: str) -> str:
@@ -263,15 +287,69 @@ class PlantCode:
             return f"area * max({p} - {self.cst}[11, i], 0.0) - f_grav"
         return f"area * {p} - f_grav"
 
-    def forces(self, x: str, v: str, p: str, out: str, derivs: bool) -> list[str]:
-        """Lines summing the force effects into ``out`` (and ``out_x``, ``out_v``)."""
+    def forces(self, x: str, v: str, p: str, out: str, derivs: bool, z: str = "0.0",
+               states: dict | None = None, slopes: dict | None = None) -> list[str]:
+        """Lines summing the force effects into ``out`` (and ``out_x``, ``out_v``).
+
+        Effects that read ``z`` or carry a state get ``z`` and ``states[effect]`` (0
+        by default: the rest state). With ``derivs`` and ``reads_z``, ``out_z`` sums
+        the derivatives in ``z``; a state's derivative enters ``out_x`` through
+        ``slopes[effect]``, the state's derivative in the end position.
+        """
         lines = [f"{out} = 0.0"] + ([f"{out}_x = 0.0", f"{out}_v = 0.0"] if derivs else [])
+        if derivs and self.reads_z:
+            lines += [f"{out}_z = 0.0"]
         for e, _ in self.force:
-            lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p})")
+            if not e.extended():
+                lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p})")
+            else:
+                state = (states or {}).get(e, "0.0")
+                lines.append(f"r = {self.name_of[e]}({self.q(e)}[i], {x}, {v}, {p}, {z}, "
+                             f"{state})")
             lines.append(f"{out} += r[0]")
             if derivs:
                 lines += [f"{out}_x += r[1]", f"{out}_v += r[2]"]
+                if e.reads_z:
+                    lines += [f"{out}_z += r[3]"]
+                if e in (slopes or {}):
+                    lines += [f"{out}_x += r[4] * {slopes[e]}"]
         return lines
+
+    def advance(self, e, state: str, x0: str, x1: str, h: str, out: str) -> list[str]:
+        """Lines advancing stateful force effect ``e``'s state over a step into ``out``
+        (and its derivative in ``x1`` into ``out_d``)."""
+        return [f"r = {self.name_of[e]}_adv({self.q(e)}[i], {state}, {x0}, {x1}, {h})",
+                f"{out} = r[0]", f"{out}_d = r[1]"]
+
+    def rate_lines(self, z: str, dx: str) -> list[str]:
+        """Lines setting ``c`` and ``kz = dz/dx`` at ``z`` (the hysteresis effect's law)."""
+        if not self.law:
+            return bw_rate_lines(z, dx, self.cst)
+        e, c = self.law[0][0], self.cst
+        return [
+            f"c = {c}[9, i] * (1.0 if {dx} * {z} >= 0.0 else -1.0) + {c}[10, i]",
+            f"gz = {self.name_of[e]}({self.q(e)}[i], abs({z}))",
+            f"kz = {c}[8, i] - c * abs({z}) * gz",
+        ]
+
+    def update_lines(self, z: str, dx: str, out: str) -> list[str]:
+        """Lines setting ``out`` to ``z`` after displacement ``dx`` (after :meth:`rate_lines`).
+
+        With a hysteresis effect its factor ``g`` is frozen at the step's mean ``|z|``
+        (from the ends predicted with ``kz``), and the Bouc-Wen step is exact for that
+        ``g``: second order. ``kz`` is left as :meth:`rate_lines` set it.
+        """
+        if not self.law:
+            return bw_update_lines(z, dx, out, self.cst)
+        e, c = self.law[0][0], self.cst
+        lines = [
+            "kzp = kz",
+            f"zm = 0.5 * (abs({z}) + abs({z} + kz * {dx}))",
+            f"gm = {self.name_of[e]}({self.q(e)}[i], zm)",
+            "c *= gm",
+            f"kz = {c}[8, i] - c * abs({z})",
+        ]
+        return lines + bw_update_lines(z, dx, out, c, scale="gm") + ["kz = kzp"]
 
     def rest(self, p: str, out: str) -> list[str]:
         """Lines setting ``out`` to the static equilibrium with ``z = 0`` at pressure ``p``."""
@@ -292,15 +370,22 @@ class PlantCode:
              x1: str, v1: str, z1: str) -> list[str]:
         """Lines advancing the state over one step with pressure from ``p_start`` to ``p_end``."""
         c = self.cst
-        step = [
+        step = []
+        start, pred, slope = {}, {}, {}  # stateful effects: the start and predicted states
+        for e, row in self.state_row.items():
+            start[e], pred[e], slope[e] = f"sv{row}", f"sp{row}", f"sp{row}_d"
+            step += [f"sv{row} = st[{row}, i]"]
+            # the state at the step's end if x stayed put, and its slope in the end x
+            step += self.advance(e, start[e], x0, x0, "dt / substeps", pred[e])
+        step += [
             f"r0 = {z0} - {c}[8, i] * {x0}",
             f"fs = {self.actuator(p_start)}",
             f"fe = {self.actuator(p_end)}" if p_end != p_start else "fe = fs",
         ]
         if self.force:
-            step += self.forces(x0, v0, p_end, "efs", True)
-            if p_end != p_start:
-                step += self.forces(x0, v0, p_start, "ef0", False)
+            step += self.forces(x0, v0, p_end, "efs", True, z0, pred, slope)
+            if p_end != p_start or start:
+                step += self.forces(x0, v0, p_start, "ef0", False, z0, start)
             else:
                 step += ["ef0 = efs"]
             step += ["g0 = fs - r0 - ef0", "gs = fe - r0 - efs"]
@@ -311,25 +396,31 @@ class PlantCode:
             f"vs = {c}[2, i] * {x0} + {c}[3, i] * {v0} + {c}[5, i] * g0 + {c}[7, i] * (gs - g0)",
             f"dxs = xs - {x0}",
         ]
-        step += bw_rate_lines(z0, "dxs", c)
+        step += self.rate_lines(z0, "dxs")
         # The end-of-step force (z and effects) is linearly implicit; z then advances
         # exactly over the displacement dx, and x1 = x0 + dx keeps z and x consistent,
         # so the rate-independent hysteresis cannot drift.
         # s is the end-of-step increment of the remainder force r (and of the effects)
         if self.force:
             step += [
-                f"ax = kz - {c}[8, i] + efs_x",
+                f"ax = kz - {c}[8, i] + efs_x" + (" + efs_z * kz" if self.reads_z else ""),
                 f"s = (ax * dxs + efs_v * (vs - {v0})) / (1.0 + {c}[6, i] * ax + {c}[7, i] "
                 "* efs_v)",
                 f"dx = dxs - {c}[6, i] * s",
             ]
-            step += bw_update_lines(z0, "dx", z1, c)
-            step += [f"s += ({z1} - {z0}) - kz * dx"]
+            step += self.update_lines(z0, "dx", z1)
+            if self.reads_z:  # the z-reading forces follow z's exact change too
+                step += [f"s += (1.0 + efs_z) * (({z1} - {z0}) - kz * dx)"]
+            else:
+                step += [f"s += ({z1} - {z0}) - kz * dx"]
         else:
             step += [f"dx = dxs / (1.0 + {c}[6, i] * (kz - {c}[8, i]))"]
-            step += bw_update_lines(z0, "dx", z1, c)
+            step += self.update_lines(z0, "dx", z1)
             step += [f"s = {z1} - {z0} - {c}[8, i] * dx"]
         step += [f"{x1} = {x0} + dx", f"{v1} = vs - {c}[7, i] * s"]
+        for e, row in self.state_row.items():
+            step += self.advance(e, start[e], x0, f"{x0} + dx", "dt / substeps", f"sv{row}")
+            step += [f"st[{row}, i] = sv{row}"]
         return step
 
 
@@ -349,7 +440,7 @@ def _generate(model: Model, record: bool, shared_input: bool,
     body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
     # within a sample interval the pressure is linear from pp[0] to pp[1]
     linear = between_samples == "linear"
-    body += ["st = np.zeros((3, batch))"]
+    body += [f"st = np.zeros(({plant.n_rows}, batch))"]
     if between_samples == "bandlimited":
         # p_in holds the reconstructed input at every substep boundary (fine index
         # k * substeps + j); each substep takes the straight line between two of them
@@ -456,7 +547,8 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
             "out_z[k + 1, i] = st[2, i]",
             f"out_p[k + 1, i] = {p_next}",
         ]
-        sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False)
+        sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False, "st[2, i]",
+                               {e: f"st[{row}, i]" for e, row in plant.state_row.items()})
         sample += ["out_f[k + 1, i] = fn"]
     out += ["for k in range(n - 1):"]
     if p_start == "pk":

@@ -14,7 +14,12 @@ definitions:
 * transport delay: ``p(t) = p_cmd(t - t_delay)`` with ``p_cmd(t < 0) = p_cmd[0]``;
 * Coulomb friction ``F_c tanh(x' / v_c)``, cubic stiffness ``K3 x^3`` and pressure
   stiffness ``K_p p x`` (``p`` the acting pressure);
-* position offset: measured position ``x + x_offset``.
+* position offset: measured position ``x + x_offset``;
+* pressure hysteresis: the force ``kappa_ph (p / p_ref_ph) z``;
+* Maxwell creep: a fifth state, the stretch ``u`` of a spring ``k_m`` in series with
+  a dashpot ``k_m tau_m``, ``u' = x' - u / tau_m``, ``u(0) = 0``, force ``k_m u``;
+* generalised Bouc-Wen exponent: ``z' = x' [alpha - (beta sgn(x' z) + gamma) |z|^n
+  z_ref^(1 - n)]``.
 
 The commanded input is a zero-order hold: ``u[k]`` acts on ``[t_k, t_{k+1})``; or a
 straight line between samples (``linear``); or any continuous function of time
@@ -38,8 +43,9 @@ __all__ = ["ReferenceResult", "reference_simulate", "paper_chirp"]
 
 # Slots of the constants vector passed to the compiled integrator.
 (C_MASS, C_AREA, C_F_GRAV, C_ALPHA, C_BETA, C_GAMMA, C_D, C_K_E, C_P_DZ, C_DEAD_ZONE, C_TAU, C_F_C,
- C_V_C, C_K3, C_K_P) = range(15)
-N_CONSTANTS = 15
+ C_V_C, C_K3, C_K_P, C_KAPPA, C_P_REF, C_K_M, C_TAU_M, C_N_BW, C_Z_REF) = range(21)
+N_CONSTANTS = 21
+N_STATES = 5  # x, v, z, acting pressure, Maxwell stretch
 
 
 def paper_chirp(n: int = 15000, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +62,8 @@ def paper_chirp(n: int = 15000, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarra
 
 
 @numba.njit(cache=True)
-def _rhs(c, x, v, z, pa, p_cmd):
-    """Time derivatives of (x, v, z, p_act) for a constant command ``p_cmd``."""
+def _rhs(c, x, v, z, pa, u, p_cmd):
+    """Time derivatives of (x, v, z, p_act, u) for a constant command ``p_cmd``."""
     if c[C_TAU] > 0.0:
         p = pa
         dpa = (p_cmd - pa) / c[C_TAU]
@@ -66,10 +72,14 @@ def _rhs(c, x, v, z, pa, p_cmd):
         dpa = 0.0
     drive = c[C_AREA] * (max(p - c[C_P_DZ], 0.0) if c[C_DEAD_ZONE] > 0.0 else p)
     f_eff = c[C_F_C] * math.tanh(v / c[C_V_C]) + c[C_K3] * x * x * x + c[C_K_P] * p * x
+    f_eff += c[C_KAPPA] * p / c[C_P_REF] * z + c[C_K_M] * u
     acc = (drive - c[C_F_GRAV] - c[C_D] * v - c[C_K_E] * x - z - f_eff) / c[C_MASS]
     sgn = 1.0 if v * z >= 0.0 else -1.0
-    dz = v * (c[C_ALPHA] - (c[C_BETA] * sgn + c[C_GAMMA]) * abs(z))
-    return v, acc, dz, dpa
+    n = c[C_N_BW]
+    mag = abs(z) if n == 1.0 else abs(z) ** n * c[C_Z_REF] ** (1.0 - n)
+    dz = v * (c[C_ALPHA] - (c[C_BETA] * sgn + c[C_GAMMA]) * mag)
+    du = v - u / c[C_TAU_M]
+    return v, acc, dz, dpa, du
 
 
 @numba.njit(cache=True)
@@ -86,21 +96,22 @@ def _rk4_ramp(c, y, a, b, length, steps):
         p0 = a + (b - a) * s / steps
         ph = a + (b - a) * (s + 0.5) / steps
         p1 = a + (b - a) * (s + 1.0) / steps
-        x, v, z, pa = y[0], y[1], y[2], y[3]
-        k1 = _rhs(c, x, v, z, pa, p0)
+        x, v, z, pa, u = y[0], y[1], y[2], y[3], y[4]
+        k1 = _rhs(c, x, v, z, pa, u, p0)
         k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
-                  pa + 0.5 * h * k1[3], ph)
+                  pa + 0.5 * h * k1[3], u + 0.5 * h * k1[4], ph)
         k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
-                  pa + 0.5 * h * k2[3], ph)
-        k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3], p1)
-        for j in range(4):
+                  pa + 0.5 * h * k2[3], u + 0.5 * h * k2[4], ph)
+        k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3],
+                  u + h * k3[4], p1)
+        for j in range(N_STATES):
             y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
 
 
 @numba.njit(cache=True)
 def _integrate_linear(c, u, dt, substeps, x_init, out):
     """:func:`_integrate` for an input that is a straight line between samples."""
-    y = np.array([x_init, 0.0, 0.0, u[0]])
+    y = np.array([x_init, 0.0, 0.0, u[0], 0.0])
     out[:, 0] = y
     for k in range(u.shape[0] - 1):
         _rk4_ramp(c, y, u[k], u[k + 1], dt, substeps)
@@ -115,19 +126,20 @@ def _integrate_stages(c, uh, dt, substeps, x_init, out):
     input at ``q h / 2`` (``h = dt / substeps``)."""
     n = out.shape[1]
     h = dt / substeps
-    y = np.array([x_init, 0.0, 0.0, uh[0]])
+    y = np.array([x_init, 0.0, 0.0, uh[0], 0.0])
     out[:, 0] = y
     for k in range(n - 1):
         for s in range(substeps):
             q = 2 * (k * substeps + s)
-            x, v, z, pa = y[0], y[1], y[2], y[3]
-            k1 = _rhs(c, x, v, z, pa, uh[q])
+            x, v, z, pa, w = y[0], y[1], y[2], y[3], y[4]
+            k1 = _rhs(c, x, v, z, pa, w, uh[q])
             k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
-                      pa + 0.5 * h * k1[3], uh[q + 1])
+                      pa + 0.5 * h * k1[3], w + 0.5 * h * k1[4], uh[q + 1])
             k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
-                      pa + 0.5 * h * k2[3], uh[q + 1])
-            k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3], uh[q + 2])
-            for j in range(4):
+                      pa + 0.5 * h * k2[3], w + 0.5 * h * k2[4], uh[q + 1])
+            k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3],
+                      w + h * k3[4], uh[q + 2])
+            for j in range(N_STATES):
                 y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
         out[:, k + 1] = y
         if c[C_TAU] <= 0.0:
@@ -140,7 +152,7 @@ def _integrate(c, u, dt, t_delay, substeps, x_init, out):
     n = u.shape[0]
     shift = int(math.floor(t_delay / dt))  # whole samples of delay
     frac = t_delay / dt - shift  # the delayed command jumps at t_k + frac * dt
-    y = np.array([x_init, 0.0, 0.0, u[0]])
+    y = np.array([x_init, 0.0, 0.0, u[0], 0.0])
     out[:, 0] = y
     for k in range(n - 1):
         # the delayed command is u[k - shift - 1] before the jump, u[k - shift] after
@@ -208,6 +220,12 @@ def reference_simulate(
     K3: float = 0.0,
     K_p: float = 0.0,
     x_offset: float = 0.0,
+    kappa_ph: float = 0.0,
+    p_ref_ph: float = 5e5,
+    k_m: float = 0.0,
+    tau_m: float = 0.2,
+    n_bw: float = 1.0,
+    z_ref_bw: float = 10.0,
     substeps: int = 64,
     linear: bool = False,
     input_fn=None,
@@ -230,6 +248,9 @@ def reference_simulate(
         Apply ``max(p - p_dz, 0)`` (pressure rig); False for a force-driven rig.
     tau_reg, t_delay, F_c, v_c, K3, K_p, x_offset : float
         Effect parameters; 0 switches an effect off.
+    kappa_ph, p_ref_ph, k_m, tau_m, n_bw, z_ref_bw : float
+        Pressure hysteresis, Maxwell creep and Bouc-Wen exponent; ``kappa_ph = 0``,
+        ``k_m = 0`` and ``n_bw = 1`` switch them off.
     substeps : int
         RK4 steps per sample interval.
     linear : bool
@@ -255,6 +276,8 @@ def reference_simulate(
     c[C_D], c[C_K_E], c[C_P_DZ] = d, K_e, p_dz
     c[C_DEAD_ZONE] = 1.0 if dead_zone else 0.0
     c[C_TAU], c[C_F_C], c[C_V_C], c[C_K3], c[C_K_P] = tau_reg, F_c, v_c, K3, K_p
+    c[C_KAPPA], c[C_P_REF], c[C_K_M], c[C_TAU_M] = kappa_ph, p_ref_ph, k_m, tau_m
+    c[C_N_BW], c[C_Z_REF] = n_bw, z_ref_bw
     if input_fn is not None:
         if linear:
             raise ValueError("give either linear or input_fn")
@@ -265,7 +288,7 @@ def reference_simulate(
     drive0 = area * (max(p0 - p_dz, 0.0) if dead_zone else p0)
     x_init = 0.0 if zero_state else _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p,
                                                         p0)
-    out = np.empty((4, u.shape[0]))
+    out = np.empty((N_STATES, u.shape[0]))
     if input_fn is not None:
         _integrate_stages(c, uh, float(dt), int(substeps), x_init, out)
     elif linear:
@@ -274,6 +297,7 @@ def reference_simulate(
         _integrate_linear(c, u, float(dt), int(substeps), x_init, out)
     else:
         _integrate(c, u, float(dt), float(t_delay), int(substeps), x_init, out)
-    x, v, z, p = out
+    x, v, z, p, stretch = out
     f_eff = F_c * np.tanh(v / v_c) + K3 * x**3 + K_p * p * x
+    f_eff = f_eff + kappa_ph * p / p_ref_ph * z + k_m * stretch
     return ReferenceResult(x + x_offset, x, v, z, p, f_eff)

@@ -29,8 +29,6 @@ from pmabayes.model import Model
 from pmabayes.simulator import (  # the internal code-generation API
     FASTMATH,
     PlantCode,
-    bw_rate_lines,
-    bw_update_lines,
     cached_kernel,
     compile_kernel,
     indent_lines,
@@ -189,10 +187,11 @@ def _setup_lines(plant: PlantCode, ctrl: PlantCode, inverses: list, lagged: bool
     body += plant.setup() + ctrl.setup()
     body += [f"q{name} = theta_c[:, {s.start}:{s.stop}].copy()" for name, _, s in inverses]
     # controller state rows: 0 integral, 1 filtered velocity, 2 observer z, 3 last
-    # reading, 4 controller output, 5 held command
+    # reading, 4 controller output, 5 held command, then the observed states of the
+    # controller model's stateful force effects
     body += [
-        "st = np.zeros((3, batch))",
-        "cs = np.zeros((6, batch))",
+        f"st = np.zeros(({plant.n_rows}, batch))",
+        f"cs = np.zeros(({6 + len(ctrl.state_row)}, batch))",
         "for i in range(batch):",
         "    p0 = p_init[i]",
     ]
@@ -271,8 +270,8 @@ def _tick_lines(ctrl: PlantCode, inverses: list) -> list[str]:
         "else:",
         "    zo = cs[2, i]",
     ]
-    tick += ["    " + ln for ln in bw_rate_lines("zo", "dy", "ccst")]
-    tick += ["    " + ln for ln in bw_update_lines("zo", "dy", "zn", "ccst")]
+    tick += ["    " + ln for ln in ctrl.rate_lines("zo", "dy")]
+    tick += ["    " + ln for ln in ctrl.update_lines("zo", "dy", "zn")]
     tick += [
         "    cs[2, i] = zn",
         "    tp = t + t_pred[i]",
@@ -283,7 +282,15 @@ def _tick_lines(ctrl: PlantCode, inverses: list) -> list[str]:
         f"    xh = {position} + vh * t_pred[i]",
         "    acc = xr_dd + gains[i, 1] * (xr_d - vh) + gains[i, 0] * (xr - xh)",
     ]
-    tick += ["    " + ln for ln in ctrl.forces("xh", "vh", "cs[5, i]", "fc", False)]
+    # the observer advances the model's force states along the reading, as it does z
+    observed = {}
+    for e, row in ctrl.state_row.items():
+        observed[e] = f"cs[{row + 3}, i]"
+        tick += ["    " + ln for ln in ctrl.advance(e, observed[e], f"({position} - dy)",
+                                                     position, "t_ctrl", "so")]
+        tick += [f"    {observed[e]} = so"]
+    tick += ["    " + ln for ln in ctrl.forces("xh", "vh", "cs[5, i]", "fc", False, "zn",
+                                                observed)]
     tick += [
         "    force = (c_mass * acc + theta_c[i, 3] * vh + theta_c[i, 4] * xh + zn + c_f_grav"
         " + fc)",

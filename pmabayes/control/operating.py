@@ -85,7 +85,7 @@ def _pressure_with_forces(params: list, effects: list, p_dz: np.ndarray, base: n
     for k in range(p.size if effects else 0):
         rows = [np.ascontiguousarray(q if np.ndim(q) == 1 else q[k]) for q in params]
         for _ in range(50):
-            extra = sum(e.physics(q, x[k], v[k], p[k])[0] for e, q in zip(effects, rows,
+            extra = sum(e.force_n(q, x[k], v[k], p[k])[0] for e, q in zip(effects, rows,
                                                                           strict=True))
             p_new = p_dz[k] + (base[k] + extra) / area_m2
             done = abs(p_new - p[k]) <= 1e-9 * (1.0 + abs(p_new))
