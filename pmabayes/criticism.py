@@ -187,11 +187,14 @@ def _score_test(likelihoods: list, noises: list, values: dict, name: str) -> Eff
     exts = [lik.model.with_effects(name) for lik in likelihoods]
     ext = exts[0]  # the parameters are shared; only the rigs differ
     eff = ext.effects[-1]
-    tested = [p.name for p in eff.parameters if p.vary]
+    # a parameter without a null (a shape, such as a damping ratio) is not identified
+    # when the effect vanishes: it stays at its default and is not tested
+    tested = [p.name for p in eff.parameters if p.vary and p.null is not None]
     point = dict(ext.defaults)
     point.update({k: v for k, v in values.items() if k in point})  # not the noise
-    point.update({p.name: p.null for p in eff.parameters if p.vary})
-    free = list(ext.free_names)
+    point.update({n: ext.parameter(n).null for n in tested})
+    shapes = {p.name for p in eff.parameters if p.null is None}
+    free = [n for n in ext.free_names if n not in shapes]
     base = ext.theta(point)[0]
     steps, rows = [], [base]
     for n in free:
@@ -307,6 +310,8 @@ class Refit:
     signatures : tuple of Signature
         The refitted model's residual signature in each experiment, in the
         diagnosis' order (one experiment: ``(signature,)``).
+    elpd_i : numpy.ndarray or None
+        Per-trial leave-one-out ELPD, for paired comparisons of refits.
 
     Notes
     -----
@@ -329,6 +334,7 @@ class Refit:
     next_effect: str | None = None
     explained_with_next: float = 0.0
     signatures: tuple = ()
+    elpd_i: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -525,7 +531,8 @@ class Diagnosis:
         ELPD among those that account for the misfit and improve the ELPD by more
         than two standard errors (see :func:`diagnose`). None when nothing
         significant is missing, or when no candidate explains the misfit (see
-        ``verdict``).
+        ``verdict``, which also says when another candidate cannot be told apart
+        from it).
     ranking : list of Finding
         Every candidate, most evidence first: the refitted ones by ELPD, then the
         others by score statistic.
@@ -615,11 +622,13 @@ class Diagnosis:
 
         One experiment: ``data``, ``synthetic``, ``effects``, ``rms_m``,
         ``noise_floor_m``, ``adequate``, ``missing``, ``verdict``, ``ranking``,
-        ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands`` and
-        ``settings``. Several: the same keys, with ``data`` the sources joined by
-        `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the experiments (the
-        floor None when one has no repeats), ``whiteness`` and ``bands`` None (they
-        are per experiment), ``signature`` each experiment's in turn, and two more:
+        ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands``,
+        ``settings`` and ``discrepancy``. Several: the same keys, with ``data`` the
+        sources joined by `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the
+        experiments (the floor None when one has no repeats), ``whiteness``,
+        ``bands`` and ``discrepancy`` None (the first two are per experiment, the
+        last is estimated for one experiment only), ``signature`` each experiment's
+        in turn, and two more:
         ``experiments`` (one :meth:`ExperimentDiagnosis.to_dict` each) and
         ``misfit_experiments`` (the names of those that are not adequate).
         """
@@ -642,6 +651,7 @@ class Diagnosis:
                 "signature": " ".join(f"{e.name}: {e.signature.describe()}" for e in exps),
                 "bands": None,
                 "settings": dict(self.settings),
+                "discrepancy": None,  # estimated for one experiment only, for now
                 "experiments": [e.to_dict() for e in exps],
                 "misfit_experiments": self.misfit_experiments,
             }
@@ -888,7 +898,7 @@ def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> 
                                               tested)
     ext_noises = _experiment_noises(ext_post, ext_map)
     off = dict(ext_map.values)
-    off.update({p.name: p.null for p in eff.parameters if p.vary})
+    off.update({p.name: p.null for p in eff.parameters if p.vary and p.null is not None})
     sigs, contributions = [], []
     for lik, ext_lik, noise in zip(base.likelihoods, ext_liks, ext_noises, strict=True):
         ext_sim = _simulate(ext_lik.model, ext_map.values, lik, s.substeps)
@@ -919,6 +929,7 @@ def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> 
         contribution_m=np.concatenate(contributions), next_effect=nxt.effect if nxt else None,
         explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
         signatures=tuple(sigs),
+        elpd_i=e_elpd_i,
     )
 
 
@@ -967,13 +978,34 @@ def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[F
     return findings
 
 
+def _explaining(refits: dict, s: _Settings) -> list[Refit]:
+    """The refits that account for the misfit and predict left-out trials better."""
+    return [r for r in refits.values()
+            if (max(r.explained, r.explained_with_next) >= s.min_explained
+                or s.all_adequate(r.signatures))
+            and r.elpd_diff > 2.0 * r.elpd_diff_se]
+
+
 def _missing(refits: dict, s: _Settings) -> str | None:
     """The refit that accounts for the misfit and predicts left-out trials best, if any."""
-    explaining = [r for r in refits.values()
-                  if (max(r.explained, r.explained_with_next) >= s.min_explained
-                      or s.all_adequate(r.signatures))
-                  and r.elpd_diff > 2.0 * r.elpd_diff_se]
+    explaining = _explaining(refits, s)
     return max(explaining, key=lambda r: r.elpd).effect if explaining else None
+
+
+def _twins(refits: dict, missing: str | None, s: _Settings) -> list[tuple[str, float, float]]:
+    """The other explaining refits whose ELPD is within two standard errors of the
+    missing one's (paired over trials): ``(effect, elpd difference, its SE)``."""
+    if missing is None or refits[missing].elpd_i is None:
+        return []
+    best, out = refits[missing], []
+    for r in _explaining(refits, s):
+        if r.effect == missing or r.elpd_i is None:
+            continue
+        diff = best.elpd_i - r.elpd_i
+        se = float(math.sqrt(diff.size * np.var(diff)))
+        if float(diff.sum()) <= 2.0 * se:
+            out.append((r.effect, float(diff.sum()), se))
+    return out
 
 
 def _experiments(datasets, model: Model | None, effects: Iterable[str]
@@ -1040,7 +1072,11 @@ def diagnose(
        together with the candidate that the refit's own score test finds next
        (so that two missing effects of similar size are found one after the
        other). If none qualifies, nothing is named: a misfit above the floor is
-       reported as unexplained instead of naming the least bad candidate.
+       reported as unexplained instead of naming the least bad candidate. When
+       another qualifying refit's ELPD is within two standard errors of the
+       named one's (paired over the trials), the verdict says that the two cannot
+       be told apart by these data (near twins, such as a regulator lag and a
+       well-damped second-order regulator).
     6. Then, with ``discrepancy``, the missing force is estimated from the data
        (:func:`pmabayes.discrepancy.estimate_discrepancy`): the states it depends
        on, with their evidence, and a closed form written as a ready user effect
@@ -1146,7 +1182,7 @@ def diagnose(
                                                base.simulations, base.signatures, each,
                                                strict=True))
     verdict = _verdict(name, model.effect_names, experiments, adequate, missing, refits,
-                       findings, min_explained)
+                       findings, min_explained, _twins(refits, missing, s))
     found = None
     if discrepancy and not adequate and missing is None and len(datasets) > 1:
         verdict += (" The data-driven discrepancy step takes one experiment for now; "
@@ -1183,7 +1219,8 @@ def _sig_text(signature: Signature) -> str:
 
 
 def _verdict(name: str, effects: tuple, experiments: tuple, adequate: bool,
-             missing: str | None, refits: dict, findings: list, min_explained: float) -> str:
+             missing: str | None, refits: dict, findings: list, min_explained: float,
+             twins: list | None = None) -> str:
     names = [e.name for e in experiments]
     if len(experiments) == 1:
         sig = _sig_text(experiments[0].signature)
@@ -1198,18 +1235,27 @@ def _verdict(name: str, effects: tuple, experiments: tuple, adequate: bool,
                  + (f"; {', '.join(good)} {'is' if len(good) == 1 else 'are'} consistent with "
                     "the noise." if good else "."))
     text = _verdict_core(name, effects, sig, adequate, missing, refits, findings,
-                         min_explained, names)
+                         min_explained, names, twins)
     return text + where + (f" {notes}" if notes else "")
 
 
 def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,
-                  refits: dict, findings: list, min_explained: float, names: list) -> str:
+                  refits: dict, findings: list, min_explained: float, names: list,
+                  twins: list | None = None) -> str:
     if missing is not None:
         r = refits[missing]
-        others = [f.effect for f in findings if f.refit is not None and f.effect != missing]
+        tied = [t[0] for t in twins or ()]
+        others = [f.effect for f in findings
+                  if f.refit is not None and f.effect != missing and f.effect not in tied]
         text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
                 f"{_after_text(r.signatures, names)} and removes "
                 f"{r.explained:.0%} of the excess residual.")
+        for twin, diff, se in twins or ():
+            text += (f" But {missing} and {twin} cannot be told apart by these data: both "
+                     f"account for the misfit and their leave-one-trial-out ELPDs differ by "
+                     f"only {diff:+.1f} ± {se:.1f} (less than two standard errors), so "
+                     f"{missing} is named for its slightly better ELPD, not proven; data "
+                     "that excite where they differ would separate them.")
         if others:
             text += (f" It predicts left-out trials better than the other refitted "
                      f"candidate(s) ({', '.join(others)}).")

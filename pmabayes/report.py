@@ -566,7 +566,7 @@ def experiment_adequacy(tree: xr.DataTree, *, datasets: Sequence[Dataset] | None
                                  white=nz["sigma_white_m"])
                  if all(nz.get(k) is not None for k in
                         ("sigma_noise_m", "rho_noise", "sigma_white_m")) else None)
-        command = _diagnose_command(info, ds)
+        command = _diagnose_command(info, datasets)  # diagnose takes them together
         out.append((exp["name"], check_adequacy(Likelihood(model, ds), pred["median"], noise,
                                                 coverage=pred["coverage"], ci_prob=ci_prob,
                                                 next_command=command)))
@@ -648,10 +648,13 @@ def _dataset_from_fit(tree: xr.DataTree, info: dict) -> Dataset:
                    source=d.get("source"))
 
 
-def _diagnose_command(info: dict, dataset: Dataset) -> str:
-    source = dataset.source or (info.get("data") or {}).get("source") or "DATA.csv"
+def _diagnose_command(info: dict, dataset: Dataset | Sequence[Dataset]) -> str:
+    """``pmabayes diagnose FILE [FILE ...] [--effects ...]`` for the fit's data."""
+    datasets = [dataset] if isinstance(dataset, Dataset) else list(dataset)
+    sources = [ds.source or (info.get("data") or {}).get("source") or "DATA.csv"
+               for ds in datasets]
     effects = (info.get("model") or {}).get("effects") or []
-    command = f"pmabayes diagnose {shlex.quote(str(source))}"
+    command = "pmabayes diagnose " + " ".join(shlex.quote(str(s)) for s in sources)
     return command + (f" --effects {','.join(effects)}" if effects else "")
 
 
