@@ -199,6 +199,14 @@ def _sci_tex(v: float | None) -> str:
     return f"${mant}\\times10^{{{int(exp)}}}$"
 
 
+def _num_tex(v: float) -> str:
+    """A parameter value for the text: five significant digits, thousands grouped."""
+    text = f"{v:,.5g}" if abs(v) < 1e5 else f"{v:,.0f}"
+    if "e" in text:
+        return _sci_tex(v)
+    return text.replace(",", "{,}").replace("-", r"\ensuremath{-}")
+
+
 def write_paper_table(results: Path, tables: Path) -> Path:
     """The paper's table of test errors, from a finished run's JSON files.
 
@@ -243,6 +251,19 @@ def write_paper_table(results: Path, tables: Path) -> Path:
         "BwTrueSweep": _sci_tex(exact["test_sinesweep"]),
         "BwSubsteps": str(bench["substeps"]),
     }
+    if "posterior" in bench:  # runs before the posterior was recorded lack these
+        for name, key in (("K_e", "Ke"), ("alpha", "Alpha"), ("d", "D"), ("beta", "Beta"),
+                          ("gamma", "Gamma")):
+            mean, lo, hi = bench["posterior"][name]
+            numbers |= {f"Bw{key}Mean": _num_tex(mean), f"Bw{key}Lo": _num_tex(lo),
+                        f"Bw{key}Hi": _num_tex(hi)}
+        first = bench["estimation_rms_per_period_at_truth_m"]
+        rest = bench["estimation_rms_per_period_at_truth_from_rest_m"]
+        numbers |= {
+            "BwFirstPeriodZero": _sci_tex(first[0]),
+            "BwFirstPeriodRest": _sci_tex(rest[0]),
+            "BwLaterPeriods": _sci_tex(float(np.sqrt(np.mean(np.square(first[1:]))))),
+        }
     (tables / "numbers_boucwen.tex").write_text(
         "% written by analyses/boucwen_benchmark.py --tables-from RESULTS\n"
         + "".join(f"\\newcommand{{\\pb{k}}}{{{v}}}\n" for k, v in numbers.items()))
