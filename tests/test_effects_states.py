@@ -66,7 +66,7 @@ def test_polynomial_helpers_match_libm():
         assert phi == pytest.approx(want, rel=1e-13)
     for base in np.geomspace(1e-6, 1e3, 97):
         for ex in (-0.3, -0.1, 0.0, 0.05, 0.5):
-            assert power(base, ex) == pytest.approx(base**ex, rel=1e-12)
+            assert power(base, ex) == pytest.approx(base**ex, rel=2e-11)
 
 
 @pytest.mark.parametrize("name", NEW)
@@ -83,7 +83,7 @@ def test_accuracy_against_the_reference_on_the_paper_chirp(name, record_property
     """Within 1e-5 m of RK4 (64 substeps) over the 15 s chirp at 1 kHz.
 
     Measured: pressure_hysteresis 6.4e-8 m, maxwell_creep 6.7e-8 m, bouc_wen_exponent
-    9.3e-8 m (n = 1.1).
+    7.8e-8 m (n = 1.1).
     """
     values = LAB[name]
     x = pb.simulate(pb.Model([name]), values, CHIRP, dt_s=DT)[0]
@@ -100,7 +100,7 @@ def test_accuracy_against_the_reference_on_the_paper_chirp(name, record_property
     {"k_m": 500.0, "tau_m": 0.01}, {"k_m": 100.0, "tau_m": 5.0},
 ])
 def test_accuracy_across_the_range(values, record_property):
-    """The exponent across its bounds, and fast and slow creep (measured <= 3.3e-7 m)."""
+    """The exponent across its bounds, and fast and slow creep (measured <= 2.1e-7 m)."""
     name = "bouc_wen_exponent" if "n_bw" in values else "maxwell_creep"
     model = pb.Model([name], free=[k for k in values if k == "tau_m"])
     x = pb.simulate(model, values, CHIRP, dt_s=DT)[0]
