@@ -14,13 +14,15 @@
     compare, without fitting.
 ``pmabayes simulate OUT.csv``
     Write a synthetic repeated-chirp data set from the paper's parameters.
-``pmabayes diagnose DATA.csv [--effects A,B] [--out DIR] [--json OUT.json]``
+``pmabayes diagnose DATA.csv [DATA2.csv ...] [--effects A,B] [--out DIR] [--json OUT.json]``
     Fit a model (MAP), compare it with the measurements against the noise floor,
     show where it fails and rank the library's effects by the evidence that they
-    are missing; the best candidates are refitted and compared by ELPD.
-``pmabayes compare FIT_A.nc FIT_B.nc ... --data DATA.csv --out DIR``
+    are missing; the best candidates are refitted and compared by ELPD. Several
+    files are experiments diagnosed together, each on its own rig.
+``pmabayes compare FIT_A.nc FIT_B.nc ... --data DATA.csv [DATA2.csv ...] --out DIR``
     Fits of the same data side by side: error per band against the floor,
-    whiteness tests and leave-one-trial-out ELPD; the error-falling figure.
+    whiteness tests and leave-one-trial-out ELPD; the error-falling figure. Fits
+    of several experiments take one data file per experiment.
 ``pmabayes effects``
     List the registered physical effects and their parameters.
 ``pmabayes track --freq F``
@@ -368,40 +370,31 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _needs_repeats(dataset: Dataset, command: str) -> None:
-    """Refuse a single record where a command's errors are judged against the floor."""
-    if dataset.n_trials < 2:
-        raise CliError(
-            f"{dataset.source}: one trial; {command} judges errors per band against the noise "
-            "floor of repeated trials, which a single record does not have. Fit it with "
-            f"`pmabayes fit {dataset.source} --out FIT.nc` (its noise is identified from its "
-            "periods or from the record itself) and read the adequacy verdict of the fit's "
-            "report, or record repeated trials")
-
-
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pmabayes.criticism import diagnose
 
     start = time.perf_counter()
-    if len(args.data) > 1:
-        raise CliError(
-            f"diagnose got {len(args.data)} data files; it criticises one experiment at a "
-            "time (the search for a missing effect is per data set): run `pmabayes diagnose "
-            "FILE` on each of " + ", ".join(args.data) + ", then fit them together with "
-            "`pmabayes fit " + " ".join(args.data) + " --effects ... --out FIT.nc`")
     if args.out:
         _out_folder(args.out)
-    dataset = _load_data(args, args.data[0], min_trials=2)
-    _needs_repeats(dataset, "diagnose")
-    print(check_trials(dataset).summary())  # the noise is learnt from their spread
-    result = diagnose(dataset, _model_for(dataset, args),
+    datasets = _load_all(args)
+    for ds in datasets:  # the noise is learnt from their spread
+        print(check_trials(ds).summary())
+    model = _model_for(datasets[0], args)
+    result = diagnose(datasets if len(datasets) > 1 else datasets[0], model,
                       candidates=args.candidates or None, seed=args.seed,
-                      progress=not args.quiet)
+                      progress=not args.quiet,
+                      plugin_dir=args.proposal_dir or args.out or Path.cwd())
     summary = result.to_dict()
     label = " + ".join(["base", *result.model.effect_names])
     print(f"model: {label}")
-    print(f"RMS error of the trial mean: {result.rms_m * 1e6:.1f} um (noise floor "
-          f"{result.noise_floor_m * 1e6:.1f} um); adequate: {'yes' if result.adequate else 'no'}")
+    for e in result.experiments:
+        prefix = f"[{e.name}] " if len(result.experiments) > 1 else ""
+        floor = (f"noise floor {e.noise_floor_m * 1e6:.1f} um" if np.isfinite(e.noise_floor_m)
+                 else "no noise floor: a single record without repeats")
+        print(f"{prefix}RMS error of the trial mean: {e.rms_m * 1e6:.1f} um ({floor}); "
+              f"adequate: {'yes' if e.adequate else 'no'}")
+    if len(result.experiments) > 1:
+        print(f"adequate in every experiment: {'yes' if result.adequate else 'no'}")
     for f in result.ranking[:5]:
         est = ", ".join(f"{k}={v:.4g}" for k, v in f.estimate.items())
         print(f"  {f.effect:<22s} evidence {f.evidence:10.4g}  "
@@ -428,32 +421,32 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise CliError(f"compare got {len(args.fits)} fit(s) and "
                        f"{'no' if labels is None else len(labels)} --labels; give two or more "
                        "fits of the same data, and one label per fit if any")
-    if len(args.data) > 1:
-        raise CliError(
-            f"compare got {len(args.data)} data files; it compares fits of one data set "
-            "(error per band, whiteness, ELPD per trial): compare fits of each experiment "
-            "on its own (`pmabayes fit FILE --out FIT.nc` per model), or compare "
-            "multi-experiment fits by their reports (`pmabayes report FIT.nc`)")
     _out_folder(args.out)
-    dataset = load(args.data[0])
-    _needs_repeats(dataset, "compare")
     fits = [load_fit(f) for f in args.fits]
-    for path, tree in zip(args.fits, fits, strict=True):
-        if len(fit_info(tree).get("experiments") or [None]) > 1:
+    n_exp = [len(fit_info(t).get("experiments") or [None]) for t in fits]
+    for path, n in zip(args.fits, n_exp, strict=True):
+        if n != len(args.data):
             raise CliError(
-                f"{path} is a fit of {len(fit_info(tree)['experiments'])} experiments; compare "
-                "takes fits of one data set: fit each experiment on its own to compare "
-                "models on it, or read the multi-experiment fit's report (`pmabayes report`)")
-    result = compare_fits(fits, dataset, labels=labels)
+                f"{path} is a fit of {n} experiment(s) but --data got {len(args.data)} file(s) "
+                f"({', '.join(args.data)}); give the data file of each experiment the fits were "
+                "made from, in the fit's order, and compare only fits of the same experiments")
+    datasets = [load(p) for p in args.data]
+    result = compare_fits(fits, datasets if len(datasets) > 1 else datasets[0], labels=labels,
+                          sources=args.fits)
+    parts = result.experiments or {"": result}
+    for name, c in parts.items():
+        for k in c.labels:
+            b = c.bands[k][-1]
+            ratio = f"{b.ratio:7.3g}x floor" if np.isfinite(b.floor_m) else "(no floor)"
+            print(f"{f'[{name}] ' if name else ''}{k:<40s} RMS {b.rms_m * 1e6:9.1f} um = "
+                  f"{ratio}  Ljung-Box p {c.whiteness[k]['ljung_box_p']:.2g}")
     for k in result.labels:
-        b = result.bands[k][-1]
-        print(f"{k:<40s} RMS {b.rms_m * 1e6:9.1f} um = {b.ratio:7.3g}x floor  "
-              f"Ljung-Box p {result.whiteness[k]['ljung_box_p']:.2g}  "
-              f"ELPD {result.elpd[k]['elpd']:.1f}")
+        print(f"{k:<40s} ELPD {result.elpd[k]['elpd']:.1f} (leave one trial out"
+              f"{' of all experiments' if result.experiments else ''})")
     for step in result.elpd_steps:
         print(f"{step['from']} -> {step['to']}: ELPD {step['elpd_diff']:+.1f} "
               f"+- {step['se']:.1f}")
-    index = write_comparison(result, Path(args.out), dataset=dataset)
+    index = write_comparison(result, Path(args.out), dataset=datasets)
     print(f"wrote {index}")
     return 0
 
@@ -785,15 +778,19 @@ def _batch_commands(sub) -> None:
 def _criticism_commands(sub) -> None:
     diag = sub.add_parser("diagnose", help="fit a model (MAP), criticise it and find which "
                           "effect is missing")
-    diag.add_argument("data", nargs="+", help="data file (.csv, .nc or MATLAB .mat v4-v7.3, "
-                      "with an optional .json sidecar of the same stem); one experiment at "
-                      "a time")
+    diag.add_argument("data", nargs="+", help="data files (.csv, .nc or MATLAB .mat v4-v7.3, "
+                      "each with an optional .json sidecar of the same stem), one per "
+                      "experiment, each on the rig its sidecar gives; the experiments share "
+                      "the physical parameters")
     diag.add_argument("--effects", default="", type=_effect_list,
                       help="comma-separated effects to add to the base model")
     diag.add_argument("--candidates", default="", type=_effect_list,
                       help="effects to test (all registered effects by default)")
     diag.add_argument("--out", help="folder for the figures and an HTML page")
     diag.add_argument("--json", help="write a machine-readable summary here")
+    diag.add_argument("--proposal-dir", help="folder for the proposed effect's .py file when "
+                      "the discrepancy step proposes one (default: --out, else the current "
+                      "folder; an existing file is never overwritten)")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
     _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -804,7 +801,8 @@ def _criticism_commands(sub) -> None:
                           "band, whiteness, ELPD")
     comp.add_argument("fits", nargs="+", help="two or more fits (FIT.nc) of the same data")
     comp.add_argument("--data", required=True, nargs="+",
-                      help="the data file the fits were made from (one)")
+                      help="the data files the fits were made from, one per experiment, "
+                      "in the fits' order")
     comp.add_argument("--out", required=True, help="output folder")
     comp.add_argument("--labels", help="comma-separated names of the fits (default: their "
                       "models, base + effect + ...)")

@@ -20,18 +20,26 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
 
-from pmabayes.data import Dataset
+from pmabayes.data import DataError, Dataset, check_same_input_kind
+from pmabayes.discrepancy import Discrepancy, estimate_discrepancy
 from pmabayes.effects import get_effect, registered_effects
-from pmabayes.fit import NoiseEstimate, Posterior, estimate_noise, find_map
+from pmabayes.fit import NoiseEstimate, Posterior, _on_rig, estimate_noise, find_map
 from pmabayes.likelihood import Likelihood
 from pmabayes.model import Model
-from pmabayes.posterior import check_dataset, fit_info, model_from_fit
+from pmabayes.posterior import (
+    check_dataset,
+    experiment_datasets,
+    experiment_models,
+    experiment_names,
+    fit_info,
+    model_from_fit,
+)
 from pmabayes.residuals import (
     DEFAULT_BANDS_HZ,  # noqa: F401
     ENERGY_TOLERANCE,
@@ -61,7 +69,8 @@ _REEXPORTED = ("DEFAULT_BANDS_HZ", "BandErrors", "BandError", "band_label",
                "instantaneous_frequency", "band_errors", "innovations", "autocorrelation",
                "cross_correlation", "ljung_box", "Signature", "residual_signature")
 __all__ = [*_REEXPORTED, "EffectEvidence", "rank_effects", "Refit", "Finding", "Diagnosis",
-           "diagnose", "significance_threshold", "FitComparison", "compare_fits"]
+           "ExperimentDiagnosis", "diagnose", "significance_threshold", "FitComparison",
+           "compare_fits"]
 
 
 @dataclass(frozen=True)
@@ -105,7 +114,7 @@ class EffectEvidence:
 
 
 def rank_effects(
-    likelihood: Likelihood,
+    likelihood: Likelihood | Sequence[Likelihood],
     noise,
     values: dict,
     *,
@@ -122,6 +131,11 @@ def rank_effects(
     needed, and nothing in it is specific to an effect: user-registered effects
     are ranked like built-in ones.
 
+    Over several experiments (independent, with shared physical parameters) the
+    scores and the Fisher informations of the experiments add, so one test is
+    made with all the data, each experiment simulated on its own rig and whitened
+    by its own noise.
+
     Limits of a first-order test: effects whose first-order signatures coincide
     are not told apart. A regulator lag and a transport delay both act as
     ``p - tau dp/dt`` for small ``tau``, so both rank at the top with nearly equal
@@ -131,11 +145,12 @@ def rank_effects(
 
     Parameters
     ----------
-    likelihood : Likelihood
-        Data and the current model.
-    noise : object
+    likelihood : Likelihood or sequence of Likelihood
+        Data and the current model; one per experiment, whose models share their
+        parameters (their rigs may differ).
+    noise : object or sequence of object
         Identified noise (``sigma``, ``rho``, ``white``), e.g. from
-        :func:`pmabayes.fit.estimate_noise`.
+        :func:`pmabayes.fit.estimate_noise`; one per experiment with several.
     values : dict
         The current model's parameter values at its MAP.
     candidates : iterable of str, optional
@@ -148,30 +163,38 @@ def rank_effects(
     -------
     list of EffectEvidence
         Most evidence first.
+
+    Raises
+    ------
+    ValueError
+        If the numbers of experiments and noises differ.
     """
-    model = likelihood.model
-    present = set(model.effect_names)
+    liks = [likelihood] if isinstance(likelihood, Likelihood) else list(likelihood)
+    noises = list(noise) if isinstance(noise, list | tuple) else [noise]
+    if len(noises) != len(liks):
+        raise ValueError(f"{len(liks)} experiment(s) need one noise each, got {len(noises)}")
+    present = set(liks[0].model.effect_names)
     names = [n for n in (candidates or registered_effects()) if n not in present]
-    out = [_score_test(likelihood, noise, values, name) for name in names]
+    out = [_score_test(liks, noises, values, name) for name in names]
     threshold = level / max(len(out), 1)
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
     return sorted(out, key=lambda e: -e.statistic)
 
 
-def _score_test(likelihood: Likelihood, noise, values: dict, name: str) -> EffectEvidence:
-    """The score test of one candidate effect (``significant`` is set by the caller)."""
-
-    def whiten(v: np.ndarray) -> np.ndarray:
-        return likelihood.whiten(v, noise.sigma, noise.rho, noise.white)
-
-    ext = likelihood.model.with_effects(name)
-    lik = Likelihood(ext, likelihood.dataset, substeps=likelihood.substeps)
+def _score_test(likelihoods: list, noises: list, values: dict, name: str) -> EffectEvidence:
+    """The score test of one candidate effect over the experiments (``significant`` is set
+    by the caller): their scores and informations add."""
+    exts = [lik.model.with_effects(name) for lik in likelihoods]
+    ext = exts[0]  # the parameters are shared; only the rigs differ
     eff = ext.effects[-1]
-    tested = [p.name for p in eff.parameters if p.vary]
+    # a parameter without a null (a shape, such as a damping ratio) is not identified
+    # when the effect vanishes: it stays at its default and is not tested
+    tested = [p.name for p in eff.parameters if p.vary and p.null is not None]
     point = dict(ext.defaults)
     point.update({k: v for k, v in values.items() if k in point})  # not the noise
-    point.update({p.name: p.null for p in eff.parameters if p.vary})
-    free = list(ext.free_names)
+    point.update({n: ext.parameter(n).null for n in tested})
+    shapes = {p.name for p in eff.parameters if p.null is None}
+    free = [n for n in ext.free_names if n not in shapes]
     base = ext.theta(point)[0]
     steps, rows = [], [base]
     for n in free:
@@ -182,11 +205,20 @@ def _score_test(likelihood: Likelihood, noise, values: dict, name: str) -> Effec
         up[j] += h
         rows.append(up)
         steps.append(h)
-    x = lik.simulate(np.array(rows))
-    r_w = whiten(likelihood.y_mean - x[0])
-    w = np.stack([whiten((x[k + 1] - x[0]) / steps[k]) for k in range(len(free))], axis=1)
-    info = w.T @ w
-    score = w.T @ r_w
+    info = np.zeros((len(free), len(free)))
+    score = np.zeros(len(free))
+    energy, n_samples = 0.0, 0
+    for lik, ext_e, noise in zip(likelihoods, exts, noises, strict=True):
+        def whiten(v: np.ndarray, lik=lik, noise=noise) -> np.ndarray:
+            return lik.whiten(v, noise.sigma, noise.rho, noise.white)
+
+        x = Likelihood(ext_e, lik.dataset, substeps=lik.substeps).simulate(np.array(rows))
+        r_w = whiten(lik.y_mean - x[0])
+        w = np.stack([whiten((x[k + 1] - x[0]) / steps[k]) for k in range(len(free))], axis=1)
+        info += w.T @ w
+        score += w.T @ r_w
+        energy += float(r_w @ r_w)
+        n_samples += r_w.size
     t_idx = [free.index(n) for n in tested]
     o_idx = [k for k in range(len(free)) if k not in t_idx]
     i_oo = info[np.ix_(o_idx, o_idx)]
@@ -210,7 +242,7 @@ def _score_test(likelihood: Likelihood, noise, values: dict, name: str) -> Effec
         if one_sided[i]:  # the constrained estimate: a bound is the smallest value
             est, lo, hi = max(est, point[n]), max(lo, point[n]), max(hi, point[n])
         estimate[n], interval[n] = float(est), (float(lo), float(hi))
-    excess = max(float(r_w @ r_w) - r_w.size, 1e-12)
+    excess = max(energy - n_samples, 1e-12)
     return EffectEvidence(name, stat, len(tested), p_value, False, estimate, interval,
                           float(min(stat / excess, 1.0)))
 
@@ -275,6 +307,18 @@ class Refit:
         Fraction of the base model's excess removed by the refit and, to first
         order, by ``next_effect`` after it: near 1 when the two together account
         for the misfit.
+    signatures : tuple of Signature
+        The refitted model's residual signature in each experiment, in the
+        diagnosis' order (one experiment: ``(signature,)``).
+    elpd_i : numpy.ndarray or None
+        Per-trial leave-one-out ELPD, for paired comparisons of refits.
+
+    Notes
+    -----
+    With several experiments, ``rms_m`` is pooled over every sample of every
+    experiment, ``signature`` is the first experiment's (each is in
+    ``signatures``), and ``contribution_m`` is the experiments' contributions
+    concatenated along time, in order.
     """
 
     effect: str
@@ -289,6 +333,8 @@ class Refit:
     contribution_m: np.ndarray
     next_effect: str | None = None
     explained_with_next: float = 0.0
+    signatures: tuple = ()
+    elpd_i: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -343,8 +389,116 @@ class Finding:
             out["refit"] = {"rms_m": self.refit.rms_m, "elpd_diff": self.refit.elpd_diff,
                             "elpd_diff_se": self.refit.elpd_diff_se,
                             "ljung_box_p": self.refit.signature.ljung_box_p,
-                            "noise_ratio": self.refit.signature.ratio}
+                            "noise_ratio": _finite_or_none(self.refit.signature.ratio)}
+            if len(self.refit.signatures) > 1:
+                out["refit"]["experiments"] = [
+                    {"rms_m": sig.bands[-1].rms_m, "noise_ratio": _finite_or_none(sig.ratio),
+                     "ljung_box_p": sig.ljung_box_p, "energy": sig.energy}
+                    for sig in self.refit.signatures]
         return out
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+@dataclass(frozen=True)
+class ExperimentDiagnosis:
+    """One experiment of a diagnosis: its data, its model's fit there, and its verdict.
+
+    Parameters
+    ----------
+    name : str
+        The experiment's name (its file's stem, :func:`pmabayes.posterior.experiment_names`).
+    dataset : Dataset
+        Its data.
+    model : Model
+        The diagnosed model on the experiment's rig.
+    noise : NoiseEstimate
+        Its noise: from its repeats (trials, or the periods of a periodic record),
+        or, for a single record without repeats, identified with the model at the
+        MAP (``mean_u`` and ``cov_u`` None).
+    noise_source : str
+        ``"trials"``, ``"periods"`` or ``"record"``
+        (:attr:`pmabayes.likelihood.Likelihood.noise_source`).
+    simulation : Simulation
+        The model at the shared MAP, on this experiment's rig and input.
+    signature : Signature
+        The residual's signature here. Its noise floor is NaN for a record without
+        repeats (nothing to measure it with).
+    adequate : bool
+        The adequacy rule on this experiment's whitened residual.
+    """
+
+    name: str
+    dataset: Dataset
+    model: Model
+    noise: NoiseEstimate
+    noise_source: str
+    simulation: Simulation
+    signature: Signature
+    adequate: bool
+
+    @property
+    def rms_m(self) -> float:
+        """RMS error of the trial mean at the MAP."""
+        return self.signature.bands[-1].rms_m
+
+    @property
+    def noise_floor_m(self) -> float:
+        """RMS error a perfect model would have (NaN without repeats)."""
+        return self.signature.bands[-1].floor_m
+
+    @property
+    def residual_m(self) -> np.ndarray:
+        """Trial mean minus model, ``(n_samples,)``."""
+        return self.dataset.mean_position_m - self.simulation.position_m[0]
+
+    @property
+    def innovations(self) -> np.ndarray:
+        """The residual whitened by the identified noise model."""
+        lik = Likelihood(self.model, self.dataset)
+        return innovations(lik, self.simulation.position_m[0], self.noise)
+
+    @property
+    def frequency_hz(self) -> np.ndarray:
+        """Instantaneous frequency of the command at each sample (for the figures)."""
+        return instantaneous_frequency(self.dataset)
+
+    def whiteness_curves(self) -> WhitenessCurves:
+        """The whiteness figure's curves of the whitened residual (lags to 0.2 s, 99% bound)."""
+        label = " + ".join(["base", *self.model.effect_names])
+        rate = np.gradient(self.dataset.input[0], self.dataset.time_s)
+        return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s)
+
+    def floor_note(self) -> str:
+        """Why there is no noise floor, or an empty string when there is one."""
+        if math.isfinite(self.noise_floor_m):
+            return ""
+        return (f"{self.dataset.source or self.name} is a single record without repeats (no "
+                "second trial, no declared periods), so it has no noise floor: its error is "
+                "judged by the whiteness of its residual under the noise identified with the "
+                "model, whose correlation time is bounded far below the input's time scales")
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary of this experiment (an entry of ``experiments``)."""
+        sig = self.signature
+        return {
+            "name": self.name, "data": self.dataset.source,
+            "synthetic": bool(self.dataset.metadata.get("synthetic", False)),
+            "rig": self.model.rig.to_dict(), "n_trials": int(self.dataset.n_trials),
+            "n_samples": int(self.dataset.n_samples), "noise_source": self.noise_source,
+            "noise": {"sigma_noise_m": float(self.noise.sigma),
+                      "rho_noise": float(self.noise.rho),
+                      "sigma_white_m": float(self.noise.white)},
+            "rms_m": self.rms_m, "noise_floor_m": _finite_or_none(self.noise_floor_m),
+            "ratio": _finite_or_none(sig.ratio), "adequate": self.adequate,
+            "floor_note": self.floor_note() or None,
+            "whiteness": {"ljung_box_p": sig.ljung_box_p, "energy": sig.energy,
+                          "energy_p": sig.energy_p},
+            "signature": sig.describe(),
+            "bands": [b.to_dict() for b in sig.bands],
+        }
 
 
 @dataclass(frozen=True)
@@ -354,36 +508,49 @@ class Diagnosis:
     Parameters
     ----------
     dataset : Dataset
-        The data.
+        The data (with several experiments, the first one's; see ``experiments``).
     model : Model
-        The diagnosed model.
+        The diagnosed model (with several experiments, on the first one's rig).
     values : dict
-        Its MAP, with the noise parameters.
+        Its MAP, with the noise parameters (with several experiments, each noise
+        parameter maps the experiments' names to their values).
     noise : NoiseEstimate
-        The noise identified from the spread between trials.
+        The noise identified from the spread between trials (with several
+        experiments, the first one's).
     simulation : Simulation
-        The model at the MAP, with its states.
+        The model at the MAP, with its states (the first experiment's).
     signature : Signature
-        The residual's signature.
+        The residual's signature (the first experiment's).
     adequate : bool
         The whitened residual is consistent with the noise: its mean square is
         within ``1 + energy_tolerance`` of pure noise and its autocorrelation is
-        not significant (Ljung-Box at ``level_adequate``).
+        not significant (Ljung-Box at ``level_adequate``). With several
+        experiments: in every one of them.
     missing : str or None
         The effect found missing: the refitted significant candidate with the best
         ELPD among those that account for the misfit and improve the ELPD by more
         than two standard errors (see :func:`diagnose`). None when nothing
         significant is missing, or when no candidate explains the misfit (see
-        ``verdict``).
+        ``verdict``, which also says when another candidate cannot be told apart
+        from it).
     ranking : list of Finding
         Every candidate, most evidence first: the refitted ones by ELPD, then the
         others by score statistic.
     elpd : float
-        Leave-one-trial-out ELPD of the model (PSIS-LOO over Laplace draws).
+        Leave-one-trial-out ELPD of the model (PSIS-LOO over Laplace draws), over
+        every trial of every experiment.
     verdict : str
-        The conclusion in words.
+        The conclusion in words; with several experiments it names those whose
+        residual shows the misfit.
     settings : dict
         The settings used (level, thresholds, ci_prob, seed).
+    experiments : tuple of ExperimentDiagnosis
+        Each experiment's data, model, noise, simulation, signature and verdict, in
+        the given order (one entry for one data set).
+    discrepancy : Discrepancy or None
+        The missing force estimated from the data, when the model is above the floor
+        and no candidate in the library accounts for it (see
+        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise.
     """
 
     dataset: Dataset
@@ -398,25 +565,39 @@ class Diagnosis:
     elpd: float
     verdict: str
     settings: dict
+    experiments: tuple = ()
+    discrepancy: Discrepancy | None = None
 
     @property
     def rms_m(self) -> float:
-        """RMS error of the trial mean at the MAP."""
+        """RMS error of the trial mean at the MAP (pooled over all samples of all experiments)."""
+        if len(self.experiments) > 1:
+            return _pooled([e.rms_m for e in self.experiments],
+                           [e.dataset.n_samples for e in self.experiments])
         return self.signature.bands[-1].rms_m
 
     @property
     def noise_floor_m(self) -> float:
-        """RMS error a perfect model would have (from the spread between trials)."""
+        """RMS error a perfect model would have (from the spread between trials; pooled
+        over the experiments, NaN when one of them has no repeats)."""
+        if len(self.experiments) > 1:
+            return _pooled([e.noise_floor_m for e in self.experiments],
+                           [e.dataset.n_samples for e in self.experiments])
         return self.signature.bands[-1].floor_m
 
     @property
+    def misfit_experiments(self) -> list[str]:
+        """Names of the experiments whose residual is not consistent with the noise."""
+        return [e.name for e in self.experiments if not e.adequate]
+
+    @property
     def residual_m(self) -> np.ndarray:
-        """Trial mean minus model, ``(n_samples,)``."""
+        """Trial mean minus model, ``(n_samples,)`` (the first experiment's)."""
         return self.dataset.mean_position_m - self.simulation.position_m[0]
 
     @property
     def innovations(self) -> np.ndarray:
-        """The residual whitened by the identified noise model."""
+        """The residual whitened by the identified noise model (the first experiment's)."""
         lik = Likelihood(self.model, self.dataset)
         return innovations(lik, self.simulation.position_m[0], self.noise)
 
@@ -437,14 +618,47 @@ class Diagnosis:
         return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s)
 
     def to_dict(self) -> dict:
-        """JSON-ready summary (the keys of ``pmabayes diagnose --json``)."""
+        """JSON-ready summary (the keys of ``pmabayes diagnose --json``).
+
+        One experiment: ``data``, ``synthetic``, ``effects``, ``rms_m``,
+        ``noise_floor_m``, ``adequate``, ``missing``, ``verdict``, ``ranking``,
+        ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands`` and
+        ``settings``. Several: the same keys, with ``data`` the sources joined by
+        `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the experiments (the
+        floor None when one has no repeats), ``whiteness`` and ``bands`` None (they
+        are per experiment), ``signature`` each experiment's in turn, and two more:
+        ``experiments`` (one :meth:`ExperimentDiagnosis.to_dict` each) and
+        ``misfit_experiments`` (the names of those that are not adequate).
+        """
+        if len(self.experiments) > 1:
+            exps = self.experiments
+            return {
+                "data": " + ".join(str(e.dataset.source or e.name) for e in exps),
+                "synthetic": all(bool(e.dataset.metadata.get("synthetic", False))
+                                 for e in exps),
+                "effects": list(self.model.effect_names),
+                "rms_m": self.rms_m,
+                "noise_floor_m": _finite_or_none(self.noise_floor_m),
+                "adequate": self.adequate,
+                "missing": self.missing,
+                "verdict": self.verdict,
+                "ranking": [f.to_dict() for f in self.ranking],
+                "values": dict(self.values),
+                "elpd_loo": self.elpd,
+                "whiteness": None,
+                "signature": " ".join(f"{e.name}: {e.signature.describe()}" for e in exps),
+                "bands": None,
+                "settings": dict(self.settings),
+                "experiments": [e.to_dict() for e in exps],
+                "misfit_experiments": self.misfit_experiments,
+            }
         sig = self.signature
         return {
             "data": self.dataset.source,
             "synthetic": bool(self.dataset.metadata.get("synthetic", False)),
             "effects": list(self.model.effect_names),
             "rms_m": self.rms_m,
-            "noise_floor_m": self.noise_floor_m,
+            "noise_floor_m": _finite_or_none(self.noise_floor_m),
             "adequate": self.adequate,
             "missing": self.missing,
             "verdict": self.verdict,
@@ -456,22 +670,40 @@ class Diagnosis:
             "signature": sig.describe(),
             "bands": [b.to_dict() for b in sig.bands],
             "settings": dict(self.settings),
+            "discrepancy": None if self.discrepancy is None else self.discrepancy.to_dict(),
         }
+
+
+def _pooled(rms: Sequence[float], sizes: Sequence[int]) -> float:
+    """RMS over several series from each one's RMS and length (NaN if one is NaN)."""
+    total = sum(r * r * n for r, n in zip(rms, sizes, strict=True))
+    return float(math.sqrt(total / sum(sizes)))
 
 
 def _laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, ci_prob: float,
                  names: tuple[str, ...] = ()):
-    """PSIS-LOO (by trial) and intervals from draws of the MAP's Laplace approximation."""
+    """PSIS-LOO (by trial, over every trial of every experiment) and intervals from draws
+    of the MAP's Laplace approximation."""
     import arviz as az
 
-    lik = posterior.likelihood
     z = rng.multivariate_normal(map_result.z, map_result.covariance_z, size=n_draws,
                                 method="eigh")
     theta = posterior.to_natural(z)
     theta = theta[np.isfinite(posterior.log_prior(theta))]
-    x = lik.simulate(posterior.full_theta(theta))
-    sigma, rho, white = posterior.noise.draws(rng, theta.shape[0])
-    pointwise = lik.pointwise(x, sigma, rho, white)
+    full = posterior.full_theta(theta)
+    group_draws: dict = {}
+    parts = []
+    for e, lik in enumerate(posterior.likelihoods):
+        x = lik.simulate(full)
+        if posterior.noise_sampled(e):  # no repeats: the noise is in the draws
+            noise = posterior.noise_of(e, theta)
+        else:  # from the repeats: independent draws of its posterior, one set per group
+            g = posterior.groups[e]
+            if g not in group_draws:
+                group_draws[g] = posterior.group_noise[g].draws(rng, theta.shape[0])
+            noise = group_draws[g]
+        parts.append(lik.pointwise(x, *noise))
+    pointwise = np.concatenate(parts, axis=1)
     ok = np.all(np.isfinite(pointwise), axis=1)
     tree = az.from_dict({"posterior": {"theta": theta[ok][None, :, 0]},
                          "log_likelihood": {"position_m": pointwise[ok][None]}},
@@ -503,11 +735,29 @@ def _contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
             f"residual and is largest at {band_label(bands_hz[k])} ({rms[k] * 1e6:.4g} µm RMS).")
 
 
+def _after_text(signatures: Sequence[Signature], names: Sequence[str]) -> str:
+    """The refit's RMS error against the floor: ``X µm (Yx the floor)``, per experiment."""
+    def one(sig: Signature) -> str:
+        floor = (f"{sig.ratio:.3g}x the floor" if math.isfinite(sig.bands[-1].floor_m)
+                 else "no floor")
+        return f"{sig.bands[-1].rms_m * 1e6:.4g} µm ({floor})"
+
+    if len(signatures) == 1:
+        return one(signatures[0])
+    return ", ".join(f"{one(sig)} in {n}" for sig, n in zip(signatures, names, strict=True))
+
+
+def _describe(signatures: Sequence[Signature], names: Sequence[str]) -> str:
+    if len(signatures) == 1:
+        return signatures[0].describe()
+    return " ".join(f"In {n}: {sig.describe()}" for sig, n in zip(signatures, names, strict=True))
+
+
 def _explanation(eff, evidence: float, p_value: float, significant: bool,
-                 signature: Signature, refit: Refit | None, contribution_text: str,
-                 ci_prob: float) -> str:
+                 describe: str, refit: Refit | None, contribution_text: str,
+                 ci_prob: float, names: Sequence[str]) -> str:
     text = f"{eff.name} ({eff.stage} stage): {' '.join(eff.description.split())} "
-    text += signature.describe()
+    text += describe
     text += (f" Score test that {eff.name} is missing: statistic {evidence:.3g}, "
              f"p = {p_value:.2g}, {'significant' if significant else 'not significant'}.")
     if refit is None:
@@ -519,16 +769,33 @@ def _explanation(eff, evidence: float, p_value: float, significant: bool,
             parts.append(f"{p.name} = {refit.values[p.name]:.4g} {p.unit} "
                          f"({ci_prob:.0%} interval {lo:.4g} to {hi:.4g})")
     text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
-             f"{refit.rms_m * 1e6:.4g} µm ({refit.signature.ratio:.3g}x the floor), "
+             f"{_after_text(refit.signatures, names)}, "
              f"{refit.explained:.0%} of the excess residual is removed, and the "
              f"leave-one-trial-out ELPD changes by {refit.elpd_diff:+.1f} "
              f"± {refit.elpd_diff_se:.1f}.")
     return text + contribution_text
 
 
-def _fit_map(likelihood: Likelihood, noise, rng: np.random.Generator):
-    posterior = Posterior(likelihood, noise)
+def _fit_map(likelihoods: list, repeat_noise: list, names: list, rng: np.random.Generator):
+    """The MAP of the experiments together: physical parameters shared, each experiment's
+    noise from its repeats (fixed) or, for a record without repeats (None), with the model."""
+    posterior = Posterior(likelihoods, repeat_noise, names=names)
     return posterior, find_map(posterior, rng=rng)
+
+
+def _experiment_noises(posterior: Posterior, best) -> list[NoiseEstimate]:
+    """Each experiment's noise at the MAP: its estimate from repeats, or the MAP's values
+    where it was identified with the model (no Laplace part: ``mean_u``, ``cov_u`` None)."""
+    theta = posterior.to_natural(np.asarray(best.z)[None])
+    out = []
+    for e in range(posterior.n_experiments):
+        if not posterior.noise_sampled(e):
+            out.append(posterior.group_noise[posterior.groups[e]])
+            continue
+        sigma, rho, white = (float(np.asarray(v).reshape(-1)[0])
+                             for v in posterior.noise_of(e, theta))
+        out.append(NoiseEstimate(sigma, rho, white, None, None))
+    return out
 
 
 @dataclass(frozen=True)
@@ -560,24 +827,39 @@ class _Settings:
     def adequate(self, signature: Signature) -> bool:
         return signature.is_adequate(self.energy_tolerance, self.level_adequate)
 
+    def all_adequate(self, signatures: Sequence[Signature]) -> bool:
+        """Adequate in every experiment."""
+        return all(self.adequate(sig) for sig in signatures)
+
 
 @dataclass(frozen=True)
 class _Base:
-    """The diagnosed model at its MAP: what each refit is measured against."""
+    """The diagnosed model at its MAP over the experiments: what each refit is measured
+    against."""
 
-    likelihood: Likelihood
-    noise: NoiseEstimate
+    likelihoods: list
+    names: list
+    repeat_noise: list
+    noises: list
     values: dict
-    simulation: Simulation
-    signature: Signature
+    simulations: list
+    signatures: list
     elpd: float
     elpd_i: np.ndarray
 
     @property
     def excess(self) -> float:
-        """The whitened residual's energy above pure noise, summed over the samples."""
-        n = self.likelihood.n_samples
-        return max(self.signature.energy * n - n, 1e-12)
+        """The whitened residual's energy above pure noise, summed over the samples (and
+        the experiments)."""
+        total = sum(sig.energy * lik.n_samples - lik.n_samples
+                    for sig, lik in zip(self.signatures, self.likelihoods, strict=True))
+        return max(total, 1e-12)
+
+    @property
+    def residuals(self) -> list[np.ndarray]:
+        """Each experiment's trial mean minus the model."""
+        return [lik.y_mean - sim.position_m[0]
+                for lik, sim in zip(self.likelihoods, self.simulations, strict=True)]
 
 
 def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int) -> Simulation:
@@ -585,53 +867,66 @@ def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int)
                             substeps=substeps, states=True)
 
 
-def _fit_base(model: Model, dataset: Dataset, s: _Settings, rng: np.random.Generator) -> _Base:
-    """Noise from the spread between trials, the MAP, its signature and its ELPD."""
-    lik = Likelihood(model, dataset, substeps=s.substeps)
-    noise = estimate_noise(lik)
-    posterior, best = _fit_map(lik, noise, rng)
+def _fit_base(models: list, datasets: list, names: list, s: _Settings,
+              rng: np.random.Generator) -> _Base:
+    """Noise from the spread between repeats, the shared MAP, the signatures and the ELPD."""
+    liks = [Likelihood(m, ds, substeps=s.substeps) for m, ds in zip(models, datasets, strict=True)]
+    repeat_noise = [estimate_noise(lik) if lik.n_repeats >= 2 else None for lik in liks]
+    posterior, best = _fit_map(liks, repeat_noise, names, rng)
     values = dict(best.values)
-    sim = _simulate(model, values, lik, s.substeps)
-    signature = residual_signature(lik, noise, sim)
+    noises = _experiment_noises(posterior, best)
+    sims = [_simulate(lik.model, values, lik, s.substeps) for lik in liks]
+    signatures = [residual_signature(lik, noise, sim)
+                  for lik, noise, sim in zip(liks, noises, sims, strict=True)]
     elpd, elpd_i, _ = _laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
-    return _Base(lik, noise, values, sim, signature, elpd, elpd_i)
+    return _Base(liks, names, repeat_noise, noises, values, sims, signatures, elpd, elpd_i)
 
 
 def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> Refit:
-    """Add one effect, refit, and measure what it explains and how it predicts."""
-    model, dataset, noise = base.likelihood.model, base.likelihood.dataset, base.noise
-    ext = model.with_effects(effect)
-    ext_lik = Likelihood(ext, dataset, substeps=s.substeps)
-    ext_post, ext_map = _fit_map(ext_lik, noise, rng)
+    """Add one effect, refit over every experiment, and measure what it explains and how
+    it predicts."""
+    ext_liks = [Likelihood(lik.model.with_effects(effect), lik.dataset, substeps=s.substeps)
+                for lik in base.likelihoods]
+    ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng)
+    ext = ext_liks[0].model
     eff = ext.effects[-1]
     tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
     e_elpd, e_elpd_i, interval = _laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob,
                                               tested)
-    ext_sim = _simulate(ext, ext_map.values, base.likelihood, s.substeps)
+    ext_noises = _experiment_noises(ext_post, ext_map)
     off = dict(ext_map.values)
-    off.update({p.name: p.null for p in eff.parameters if p.vary})
-    contribution = (ext_sim.position_m[0]
-                    - _simulate(ext, off, base.likelihood, s.substeps).position_m[0])
-    ext_sig = residual_signature(ext_lik, noise, ext_sim)
-    energy, n = base.signature.energy, dataset.n_samples
+    off.update({p.name: p.null for p in eff.parameters if p.vary and p.null is not None})
+    sigs, contributions = [], []
+    for lik, ext_lik, noise in zip(base.likelihoods, ext_liks, ext_noises, strict=True):
+        ext_sim = _simulate(ext_lik.model, ext_map.values, lik, s.substeps)
+        contributions.append(ext_sim.position_m[0]
+                             - _simulate(ext_lik.model, off, lik, s.substeps).position_m[0])
+        sigs.append(residual_signature(ext_lik, noise, ext_sim))
     # with no excess over pure noise there is nothing to explain
-    explained = (float(np.clip((energy - ext_sig.energy) * n / base.excess, 0.0, 1.0))
-                 if energy > 1.0 else 0.0)
+    gain = sum((b.energy - x.energy) * lik.n_samples
+               for b, x, lik in zip(base.signatures, sigs, base.likelihoods, strict=True))
+    over = sum((b.energy - 1.0) * lik.n_samples
+               for b, lik in zip(base.signatures, base.likelihoods, strict=True))
+    explained = float(np.clip(gain / base.excess, 0.0, 1.0)) if over > 0 else 0.0
     nxt = None
-    if explained < s.min_explained and not s.adequate(ext_sig):
+    if explained < s.min_explained and not s.all_adequate(sigs):
         # one step of look-ahead: does another candidate account for what is left?
-        following = [e for e in rank_effects(ext_lik, noise, ext_map.values,
+        following = [e for e in rank_effects(ext_liks, ext_noises, ext_map.values,
                                              candidates=s.candidates, level=s.level)
                      if e.significant]
         nxt = max(following, key=lambda e: e.explained) if following else None
     diff = e_elpd_i - base.elpd_i
+    sq = [sig.bands[-1].rms_m for sig in sigs]
+    rms = sq[0] if len(sq) == 1 else _pooled(sq, [lik.n_samples for lik in base.likelihoods])
     return Refit(
         effect=effect, values=dict(ext_map.values), interval=interval,
-        rms_m=ext_sig.bands[-1].rms_m, signature=ext_sig, explained=explained,
+        rms_m=rms, signature=sigs[0], explained=explained,
         elpd=e_elpd, elpd_diff=float(diff.sum()),
         elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
-        contribution_m=contribution, next_effect=nxt.effect if nxt else None,
+        contribution_m=np.concatenate(contributions), next_effect=nxt.effect if nxt else None,
         explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
+        signatures=tuple(sigs),
+        elpd_i=e_elpd_i,
     )
 
 
@@ -648,9 +943,9 @@ def _refit_significant(base: _Base, ranked: list, s: _Settings, rng: np.random.G
 
 def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[Finding]:
     """Every candidate with its estimate and explanation; the refitted ones first, by ELPD."""
-    dataset = base.likelihood.dataset
-    base_resid = base.likelihood.y_mean - base.simulation.position_m[0]
-    bands = input_bands(dataset)
+    residuals = base.residuals
+    describe = _describe(base.signatures, base.names)
+    edges = np.cumsum([0, *(r.size for r in residuals)])
     findings = []
     for ev in ranked:
         eff = get_effect(ev.effect)
@@ -658,8 +953,14 @@ def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[F
         if refit is not None:
             estimate = {k: refit.values[k] for k in refit.interval}
             interval, explained = refit.interval, refit.explained
-            contrib = _contribution_text(refit.contribution_m, base_resid, dataset.dt_s,
-                                         bands)
+            texts = []
+            for e, lik in enumerate(base.likelihoods):
+                part = _contribution_text(refit.contribution_m[edges[e]:edges[e + 1]],
+                                          residuals[e], lik.dataset.dt_s,
+                                          input_bands(lik.dataset))
+                texts.append(part if len(residuals) == 1 or not part
+                             else f" In {base.names[e]}:{part}")
+            contrib = "".join(texts)
         else:
             estimate, interval, explained, contrib = ev.estimate, ev.interval, ev.explained, ""
         findings.append(Finding(
@@ -667,24 +968,67 @@ def _findings(ranked: list, refits: dict, base: _Base, ci_prob: float) -> list[F
             significant=ev.significant, estimate=estimate, interval=interval,
             explained=explained, refit=refit,
             explanation=_explanation(eff, ev.statistic, ev.p_value, ev.significant,
-                                     base.signature, refit, contrib, ci_prob),
+                                     describe, refit, contrib, ci_prob, base.names),
         ))
     # refitted candidates first, by how well they predict left-out trials
     findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
     return findings
 
 
+def _explaining(refits: dict, s: _Settings) -> list[Refit]:
+    """The refits that account for the misfit and predict left-out trials better."""
+    return [r for r in refits.values()
+            if (max(r.explained, r.explained_with_next) >= s.min_explained
+                or s.all_adequate(r.signatures))
+            and r.elpd_diff > 2.0 * r.elpd_diff_se]
+
+
 def _missing(refits: dict, s: _Settings) -> str | None:
     """The refit that accounts for the misfit and predicts left-out trials best, if any."""
-    explaining = [r for r in refits.values()
-                  if (max(r.explained, r.explained_with_next) >= s.min_explained
-                      or s.adequate(r.signature))
-                  and r.elpd_diff > 2.0 * r.elpd_diff_se]
+    explaining = _explaining(refits, s)
     return max(explaining, key=lambda r: r.elpd).effect if explaining else None
 
 
+def _twins(refits: dict, missing: str | None, s: _Settings) -> list[tuple[str, float, float]]:
+    """The other explaining refits whose ELPD is within two standard errors of the
+    missing one's (paired over trials): ``(effect, elpd difference, its SE)``."""
+    if missing is None or refits[missing].elpd_i is None:
+        return []
+    best, out = refits[missing], []
+    for r in _explaining(refits, s):
+        if r.effect == missing or r.elpd_i is None:
+            continue
+        diff = best.elpd_i - r.elpd_i
+        se = float(math.sqrt(diff.size * np.var(diff)))
+        if float(diff.sum()) <= 2.0 * se:
+            out.append((r.effect, float(diff.sum()), se))
+    return out
+
+
+def _experiments(datasets, model: Model | None, effects: Iterable[str]
+                 ) -> tuple[list[Dataset], list[Model], list[str]]:
+    """The data sets, each one's model (on its rig) and the experiments' names."""
+    dss = [datasets] if isinstance(datasets, Dataset) else list(datasets)
+    if not dss:
+        raise ValueError("diagnose needs at least one data set")
+    for ds in dss:
+        if not isinstance(ds, Dataset):
+            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
+                            f"{type(ds).__name__}")
+    check_same_input_kind(dss)
+    if model is None:
+        models = [Model.for_dataset(ds) for ds in dss]
+    else:  # as fit does: the model as given for one experiment, on each one's rig for several
+        models = [model] if len(dss) == 1 else [_on_rig(model, ds) for ds in dss]
+    effects = list(effects)
+    if effects:
+        models = [m.with_effects(*[e for e in effects if e not in m.effect_names])
+                  for m in models]
+    return dss, models, experiment_names([ds.source for ds in dss])
+
+
 def diagnose(
-    dataset: Dataset,
+    datasets: Dataset | Sequence[Dataset],
     model: Model | None = None,
     *,
     effects: Iterable[str] = (),
@@ -699,6 +1043,8 @@ def diagnose(
     seed: int | np.random.Generator = 0,
     substeps: int = 1,
     progress: bool = False,
+    discrepancy: bool = True,
+    plugin_dir=None,
 ) -> Diagnosis:
     """Fit a model, criticise it and find which effect in the library is missing.
 
@@ -723,14 +1069,40 @@ def diagnose(
        together with the candidate that the refit's own score test finds next
        (so that two missing effects of similar size are found one after the
        other). If none qualifies, nothing is named: a misfit above the floor is
-       reported as unexplained instead of naming the least bad candidate.
+       reported as unexplained instead of naming the least bad candidate. When
+       another qualifying refit's ELPD is within two standard errors of the
+       named one's (paired over the trials), the verdict says that the two cannot
+       be told apart by these data (near twins, such as a regulator lag and a
+       well-damped second-order regulator).
+    6. Then, with ``discrepancy``, the missing force is estimated from the data
+       (:func:`pmabayes.discrepancy.estimate_discrepancy`): the states it depends
+       on, with their evidence, and a closed form written as a ready user effect
+       (a ``.py`` file for ``--plugin``, in ``plugin_dir``).
+
+    Several experiments (a sequence of data sets, each with its own input, rig
+    and trials, as :func:`pmabayes.fit.fit` takes them) are diagnosed together:
+    one MAP of the shared physical parameters, each experiment on its own rig
+    with its own noise; a signature and an adequacy verdict per experiment (the
+    model is adequate only if it is in every one); the score test with the
+    experiments' scores and informations summed; the candidates refitted over
+    all of them; the ELPD leaving out one trial at a time of all of them. The
+    verdict names the experiments whose residual shows the misfit.
+
+    Repeats: an experiment's noise comes from its trials, or from the periods of
+    a single periodic record (``period_samples``), whose spread also gives its
+    noise floor. A single record without either has no floor; its noise is
+    identified with the model (under the guard of
+    :meth:`pmabayes.likelihood.Likelihood.noise_parameters`), and the verdict
+    says that it is judged by its whitened residual alone.
 
     Parameters
     ----------
-    dataset : Dataset
-        Repeated trials of one input.
+    datasets : Dataset or sequence of Dataset
+        Repeated trials of one input, or several experiments (one input kind).
     model : Model, optional
-        The model to diagnose; the base model on the data's rig by default.
+        The model to diagnose; the base model on each data set's rig by default.
+        With several experiments it is put on each one's rig (as
+        :func:`pmabayes.fit.fit` does).
     effects : iterable of str
         Effects to add to ``model`` first (as ``--effects`` on the command line).
     candidates : iterable of str, optional
@@ -761,6 +1133,12 @@ def diagnose(
         Simulator substeps per sample.
     progress : bool
         Print what is being done to stderr.
+    discrepancy : bool
+        Estimate the missing force from the data when the model is above the floor
+        and no candidate accounts for it.
+    plugin_dir : str or Path, optional
+        Where the proposed effect's ``.py`` file is written (the current folder by
+        default; an existing file is never overwritten).
 
     Returns
     -------
@@ -769,7 +1147,8 @@ def diagnose(
     Raises
     ------
     ValueError
-        On settings out of range.
+        On settings out of range, no data, or experiments of different input
+        kinds (:class:`pmabayes.data.DataError`, naming the files).
     """
 
     s = _Settings(level=level, level_adequate=level_adequate,
@@ -778,46 +1157,102 @@ def diagnose(
                   substeps=substeps, candidates=None if candidates is None else tuple(candidates))
     say = Progress("diagnose", progress)
     rng = np.random.default_rng(seed)
-    model = Model.for_dataset(dataset) if model is None else model
-    if effects:
-        model = model.with_effects(*[e for e in effects if e not in model.effect_names])
+    datasets, models, names = _experiments(datasets, model, effects)
+    model = models[0]
     name = " + ".join(["base", *model.effect_names])
-    say.say(f"fitting {name} to {dataset.source or 'the data'} (MAP)")
-    base = _fit_base(model, dataset, s, rng)
+    where = " and ".join(str(ds.source or "the data") for ds in datasets)
+    say.say(f"fitting {name} to {where} (MAP)")
+    base = _fit_base(models, datasets, names, s, rng)
     say.say("ranking the candidate effects (score test)")
-    ranked = rank_effects(base.likelihood, base.noise, base.values, candidates=s.candidates,
+    ranked = rank_effects(base.likelihoods, base.noises, base.values, candidates=s.candidates,
                           level=level)
     refits = _refit_significant(base, ranked, s, rng, say)
     findings = _findings(ranked, refits, base, ci_prob)
-    adequate = s.adequate(base.signature)
+    each = [s.adequate(sig) for sig in base.signatures]
+    adequate = all(each)
     missing = _missing(refits, s)
-    verdict = _verdict(name, model.effect_names, base.signature, adequate, missing, refits,
-                       findings, min_explained)
+    experiments = tuple(
+        ExperimentDiagnosis(name=n, dataset=lik.dataset, model=lik.model, noise=noise,
+                            noise_source=lik.noise_source, simulation=sim, signature=sig,
+                            adequate=ok)
+        for n, lik, noise, sim, sig, ok in zip(base.names, base.likelihoods, base.noises,
+                                               base.simulations, base.signatures, each,
+                                               strict=True))
+    verdict = _verdict(name, model.effect_names, experiments, adequate, missing, refits,
+                       findings, min_explained, _twins(refits, missing, s))
+    found = None
+    if discrepancy and not adequate and missing is None and len(datasets) > 1:
+        verdict += (" The data-driven discrepancy step takes one experiment for now; "
+                    "diagnose each experiment alone to estimate the missing force.")
+    elif discrepancy and not adequate and missing is None:
+        say.say("estimating the missing force from the data (discrepancy)")
+        found = estimate_discrepancy(base.likelihoods[0], base.noises[0], base.values,
+                                     base.simulations[0], plugin_dir=plugin_dir,
+                                     command=datasets[0].source,
+                                     effects=model.effect_names)
+        verdict += " " + found.text
     say.say(verdict)
     return Diagnosis(
-        dataset=dataset, model=model, values=base.values, noise=base.noise,
-        simulation=base.simulation, signature=base.signature, adequate=adequate,
+        dataset=datasets[0], model=model, values=base.values, noise=base.noises[0],
+        simulation=base.simulations[0], signature=base.signatures[0], adequate=adequate,
         missing=missing, ranking=findings, elpd=base.elpd, verdict=verdict,
         settings={"level": level, "level_adequate": level_adequate,
                   "energy_tolerance": energy_tolerance, "max_refits": max_refits,
                   "min_explained": min_explained, "ci_prob": ci_prob, "n_draws": n_draws,
                   "seed": seed if isinstance(seed, int) else None, "substeps": substeps,
                   "candidates": [f.effect for f in findings]},
+        experiments=experiments,
+        discrepancy=found,
     )
 
 
-def _verdict(name: str, effects: tuple, signature: Signature, adequate: bool,
-             missing: str | None, refits: dict, findings: list, min_explained: float) -> str:
-    sig = (f"RMS error {signature.bands[-1].rms_m * 1e6:.4g} µm against a floor of "
-           f"{signature.bands[-1].floor_m * 1e6:.4g} µm; whitened residual energy "
-           f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
-           f"p = {signature.ljung_box_p:.2g}")
+def _sig_text(signature: Signature) -> str:
+    overall = signature.bands[-1]
+    floor = (f"against a floor of {overall.floor_m * 1e6:.4g} µm"
+             if math.isfinite(overall.floor_m) else "with no noise floor (no repeats)")
+    return (f"RMS error {overall.rms_m * 1e6:.4g} µm {floor}; whitened residual energy "
+            f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
+            f"p = {signature.ljung_box_p:.2g}")
+
+
+def _verdict(name: str, effects: tuple, experiments: tuple, adequate: bool,
+             missing: str | None, refits: dict, findings: list, min_explained: float,
+             twins: list | None = None) -> str:
+    names = [e.name for e in experiments]
+    if len(experiments) == 1:
+        sig = _sig_text(experiments[0].signature)
+    else:
+        sig = "; ".join(f"{e.name}: {_sig_text(e.signature)}" for e in experiments)
+    notes = " ".join(f"({e.floor_note()}.)" for e in experiments if e.floor_note())
+    where = ""
+    if len(experiments) > 1 and not adequate:
+        bad = [e.name for e in experiments if not e.adequate]
+        good = [e.name for e in experiments if e.adequate]
+        where = (f" The misfit shows in {', '.join(bad)}"
+                 + (f"; {', '.join(good)} {'is' if len(good) == 1 else 'are'} consistent with "
+                    "the noise." if good else "."))
+    text = _verdict_core(name, effects, sig, adequate, missing, refits, findings,
+                         min_explained, names, twins)
+    return text + where + (f" {notes}" if notes else "")
+
+
+def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,
+                  refits: dict, findings: list, min_explained: float, names: list,
+                  twins: list | None = None) -> str:
     if missing is not None:
         r = refits[missing]
-        others = [f.effect for f in findings if f.refit is not None and f.effect != missing]
+        tied = [t[0] for t in twins or ()]
+        others = [f.effect for f in findings
+                  if f.refit is not None and f.effect != missing and f.effect not in tied]
         text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
-                f"{r.rms_m * 1e6:.4g} µm ({r.signature.ratio:.3g}x the floor) and removes "
+                f"{_after_text(r.signatures, names)} and removes "
                 f"{r.explained:.0%} of the excess residual.")
+        for twin, diff, se in twins or ():
+            text += (f" But {missing} and {twin} cannot be told apart by these data: both "
+                     f"account for the misfit and their leave-one-trial-out ELPDs differ by "
+                     f"only {diff:+.1f} ± {se:.1f} (less than two standard errors), so "
+                     f"{missing} is named for its slightly better ELPD, not proven; data "
+                     "that excite where they differ would separate them.")
         if others:
             text += (f" It predicts left-out trials better than the other refitted "
                      f"candidate(s) ({', '.join(others)}).")
@@ -885,6 +1320,15 @@ class FitComparison:
         Rate of change of the commanded input (for the cross-correlation figure).
     dt_s : float
         Sample interval.
+    experiments : dict
+        For fits of several experiments: experiment name to the comparison on that
+        experiment alone (its ``bands``, ``whiteness``, ``innovations``,
+        ``command_rate`` and ``dt_s``; ``elpd`` and ``elpd_steps`` are the
+        overall ones), in the fits' order. Then ``bands``, ``whiteness`` and
+        ``innovations`` are empty, ``command_rate`` is empty and ``dt_s`` NaN:
+        errors and whiteness are per experiment, and only the ELPD (leaving out
+        one trial at a time of all experiments) is overall. Empty for one
+        experiment.
     """
 
     labels: list
@@ -895,37 +1339,90 @@ class FitComparison:
     elpd_steps: list
     command_rate: np.ndarray
     dt_s: float
+    experiments: dict | None = None
 
     def whiteness_curves(self) -> WhitenessCurves:
-        """The whiteness figure's curves of each fit (lags to 0.2 s, 99% bound)."""
+        """The whiteness figure's curves of each fit (lags to 0.2 s, 99% bound).
+
+        Raises
+        ------
+        ValueError
+            For fits of several experiments: take each experiment's from
+            ``experiments[name].whiteness_curves()``.
+        """
+        if self.experiments:
+            raise ValueError("a comparison of fits of several experiments has whiteness curves "
+                             "per experiment: use experiments[name].whiteness_curves()")
         return whiteness_curves(self.innovations, self.command_rate, self.dt_s)
 
+    def rmse_m(self, label: str) -> dict:
+        """RMS error of the trial mean at a fit's MAP, per experiment.
+
+        Parameters
+        ----------
+        label : str
+            The fit.
+
+        Returns
+        -------
+        dict
+            Experiment name to RMS error in m (one experiment: ``{"data": ...}``).
+        """
+        if self.experiments:
+            return {n: c.bands[label][-1].rms_m for n, c in self.experiments.items()}
+        return {"data": self.bands[label][-1].rms_m}
+
     def to_dict(self) -> dict:
-        """JSON-ready summary."""
+        """JSON-ready summary.
+
+        One experiment: ``fits`` (``label``, ``rms_m``, ``noise_floor_m``, ``ratio``,
+        ``bands``, ``whiteness``, ``elpd`` each) and ``elpd_steps``. Several: each
+        fit has ``label``, ``elpd`` (over all trials) and ``experiments`` (name to
+        ``rms_m``, ``noise_floor_m``, ``ratio``, ``bands``, ``whiteness``), and
+        ``experiments`` lists the names.
+        """
+        if self.experiments:
+            return {
+                "fits": [
+                    {"label": k, "elpd": self.elpd[k],
+                     "experiments": {n: c._fit_dict(k) for n, c in self.experiments.items()}}
+                    for k in self.labels
+                ],
+                "elpd_steps": self.elpd_steps,
+                "experiments": list(self.experiments),
+            }
         return {
-            "fits": [
-                {"label": k, "rms_m": self.bands[k][-1].rms_m,
-                 "noise_floor_m": self.bands[k][-1].floor_m,
-                 "ratio": self.bands[k][-1].ratio,
-                 "bands": [b.to_dict() for b in self.bands[k]],
-                 "whiteness": self.whiteness[k], "elpd": self.elpd[k]}
-                for k in self.labels
-            ],
+            "fits": [{"label": k, **self._fit_dict(k), "elpd": self.elpd[k]}
+                     for k in self.labels],
             "elpd_steps": self.elpd_steps,
         }
 
+    def _fit_dict(self, k: str) -> dict:
+        last = self.bands[k][-1]
+        return {"rms_m": last.rms_m, "noise_floor_m": _finite_or_none(last.floor_m),
+                "ratio": _finite_or_none(last.ratio),
+                "bands": [b.to_dict() for b in self.bands[k]], "whiteness": self.whiteness[k]}
 
-def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
+
+def compare_fits(fits, dataset: Dataset | Sequence[Dataset], *, labels=None,
+                 sources: Sequence[str] | None = None) -> FitComparison:
     """Compare fits of the same data: error per band, whiteness and ELPD.
+
+    Fits of several experiments compare too, when every fit has the same
+    experiments (names, data, in the same order): the errors and whiteness per
+    experiment, the ELPD leaving out one trial at a time of all of them.
 
     Parameters
     ----------
     fits : sequence of xarray.DataTree
         Fits written by :func:`pmabayes.fit.fit` (same data, different models).
-    dataset : Dataset
-        The data they were made from (checked against each fit).
+    dataset : Dataset or sequence of Dataset
+        The data they were made from (checked against each fit): one data set, or
+        one per experiment in the fits' order.
     labels : sequence of str, optional
         Names of the fits; ``base + effect + ...`` from their models by default.
+    sources : sequence of str, optional
+        Where each fit came from (file names), to name them in errors.
 
     Returns
     -------
@@ -934,37 +1431,96 @@ def compare_fits(fits, dataset: Dataset, *, labels=None) -> FitComparison:
     Raises
     ------
     ValueError
-        With fewer than two fits, labels that do not match, or a fit made from
-        other data.
+        With fewer than two fits, labels that do not match, a fit made from other
+        data, or fits of different experiments (:class:`pmabayes.data.DataError`,
+        naming the fits and the files).
     """
     fits = list(fits)
     if len(fits) < 2:
         raise ValueError("compare needs at least two fits of the same data")
-    models = [model_from_fit(t) for t in fits]
+    sources = list(sources) if sources is not None else [f"fit {i + 1}" for i in range(len(fits))]
+    datasets = [dataset] if isinstance(dataset, Dataset) else list(dataset)
+    exps = [[e["name"] for e in (fit_info(t).get("experiments") or [{"name": None}])]
+            for t in fits]
+    for src, names in zip(sources, exps, strict=True):
+        # one experiment each: the data check below decides (its name is only a file stem)
+        if len(names) != len(exps[0]) or (len(names) > 1 and names != exps[0]):
+            raise DataError(
+                f"{src} is a fit of {len(names)} experiment(s) {names}, but {sources[0]} of "
+                f"{len(exps[0])} {exps[0]}; compare takes fits of the same experiments, in "
+                "the same order: refit one of them with the other's data files")
     if labels is None:
-        labels = [" + ".join(["base", *m.effect_names]) for m in models]
+        labels = [" + ".join(["base", *model_from_fit(t).effect_names]) for t in fits]
     labels = list(labels)
     if len(labels) != len(fits) or len(set(labels)) != len(labels):
         raise ValueError(f"need {len(fits)} distinct labels, got {labels}")
+    if len(exps[0]) == 1:
+        if len(datasets) != 1:
+            raise DataError(f"the fits are of one data set, but {len(datasets)} were given: "
+                            "give the one they were made from")
+        return _compare_one(fits, labels, datasets[0], [model_from_fit(t) for t in fits])
+    if len(datasets) != len(exps[0]):
+        raise DataError(
+            f"the fits are of {len(exps[0])} experiments ({', '.join(exps[0])}) but "
+            f"{len(datasets)} data set(s) were given: give one per experiment, in that order")
+    per = {}
+    models = [experiment_models(t) for t in fits]
+    for e, name in enumerate(exps[0]):
+        for src, tree in zip(sources, fits, strict=True):
+            _check_experiment(tree, e, datasets[e], src)
+        per[name] = _compare_one(fits, labels, datasets[e], [m[e] for m in models],
+                                 experiment=e, loo=False)
+    elpd, steps = _loo_table(fits, labels)
+    per = {n: FitComparison(**{**c.__dict__, "elpd": elpd, "elpd_steps": steps})
+           for n, c in per.items()}
+    return FitComparison(labels=labels, bands={}, whiteness={}, innovations={}, elpd=elpd,
+                         elpd_steps=steps, command_rate=np.zeros(0), dt_s=math.nan,
+                         experiments=per)
+
+
+def _compare_one(fits: list, labels: list, dataset: Dataset, models: list, *,
+                 experiment: int | None = None, loo: bool = True) -> FitComparison:
+    """The comparison on one data set: one experiment's part of each fit, or the fit."""
     bands, white, innov = {}, {}, {}
     for label, tree, model in zip(labels, fits, models, strict=True):
-        check_dataset(tree, dataset)
-        bands[label], white[label], innov[label] = _map_residual(tree, model, dataset)
-    elpd, steps = _loo_table(fits, labels)
+        if experiment is None:
+            check_dataset(tree, dataset)
+        bands[label], white[label], innov[label] = _map_residual(tree, model, dataset,
+                                                                 experiment)
+    elpd, steps = _loo_table(fits, labels) if loo else ({}, [])
     return FitComparison(labels=labels, bands=bands, whiteness=white, innovations=innov,
                          elpd=elpd, elpd_steps=steps,
                          command_rate=np.gradient(dataset.input[0], dataset.time_s),
                          dt_s=dataset.dt_s)
 
 
-def _map_residual(tree, model: Model, dataset: Dataset):
-    """Band errors, whiteness and whitened residual of a fit's MAP model."""
+def _check_experiment(tree, e: int, dataset: Dataset, src: str) -> None:
+    """That ``dataset`` is experiment ``e`` of a fit of several (trials, times, positions)."""
+    stored = experiment_datasets(tree)[e]
+    name = fit_info(tree)["experiments"][e]["name"]
+    where = (f"{dataset.source or '(no source)'} does not match experiment {name} of {src} "
+             f"(made from {stored.source})")
+    if stored.position_m.shape != dataset.position_m.shape:
+        raise DataError(f"{where}: position_m has shape {dataset.position_m.shape} (trials, "
+                        f"samples), the fit's has {stored.position_m.shape}; give the data "
+                        "files in the fit's experiment order")
+    diff = float(np.max(np.abs(stored.position_m - dataset.position_m)))
+    t_diff = float(np.max(np.abs(stored.time_s - dataset.time_s)))
+    if not diff <= 1e-12 or not t_diff <= 1e-12 * max(1.0, float(np.max(np.abs(stored.time_s)))):
+        raise DataError(f"{where}: positions differ by up to {diff:.3g} m and times by up to "
+                        f"{t_diff:.3g} s; give the data files in the fit's experiment order")
+
+
+def _map_residual(tree, model: Model, dataset: Dataset, experiment: int | None = None):
+    """Band errors, whiteness and whitened residual of a fit's MAP model (on one
+    experiment of a fit of several)."""
     info = fit_info(tree)
     substeps = int(info.get("substeps", 1))
     lik = Likelihood(model, dataset, substeps=substeps)
     vals = _model_values(model, info["map"]["values"])
     x = simulate_dataset(model, vals, dataset, substeps=substeps)[0]
-    nz = info["noise"]
+    nz = (info["noise"] if experiment is None
+          else info["experiments"][experiment]["noise_estimate"])
     noise = NoiseEstimate(nz["sigma_noise_m"], nz["rho_noise"], nz["sigma_white_m"], None, None)
     e, white, _ = judged_whiteness(lik, x, noise)  # AR(1) + white unless the repeats reject it
     return band_errors(dataset, x), white, e

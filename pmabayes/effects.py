@@ -135,6 +135,9 @@ __all__ = [
     "BoucWenExponent",
     "power",
     "decay",
+    "StribeckFriction",
+    "McKibbenForce",
+    "RegulatorSecondOrder",
     "delay_effect",
 ]
 
@@ -903,6 +906,239 @@ class PositionOffset(Effect):
     )
     physics = staticmethod(_position_offset)
     inverse = staticmethod(_position_offset_inverse)
+
+
+# ---------------------------------------------------------------------------------
+# The PMA's own physics (issue 12): Stribeck friction, the McKibben force-length law
+# and a second-order regulator. Each fits an existing stage unchanged.
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _stribeck_friction(q, x, v, p):
+    # [F_k + F_s exp(-(v/v_s)^2)] tanh(v/v_st), with its exact velocity derivative
+    th = smooth_sign(v / q[3])
+    r = v / q[2]
+    e = math.exp(-r * r)
+    level = q[0] + q[1] * e
+    dlevel = -2.0 * q[1] * e * r / q[2]
+    return level * th, 0.0, dlevel * th + level * (1.0 - th * th) / q[3]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _mckibben_force(q, x, v, p):
+    # area lost with extension, a_mck ((1 + x/l_0)^2 - 1), times the pressure above
+    # the braid's engagement pressure (the force stage sees p before the dead zone)
+    pe = p - q[2]
+    pe = pe if pe > 0.0 else 0.0
+    u = x / q[1]
+    return q[0] * pe * u * (2.0 + u), q[0] * pe * 2.0 * (1.0 + u) / q[1], 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _second_order_transition(tn, zeta):
+    """Homogeneous solution of ``tn^2 e'' + 2 zeta tn e' + e = 0`` over unit time.
+
+    Returns ``(phi0, phi1, dphi0, dphi1)``: ``e(1) = phi0 e(0) + phi1 e'(0)`` and
+    ``e'(1) = dphi0 e(0) + dphi1 e'(0)``, for any ``tn > 0``, ``zeta > 0``, free of
+    overflow and of cancellation near critical damping.
+    """
+    m = -zeta / tn  # mean of the two roots
+    w = (zeta * zeta - 1.0) / (tn * tn)  # their half-difference squared
+    if w > 1.0:  # well separated real roots: the eigen form, stable for stiff roots
+        s = math.sqrt(zeta * zeta - 1.0)
+        l1 = -1.0 / (tn * (zeta + s))  # the slow root, without cancellation
+        l2 = -(zeta + s) / tn
+        e1 = math.exp(l1)
+        e2 = math.exp(l2)
+        den = l1 - l2
+        phi1 = (e1 - e2) / den
+        phi0 = (l1 * e2 - l2 * e1) / den
+        dphi1 = (l1 * e1 - l2 * e2) / den
+    else:  # close or complex roots: cosh / sinh(x)/x of sqrt(w), entire in w
+        em = math.exp(m)
+        if w > 0.0:
+            r = math.sqrt(w)
+            c, sc = math.cosh(r), math.sinh(r) / r
+        elif w < 0.0:
+            r = math.sqrt(-w)
+            c, sc = math.cos(r), math.sin(r) / r
+        else:
+            c, sc = 1.0, 1.0
+        phi1 = em * sc
+        phi0 = em * (c - m * sc)
+        dphi1 = em * (c + m * sc)
+    dphi0 = -phi1 / (tn * tn)
+    return phi0, phi1, dphi0, dphi1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _regulator_second_order(q, p_start, p_end, dt_s):
+    # Exact response of tau_n^2 y'' + 2 zeta tau_n y' + y = u to each linear input
+    # piece, projected back onto one linear piece per interval (matching mean and first
+    # moment) as for the first-order lag; tau_n -> 0 recovers the input. Time is in
+    # units of the interval; the moments follow from the end values through the ODE.
+    n, batch = p_start.shape
+    co = np.empty((7, batch))
+    y = np.empty(batch)
+    yd = np.zeros(batch)  # dy/d(t/dt): the regulator starts settled at the first command
+    for i in range(batch):
+        tn = max(q[i, 0] / dt_s, 1e-100)
+        phi0, phi1, dphi0, dphi1 = _second_order_transition(tn, q[i, 1])
+        co[0, i], co[1, i], co[2, i], co[3, i] = phi0, phi1, dphi0, dphi1
+        co[4, i] = tn * tn
+        co[5, i] = 2.0 * q[i, 1] * tn
+        y[i] = p_start[0, i]
+    for k in range(n):
+        for i in range(batch):
+            a = p_start[k, i]
+            slope = p_end[k, i] - a
+            lag = co[5, i] * slope  # the particular solution is u - 2 zeta tau_n u'
+            e0 = y[i] - a + lag
+            d0 = yd[i] - slope
+            e1 = co[0, i] * e0 + co[1, i] * d0
+            d1 = co[2, i] * e0 + co[3, i] * d0
+            m0 = -co[4, i] * (d1 - d0) - co[5, i] * (e1 - e0)
+            m1 = -co[4, i] * (d1 - e1 + e0) - co[5, i] * (e1 - m0)
+            mean = a + 0.5 * slope - lag + m0
+            moment = 0.5 * a + slope / 3.0 - 0.5 * lag + m1
+            y[i] = a + slope - lag + e1
+            yd[i] = slope + d1
+            p_start[k, i] = 4.0 * mean - 6.0 * moment
+            p_end[k, i] = 6.0 * moment - 2.0 * mean
+
+
+@register_effect
+class StribeckFriction(Effect):
+    """Friction whose static level exceeds the kinetic one (the Stribeck effect)."""
+
+    name = "stribeck_friction"
+    stage = "force"
+    parameters = (
+        Parameter(
+            "F_k", "N", 0.5, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+            description="kinetic (sliding) friction force, reached well above the "
+            "Stribeck velocity",
+            latex=r"F_\mathrm{k}",
+        ),
+        Parameter(
+            "F_s", "N", 0.5, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+            description="static friction in excess of the kinetic: breakaway force "
+            "F_k + F_s",
+            latex=r"F_\mathrm{s}",
+        ),
+        Parameter(
+            "v_s", "m/s", 0.01, LogNormal(0.01, 1.0), bounds=(1e-4, 1.0),
+            description="Stribeck velocity over which the static excess decays, "
+            "exp(-(v/v_s)^2); not tested when the friction is absent",
+            latex=r"v_\mathrm{s}",
+        ),
+        Parameter(
+            "v_st", "m/s", 2e-3, LogNormal(2e-3, 1.0), bounds=(1e-6, 1.0), vary=False,
+            description="velocity below which the friction's switch is smoothed, "
+            "tanh(v/v_st); 2 mm/s resolves it at 1 kHz",
+            latex=r"v_\mathrm{st}",
+        ),
+    )
+    description = (
+        "Dry friction on the rail and in the braid breaks away at a higher force than it "
+        "slides: [F_k + F_s exp(-(v/v_s)^2)] tanh(v/v_st), the static excess F_s decaying "
+        "over the Stribeck velocity v_s. It sticks the muscle near each reversal and then "
+        "lets it go with a jerk. In the residual: the Coulomb signature (steps of "
+        "opposite sign where the velocity reverses, correlation with the sign of the "
+        "velocity) with an extra bump just after each reversal, where the velocity is "
+        "below v_s, so the residual depends on the speed, not only its sign. With v_s "
+        "below the smoothing velocity or F_s = 0 it is Coulomb friction and cannot be "
+        "told apart from coulomb_friction."
+    )
+    physics = staticmethod(_stribeck_friction)
+
+
+@register_effect
+class McKibbenForce(Effect):
+    """The McKibben muscle's force per unit pressure falling with extension."""
+
+    name = "mckibben_force"
+    stage = "force"
+    parameters = (
+        Parameter(
+            "a_mck", "m^2", 2e-5, HalfNormal(1e-4), bounds=(0.0, 1e-3), null=0.0,
+            description="area lost per ((1 + x/l_0)^2 - 1) of extension: Chou-Hannaford's "
+            "3 l_0^2 / (4 pi n^2) for a braid of n turns",
+            latex=r"a_\mathrm{mck}",
+        ),
+        Parameter(
+            "l_0", "m", 0.17, LogNormal(0.17, 0.5), bounds=(1e-3, 10.0), vary=False,
+            description="unactuated muscle length (the paper's 170 mm)",
+            latex=r"l_0",
+        ),
+        Parameter(
+            "p_mck", "Pa", 66922.0, Normal(66922.0, 2e4), bounds=(0.0, 3e5), vary=False,
+            description="pressure at which the bladder engages the braid; set it to the "
+            "model's p_dz (the paper's 66 922 Pa by default)",
+            latex=r"p_\mathrm{mck}",
+        ),
+    )
+    description = (
+        "Chou and Hannaford's force-length law of the braided (McKibben) muscle, F = "
+        "(pi D_0^2 / 4) p (3 cos^2 theta - 1) with cos theta = L / b (IEEE Trans. Robot. "
+        "Autom. 12(1), 1996): for this extending muscle the push per unit pressure falls "
+        "as the braid angle closes with the length L = l_0 + x, quadratically, so the "
+        "constant area A becomes A - a_mck ((1 + x/l_0)^2 - 1). The lost force, a_mck "
+        "((1 + x/l_0)^2 - 1) max(p - p_mck, 0), opposes extension. In the residual: the "
+        "model overshoots the largest extensions at high pressure, by an error growing "
+        "with pressure times position and curving upward with position (unlike "
+        "pressure_stiffness, which is linear in position), and absent below the dead zone."
+    )
+    physics = staticmethod(_mckibben_force)
+
+
+@register_effect
+class RegulatorSecondOrder(Effect):
+    """Second-order (possibly ringing) pressure regulator."""
+
+    name = "regulator_second_order"
+    stage = "pressure"
+    parameters = (
+        Parameter(
+            "tau_n", "s", 0.01, LogNormal(0.01, 1.0), bounds=(0.0, 1.0), null=0.0,
+            description="inverse natural frequency 1/omega_n of the regulator's "
+            "second-order response",
+            latex=r"\omega_n^{-1}",
+        ),
+        Parameter(
+            "zeta_reg", "1", 0.7, LogNormal(0.7, 0.7), bounds=(0.02, 20.0),
+            description="damping ratio of the regulator (< 1 rings); not tested when the "
+            "regulator is instantaneous",
+            latex=r"\zeta_\mathrm{reg}",
+        ),
+    )
+    description = (
+        "A proportional regulator with its valve spool and the tubing's air column "
+        "responds like a mass-spring-damper: tau_n^2 p'' + 2 zeta_reg tau_n p' + p = "
+        "p_cmd, with natural frequency 1/tau_n and damping ratio zeta_reg. Below the "
+        "natural frequency it lags the command by 2 zeta_reg tau_n, like regulator_lag; "
+        "a lightly damped regulator (zeta_reg < 1) overshoots and rings at each kink of "
+        "the command and amplifies it near 1/tau_n. In the residual: the lag's signature "
+        "(error growing with frequency, correlated with the command's rate), plus an "
+        "amplitude error that changes sign with frequency instead of growing "
+        "monotonically, and oscillations at the ringing frequency after sharp changes. "
+        "Well damped with a small tau_n, it cannot be told apart from regulator_lag."
+    )
+    physics = staticmethod(_regulator_second_order)
+
+    @classmethod
+    def history_s(cls, q: np.ndarray) -> np.ndarray:
+        """40 slowest decay times: ``tau_n / zeta`` ringing, ``tau_n (zeta + sqrt(zeta^2 - 1))``
+        over-damped (see :meth:`Effect.history_s`)."""
+        tau, zeta = q[:, 0], q[:, 1]
+        slow = np.where(zeta < 1.0, tau / zeta,
+                        tau * (zeta + np.sqrt(np.maximum(zeta * zeta - 1.0, 0.0))))
+        return 40.0 * slow
+
+    @classmethod
+    def lead_s(cls, q: np.ndarray) -> np.ndarray:
+        """``2 zeta tau_n``, its low-frequency lag (see :meth:`Effect.lead_s`)."""
+        return 2.0 * q[:, 1] * q[:, 0]
 
 
 def delay_effect() -> type[Effect]:

@@ -181,8 +181,9 @@ def _kalman_loglik(y, x, scale, sigma, rho, white):
     ``y`` is ``(series, n)``, ``x`` is ``(batch, n)`` or ``(1, n)`` (shared), and
     the noise parameters are ``(batch,)``. Returns ``(batch, series)``. A scalar
     Kalman filter, with the AR(1) disturbance as its state, started from the
-    stationary distribution. The gains depend only on the noise, so they are shared
-    by the series.
+    stationary distribution. The gains and innovation variances depend only on the
+    noise, not on the data: they are computed once for each run of batch members with
+    the same noise (the whole batch when the noise is fixed) and shared by the series.
     """
     batch = sigma.shape[0]
     n = y.shape[1]
@@ -190,27 +191,103 @@ def _kalman_loglik(y, x, scale, sigma, rho, white):
     shared = x.shape[0] == 1
     out = np.zeros((batch, n_series))
     est = np.empty(n_series)
+    gains = np.empty(n)
+    variances = np.empty(n)
     log2pi = math.log(2.0 * math.pi)
+    const = 0.0
     for b in range(batch):
-        s2 = sigma[b] * sigma[b]
-        q = s2 * (1.0 - rho[b] * rho[b])
-        r = white[b] * white[b]
-        p = s2
+        if b == 0 or not (sigma[b] == sigma[b - 1] and rho[b] == rho[b - 1]
+                          and white[b] == white[b - 1]):
+            s2 = sigma[b] * sigma[b]
+            q = s2 * (1.0 - rho[b] * rho[b])
+            r = white[b] * white[b]
+            p = s2
+            const = 0.0
+            for k in range(n):
+                s_k = p + r
+                gain = p / s_k
+                const += math.log(s_k)
+                variances[k] = s_k
+                gains[k] = gain
+                p = rho[b] * rho[b] * (1.0 - gain) * p + q
         for m in range(n_series):
             est[m] = 0.0
-        const = 0.0
         for k in range(n):
-            s_k = p + r
-            gain = p / s_k
-            const += math.log(s_k)
+            s_k = variances[k]
+            gain = gains[k]
             for m in range(n_series):
                 v = scale * (y[m, k] - x[0 if shared else b, k]) - est[m]
                 out[b, m] -= 0.5 * v * v / s_k
                 est[m] = rho[b] * (est[m] + gain * v)
-            p = rho[b] * rho[b] * (1.0 - gain) * p + q
         for m in range(n_series):
             out[b, m] -= 0.5 * (const + n * log2pi)
     return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _kalman_loglik_fixed_noise(y, xt, scale, sigma, rho, white):
+    """:func:`_kalman_loglik` for a batch that shares one noise: ``xt`` is ``(n, batch)``
+    (the simulator's own layout) and the noise parameters are scalars.
+
+    The gains are computed once, and the batch is the inner loop, so that the filters
+    of its members run side by side (vectorised); each member's arithmetic is the
+    same as in :func:`_kalman_loglik`, so the results are equal bit for bit. Returns
+    ``(series, batch)``.
+    """
+    n = y.shape[1]
+    n_series = y.shape[0]
+    batch = xt.shape[1]
+    out = np.zeros((n_series, batch))
+    est = np.empty(batch)
+    gains = np.empty(n)
+    variances = np.empty(n)
+    s2 = sigma * sigma
+    q = s2 * (1.0 - rho * rho)
+    r = white * white
+    p = s2
+    const = 0.0
+    for k in range(n):
+        s_k = p + r
+        gain = p / s_k
+        const += math.log(s_k)
+        variances[k] = s_k
+        gains[k] = gain
+        p = rho * rho * (1.0 - gain) * p + q
+    for m in range(n_series):
+        est[:] = 0.0
+        acc = out[m]
+        for k in range(n):
+            s_k = variances[k]
+            gain = gains[k]
+            y_mk = y[m, k]
+            x_k = xt[k]
+            for b in range(batch):
+                v = scale * (y_mk - x_k[b]) - est[b]
+                acc[b] -= 0.5 * v * v / s_k
+                est[b] = rho * (est[b] + gain * v)
+        for b in range(batch):
+            acc[b] -= 0.5 * (const + n * math.log(2.0 * math.pi))
+    return out
+
+
+def _noise_loglik(y: np.ndarray, x: np.ndarray, scale: float, sigma: np.ndarray,
+                  rho: np.ndarray, white: np.ndarray) -> np.ndarray:
+    """:func:`_kalman_loglik` (same arguments and result, ``(batch, series)``), by the
+    fastest of equal routes: a batch that shares one noise (the noise fixed by
+    repeats) computes its gains once and runs its members side by side, or only once
+    when the model output is shared too."""
+    batch = sigma.shape[0]
+    if batch > 1 and bool(np.all(sigma == sigma[0]) and np.all(rho == rho[0])
+                          and np.all(white == white[0])):
+        if x.shape[0] == 1:
+            one = _kalman_loglik(y, np.ascontiguousarray(x), scale, sigma[:1], rho[:1],
+                                 white[:1])
+            return np.repeat(one, batch, axis=0)
+        # x is usually the simulator's (n, batch) array seen transposed: no copy
+        out = _kalman_loglik_fixed_noise(y, np.ascontiguousarray(x.T), scale,
+                                         float(sigma[0]), float(rho[0]), float(white[0]))
+        return np.ascontiguousarray(out.T)
+    return _kalman_loglik(y, np.ascontiguousarray(x), scale, sigma, rho, white)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -442,7 +519,7 @@ class Likelihood:
         batch = np.broadcast(np.asarray(sigma), np.asarray(rho), np.asarray(white)).size
         pars = self._params(sigma, rho, white, batch)
         zero = np.zeros((1, self._contrasts.shape[1]))
-        return _kalman_loglik(self._contrasts, zero, 1.0, *pars).sum(axis=1)
+        return _noise_loglik(self._contrasts, zero, 1.0, *pars).sum(axis=1)
 
     def mean_log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
         """Log-likelihood of the trial mean given the model.
@@ -463,9 +540,9 @@ class Likelihood:
         numpy.ndarray
             ``(batch,)``.
         """
-        x = np.ascontiguousarray(np.atleast_2d(x))
+        x = np.atleast_2d(x)
         pars = self._params(sigma, rho, white, x.shape[0])
-        return _kalman_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials), *pars)[:, 0]
+        return _noise_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials), *pars)[:, 0]
 
     def log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
         """Total log-likelihood of all trials, per batch member.
@@ -547,9 +624,9 @@ class Likelihood:
         -------
         numpy.ndarray
         """
-        x = np.ascontiguousarray(np.atleast_2d(x))
+        x = np.atleast_2d(x)
         pars = self._params(sigma, rho, white, x.shape[0])
-        return _kalman_loglik(self._trials, x, 1.0, *pars)
+        return _noise_loglik(self._trials, x, 1.0, *pars)
 
 
 

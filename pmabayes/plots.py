@@ -338,6 +338,45 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
     return fig
 
 
+def plot_discrepancy(discrepancy, *, path: str | Path | None = None) -> Figure:
+    """The estimated missing force's partial dependence on each state.
+
+    Parameters
+    ----------
+    discrepancy : pmabayes.discrepancy.Discrepancy
+        The discrepancy of a diagnosis.
+    path : str or Path, optional
+        Where to save the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One panel per state, most evidence first: the force against the state
+        (centred along the trajectory) with a band of two posterior standard
+        deviations, titled with the ELPD lost when the state is dropped.
+    """
+    states = discrepancy.states
+    cols = min(3, len(states))
+    rows = math.ceil(len(states) / cols)
+    fig = Figure(figsize=(3.2 * cols, 2.5 * rows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, cols)).ravel()
+    for ax, st in zip(axes, states, strict=False):
+        pd = discrepancy.partial_dependence[st.state]
+        g, f, sd = pd["grid"], pd["force_n"], pd["sd_n"]
+        color = "tab:red" if st.needed else "tab:gray"
+        ax.fill_between(g, f - 2 * sd, f + 2 * sd, color=color, alpha=0.25, lw=0)
+        ax.plot(g, f, color=color, marker="o" if g.size < 5 else None)
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_xlabel(f"{st.state} [{pd['unit']}]")
+        ax.set_ylabel("force [N]")
+        ax.set_title(f"{st.state}: ΔELPD {st.elpd_loss:+.1f} ± {st.se:.1f}", fontsize=8)
+    for ax in axes[len(states):]:
+        ax.set_visible(False)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
 _CONTROLLER_STYLE = {"pid": ("C0", "$x_{FB}$ (PID)", "PID"),
                      "ct": ("C3", "$x_{CT}$ (computed torque)", "computed torque")}
 

@@ -1105,38 +1105,73 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     out_dir : str or Path
         Destination folder, created if needed. Written: ``comparison.png``,
         ``bands.png``, ``signature.png``, ``whiteness.png``, ``ranking.png``,
-        ``diagnosis.json`` and ``index.html``.
+        ``discrepancy.png`` (when the diagnosis has a discrepancy), ``diagnosis.json``
+        and ``index.html``. For several experiments the first four are per experiment
+        (``comparison_NAME.png``, ...), and the page has a section per experiment
+        (``id="experiment-NAME"``).
 
     Returns
     -------
     Path
         The path of ``index.html`` (self-contained: figures embedded).
     """
+    from pmabayes import plots
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     d = diagnosis
-    ds = d.dataset
+    exps = list(d.experiments) or [d]  # a Diagnosis made before experiments existed
+    several = len(exps) > 1
     label = " + ".join(["base", *d.model.effect_names])
-    figs = _diagnosis_figures(d, label, out_dir)
     summary = d.to_dict()
     (out_dir / "diagnosis.json").write_text(json.dumps(summary, indent=2) + "\n")
-    sig = d.signature
     cls = "ok" if d.adequate and d.missing is None else "bad"
+    sources = [e.dataset.source or "(in memory)" for e in exps]
+    if several:
+        meta = (f"{len(exps)} experiments: "
+                + ", ".join(f"<code>{html.escape(src)}</code> ({e.dataset.n_trials} trial(s) × "
+                            f"{e.dataset.n_samples} samples, rig {html.escape(e.model.rig.name)})"
+                            for src, e in zip(sources, exps, strict=True)))
+    else:
+        ds = exps[0].dataset
+        meta = (f"data: <code>{html.escape(sources[0])}</code> · {ds.n_trials} trials × "
+                f"{ds.n_samples} samples")
     body = [
-        f'<p class="meta">data: <code>{html.escape(ds.source or "(in memory)")}</code> · '
-        f"{ds.n_trials} trials × {ds.n_samples} samples · model: {html.escape(label)} · "
+        f'<p class="meta">{meta} · model: {html.escape(label)} · '
         f"seed {html.escape(str(d.settings.get('seed')))}</p>",
-        _synthetic_note(ds),
+        *dict.fromkeys(_synthetic_note(e.dataset) for e in exps),
         f'<div class="banner {cls}">{html.escape(d.verdict)}</div>',
-        "<h2>Compare: error against the noise floor</h2>",
-        _table(_BAND_HEADER, _band_rows(sig.bands)),
-        f"<p>Whitened residual: energy {sig.energy:.4g} (1 for pure noise, p = "
-        f"{sig.energy_p:.2g}); Ljung-Box p = {sig.ljung_box_p:.2g}. "
-        f"Adequate: <strong>{'yes' if d.adequate else 'no'}</strong>.</p>",
-        "<h2>See where it fails</h2>", f"<p>{html.escape(sig.describe())}</p>",
+    ]
+    figs: dict[str, str] = {}
+    for e in exps:
+        suffix = f"_{e.name}" if several else ""
+        figs.update(_experiment_figures(e, label, out_dir, suffix))
+        if several:
+            body.append(f'<h2 id="experiment-{html.escape(e.name)}">Experiment '
+                        f"{html.escape(e.name)}: <code>{html.escape(e.dataset.source or '')}"
+                        f"</code> (adequate: {'yes' if e.adequate else 'no'})</h2>")
+        body += _diagnosis_experiment_section(e, several)
+        if several:
+            for name in ("comparison", "bands", "signature", "whiteness"):
+                body.append(_img(out_dir / f"{name}{suffix}.png", f"{name} plot of {e.name}",
+                                 figs.pop(f"{name}{suffix}")))
+    fig = plots.plot_ranking(d.ranking, threshold=d.score_threshold, level=d.settings["level"])
+    fig.savefig(out_dir / "ranking.png", dpi=plots.REPORT_DPI)
+    figs["ranking"] = ("Score-test evidence that each candidate effect is missing (red: "
+                       "significant)" + (", all experiments together" if several else "") + ".")
+    if d.discrepancy is not None:
+        fig = plots.plot_discrepancy(d.discrepancy)
+        fig.savefig(out_dir / "discrepancy.png", dpi=plots.REPORT_DPI)
+        figs["discrepancy"] = ("The missing force estimated from the data: its partial "
+                               "dependence on each state (centred; band: two posterior sd), "
+                               "red where dropping the state loses predictive accuracy.")
+    body += [
         "<h2>What is missing: the candidate effects</h2>",
-        "<p>Refitted candidates first (by leave-one-trial-out ELPD), then the others by "
-        "score statistic. Estimates and intervals of refitted candidates come from the "
+        "<p>Refitted candidates first (by leave-one-trial-out ELPD"
+        + (", over every trial of every experiment" if several else "")
+        + "), then the others by score statistic"
+        + (" (the experiments' scores and informations summed)" if several else "")
+        + ". Estimates and intervals of refitted candidates come from the "
         f"refit's MAP and Laplace draws ({d.settings['ci_prob']:.0%} intervals); the others "
         "are the score test's one-step values.</p>",
         _table(["effect", "evidence", "p", "significant", "estimate", "interval",
@@ -1151,49 +1186,81 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     for f in d.ranking:
         if f.significant:
             body.append(f"<h3>{html.escape(f.effect)}</h3><p>{html.escape(f.explanation)}</p>")
+    if d.discrepancy is not None:
+        body += _discrepancy_section(d.discrepancy)
     body.append("<h2>Figures</h2>")
     for name, caption in figs.items():
         body.append(_img(out_dir / f"{name}.png", f"{name} plot", caption))
     index = out_dir / "index.html"
-    index.write_text(_page(f"pmabayes diagnosis: {Path(ds.source or 'data').name}", body),
-                     encoding="utf-8")
+    title = " + ".join(Path(src).name for src in sources) if sources else "data"
+    index.write_text(_page(f"pmabayes diagnosis: {title}", body), encoding="utf-8")
     return index
 
 
-def _diagnosis_figures(d, label: str, out_dir: Path) -> dict[str, str]:
-    """Draw the five figures of a diagnosis; returns each one's caption."""
+def _discrepancy_section(disc) -> list[str]:
+    """The discrepancy's states, evidence and proposal, for the diagnosis page."""
+    out = ["<h2>Beyond the library: the missing force estimated from the data</h2>",
+           f"<p>{html.escape(disc.text)}</p>",
+           _table(["state", "ΔELPD if dropped ± se", "force amplitude [N]", "needed"],
+                  [[s.state, f"{s.elpd_loss:+.1f} ± {s.se:.1f}", s.amplitude_n,
+                    "yes" if s.needed else "no"] for s in disc.states], num_from=2)]
+    if disc.proposal is not None:
+        pr = disc.proposal
+        out.append(f"<p>Proposed ({html.escape(pr.kind)}): <code>{html.escape(pr.expression)}"
+                   f"</code>; ΔELPD against the flexible estimate {pr.elpd_diff:+.1f} ± "
+                   f"{pr.elpd_diff_se:.1f}. Plugin: <code>{html.escape(str(pr.plugin))}</code>"
+                   "</p>")
+    return out
+
+
+def _diagnosis_experiment_section(e, several: bool) -> list[str]:
+    """One experiment's error table, whiteness and signature (h2 for one experiment,
+    h3 under its heading for several)."""
+    sig = e.signature
+    h = "h3" if several else "h2"
+    note = e.floor_note() if hasattr(e, "floor_note") else ""
+    return [
+        f"<{h}>Compare: error against the noise floor</{h}>",
+        _table(_BAND_HEADER, _band_rows(sig.bands)),
+        (f"<p>{html.escape(note)}.</p>" if note else ""),
+        f"<p>Whitened residual: energy {sig.energy:.4g} (1 for pure noise, p = "
+        f"{sig.energy_p:.2g}); Ljung-Box p = {sig.ljung_box_p:.2g}. "
+        f"Adequate: <strong>{'yes' if e.adequate else 'no'}</strong>.</p>",
+        f"<{h}>See where it fails</{h}>", f"<p>{html.escape(sig.describe())}</p>",
+    ]
+
+
+def _experiment_figures(e, label: str, out_dir: Path, suffix: str = "") -> dict[str, str]:
+    """Draw an experiment's four figures of a diagnosis (``NAME{suffix}.png``); returns each
+    one's caption."""
     from pmabayes import plots
 
-    ds = d.dataset
+    ds = e.dataset
     figs = {
-        "comparison": (plots.plot_comparison(ds, d.simulation.position_m[0],
+        "comparison": (plots.plot_comparison(ds, e.simulation.position_m[0],
                                              label=f"{label} (MAP)"),
                        "Trials, their mean and the model at its MAP; the residual beside the "
                        "noise floor; the hysteresis loop."),
-        "bands": (plots.plot_band_errors({label: d.signature.bands}),
+        "bands": (plots.plot_band_errors({label: e.signature.bands}),
                   "RMS error of the trial mean per frequency band (octaves over the band the "
                   "input excites, from the residual's spectrum; the bands' mean squares add "
                   "up to the total), with the noise floor (black): the error a perfect model "
                   "would have, from the spectrum of the deviations between the trials."),
-        "signature": (plots.plot_residual_signature(ds, d.simulation, d.frequency_hz,
+        "signature": (plots.plot_residual_signature(ds, e.simulation, e.frequency_hz,
                                                     label=label),
                       "Where the model fails: the residual against time, frequency, velocity, "
                       "pressure and position."),
-        "whiteness": (plots.plot_whiteness(d.whiteness_curves()),
+        "whiteness": (plots.plot_whiteness(e.whiteness_curves()),
                       "Whiteness and independence tests: the residual whitened by the noise "
                       "model should stay inside the bounds at almost every lag."),
-        "ranking": (plots.plot_ranking(d.ranking, threshold=d.score_threshold,
-                                       level=d.settings["level"]),
-                    "Score-test evidence that each candidate effect is missing (red: "
-                    "significant)."),
     }
     for name, (fig, _) in figs.items():
-        fig.savefig(out_dir / f"{name}.png", dpi=plots.REPORT_DPI)
-    return {name: caption for name, (_, caption) in figs.items()}
+        fig.savefig(out_dir / f"{name}{suffix}.png", dpi=plots.REPORT_DPI)
+    return {f"{name}{suffix}": caption for name, (_, caption) in figs.items()}
 
 
-def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None = None
-                     ) -> Path:
+def write_comparison(comparison, out_dir: str | Path, *,
+                     dataset: Dataset | Sequence[Dataset] | None = None) -> Path:
     """Write the error-falling figure, tables and an HTML page of a fit comparison.
 
     Parameters
@@ -1202,59 +1269,120 @@ def write_comparison(comparison, out_dir: str | Path, *, dataset: Dataset | None
         From :func:`pmabayes.criticism.compare_fits`.
     out_dir : str or Path
         Destination folder. Written: ``error_falling.png``, ``whiteness.png``,
-        ``comparison.json``, ``comparison.md`` and ``index.html``.
-    dataset : Dataset, optional
-        The data, to name it and mark it synthetic.
+        ``comparison.json``, ``comparison.md`` and ``index.html``. For fits of
+        several experiments the figures are per experiment
+        (``error_falling_NAME.png``, ``whiteness_NAME.png``), with a table and a
+        section (``id="experiment-NAME"``) each, and one ELPD table over all trials.
+    dataset : Dataset or sequence of Dataset, optional
+        The data (one per experiment), to name it and mark it synthetic.
 
     Returns
     -------
     Path
         The path of ``index.html``.
     """
-    from pmabayes import plots
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     c = comparison
-    plots.plot_band_errors(c.bands, title="the error falls as effects are added "
-                                          "(label: multiple of the noise floor)"
-                           ).savefig(out_dir / "error_falling.png", dpi=plots.REPORT_DPI)
-    plots.plot_whiteness(c.whiteness_curves()).savefig(out_dir / "whiteness.png",
-                                                       dpi=plots.REPORT_DPI)
+    datasets = ([] if dataset is None else [dataset] if isinstance(dataset, Dataset)
+                else list(dataset))
     (out_dir / "comparison.json").write_text(json.dumps(c.to_dict(), indent=2) + "\n")
-    band_names = [b.label for b in c.bands[c.labels[0]]]
-    header = ["fit", *[f"RMS {b} [µm]" for b in band_names], "RMS / floor",
-              "Ljung-Box p", "energy", "ELPD (LOO)", "ΔELPD vs best ± se"]
-    rows = [[k, *[b.rms_m * 1e6 for b in c.bands[k]], c.bands[k][-1].ratio,
-             c.whiteness[k]["ljung_box_p"], c.whiteness[k]["energy"], c.elpd[k]["elpd"],
-             f"{c.elpd[k]['elpd_diff']:.1f} ± {c.elpd[k]['dse']:.1f}"] for k in c.labels]
-    rows.append(["noise floor", *[b.floor_m * 1e6 for b in c.bands[c.labels[0]]], 1.0,
-                 "", "", "", ""])
-    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    md += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in rows]
-    md += ["", "| step | ΔELPD | se |", "|---|---|---|"]
-    md += [f"| {s['from']} → {s['to']} | {s['elpd_diff']:+.1f} | {s['se']:.1f} |"
-           for s in c.elpd_steps]
+    parts = c.experiments or {"": c}
+    several = bool(c.experiments)
+    elpd_header = ["fit", "ELPD (LOO)", "ΔELPD vs best ± se"]
+    elpd_rows = [[k, c.elpd[k]["elpd"], f"{c.elpd[k]['elpd_diff']:.1f} ± {c.elpd[k]['dse']:.1f}"]
+                 for k in c.labels]
+    md: list[str] = []
+    sections: list[str] = []
+    for name, part in parts.items():
+        suffix = f"_{name}" if several else ""
+        header, rows = _comparison_rows(part, with_elpd=not several)
+        if several:
+            md += [f"## {name}", ""]
+            sections.append(f'<h2 id="experiment-{html.escape(name)}">Experiment '
+                            f"{html.escape(name)}: error per frequency band and whiteness</h2>")
+        else:
+            sections.append("<h2>Error per frequency band, whiteness and ELPD</h2>")
+        md += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        md += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in rows]
+        md.append("")
+        sections.append(_table(header, rows))
+        sections += _comparison_figures(part, out_dir, suffix, name)
+    if several:
+        md += ["## ELPD, leaving out one trial of all experiments at a time", "",
+               "| " + " | ".join(elpd_header) + " |", "|" + "---|" * len(elpd_header)]
+        md += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in elpd_rows]
+        md.append("")
+    md += ["| step | ΔELPD | se |", "|---|---|---|"]
+    md += [f"| {st['from']} → {st['to']} | {st['elpd_diff']:+.1f} | {st['se']:.1f} |"
+           for st in c.elpd_steps]
     (out_dir / "comparison.md").write_text("\n".join(md) + "\n")
-    name = Path(dataset.source).name if dataset is not None and dataset.source else "data"
+    names = [Path(ds.source).name if ds.source else "data" for ds in datasets] or ["data"]
+    name = " + ".join(names)
     body = [
-        f'<p class="meta">{len(c.labels)} fits of <code>{html.escape(name)}</code></p>',
-        _synthetic_note(dataset) if dataset is not None else "",
-        "<h2>Error per frequency band, whiteness and ELPD</h2>",
-        _table(header, rows),
+        f'<p class="meta">{len(c.labels)} fits of '
+        + ", ".join(f"<code>{html.escape(n)}</code>" for n in names)
+        + (f" ({len(parts)} experiments)" if several else "") + "</p>",
+        *dict.fromkeys(_synthetic_note(ds) for ds in datasets),
+    ]
+    if several:
+        body += ["<h2>ELPD, leaving out one trial of all experiments at a time</h2>",
+                 _table(elpd_header, elpd_rows)]
+        body += sections
+    else:
+        body += sections[:2]
+    body += [
         "<h2>Each step</h2>",
         _table(["step", "ΔELPD (leave one trial out)", "se"],
-               [[f"{s['from']} → {s['to']}", s["elpd_diff"], s["se"]] for s in c.elpd_steps]),
-        _img(out_dir / "error_falling.png", "error falling",
-             "RMS error of the trial mean per frequency band for each fit, with the noise "
-             "floor (black)."),
-        _img(out_dir / "whiteness.png", "whiteness",
-             "Whitened residual of each fit: autocorrelation and cross-correlation with the "
-             "command's rate, against the bounds for a white residual."),
+               [[f"{st['from']} → {st['to']}", st["elpd_diff"], st["se"]]
+                for st in c.elpd_steps]),
     ]
+    if not several:
+        body += sections[2:]
     index = out_dir / "index.html"
     index.write_text(_page(f"pmabayes comparison: {name}", body), encoding="utf-8")
     return index
+
+
+def _comparison_rows(c, *, with_elpd: bool) -> tuple[list[str], list[list[Any]]]:
+    """The table of a comparison on one data set: RMS per band, ratio, whiteness (and ELPD)."""
+    band_names = [b.label for b in c.bands[c.labels[0]]]
+    header = ["fit", *[f"RMS {b} [µm]" for b in band_names], "RMS / floor",
+              "Ljung-Box p", "energy"]
+    if with_elpd:
+        header += ["ELPD (LOO)", "ΔELPD vs best ± se"]
+    rows = []
+    for k in c.labels:
+        ratio = c.bands[k][-1].ratio
+        row = [k, *[b.rms_m * 1e6 for b in c.bands[k]], ratio if np.isfinite(ratio) else None,
+               c.whiteness[k]["ljung_box_p"], c.whiteness[k]["energy"]]
+        if with_elpd:
+            row += [c.elpd[k]["elpd"], f"{c.elpd[k]['elpd_diff']:.1f} ± {c.elpd[k]['dse']:.1f}"]
+        rows.append(row)
+    floors = [b.floor_m * 1e6 if np.isfinite(b.floor_m) else None for b in c.bands[c.labels[0]]]
+    rows.append(["noise floor", *floors, 1.0 if floors[-1] is not None else None, "", "",
+                 *(["", ""] if with_elpd else [])])
+    return header, rows
+
+
+def _comparison_figures(c, out_dir: Path, suffix: str, name: str) -> list[str]:
+    """Draw the error-falling and whiteness figures of one data set; their ``<img>``s."""
+    from pmabayes import plots
+
+    plots.plot_band_errors(c.bands, title="the error falls as effects are added "
+                                          "(label: multiple of the noise floor)"
+                           + (f": {name}" if name else "")
+                           ).savefig(out_dir / f"error_falling{suffix}.png", dpi=plots.REPORT_DPI)
+    plots.plot_whiteness(c.whiteness_curves()).savefig(out_dir / f"whiteness{suffix}.png",
+                                                       dpi=plots.REPORT_DPI)
+    return [
+        _img(out_dir / f"error_falling{suffix}.png", "error falling",
+             "RMS error of the trial mean per frequency band for each fit, with the noise "
+             "floor (black)."),
+        _img(out_dir / f"whiteness{suffix}.png", "whiteness",
+             "Whitened residual of each fit: autocorrelation and cross-correlation with the "
+             "command's rate, against the bounds for a white residual."),
+    ]
 
 
 # ------------------------------------------------------------------- validation

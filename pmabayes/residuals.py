@@ -39,7 +39,7 @@ import numpy as np
 from scipy import signal, stats
 
 from pmabayes.data import Dataset
-from pmabayes.likelihood import Likelihood
+from pmabayes.likelihood import Likelihood, _noise_repeats
 
 __all__ = [
     "DEFAULT_BANDS_HZ",
@@ -147,8 +147,10 @@ class BandErrors:
         with its other frequencies removed); for the overall row, of the residual.
     floor_m : float
         RMS a perfect model would have in the band: the spectrum of the
-        deviations between trials divided by the number of trials; NaN with a
-        single trial (no repeats, no floor).
+        deviations between trials divided by the number of trials; for a single
+        periodic record (``period_samples``), that of the deviations between its
+        periods in steady state (the repeats its noise is learnt from); NaN for a
+        single record without repeats (no floor).
     """
 
     band_hz: tuple[float, float]
@@ -351,7 +353,8 @@ def band_errors(
     from the periodogram of the residual (trial mean minus model), of the trial
     mean's motion (for the normalised RMS) and of the deviations of the trials
     from their mean (for the noise floor: their summed spectrum over ``R - 1``,
-    divided by ``R``, which is the variance of the mean). No window is applied, so
+    divided by ``R``, which is the variance of the mean; for a single periodic
+    record, the same from its periods, not divided). No window is applied, so
     over bands that partition the frequency axis the mean squares add up exactly
     to the overall one (Parseval); the price is that a residual's component
     between two bins leaks a little into the neighbouring ones.
@@ -371,7 +374,8 @@ def band_errors(
     -------
     list of BandErrors
         One per band that holds a periodogram bin, then the overall one (band
-        ``(0, inf)``). With a single trial the floors (and ratios) are NaN.
+        ``(0, inf)``). For a single record the floors come from its periods when
+        it declares them, and are NaN (ratios too) when it has no repeats.
 
     Raises
     ------
@@ -388,12 +392,7 @@ def band_errors(
     spec = np.fft.rfft(resid)
     f, p_resid = power_spectrum(resid, dt)
     _, p_motion = power_spectrum(mean - mean.mean(), dt)
-    n_trials = dataset.n_trials
-    if n_trials >= 2:
-        p_floor = power_spectrum(dataset.position_m - mean, dt)[1].sum(axis=0) / (
-            (n_trials - 1) * n_trials)
-    else:
-        p_floor = np.full_like(p_resid, np.nan)
+    f_floor, p_floor = _floor_spectrum(dataset)
     rows = []
     for lo, hi in (*bands, (0.0, math.inf)):
         sel = (f >= lo) & (f < hi)
@@ -405,9 +404,32 @@ def band_errors(
         rows.append(BandErrors(
             band_hz=(float(lo), float(hi)), n_samples=int(sel.sum()), rms_m=rms,
             nrms=rms / max(motion, 1e-300), max_m=float(np.max(np.abs(part))),
-            floor_m=math.sqrt(float(p_floor[sel].sum())),
+            floor_m=math.sqrt(float(p_floor[(f_floor >= lo) & (f_floor < hi)].sum())),
         ))
     return rows
+
+
+def _floor_spectrum(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """The noise floor's spectrum: the power a perfect model's residual would have.
+
+    From the trials' deviations from their mean (summed over ``R - 1``, divided by
+    ``R`` for the trial mean); for a single periodic record, from its periods'
+    deviations from their mean (the repeats :mod:`pmabayes.likelihood` learns the
+    noise from), on the period's coarser frequency grid, not divided (the record is
+    one series); NaN for a single record without repeats.
+    """
+    dt = dataset.dt_s
+    n_trials = dataset.n_trials
+    if n_trials >= 2:
+        dev = dataset.position_m - dataset.mean_position_m
+        f, p = power_spectrum(dev, dt)
+        return f, p.sum(axis=0) / ((n_trials - 1) * n_trials)
+    source, repeats = _noise_repeats(dataset)
+    if source == "periods":
+        f, p = power_spectrum(repeats - repeats.mean(axis=0), dt)
+        return f, p.sum(axis=0) / (repeats.shape[0] - 1)
+    f = np.fft.rfftfreq(dataset.n_samples, dt)
+    return f, np.full(f.shape, np.nan)
 
 
 def innovations(likelihood: Likelihood, model_position_m: np.ndarray, noise) -> np.ndarray:
@@ -595,7 +617,7 @@ class Signature:
         overall = self.bands[-1]
         if math.isnan(overall.floor_m):
             text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS ({overall.nrms:.3g} of the "
-                    "motion; one trial, so no noise floor)")
+                    "motion; a single record without repeats, so no noise floor)")
             return text + "." + self._describe_correlations()
         ratios = [b.ratio for b in bands]
         text = (f"The error is {overall.rms_m * 1e6:.4g} µm RMS against a noise floor of "

@@ -34,8 +34,10 @@ a band-limited reconstruction (FFT interpolation of a periodic record, else a
 degree-9 interpolating spline) that each substep follows as a straight line between
 its reconstructed end values. ``position_m[k]`` is the position at ``time_s[k]``.
 Each trial starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium
-under the first input sample; or, with ``steady_state``, in the periodic steady state
-reached from rest through repeated periods of the input.
+under the first input sample; or, with ``initial_state="zero"``, at ``x = x' = z = 0``
+whatever the first input (a simulation switched on at t = 0, as the Bouc-Wen
+benchmark's); or, with ``steady_state``, in the periodic steady state reached from that
+initial state through repeated periods of the input.
 
 Kernels are generated per composition of effects, compiled with numba and cached
 on disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``), so the first
@@ -56,13 +58,13 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from pmabayes.data import BETWEEN_SAMPLES, check_time_grid
+from pmabayes.data import BETWEEN_SAMPLES, INITIAL_STATES, check_time_grid
 from pmabayes.model import Model
 from pmabayes.util import fingerprint, source_text
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
-           "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "STEADY_STATE_TOL_M",
-           "MAX_WARMUP_PERIODS"]
+           "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "INITIAL_STATES",
+           "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -425,9 +427,10 @@ class PlantCode:
 
 
 def _generate(model: Model, record: bool, shared_input: bool,
-              between_samples: str = "hold") -> tuple[str, dict]:
+              between_samples: str = "hold", initial_state: str = "rest") -> tuple[str, dict]:
     """Source of the kernel for ``model`` and the globals it needs injected."""
     plant = PlantCode(model)
+    zero = initial_state == "zero"
     pressure, measure = plant.pressure, plant.measure
     name_of = plant.name_of
 
@@ -448,11 +451,11 @@ def _generate(model: Model, record: bool, shared_input: bool,
             body += _sample_loops(plant, record, "pa", "pb", "p_in[(k + 1) * substeps, 0]",
                                   "p_in[0, 0]",
                                   substep_lines=[f"pa = p_in[{fine}, 0]",
-                                                 f"pb = p_in[{fine} + 1, 0]"])
+                                                 f"pb = p_in[{fine} + 1, 0]"], zero=zero)
         else:
             body += (_pressure_fill(plant, shared_input, True, fine=True)
                      + _sample_loops(plant, record, f"pp[0, {fine}, i]", f"pp[1, {fine}, i]",
-                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]"))
+                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]", zero=zero))
     else:
         ramps = bool(pressure) or linear
         via_pp = (
@@ -465,9 +468,9 @@ def _generate(model: Model, record: bool, shared_input: bool,
         # one loop per kernel: a second copy in the same function does not vectorise
         if ramps or not shared_input:
             body += (_pressure_fill(plant, shared_input, linear)
-                     + _sample_loops(plant, record, *via_pp))
+                     + _sample_loops(plant, record, *via_pp, zero=zero))
         else:
-            body += _sample_loops(plant, record, *shared)
+            body += _sample_loops(plant, record, *shared, zero=zero)
     if record:
         body += ["out_true[:, :] = out_x"]
     body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
@@ -475,6 +478,8 @@ def _generate(model: Model, record: bool, shared_input: bool,
     text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
     text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
     text += f"# input between samples: {between_samples}\n"
+    if zero:  # only then, so that the rest kernels' text (and disk cache) is unchanged
+        text += "# initial state: zero\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in plant.inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -521,12 +526,14 @@ def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False,
 
 
 def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
-                  p_first: str, substep_lines: tuple[str, ...] | list[str] = ()) -> list[str]:
+                  p_first: str, substep_lines: tuple[str, ...] | list[str] = (),
+                  zero: bool = False) -> list[str]:
     """Lines of the initial state and the time loop, given how the pressure at the
     start and end of a substep, at the next sample and at the first is read
-    (``substep_lines`` run once per substep, before the batch loop)."""
+    (``substep_lines`` run once per substep, before the batch loop). The state starts
+    at rest under the first input, or with ``zero`` at ``x = x' = z = 0``."""
     out = ["for i in range(batch):", f"    p0 = {p_first}"]
-    out += ["    " + ln for ln in plant.rest("p0", "xi")]
+    out += ["    xi = 0.0"] if zero else ["    " + ln for ln in plant.rest("p0", "xi")]
     out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     if record:
         out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
@@ -584,19 +591,21 @@ _LOCK = threading.Lock()
 
 
 def structure_key(model: Model, record: bool, shared_input: bool,
-                  between_samples: str = "hold") -> tuple:
-    """Key of a kernel's composition: the effects (by identity) and the input kind."""
+                  between_samples: str = "hold", initial_state: str = "rest") -> tuple:
+    """Key of a kernel's composition: the effects (by identity), the input kind and
+    the conventions of the input between samples and of the initial state."""
     key = (
         tuple((e.__module__, e.__qualname__, id(e)) for e in model.effects),
         model.rig.input_kind,
         record,
         shared_input,
     )
-    return key if between_samples == "hold" else (*key, between_samples)
+    key = key if between_samples == "hold" else (*key, between_samples)
+    return key if initial_state == "rest" else (*key, "initial_state", initial_state)
 
 
 def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
-               between_samples: str = "hold"):
+               between_samples: str = "hold", initial_state: str = "rest"):
     """The compiled kernel for ``model``'s composition (generated and cached once).
 
     Parameters
@@ -613,17 +622,24 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
         What the input does between samples: ``"hold"``, ``"linear"`` or
         ``"bandlimited"``; for the last, ``p_in`` holds the reconstructed input at every
         substep boundary, ``(n - 1) * substeps + 1`` values.
+    initial_state : str
+        ``"rest"`` (static equilibrium under the first input, ``x' = z = 0``) or
+        ``"zero"`` (``x = x' = z = 0``); see :data:`INITIAL_STATES`.
 
     Returns
     -------
     numba dispatcher
         ``kernel(theta, p_in, time_s, dt, mass, f_grav, area, out_x[, ...])``.
     """
-    key = structure_key(model, record, shared_input, between_samples)
+    if initial_state not in INITIAL_STATES:
+        raise SimulationError(
+            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
+            f"{initial_state!r}")
+    key = structure_key(model, record, shared_input, between_samples, initial_state)
     kernel = cached_kernel(key)
     if kernel is not None:
         return kernel
-    text, inject = _generate(model, record, shared_input, between_samples)
+    text, inject = _generate(model, record, shared_input, between_samples, initial_state)
     return compile_kernel(key, text, inject)
 
 
@@ -835,6 +851,7 @@ def simulate(
     steady_state: bool = False,
     steady_state_tol_m: float = STEADY_STATE_TOL_M,
     max_warmup_periods: int = MAX_WARMUP_PERIODS,
+    initial_state: str = "rest",
 ):
     """Simulate ``model`` for a batch of parameter sets.
 
@@ -896,6 +913,14 @@ def simulate(
         by how much, and the record follows the last warm-up. The muscle at the
         paper's values creeps towards its steady state by about ``r = 0.84`` a
         period (the hysteresis' slow shakedown), so it can take a hundred.
+    initial_state : str
+        The state each trial (or its warm-up, with ``steady_state``) starts from (see
+        :data:`INITIAL_STATES`): ``"rest"`` (the default: ``x' = 0``, ``z = 0`` and
+        ``x`` at static equilibrium under the first input sample, as after a long
+        hold of it) or ``"zero"`` (``x = x' = z = 0`` whatever the first input: a
+        plant at rest at zero input that the input switches on at the first sample,
+        as the Bouc-Wen benchmark's simulations start). Pressure effects start as
+        under ``"rest"``.
 
     Returns
     -------
@@ -917,6 +942,10 @@ def simulate(
             f"{between_samples!r}")
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
+    if initial_state not in INITIAL_STATES:
+        raise SimulationError(
+            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
+            f"{initial_state!r}")
     theta = model.theta(params)
     u = np.asarray(input_signal, dtype=float)
     if not (u.ndim == 1 or (u.ndim == 2 and u.shape[0] == theta.shape[0])):
@@ -932,7 +961,8 @@ def simulate(
     t, dt = _time_axis(n, dt_s, time_s)
     period = _check_period(period_samples, steady_state, n)
     run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=int(substeps),
-               states=states, between_samples=between_samples, period=period)
+               states=states, between_samples=between_samples, period=period,
+               initial_state=initial_state)
     if not steady_state:
         return _run(**run, warmup=0)
     if not steady_state_tol_m > 0:
@@ -989,7 +1019,7 @@ class SteadyStateWarning(RuntimeWarning):
 
 def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
          substeps: int, states: bool, between_samples: str, period: int | None,
-         warmup: int):
+         warmup: int, initial_state: str = "rest"):
     """One kernel call over ``warmup`` periods and the record.
 
     Returns the positions ``(B, n)`` (or the :class:`Simulation`) of the record; with
@@ -1009,12 +1039,13 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
     args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
             rig.area_m2, out_x)
     if not states:
-        kernel_for(model, shared_input=shared, between_samples=between_samples)(*args)
+        kernel_for(model, shared_input=shared, between_samples=between_samples,
+                   initial_state=initial_state)(*args)
         x = out_x.T
         return (x[:, lead:], x[:, :lead]) if lead else x
     rec = [np.empty((n + lead, batch)) for _ in range(5)]
-    kernel_for(model, record=True, shared_input=shared,
-               between_samples=between_samples)(*args, *rec)
+    kernel_for(model, record=True, shared_input=shared, between_samples=between_samples,
+               initial_state=initial_state)(*args, *rec)
     v, z, p, f, true_x = (a.T for a in rec)
     x = out_x.T
     sim = Simulation(t[lead:], x[:, lead:], true_x[:, lead:], v[:, lead:], z[:, lead:],
@@ -1031,9 +1062,10 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
 
     The one place where a data set's declarations become simulator options: what
     its input does between samples (:attr:`pmabayes.data.Dataset.input_between_samples`),
-    its period (:attr:`~pmabayes.data.Dataset.period_samples`) and whether each trial
+    its period (:attr:`~pmabayes.data.Dataset.period_samples`), whether each trial
     starts in periodic steady state
-    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`). The likelihood,
+    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`) and from which state
+    (:attr:`~pmabayes.data.Dataset.initial_state`). The likelihood,
     diagnostics and validation all simulate through it.
 
     Parameters
@@ -1059,4 +1091,5 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
                     substeps=substeps, states=states,
                     between_samples=dataset.input_between_samples,
                     period_samples=dataset.period_samples,
-                    steady_state=dataset.starts_in_steady_state)
+                    steady_state=dataset.starts_in_steady_state,
+                    initial_state=dataset.initial_state)

@@ -12,11 +12,15 @@ definitions:
 
 * regulator lag: ``p' = (p_cmd(t) - p) / tau_reg``, a fourth state, ``p(0) = p_cmd[0]``;
 * transport delay: ``p(t) = p_cmd(t - t_delay)`` with ``p_cmd(t < 0) = p_cmd[0]``;
+* second-order regulator: ``tau_n^2 p'' + 2 zeta_reg tau_n p' + p = p_cmd(t)``, a fifth
+  state ``p'``, settled at ``p_cmd[0]``;
 * Coulomb friction ``F_c tanh(x' / v_c)``, cubic stiffness ``K3 x^3`` and pressure
   stiffness ``K_p p x`` (``p`` the acting pressure);
+* Stribeck friction ``[F_k + F_s exp(-(x'/v_s)^2)] tanh(x'/v_st)``;
+* McKibben force-length correction ``a_mck ((1 + x/l_0)^2 - 1) max(p - p_mck, 0)``;
 * position offset: measured position ``x + x_offset``;
 * pressure hysteresis: the force ``kappa_ph (p / p_ref_ph) z``;
-* Maxwell creep: a fifth state, the stretch ``u`` of a spring ``k_m`` in series with
+* Maxwell creep: a sixth state, the stretch ``u`` of a spring ``k_m`` in series with
   a dashpot ``k_m tau_m``, ``u' = x' - u / tau_m``, ``u(0) = 0``, force ``k_m u``;
 * generalised Bouc-Wen exponent: ``z' = x' [alpha - (beta sgn(x' z) + gamma) |z|^n
   z_ref^(1 - n)]``.
@@ -43,9 +47,11 @@ __all__ = ["ReferenceResult", "reference_simulate", "paper_chirp"]
 
 # Slots of the constants vector passed to the compiled integrator.
 (C_MASS, C_AREA, C_F_GRAV, C_ALPHA, C_BETA, C_GAMMA, C_D, C_K_E, C_P_DZ, C_DEAD_ZONE, C_TAU, C_F_C,
- C_V_C, C_K3, C_K_P, C_KAPPA, C_P_REF, C_K_M, C_TAU_M, C_N_BW, C_Z_REF) = range(21)
-N_CONSTANTS = 21
-N_STATES = 5  # x, v, z, acting pressure, Maxwell stretch
+ C_V_C, C_K3, C_K_P, C_TAU_N, C_ZETA, C_F_K, C_F_S, C_V_S, C_V_ST, C_A_MCK, C_L_0,
+ C_P_MCK, C_KAPPA, C_P_REF, C_K_M, C_TAU_M, C_N_BW, C_Z_REF) = range(30)
+N_CONSTANTS = 30
+#: x, v, z, acting pressure, its rate (second-order regulator), Maxwell stretch
+N_STATES = 6
 
 
 def paper_chirp(n: int = 15000, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
@@ -62,24 +68,42 @@ def paper_chirp(n: int = 15000, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarra
 
 
 @numba.njit(cache=True)
-def _rhs(c, x, v, z, pa, u, p_cmd):
-    """Time derivatives of (x, v, z, p_act, u) for a constant command ``p_cmd``."""
+def _f_eff(c, x, v, p, z, u):
+    """Sum of the force effects at ``(x, v)``, acting pressure ``p``, hysteretic force
+    ``z`` and Maxwell stretch ``u``."""
+    f = c[C_F_C] * math.tanh(v / c[C_V_C]) + c[C_K3] * x * x * x + c[C_K_P] * p * x
+    f += (c[C_F_K] + c[C_F_S] * math.exp(-(v / c[C_V_S]) ** 2)) * math.tanh(v / c[C_V_ST])
+    f += c[C_A_MCK] * ((1.0 + x / c[C_L_0]) ** 2 - 1.0) * max(p - c[C_P_MCK], 0.0)
+    f += c[C_KAPPA] * p / c[C_P_REF] * z + c[C_K_M] * u
+    return f
+
+
+@numba.njit(cache=True)
+def _rhs(c, y, p_cmd):
+    """Time derivatives of ``y = (x, v, z, p_act, p_act', u)`` for a constant command."""
+    x, v, z, pa, pd, u = y[0], y[1], y[2], y[3], y[4], y[5]
+    ddp = 0.0
     if c[C_TAU] > 0.0:
         p = pa
         dpa = (p_cmd - pa) / c[C_TAU]
+    elif c[C_TAU_N] > 0.0:
+        p = pa
+        dpa = pd
+        ddp = (p_cmd - pa - 2.0 * c[C_ZETA] * c[C_TAU_N] * pd) / c[C_TAU_N] ** 2
     else:
         p = p_cmd
         dpa = 0.0
     drive = c[C_AREA] * (max(p - c[C_P_DZ], 0.0) if c[C_DEAD_ZONE] > 0.0 else p)
-    f_eff = c[C_F_C] * math.tanh(v / c[C_V_C]) + c[C_K3] * x * x * x + c[C_K_P] * p * x
-    f_eff += c[C_KAPPA] * p / c[C_P_REF] * z + c[C_K_M] * u
+    f_eff = _f_eff(c, x, v, p, z, u)
     acc = (drive - c[C_F_GRAV] - c[C_D] * v - c[C_K_E] * x - z - f_eff) / c[C_MASS]
     sgn = 1.0 if v * z >= 0.0 else -1.0
     n = c[C_N_BW]
     mag = abs(z) if n == 1.0 else abs(z) ** n * c[C_Z_REF] ** (1.0 - n)
     dz = v * (c[C_ALPHA] - (c[C_BETA] * sgn + c[C_GAMMA]) * mag)
     du = v - u / c[C_TAU_M]
-    return v, acc, dz, dpa, du
+    out = np.empty(N_STATES)
+    out[0], out[1], out[2], out[3], out[4], out[5] = v, acc, dz, dpa, ddp, du
+    return out
 
 
 @numba.njit(cache=True)
@@ -96,14 +120,10 @@ def _rk4_ramp(c, y, a, b, length, steps):
         p0 = a + (b - a) * s / steps
         ph = a + (b - a) * (s + 0.5) / steps
         p1 = a + (b - a) * (s + 1.0) / steps
-        x, v, z, pa, u = y[0], y[1], y[2], y[3], y[4]
-        k1 = _rhs(c, x, v, z, pa, u, p0)
-        k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
-                  pa + 0.5 * h * k1[3], u + 0.5 * h * k1[4], ph)
-        k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
-                  pa + 0.5 * h * k2[3], u + 0.5 * h * k2[4], ph)
-        k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3],
-                  u + h * k3[4], p1)
+        k1 = _rhs(c, y, p0)
+        k2 = _rhs(c, y + 0.5 * h * k1, ph)
+        k3 = _rhs(c, y + 0.5 * h * k2, ph)
+        k4 = _rhs(c, y + h * k3, p1)
         for j in range(N_STATES):
             y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
 
@@ -111,12 +131,12 @@ def _rk4_ramp(c, y, a, b, length, steps):
 @numba.njit(cache=True)
 def _integrate_linear(c, u, dt, substeps, x_init, out):
     """:func:`_integrate` for an input that is a straight line between samples."""
-    y = np.array([x_init, 0.0, 0.0, u[0], 0.0])
+    y = np.array([x_init, 0.0, 0.0, u[0], 0.0, 0.0])
     out[:, 0] = y
     for k in range(u.shape[0] - 1):
         _rk4_ramp(c, y, u[k], u[k + 1], dt, substeps)
         out[:, k + 1] = y
-        if c[C_TAU] <= 0.0:
+        if c[C_TAU] <= 0.0 and c[C_TAU_N] <= 0.0:
             out[3, k + 1] = u[k + 1]
 
 
@@ -126,23 +146,19 @@ def _integrate_stages(c, uh, dt, substeps, x_init, out):
     input at ``q h / 2`` (``h = dt / substeps``)."""
     n = out.shape[1]
     h = dt / substeps
-    y = np.array([x_init, 0.0, 0.0, uh[0], 0.0])
+    y = np.array([x_init, 0.0, 0.0, uh[0], 0.0, 0.0])
     out[:, 0] = y
     for k in range(n - 1):
         for s in range(substeps):
             q = 2 * (k * substeps + s)
-            x, v, z, pa, w = y[0], y[1], y[2], y[3], y[4]
-            k1 = _rhs(c, x, v, z, pa, w, uh[q])
-            k2 = _rhs(c, x + 0.5 * h * k1[0], v + 0.5 * h * k1[1], z + 0.5 * h * k1[2],
-                      pa + 0.5 * h * k1[3], w + 0.5 * h * k1[4], uh[q + 1])
-            k3 = _rhs(c, x + 0.5 * h * k2[0], v + 0.5 * h * k2[1], z + 0.5 * h * k2[2],
-                      pa + 0.5 * h * k2[3], w + 0.5 * h * k2[4], uh[q + 1])
-            k4 = _rhs(c, x + h * k3[0], v + h * k3[1], z + h * k3[2], pa + h * k3[3],
-                      w + h * k3[4], uh[q + 2])
+            k1 = _rhs(c, y, uh[q])
+            k2 = _rhs(c, y + 0.5 * h * k1, uh[q + 1])
+            k3 = _rhs(c, y + 0.5 * h * k2, uh[q + 1])
+            k4 = _rhs(c, y + h * k3, uh[q + 2])
             for j in range(N_STATES):
                 y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
         out[:, k + 1] = y
-        if c[C_TAU] <= 0.0:
+        if c[C_TAU] <= 0.0 and c[C_TAU_N] <= 0.0:
             out[3, k + 1] = uh[2 * (k + 1) * substeps]
 
 
@@ -152,7 +168,7 @@ def _integrate(c, u, dt, t_delay, substeps, x_init, out):
     n = u.shape[0]
     shift = int(math.floor(t_delay / dt))  # whole samples of delay
     frac = t_delay / dt - shift  # the delayed command jumps at t_k + frac * dt
-    y = np.array([x_init, 0.0, 0.0, u[0], 0.0])
+    y = np.array([x_init, 0.0, 0.0, u[0], 0.0, 0.0])
     out[:, 0] = y
     for k in range(n - 1):
         # the delayed command is u[k - shift - 1] before the jump, u[k - shift] after
@@ -165,7 +181,8 @@ def _integrate(c, u, dt, t_delay, substeps, x_init, out):
         else:
             _rk4_piece(c, y, late, dt, substeps)
         out[:, k + 1] = y
-        if c[C_TAU] <= 0.0:  # no lag state: the acting pressure is the delayed command
+        # no regulator state: the acting pressure is the delayed command
+        if c[C_TAU] <= 0.0 and c[C_TAU_N] <= 0.0:
             # in force just after t_{k+1}
             out[3, k + 1] = u[max(k + 1 - shift - (1 if frac > 0.0 else 0), 0)]
 
@@ -182,14 +199,16 @@ class ReferenceResult:
     effect_force_n: np.ndarray
 
 
-def _static_equilibrium(rhs: float, K_e: float, K3: float, K_p: float, p0: float) -> float:
-    """Solve ``(K_e + K_p p0) x + K3 x^3 = rhs`` for the equilibrium position."""
+def _static_equilibrium(rhs: float, K_e: float, K3: float, K_p: float, p0: float,
+                        mck: float = 0.0, l_0: float = 1.0) -> float:
+    """Solve ``(K_e + K_p p0) x + K3 x^3 + mck ((1 + x/l_0)^2 - 1) = rhs`` for the
+    equilibrium position."""
     k_lin = K_e + K_p * p0
-    if K3 == 0.0:
+    if K3 == 0.0 and mck == 0.0:
         return rhs / k_lin
 
     def g(x):
-        return k_lin * x + K3 * x**3 - rhs
+        return k_lin * x + K3 * x**3 + mck * ((1.0 + x / l_0) ** 2 - 1.0) - rhs
 
     lo, hi = -1e-3, 1e-3
     while g(lo) > 0.0:
@@ -220,6 +239,15 @@ def reference_simulate(
     K3: float = 0.0,
     K_p: float = 0.0,
     x_offset: float = 0.0,
+    tau_n: float = 0.0,
+    zeta_reg: float = 0.7,
+    F_k: float = 0.0,
+    F_s: float = 0.0,
+    v_s: float = 0.01,
+    v_st: float = 2e-3,
+    a_mck: float = 0.0,
+    l_0: float = 0.17,
+    p_mck: float = 66922.0,
     kappa_ph: float = 0.0,
     p_ref_ph: float = 5e5,
     k_m: float = 0.0,
@@ -229,6 +257,7 @@ def reference_simulate(
     substeps: int = 64,
     linear: bool = False,
     input_fn=None,
+    zero_state: bool = False,
 ) -> ReferenceResult:
     """Simulate one trial with RK4 on ``substeps`` steps per sample interval.
 
@@ -247,6 +276,10 @@ def reference_simulate(
         Apply ``max(p - p_dz, 0)`` (pressure rig); False for a force-driven rig.
     tau_reg, t_delay, F_c, v_c, K3, K_p, x_offset : float
         Effect parameters; 0 switches an effect off.
+    tau_n, zeta_reg, F_k, F_s, v_s, v_st, a_mck, l_0, p_mck : float
+        Parameters of the second-order regulator (not with ``tau_reg``), the Stribeck
+        friction and the McKibben force; ``tau_n``, ``F_k``, ``F_s``, ``a_mck`` = 0
+        switch them off.
     kappa_ph, p_ref_ph, k_m, tau_m, n_bw, z_ref_bw : float
         Pressure hysteresis, Maxwell creep and Bouc-Wen exponent; ``kappa_ph = 0``,
         ``k_m = 0`` and ``n_bw = 1`` switch them off.
@@ -259,6 +292,9 @@ def reference_simulate(
         samples ``u[k]`` are at ``t = k dt``) gives the command there; ``u`` then only
         sets the number of samples. With a delay, the command at ``t`` is
         ``input_fn(max(t - t_delay, 0))``.
+    zero_state : bool
+        Start at ``x = x' = z = 0`` whatever the first input, instead of at rest in
+        static equilibrium under it.
 
     Returns
     -------
@@ -272,6 +308,11 @@ def reference_simulate(
     c[C_D], c[C_K_E], c[C_P_DZ] = d, K_e, p_dz
     c[C_DEAD_ZONE] = 1.0 if dead_zone else 0.0
     c[C_TAU], c[C_F_C], c[C_V_C], c[C_K3], c[C_K_P] = tau_reg, F_c, v_c, K3, K_p
+    if tau_reg > 0.0 and tau_n > 0.0:
+        raise ValueError("the reference takes one regulator: tau_reg or tau_n")
+    c[C_TAU_N], c[C_ZETA], c[C_F_K], c[C_F_S], c[C_V_S], c[C_V_ST] = (
+        tau_n, zeta_reg, F_k, F_s, v_s, v_st)
+    c[C_A_MCK], c[C_L_0], c[C_P_MCK] = a_mck, l_0, p_mck
     c[C_KAPPA], c[C_P_REF], c[C_K_M], c[C_TAU_M] = kappa_ph, p_ref_ph, k_m, tau_m
     c[C_N_BW], c[C_Z_REF] = n_bw, z_ref_bw
     if input_fn is not None:
@@ -282,7 +323,8 @@ def reference_simulate(
         u = uh[:: 2 * substeps]
     p0 = u[0]
     drive0 = area * (max(p0 - p_dz, 0.0) if dead_zone else p0)
-    x_init = _static_equilibrium(drive0 - gravity_force, K_e, K3, K_p, p0)
+    x_init = 0.0 if zero_state else _static_equilibrium(
+        drive0 - gravity_force, K_e, K3, K_p, p0, a_mck * max(p0 - p_mck, 0.0), l_0)
     out = np.empty((N_STATES, u.shape[0]))
     if input_fn is not None:
         _integrate_stages(c, uh, float(dt), int(substeps), x_init, out)
@@ -292,7 +334,6 @@ def reference_simulate(
         _integrate_linear(c, u, float(dt), int(substeps), x_init, out)
     else:
         _integrate(c, u, float(dt), float(t_delay), int(substeps), x_init, out)
-    x, v, z, p, stretch = out
-    f_eff = F_c * np.tanh(v / v_c) + K3 * x**3 + K_p * p * x
-    f_eff = f_eff + kappa_ph * p / p_ref_ph * z + k_m * stretch
+    x, v, z, p, _, stretch = out
+    f_eff = np.array([_f_eff(c, x[k], v[k], p[k], z[k], stretch[k]) for k in range(x.size)])
     return ReferenceResult(x + x_offset, x, v, z, p, f_eff)

@@ -123,16 +123,6 @@ def test_posterior_sums_the_experiments():
     assert joint.upper[-2] == pytest.approx(joint.likelihoods[1].rho_max)
 
 
-def test_cli_refuses_a_single_record_where_it_needs_repeats(tmp_path, capsys):
-    from pmabayes.cli import main
-    from pmabayes.data import save
-
-    save(sine_dataset(n_trials=1, n_periods=2), tmp_path / "one.csv")
-    assert main(["diagnose", str(tmp_path / "one.csv")]) == 2
-    err = capsys.readouterr().err
-    assert "one.csv: one trial" in err and "pmabayes fit" in err
-
-
 # ----------------------------------------------------------------------------- slow
 
 
@@ -267,8 +257,8 @@ def test_cli_fits_several_files_and_refuses_them_where_it_cannot(tmp_path, capsy
     info = fit_info(load_fit(out / "fit.nc"))
     assert [e["noise"] for e in info["experiments"]] == ["tied", "tied"]
     assert (out / "ppc_sine.png").is_file()
-    assert main(["diagnose", *files]) == 2
-    assert "one experiment at a time" in capsys.readouterr().err
+    # compare takes one data file per experiment (diagnose and compare over several
+    # experiments: tests/test_multidiag.py)
     assert main(["compare", str(out / "fit.nc"), str(out / "fit.nc"), "--data", files[0],
                  "--out", str(tmp_path / "c")]) == 2
-    assert "fit of 2 experiments" in capsys.readouterr().err
+    assert "fit of 2 experiment(s) but --data got 1 file(s)" in capsys.readouterr().err

@@ -33,7 +33,8 @@ Data that read but look suspect (pressure that looks absolute, not gauge) give a
 :class:`DataWarning`. Two metadata entries declare what the checks cannot know:
 ``"pressure_reference"`` (``"gauge"``, or ``"absolute"`` to convert to gauge on
 reading) and ``"check_units": false``; ``"input_between_samples"`` says what the
-input does between samples (:data:`BETWEEN_SAMPLES`). A metadata key close to one
+input does between samples (:data:`BETWEEN_SAMPLES`), ``"initial_state"`` the state
+each trial starts from (:data:`INITIAL_STATES`). A metadata key close to one
 pmabayes reads (:data:`METADATA_KEYS`) is taken for a misspelling and refused. A
 ``"rig"`` whose ``input_kind`` does not drive the data's input column is refused, and
 :func:`check_same_input_kind` refuses experiments of different input kinds in one fit.
@@ -41,6 +42,7 @@ pmabayes reads (:data:`METADATA_KEYS`) is taken for a misspelling and refused. A
 
 from pmabayes.data.dataset import (
     BETWEEN_SAMPLES,
+    INITIAL_STATES,
     INPUT_NAMES,
     METADATA_KEYS,
     DataError,
@@ -55,6 +57,7 @@ from pmabayes.data.matlab import MAT_ROLES, MAT_TRIALS, read_mat
 __all__ = [
     "INPUT_NAMES",
     "BETWEEN_SAMPLES",
+    "INITIAL_STATES",
     "METADATA_KEYS",
     "DataError",
     "DataWarning",

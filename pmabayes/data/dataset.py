@@ -35,12 +35,18 @@ _REL_TOL = 1e-6  # relative tolerance on sample intervals, sample times and samp
 #: ``"bandlimited"`` (the samples of a continuous band-limited signal, reconstructed
 #: between them: exactly, by FFT interpolation, where ``period_samples`` is declared).
 BETWEEN_SAMPLES = ("hold", "linear", "bandlimited")
+#: The state each trial starts from, as a sidecar's ``initial_state`` declares it:
+#: ``"rest"`` (the default: at rest in static equilibrium under the first input
+#: sample, as after a long hold of it) or ``"zero"`` (position, velocity and
+#: hysteresis all zero whatever the first input: a plant at rest at zero input,
+#: switched on at the first sample, as the Bouc-Wen benchmark's simulations start).
+INITIAL_STATES = ("rest", "zero")
 #: The metadata (sidecar) keys pmabayes reads or writes; a key close to one of
 #: these is taken for a misspelling. Any other key is free-form and kept.
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
                  "pressure_reference", "ambient_pressure_pa", "check_units",
                  "converted_from_absolute", "input_between_samples", "period_samples",
-                 "starts_in_steady_state", "mat_variables", "mat_trials")
+                 "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials")
 
 
 class DataError(ValueError):
@@ -208,6 +214,13 @@ def _check_declarations(metadata: dict, where: str) -> None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is {steady!r}; it must be true or "
             "false (JSON booleans, not strings).")
+    initial = metadata.get("initial_state", "rest")
+    if initial not in INITIAL_STATES:
+        raise DataError(
+            f"{where}: metadata 'initial_state' is {initial!r}; it must be one of "
+            f"{', '.join(map(repr, INITIAL_STATES))} ('rest' for a trial that starts at rest "
+            "under its first input sample, 'zero' for one that starts at zero position, "
+            "velocity and hysteresis with the input switched on at the first sample).")
     if steady and period is None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
@@ -486,6 +499,17 @@ class Dataset:
         starts from rest and its first period holds the transient.
         """
         return bool(self.metadata.get("starts_in_steady_state", False))
+
+    @property
+    def initial_state(self) -> str:
+        """The state each trial starts from, from the metadata (``"rest"`` by default).
+
+        See :data:`INITIAL_STATES`: ``"rest"`` is static equilibrium under the first
+        input sample, ``"zero"`` is zero position, velocity and hysteresis. With
+        ``starts_in_steady_state`` it is the state the warm-up starts from.
+        :func:`pmabayes.simulate` takes it as ``initial_state``.
+        """
+        return self.metadata.get("initial_state", "rest")
 
     @property
     def n_trials(self) -> int:

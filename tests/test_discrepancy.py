@@ -1,0 +1,263 @@
+"""The data-driven discrepancy: the missing force estimated, its states found, a closed
+form proposed, written as a user effect and added."""
+
+import math
+
+import numpy as np
+import pytest
+
+import pmabayes as pb
+from pmabayes.data import Dataset
+from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+
+CHIRP = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=3.0)
+BUILTINS = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiffness",
+            "pressure_stiffness", "position_offset")
+
+
+# ---------------------------------------------------------------------------------
+# hidden effects in no library: known only to this file, never registered
+
+
+def _detent(q, x, v, p):
+    k = 2.0 * np.pi / q[1]
+    return q[0] * np.sin(k * x), q[0] * k * np.cos(k * x), 0.0
+
+
+class HiddenDetent(pb.Effect):
+    """A rail's detent force, periodic in position."""
+
+    __test__ = False
+    name = "hidden_detent"
+    stage = "force"
+    parameters = (
+        pb.Parameter("F_det", "N", 1.0, pb.HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+                     description="detent amplitude"),
+        pb.Parameter("L_det", "m", 0.01, pb.HalfNormal(0.05), bounds=(1e-4, 1.0), null=0.01,
+                     vary=False, description="detent period"),
+    )
+    description = "Detent force of a rail."
+    physics = staticmethod(_detent)
+
+
+def _drag(q, x, v, p):
+    return q[0] * v * abs(v), 0.0, 2.0 * q[0] * abs(v)
+
+
+class HiddenDrag(pb.Effect):
+    """A quadratic drag."""
+
+    __test__ = False
+    name = "hidden_drag"
+    stage = "force"
+    parameters = (pb.Parameter("c_hd", "N s^2/m^2", 0.0, pb.HalfNormal(500.0),
+                               bounds=(0.0, 1e5), null=0.0, description="drag"),)
+    description = "Quadratic drag."
+    physics = staticmethod(_drag)
+
+
+def _compression(q, x, v, p):
+    if x < q[1]:
+        return q[0] * (x - q[1]), q[0], 0.0
+    return 0.0, 0.0, 0.0
+
+
+class HiddenCompressionSpring(pb.Effect):
+    """A spring that acts only when the muscle is shorter than ``x_cs`` (in compression)."""
+
+    __test__ = False
+    name = "hidden_compression_spring"
+    stage = "force"
+    parameters = (
+        pb.Parameter("k_cs", "N/m", 0.0, pb.HalfNormal(1e3), bounds=(0.0, 1e5), null=0.0,
+                     description="stiffness in compression"),
+        pb.Parameter("x_cs", "m", 0.02, pb.HalfNormal(0.05), bounds=(-1.0, 1.0), null=0.02,
+                     vary=False, description="where it engages"),
+    )
+    description = "A spring stiffening the muscle in compression only."
+    physics = staticmethod(_compression)
+
+
+def hidden(effect, values, seed, n_trials=6, chirp=CHIRP):
+    """Trials of the base model plus one hidden effect, with the usual measurement noise."""
+    clean = generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp, noise=None)
+    x = pb.simulate(pb.Model([effect]), values, clean.input[0], time_s=clean.time_s)[0]
+    noisy = MeasurementNoise().apply(np.repeat(x[None], n_trials, axis=0), clean.dt_s,
+                                     np.random.default_rng(seed))
+    return Dataset(time_s=clean.time_s, input=clean.input, position_m=noisy,
+                   trial_ids=clean.trial_ids, input_name=clean.input_name,
+                   metadata={**clean.metadata,
+                             "description": f"base model plus {effect.name} (synthetic)"})
+
+
+# ---------------------------------------------------------------------------------
+# the pieces
+
+
+def test_stlsq_recovers_a_sparse_combination():
+    from pmabayes.discrepancy import stlsq
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((2000, 12))
+    a[:, 5] = a[:, 4] + 0.3 * a[:, 5]  # two correlated columns, one of them in the truth
+    truth = np.zeros(12)
+    truth[[1, 4, 9]] = [2.0, -1.5, 0.8]
+    b = a @ truth + 0.1 * rng.standard_normal(2000)
+    w = stlsq(a, b, threshold=5.0, keep=[0])
+    assert set(np.flatnonzero(w)) == {0, 1, 4, 9}
+    assert np.allclose(w[[1, 4, 9]], truth[[1, 4, 9]], atol=0.02)
+    dense = stlsq(a, b, threshold=0.0)
+    assert np.count_nonzero(dense) == 12
+
+
+@pytest.mark.parametrize("effects", [(), ("coulomb_friction",)])
+def test_the_linear_response_to_a_force_matches_the_simulator(effects):
+    """The linearised model's response to x^3 against finite differences of cubic_stiffness."""
+    from pmabayes.discrepancy import _plant, force_response
+    from pmabayes.simulator import simulate_dataset
+
+    ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
+    model = pb.Model(list(effects))
+    values = {**model.defaults, "F_c": 0.5} if effects else dict(model.defaults)
+    sim = simulate_dataset(model, values, ds, states=True)
+    ext = model.with_effects("cubic_stiffness")
+    fd = (simulate_dataset(ext, {**values, "K3": 1.0}, ds)[0]
+          - simulate_dataset(ext, {**values, "K3": 0.0}, ds)[0])
+    g = force_response(_plant(model, values, sim, ds.dt_s), sim.true_position_m[0][None] ** 3)[0]
+    assert np.max(np.abs(g - fd)) < 0.005 * np.max(np.abs(fd))
+    # and a force that the model does not hold at all changes the output: not a zero map
+    assert np.max(np.abs(fd)) > 1e-8
+
+
+def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
+    from pmabayes.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+
+    terms = [(Term("v|v|", "N s^2/m^2", "a quadratic drag", "velocity", "v * abs(v)",
+                   dv="2.0 * abs(v)", slug="vabsv"), 250.0),
+             (Term("(x - 20 mm) [x<20 mm]", "N/m", "a spring in compression", "position",
+                   "((x - 0.02) if x < 0.02 else 0.0)", "(1.0 if x < 0.02 else 0.0)",
+                   slug="xlo"), -300.0)]
+    body = _plugin_source("proposed_test", terms, "a drag and a spring")
+    path = tmp_path / "proposed_test.py"
+    path.write_text(body + _REGISTER)
+    eff = _load_unregistered(path)
+    assert eff.name == "proposed_test" and "proposed_test" not in pb.registered_effects()
+    assert [p.name for p in eff.parameters] == ["c_vabsv", "c_xlo"]
+    p0 = eff.parameters[0]
+    assert p0.unit == "N s^2/m^2" and p0.default == 250.0 and p0.null == 0.0
+    assert p0.bounds[0] <= 0.0 <= p0.bounds[1] and "quadratic drag" in p0.description
+    q = np.array([250.0, -300.0])
+    for x, v in ((0.01, 0.05), (0.03, -0.02)):
+        f, fx, fv = eff.physics(q, x, v, 3e5)
+        assert f == pytest.approx(250.0 * v * abs(v) - 300.0 * min(x - 0.02, 0.0))
+        h = 1e-7
+        assert fv == pytest.approx((eff.physics(q, x, v + h, 3e5)[0]
+                                    - eff.physics(q, x, v - h, 3e5)[0]) / (2 * h), rel=1e-5)
+        assert fx == pytest.approx(-300.0 if x < 0.02 else 0.0)
+
+
+def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
+    """A shape in position written as a table evaluates like the spline it came from."""
+    from scipy.interpolate import BSpline
+
+    from pmabayes.discrepancy import (
+        _REGISTER,
+        _Block,
+        _bspline_design,
+        _load_unregistered,
+        _plugin_source,
+        _tabulated_term,
+    )
+
+    s = np.linspace(0.0, 0.1, 400)
+    basis, knots = _bspline_design(s, 20, 0.0, 0.1)
+    w = np.sin(np.linspace(0, 3 * math.pi, 20))
+    block = _Block("position", basis, np.eye(20), knots=knots, grid=(0.0, 0.1))
+    (term, values), table = _tabulated_term(block, w)
+    path = tmp_path / "shape.py"
+    path.write_text(_plugin_source("proposed_shape", [(term, 1.0)], "a shape", table)
+                    + _REGISTER)
+    eff = _load_unregistered(path)
+    spline = BSpline(knots, w, 3)
+    mean = float(np.mean(basis @ w))
+    for x in (0.013, 0.05, 0.087):
+        f, fx, _ = eff.physics(np.array([1.0]), x, 0.0, 0.0)
+        assert f == pytest.approx(float(spline(x)) - mean, abs=1e-9)
+        assert fx == pytest.approx(float(spline.derivative()(x)), rel=1e-6, abs=1e-6)
+    assert np.allclose(values, basis @ w - mean)
+
+
+# ---------------------------------------------------------------------------------
+# the loop: found, proposed, written, added, and the error falls
+
+
+def diagnosis(ds, **kw):
+    from pmabayes.criticism import diagnose
+
+    kw.setdefault("max_refits", 2)
+    return diagnose(ds, candidates=BUILTINS, seed=0, **kw)
+
+
+CASES = [
+    (HiddenDetent, {"F_det": 2.0}, 31, "position"),
+    (HiddenDrag, {"c_hd": 300.0}, 32, "velocity"),
+    (HiddenCompressionSpring, {"k_cs": 400.0}, 33, "position"),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("effect", "values", "seed", "state"), CASES,
+                         ids=[c[0].name for c in CASES])
+def test_an_effect_in_no_library_is_found_proposed_and_added(effect, values, seed, state,
+                                                             tmp_path):
+    from pmabayes.cli import load_plugin
+
+    ds = hidden(effect, values, seed)
+    before = diagnosis(ds, plugin_dir=tmp_path)
+    assert not before.adequate and before.missing is None, before.verdict
+    d = before.discrepancy
+    assert d is not None and d.states[0].state == state and d.states[0].needed, d.text
+    assert d.explained > 0.8
+    assert d.proposal is not None and d.proposal.plugin is not None, d.text
+    assert f"--effects {d.proposal.effect}" in before.verdict
+    assert before.to_dict()["discrepancy"]["proposal"]["plugin"] == d.proposal.plugin
+    load_plugin(d.proposal.plugin)
+    after = diagnosis(ds, effects=[d.proposal.effect], plugin_dir=tmp_path)
+    assert after.adequate, after.verdict
+    assert after.rms_m <= 1.5 * after.noise_floor_m
+    assert after.discrepancy is None
+
+
+@pytest.mark.slow
+def test_null_data_propose_nothing(tmp_path):
+    ds = generate_chirp_dataset(n_trials=6, seed=34, chirp=CHIRP)
+    d = diagnosis(ds, plugin_dir=tmp_path)
+    assert d.discrepancy is None and d.to_dict()["discrepancy"] is None
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_discrepancy_figure_and_page_section():
+    """The partial-dependence figure and the diagnosis page's section, from a small result."""
+    from pmabayes.discrepancy import Discrepancy, Proposal, StateEvidence
+    from pmabayes.plots import plot_discrepancy
+    from pmabayes.report import _discrepancy_section
+
+    grid = np.linspace(-0.1, 0.1, 50)
+    states = [StateEvidence("velocity", "m/s", 120.0, 8.0, 1.3, True),
+              StateEvidence("direction", "1", 0.4, 1.0, 0.01, False)]
+    pdep = {"velocity": {"grid": grid, "force_n": 300 * grid * abs(grid),
+                         "sd_n": np.full(50, 0.05), "unit": "m/s"},
+            "direction": {"grid": np.array([-1.0, 1.0]), "force_n": np.zeros(2),
+                          "sd_n": np.full(2, 0.01), "unit": "1"}}
+    prop = Proposal("proposed_vabsv", "300 N s^2/m^2 * v|v|", "a quadratic drag", [],
+                    "closed form", -1.0, 2.0, "proposed_vabsv.py", None)
+    d = Discrepancy(states, 0.97, 1.05, 130.0, 9.0, 0.4, pdep, prop, True, None, "text <x>")
+    fig = plot_discrepancy(d)
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == 2 and "velocity" in axes[0].get_title()
+    html = "".join(_discrepancy_section(d))
+    assert "text &lt;x&gt;" in html and "proposed_vabsv.py" in html and "+120.0" in html
+    out = d.to_dict()
+    assert out["states"][0]["state"] == "velocity" and out["explained"] == 0.97
+    assert out["proposal"]["plugin"] == "proposed_vabsv.py"
+    assert "partial_dependence" not in out  # arrays stay out of the JSON

@@ -1,0 +1,68 @@
+"""The likelihood's Kalman filter computes its gains once for each run of batch members
+that share the noise (the whole batch when the noise is fixed by repeats), and runs a
+batch that shares one noise side by side: the result is bit for bit what each member
+alone gives, and it is the dense Gaussian's."""
+
+from __future__ import annotations
+
+import numpy as np
+from test_likelihood import brute_force
+
+from pmabayes.likelihood import _kalman_loglik, _noise_loglik
+
+
+def _members_alone(y, x, scale, sigma, rho, white):
+    return np.concatenate([
+        _kalman_loglik(y, x[b:b + 1] if x.shape[0] > 1 else x, scale, sigma[b:b + 1],
+                       rho[b:b + 1], white[b:b + 1]) for b in range(sigma.size)])
+
+
+def test_shared_gains_are_bit_for_bit_each_members_own():
+    rng = np.random.default_rng(5)
+    n = 400
+    y = 1e-5 * rng.standard_normal((3, n))
+    # runs of equal noise, a change, a return to an earlier value, and a NaN member
+    sigma = np.array([7e-6, 7e-6, 7e-6, 9e-6, 9e-6, 7e-6, 7e-6, 7e-6])
+    rho = np.array([0.3, 0.3, 0.3, 0.3, 0.3, 0.9, 0.3, np.nan])
+    white = np.array([1e-6, 1e-6, 1e-6, 1e-6, 0.0, 0.0, 1e-6, 1e-6])
+    for x in (1e-5 * rng.standard_normal((8, n)), 1e-5 * rng.standard_normal((1, n))):
+        batched = _kalman_loglik(y, x, 1.5, sigma, rho, white)
+        alone = _members_alone(y, x, 1.5, sigma, rho, white)
+        assert np.array_equal(batched, alone, equal_nan=True)
+        assert np.isnan(batched[-1]).all() and np.isfinite(batched[:-1]).all()
+        # members with different data but the same noise do not get the same answer
+        assert len(set(batched[:3, 0])) == (3 if x.shape[0] > 1 else 1)
+
+
+def test_a_fixed_noise_batch_matches_the_dense_gaussian():
+    rng = np.random.default_rng(6)
+    n = 150
+    y = 1e-5 * rng.standard_normal((2, n))
+    x = 1e-5 * rng.standard_normal((4, n))
+    sigma, rho, white = np.full(4, 8e-6), np.full(4, 0.95), np.full(4, 2e-6)
+    got = _kalman_loglik(y, x, 1.0, sigma, rho, white)
+    expected = [[brute_force(y[m], x[b], 8e-6, 0.95, 2e-6) for m in range(2)]
+                for b in range(4)]
+    assert np.allclose(got, expected, rtol=1e-10, atol=1e-6)
+
+
+def test_every_route_of_the_likelihood_gives_the_same_bits():
+    """Fixed noise (side by side, from a row-major or the simulator's transposed
+    layout), a shared model output (once, repeated), and sampled noise (member by
+    member) all equal the general filter."""
+    rng = np.random.default_rng(7)
+    n, batch = 300, 6
+    y = 1e-5 * rng.standard_normal((4, n))
+    x = 1e-5 * rng.standard_normal((batch, n))
+    fixed = (np.full(batch, 8e-6), np.full(batch, 0.7), np.full(batch, 1e-6))
+    sampled = (np.linspace(6e-6, 9e-6, batch), np.full(batch, 0.7), np.full(batch, 1e-6))
+    for noise in (fixed, sampled):
+        general = _kalman_loglik(y, x, 2.0, *noise)
+        assert np.array_equal(_noise_loglik(y, x, 2.0, *noise), general)
+        assert np.array_equal(_noise_loglik(y, np.ascontiguousarray(x.T).T, 2.0, *noise),
+                              general)
+        one = x[:1]
+        assert np.array_equal(_noise_loglik(y, one, 2.0, *noise),
+                              _kalman_loglik(y, one, 2.0, *noise))
+    assert not np.array_equal(_noise_loglik(y, x, 2.0, *fixed),
+                              _noise_loglik(y, x, 2.0, *sampled))
