@@ -1213,30 +1213,69 @@ def decay(y):
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def power(y, e):
-    """``y ** e`` for ``y > 0``, from square roots and polynomials only (vectorises).
+    """``y ** e`` for ``y > 0``, from multiplications and polynomials only (vectorises).
 
-    ``ln y`` comes from eight square roots and an ``atanh`` series, ``exp`` from a
-    Taylor polynomial and seven squarings.
+    ``ln y``: ``y`` is scaled into ``[1/2, 2)`` by powers of two chosen by comparisons
+    (selects, no branches), then an ``atanh`` series; ``exp``: a Taylor polynomial
+    and seven squarings.
 
     Parameters
     ----------
     y : float
-        Base, in ``[1e-12, 1e12]`` (clamped to it).
+        Base, in ``[2^-60, 2^60]`` (about ``[1e-18, 1e18]``; clamped to it).
     e : float
         Exponent, with ``|e ln y| <= 40``.
 
     Returns
     -------
     float
-        ``y ** e`` to a relative error below about 1e-12.
+        ``y ** e`` to a relative error below about 2e-11 (for ``|e| <= 1``).
     """
-    r = y if y > 1e-12 else 1e-12
-    r = r if r < 1e12 else 1e12
-    for _ in range(8):  # r -> y^(1/256), |ln r| <= 0.108
-        r = np.sqrt(r)
-    t = (r - 1.0) / (r + 1.0)  # ln r = 2 atanh t, |t| <= 0.054
+    r = y if y > 8.673617379884035e-19 else 8.673617379884035e-19
+    r = r if r < 1.152921504606847e18 else 1.152921504606847e18
+    k = 0.0
+    # written out: a loop here would stop the caller's batch loop from vectorising
+    big = r >= 4294967296.0
+    r = r * 2.3283064365386963e-10 if big else r
+    k = k + 32.0 if big else k
+    small = r < 2.3283064365386963e-10
+    r = r * 4294967296.0 if small else r
+    k = k - 32.0 if small else k
+    big = r >= 65536.0
+    r = r * 1.52587890625e-05 if big else r
+    k = k + 16.0 if big else k
+    small = r < 1.52587890625e-05
+    r = r * 65536.0 if small else r
+    k = k - 16.0 if small else k
+    big = r >= 256.0
+    r = r * 0.00390625 if big else r
+    k = k + 8.0 if big else k
+    small = r < 0.00390625
+    r = r * 256.0 if small else r
+    k = k - 8.0 if small else k
+    big = r >= 16.0
+    r = r * 0.0625 if big else r
+    k = k + 4.0 if big else k
+    small = r < 0.0625
+    r = r * 16.0 if small else r
+    k = k - 4.0 if small else k
+    big = r >= 4.0
+    r = r * 0.25 if big else r
+    k = k + 2.0 if big else k
+    small = r < 0.25
+    r = r * 4.0 if small else r
+    k = k - 2.0 if small else k
+    big = r >= 1.4142135623730951
+    r = r * 0.5 if big else r
+    k = k + 1.0 if big else k
+    small = r < 0.7071067811865476
+    r = r * 2.0 if small else r
+    k = k - 1.0 if small else k
+    t = (r - 1.0) / (r + 1.0)  # ln r = 2 atanh t, |t| <= 0.172
     t2 = t * t
-    ln_y = 512.0 * t * (1.0 + t2 * (1 / 3 + t2 * (1 / 5 + t2 * (1 / 7 + t2 * (1 / 9 + t2 / 11)))))
+    ln_y = k * 0.6931471805599453 + 2.0 * t * (1.0 + t2 * (1 / 3 + t2 * (1 / 5 + t2 * (
+        1 / 7 + t2 * (1 / 9 + t2 * (1 / 11 + t2 * (1 / 13 + t2 * (1 / 15 + t2 * (
+            1 / 17 + t2 / 19)))))))))
     u = e * ln_y
     u = u if u < 40.0 else 40.0
     u = u if u > -40.0 else -40.0
@@ -1244,9 +1283,13 @@ def power(y, e):
     ex = 1.0 + q * (1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (
         1 / 720 + q * (1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (
             1 / 3628800 + q / 39916800))))))))))
-    for _ in range(7):
-        ex = ex * ex
-    return ex
+    ex = ex * ex
+    ex = ex * ex
+    ex = ex * ex
+    ex = ex * ex
+    ex = ex * ex
+    ex = ex * ex
+    return ex * ex
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -222,8 +222,9 @@ class PlantCode:
     beta, gamma, p_dz) can be renamed so that two models share one kernel; ``i`` is
     the batch member; ``mass``, ``f_grav``, ``area``, ``dt`` and ``substeps`` are
     kernel arguments. The state lives in rows of ``st``: ``x``, ``v``, ``z``, then
-    one row per force effect with a state (:attr:`n_rows` in all); :meth:`step`
-    reads and writes the effects' rows itself.
+    one row per force effect with a state, then, with a hysteresis effect, its
+    factor ``g`` over the last step (:attr:`n_rows` in all); :meth:`step` reads and
+    writes these rows itself.
     """
 
     def __init__(self, model: Model, *, theta: str = "theta", cst: str = "cst",
@@ -250,11 +251,13 @@ class PlantCode:
         #: row of ``st`` holding each stateful force effect's state
         self.state_row = {e: 3 + j for j, e in enumerate(stateful)}
         self.reads_z = any(e.reads_z for e, _ in self.force)
+        #: row of ``st`` holding the hysteresis effect's last factor ``g``
+        self.law_row = 3 + len(self.state_row) if self.law else None
 
     @property
     def n_rows(self) -> int:
-        """Rows of the state array ``st``: ``x``, ``v``, ``z`` and the effects' states."""
-        return 3 + len(self.state_row)
+        """Rows of the state array ``st``: ``x``, ``v``, ``z``, the effects' states, ``g``."""
+        return 3 + len(self.state_row) + (1 if self.law else 0)
 
     def q(self, e) -> str:
         """Name of the contiguous parameter rows of force effect ``e``."""
@@ -321,35 +324,31 @@ class PlantCode:
         return [f"r = {self.name_of[e]}_adv({self.q(e)}[i], {state}, {x0}, {x1}, {h})",
                 f"{out} = r[0]", f"{out}_d = r[1]"]
 
-    def rate_lines(self, z: str, dx: str) -> list[str]:
-        """Lines setting ``c`` and ``kz = dz/dx`` at ``z`` (the hysteresis effect's law)."""
+    def rate_lines(self, z: str, dx: str, g_last: str = "0.0") -> list[str]:
+        """Lines setting ``c`` and ``kz = dz/dx`` at ``z`` for motion in the direction of ``dx``.
+
+        With a hysteresis effect its factor ``g`` is evaluated once, at the step's mean
+        ``|z|`` (the ends predicted with ``g_last``, the factor of the step before, an
+        expression), and frozen over the step: ``c`` holds ``c g`` and ``gm`` holds
+        ``g`` (store it for the next step's ``g_last``), for :meth:`update_lines`, whose
+        Bouc-Wen step is then exact for that ``g``: second order in all.
+        """
         if not self.law:
             return bw_rate_lines(z, dx, self.cst)
         e, c = self.law[0][0], self.cst
         return [
             f"c = {c}[9, i] * (1.0 if {dx} * {z} >= 0.0 else -1.0) + {c}[10, i]",
-            f"gz = {self.name_of[e]}({self.q(e)}[i], abs({z}))",
-            f"kz = {c}[8, i] - c * abs({z}) * gz",
-        ]
-
-    def update_lines(self, z: str, dx: str, out: str) -> list[str]:
-        """Lines setting ``out`` to ``z`` after displacement ``dx`` (after :meth:`rate_lines`).
-
-        With a hysteresis effect its factor ``g`` is frozen at the step's mean ``|z|``
-        (from the ends predicted with ``kz``), and the Bouc-Wen step is exact for that
-        ``g``: second order. ``kz`` is left as :meth:`rate_lines` set it.
-        """
-        if not self.law:
-            return bw_update_lines(z, dx, out, self.cst)
-        e, c = self.law[0][0], self.cst
-        lines = [
-            "kzp = kz",
-            f"zm = 0.5 * (abs({z}) + abs({z} + kz * {dx}))",
+            f"zm = 0.5 * (abs({z}) + abs({z} + ({c}[8, i] - c * {g_last} * abs({z})) * {dx}))",
             f"gm = {self.name_of[e]}({self.q(e)}[i], zm)",
             "c *= gm",
             f"kz = {c}[8, i] - c * abs({z})",
         ]
-        return lines + bw_update_lines(z, dx, out, c, scale="gm") + ["kz = kzp"]
+
+    def update_lines(self, z: str, dx: str, out: str) -> list[str]:
+        """Lines setting ``out`` to ``z`` after displacement ``dx`` (after :meth:`rate_lines`)."""
+        if not self.law:
+            return bw_update_lines(z, dx, out, self.cst)
+        return bw_update_lines(z, dx, out, self.cst, scale="gm")
 
     def rest(self, p: str, out: str) -> list[str]:
         """Lines setting ``out`` to the static equilibrium with ``z = 0`` at pressure ``p``."""
@@ -396,7 +395,8 @@ class PlantCode:
             f"vs = {c}[2, i] * {x0} + {c}[3, i] * {v0} + {c}[5, i] * g0 + {c}[7, i] * (gs - g0)",
             f"dxs = xs - {x0}",
         ]
-        step += self.rate_lines(z0, "dxs")
+        g_last = f"st[{self.law_row}, i]" if self.law else "0.0"
+        step += self.rate_lines(z0, "dxs", g_last)
         # The end-of-step force (z and effects) is linearly implicit; z then advances
         # exactly over the displacement dx, and x1 = x0 + dx keeps z and x consistent,
         # so the rate-independent hysteresis cannot drift.
@@ -421,6 +421,8 @@ class PlantCode:
         for e, row in self.state_row.items():
             step += self.advance(e, start[e], x0, f"{x0} + dx", "dt / substeps", f"sv{row}")
             step += [f"st[{row}, i] = sv{row}"]
+        if self.law:
+            step += [f"{g_last} = gm"]
         return step
 
 

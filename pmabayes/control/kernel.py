@@ -188,10 +188,10 @@ def _setup_lines(plant: PlantCode, ctrl: PlantCode, inverses: list, lagged: bool
     body += [f"q{name} = theta_c[:, {s.start}:{s.stop}].copy()" for name, _, s in inverses]
     # controller state rows: 0 integral, 1 filtered velocity, 2 observer z, 3 last
     # reading, 4 controller output, 5 held command, then the observed states of the
-    # controller model's stateful force effects
+    # controller model's stateful force effects and its hysteresis law's last factor g
     body += [
         f"st = np.zeros(({plant.n_rows}, batch))",
-        f"cs = np.zeros(({6 + len(ctrl.state_row)}, batch))",
+        f"cs = np.zeros(({6 + len(ctrl.state_row) + (1 if ctrl.law else 0)}, batch))",
         "for i in range(batch):",
         "    p0 = p_init[i]",
     ]
@@ -270,8 +270,10 @@ def _tick_lines(ctrl: PlantCode, inverses: list) -> list[str]:
         "else:",
         "    zo = cs[2, i]",
     ]
-    tick += ["    " + ln for ln in ctrl.rate_lines("zo", "dy")]
+    g_last = f"cs[{ctrl.law_row + 3}, i]" if ctrl.law else "0.0"  # rows after the states
+    tick += ["    " + ln for ln in ctrl.rate_lines("zo", "dy", g_last)]
     tick += ["    " + ln for ln in ctrl.update_lines("zo", "dy", "zn")]
+    tick += [f"    {g_last} = gm"] if ctrl.law else []
     tick += [
         "    cs[2, i] = zn",
         "    tp = t + t_pred[i]",
