@@ -645,7 +645,7 @@ def _f(value: float) -> str:
     return repr(float(f"{value:.6g}"))
 
 
-def _dictionary(st: dict, memory_tau_s: float, period_m: float | None) -> list:
+def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: tuple) -> list:
     """The named terms and their values along the trajectory."""
     x, v, p, z = st["position"], st["velocity"], st["pressure"], st["hysteresis"]
     mm = 1e3
@@ -685,15 +685,15 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None) -> list:
                            "velocity", f"math.tanh(v / {s})",
                            dv=f"(1.0 - math.tanh(v / {s}) ** 2) / {s}",
                            slug=f"tanh{v0 * mm:g}".replace(".", "p")), np.tanh(v / v0)))
-    qs = np.quantile(x, [0.05, 0.15, 0.3, 0.5, 0.7, 0.85, 0.95])
-    for k, b in enumerate(qs[:4]):
+    below, above = hinges
+    for k, b in enumerate(below):
         s = _f(b)
         terms.append((Term(f"(x - {b * mm:.3g} mm) [x<{b * mm:.3g} mm]", "N/m",
                            f"a spring acting only below x = {b * mm:.3g} mm (in compression)",
                            "position", f"((x - {s}) if x < {s} else 0.0)",
                            f"(1.0 if x < {s} else 0.0)", slug=f"xlo{k}"),
                       np.where(x < b, x - b, 0.0)))
-    for k, b in enumerate(qs[3:]):
+    for k, b in enumerate(above):
         s = _f(b)
         terms.append((Term(f"(x - {b * mm:.3g} mm) [x>{b * mm:.3g} mm]", "N/m",
                            f"a spring engaging only above x = {b * mm:.3g} mm (an end stop)",
@@ -713,25 +713,40 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None) -> list:
     return terms
 
 
+def _best_of(problem: _Problem, families: list) -> int:
+    """Index of the family of force columns (each ``(n, k)``) that removes most residual."""
+    forces = np.concatenate(families, axis=1)
+    _, gw = problem.responses(forces)
+    q = _orthonormal(problem.j_w)
+    r0 = problem.r_w - _a_b(q, _at_b(q, problem.r_w))
+    gains, k = [], 0
+    for fam in families:
+        g = gw[:, k:k + fam.shape[1]]
+        k += fam.shape[1]
+        g = g - _a_b(q, _at_b(q, g))
+        coef = _spd_solve(_at_b(g, g) + 1e-12 * np.eye(g.shape[1]), _at_b(g, r0))
+        gains.append(float(r0 @ r0 - np.sum((r0 - _a_b(g, coef)) ** 2)))
+    return int(np.argmax(gains))
+
+
 def _best_period(problem: _Problem, x: np.ndarray) -> float | None:
     """The period of a force periodic in position that best explains the residual."""
     span = float(np.ptp(x))
     if not span > 0:
         return None
     periods = np.geomspace(span / 60.0, span / 2.0, 48)
-    forces = np.concatenate([np.stack([np.sin(2 * np.pi * x / L), np.cos(2 * np.pi * x / L)])
-                             for L in periods])
-    _, gw = problem.responses(forces.T)
-    base = problem.j_w
-    q = _orthonormal(base)
-    r0 = problem.r_w - _a_b(q, _at_b(q, problem.r_w))
-    gains = []
-    for k in range(periods.size):
-        g = gw[:, 2 * k: 2 * k + 2]
-        g = g - _a_b(q, _at_b(q, g))
-        coef = _spd_solve(_at_b(g, g) + 1e-12 * np.eye(2), _at_b(g, r0))
-        gains.append(float(r0 @ r0 - np.sum((r0 - _a_b(g, coef)) ** 2)))
-    return float(periods[int(np.argmax(gains))])
+    fams = [np.stack([np.sin(2 * np.pi * x / L), np.cos(2 * np.pi * x / L)], axis=1)
+            for L in periods]
+    return float(periods[_best_of(problem, fams)])
+
+
+def _best_hinges(problem: _Problem, x: np.ndarray) -> tuple:
+    """Where a spring acting only below (and one acting only above) a position best fits."""
+    below = np.quantile(x, np.linspace(0.02, 0.6, 30))
+    above = np.quantile(x, np.linspace(0.4, 0.98, 30))
+    b = below[_best_of(problem, [np.where(x < c, x - c, 0.0)[:, None] for c in below])]
+    a = above[_best_of(problem, [np.where(x > c, x - c, 0.0)[:, None] for c in above])]
+    return (float(b),), (float(a),)
 
 
 # ---------------------------------------------------------------------------------
@@ -989,7 +1004,7 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
              command):
     """STLSQ over the dictionary, the threshold by LOO ELPD; else the tabulated shape."""
     period = _best_period(problem, st["position"])
-    terms = _dictionary(st, tau, period)
+    terms = _dictionary(st, tau, period, _best_hinges(problem, st["position"]))
     forces = np.stack([t[1] for t in terms], axis=1)
     raw, white = problem.responses(forces)
     scale = np.linalg.norm(white, axis=0)
@@ -1024,7 +1039,7 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
     if closed is not None and closed[3]:
         chosen, d, se, _ = closed
         return _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
-                               command)
+                               command, series={t.slug: v for t, v in terms})
     # no closed form near the flexible estimate: the flexible shape itself, tabulated
     if top in WRITABLE:
         b = next(b for b in blocks if b.state == top)
@@ -1041,7 +1056,7 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
     if closed is not None:
         chosen, d, se, _ = closed
         return _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
-                               command)
+                               command, series={t.slug: v for t, v in terms})
     return None
 
 
@@ -1186,28 +1201,51 @@ def _describe(chosen: list, kind: str) -> tuple[str, str]:
     return " ".join(parts).lstrip("+"), "; ".join(words)
 
 
-def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, tables=None):
-    expression, description = _describe(chosen, kind)
+def _write_plugin(chosen: list, kind: str, tables, plugin_dir) -> tuple[Path, bool]:
+    """Write the effect's file; never over another file. Its path, and whether it is new."""
+    _, description = _describe(chosen, kind)
     name = _effect_name(chosen)
-    terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
-              "words": t.words, "writable": t.writable} for t, c in chosen]
+    body = _plugin_source(name, chosen, description, tables) + _REGISTER
+    folder = Path(plugin_dir) if plugin_dir is not None else Path.cwd()
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.py"
+    k = 2
+    while path.exists() and path.read_text() != body:
+        path = folder / f"{name}_{k}.py"  # never overwrite another file silently
+        k += 1
+    created = not path.exists()
+    path.write_text(body)
+    return path, created
+
+
+def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, tables=None,
+                    series=None):
+    """Write the proposal as an effect, refit it, and drop terms the refit finds negligible."""
     plugin = verified = None
+    told = chosen
     if all(t.writable for t, _ in chosen):
-        body = _plugin_source(name, chosen, description, tables)
-        folder = Path(plugin_dir) if plugin_dir is not None else Path.cwd()
-        folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"{name}.py"
-        k = 2
-        while path.exists() and path.read_text() != body + _REGISTER:
-            path = folder / f"{name}_{k}.py"  # never overwrite another file silently
-            k += 1
-        path.write_text(body + _REGISTER)
-        plugin = str(path)
+        path, created = _write_plugin(chosen, kind, tables, plugin_dir)
         if verify:
             verified = _verify(problem, path, chosen)
-    return Proposal(effect=name, expression=expression, description=description,
-                    terms=terms, kind=kind, elpd_diff=float(d), elpd_diff_se=float(se),
-                    plugin=plugin, verified=verified)
+            told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+            if kind == "closed form" and series is not None and len(chosen) > 1:
+                # a term that only compensated the linearisation shrinks in the refit
+                amps = [float(np.std(c * series[t.slug])) for t, c in told]
+                keep = [tc for tc, a in zip(told, amps, strict=True) if a >= 0.1 * max(amps)]
+                if len(keep) < len(told):
+                    if created:
+                        path.unlink()  # written by this run, and superseded
+                    chosen = keep
+                    path, created = _write_plugin(chosen, kind, tables, plugin_dir)
+                    verified = _verify(problem, path, chosen)
+                    told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+        plugin = str(path)
+    expression, description = _describe(told, kind)
+    terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
+              "words": t.words, "writable": t.writable} for t, c in told]
+    return Proposal(effect=_effect_name(chosen), expression=expression,
+                    description=description, terms=terms, kind=kind, elpd_diff=float(d),
+                    elpd_diff_se=float(se), plugin=plugin, verified=verified)
 
 
 def _load_unregistered(path: Path):
