@@ -48,7 +48,7 @@ from __future__ import annotations
 import importlib.util
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numba
@@ -734,10 +734,15 @@ def _best_period(problem: _Problem, x: np.ndarray) -> float | None:
     span = float(np.ptp(x))
     if not span > 0:
         return None
-    periods = np.geomspace(span / 60.0, span / 2.0, 48)
-    fams = [np.stack([np.sin(2 * np.pi * x / L), np.cos(2 * np.pi * x / L)], axis=1)
-            for L in periods]
-    return float(periods[_best_of(problem, fams)])
+    def fams(periods):
+        return [np.stack([np.sin(2 * np.pi * x / L), np.cos(2 * np.pi * x / L)], axis=1)
+                for L in periods]
+
+    coarse = np.geomspace(span / 60.0, span / 2.0, 48)
+    best = coarse[_best_of(problem, fams(coarse))]
+    # then finely: over the span a period off by 1% drifts by a tenth of a period
+    fine = best * np.geomspace(0.93, 1.075, 41)
+    return float(fine[_best_of(problem, fams(fine))])
 
 
 def _best_hinges(problem: _Problem, x: np.ndarray) -> tuple:
@@ -1114,17 +1119,17 @@ def _tabulated_term(b: _Block, w: np.ndarray):
     coefs[-1] -= mean  # centred: a constant would shift the rest position only
     values = series - mean
     t = Term(f"S_{sym}({sym})", "1", f"the estimated force shape in {b.state}, tabulated",
-             b.state, f"_shape({sym})[0]", "0.0", "0.0", slug=f"shape_{sym}")
+             b.state, "shape", "0.0", "0.0", slug=f"shape_{sym}")
     if sym == "x":
-        t = Term(t.name, t.unit, t.words, t.state, t.force, "_shape(x)[1]", "0.0", t.slug)
+        t = Term(t.name, t.unit, t.words, t.state, t.force, "slope", "0.0", t.slug)
     elif sym == "v":
-        t = Term(t.name, t.unit, t.words, t.state, t.force, "0.0", "_shape(v)[1]", t.slug)
+        t = Term(t.name, t.unit, t.words, t.state, t.force, "0.0", "slope", t.slug)
     return (t, values), (brk, coefs)
 
 
 def _effect_name(chosen: list) -> str:
     slugs = [t.slug for t, _ in chosen]
-    return "proposed_" + "_".join(slugs)[:40]
+    return "proposed_" + "_".join(slugs)[:40]  # its parameters are c_<slug>: unique names
 
 
 def _plugin_source(name: str, chosen: list, description: str, tables=None) -> str:
@@ -1134,31 +1139,34 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
              "Written by pmabayes' discrepancy step from the data's residual (an estimate,",
              "not a law: check it with `pmabayes diagnose DATA --effects "
              f"{name}` after --plugin).",
-             '"""', "", "import math", "", "import numba", "import numpy as np", "",
+             '"""', "", "import math", "", "import numpy as np", "",
              "import pmabayes as pb", ""]
     if tables is not None:
         brk, coefs = tables
         lines += [f"_BREAKS = np.array({[float(f'{b:.10g}') for b in brk]!r})",
                   "_COEFS = np.array(" + repr([[float(f"{c:.10g}") for c in row]
                                                for row in coefs]) + ")", "", "",
-                  "@numba.njit(cache=False)",
-                  "def _shape(s):",
-                  '    """The tabulated shape and its slope (constant outside the table)."""',
-                  "    if s <= _BREAKS[0] or s >= _BREAKS[-1]:",
-                  "        e = _BREAKS[0] if s <= _BREAKS[0] else _BREAKS[-1]",
-                  "        k = 0 if s <= _BREAKS[0] else _BREAKS.size - 2",
-                  "        h = e - _BREAKS[k]",
-                  "        return ((_COEFS[0, k] * h + _COEFS[1, k]) * h + _COEFS[2, k]) * h "
-                  "+ _COEFS[3, k], 0.0",
-                  "    k = np.searchsorted(_BREAKS, s) - 1",
-                  "    h = s - _BREAKS[k]",
-                  "    f = ((_COEFS[0, k] * h + _COEFS[1, k]) * h + _COEFS[2, k]) * h "
-                  "+ _COEFS[3, k]",
-                  "    d = (3.0 * _COEFS[0, k] * h + 2.0 * _COEFS[1, k]) * h + _COEFS[2, k]",
-                  "    return f, d", ""]
+                  ]
     lines += ["", "def _physics(q, x, v, p):",
               '    """Force opposing extension, and its derivatives in x and v."""',
               "    f = 0.0", "    fx = 0.0", "    fv = 0.0"]
+    if tables is not None:
+        # the table is evaluated inline: a compiled helper would be a second function the
+        # simulator's cached kernel could not find again in a later process
+        sym = {"position": "x", "velocity": "v", "pressure": "p"}[chosen[0][0].state]
+        lines += [f"    s = {sym}",
+                  "    if s <= _BREAKS[0]:",
+                  "        k = 0", "        h = 0.0", "        inside = 0.0",
+                  "    elif s >= _BREAKS[-1]:",
+                  "        k = _BREAKS.size - 2", "        h = _BREAKS[-1] - _BREAKS[k]",
+                  "        inside = 0.0",
+                  "    else:",
+                  "        k = np.searchsorted(_BREAKS, s) - 1", "        h = s - _BREAKS[k]",
+                  "        inside = 1.0",
+                  "    shape = ((_COEFS[0, k] * h + _COEFS[1, k]) * h + _COEFS[2, k]) * h "
+                  "+ _COEFS[3, k]",
+                  "    slope = inside * ((3.0 * _COEFS[0, k] * h + 2.0 * _COEFS[1, k]) * h "
+                  "+ _COEFS[2, k])"]
     for k, (t, _) in enumerate(chosen):
         lines.append(f"    f += q[{k}] * ({t.force})")
         if t.dx != "0.0":
@@ -1221,6 +1229,17 @@ def _write_plugin(chosen: list, kind: str, tables, plugin_dir) -> tuple[Path, bo
 def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, tables=None,
                     series=None):
     """Write the proposal as an effect, refit it, and drop terms the refit finds negligible."""
+    taken = set(problem.model.parameter_names) | {f"c_{n}" for n in problem.model.effect_names}
+    renamed = []
+    for t, c in chosen:  # a model that already holds an earlier proposal keeps its names
+        slug, k = t.slug, 2
+        while f"c_{slug}" in taken:
+            slug, k = f"{t.slug}{k}", k + 1
+        taken.add(f"c_{slug}")
+        if series is not None:
+            series = {**series, slug: series[t.slug]}
+        renamed.append((replace(t, slug=slug), c))
+    chosen = renamed
     plugin = verified = None
     told = chosen
     if all(t.writable for t, _ in chosen):
