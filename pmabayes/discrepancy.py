@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import re
 import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -624,6 +625,9 @@ class Term:
         Its derivatives in ``x`` and ``v``.
     slug : str
         Identifier fragment for parameter names.
+    period_m : float or None
+        For a term periodic in position, its period: ``{L}`` in the expressions,
+        written as a parameter of the effect that the refit adjusts.
     """
 
     name: str
@@ -634,6 +638,7 @@ class Term:
     dx: str = "0.0"
     dv: str = "0.0"
     slug: str = ""
+    period_m: float | None = None
 
     @property
     def writable(self) -> bool:
@@ -701,15 +706,17 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
                            f"(1.0 if x > {s} else 0.0)", slug=f"xhi{k}"),
                       np.where(x > b, x - b, 0.0)))
     if period_m is not None:
-        s = _f(2.0 * math.pi / period_m)
+        k = "6.283185307179586"
         words = (f"a force periodic in position with a period of {period_m * mm:.3g} mm "
                  "(detents of a rail, a ratchet)")
         terms.append((Term(f"sin(2 pi x / {period_m * mm:.3g} mm)", "N", words, "position",
-                           f"math.sin({s} * x)", f"{s} * math.cos({s} * x)", slug="sin"),
-                      np.sin(2 * math.pi * x / period_m)))
+                           f"math.sin({k} * x / {{L}})",
+                           f"{k} / {{L}} * math.cos({k} * x / {{L}})", slug="sin",
+                           period_m=period_m), np.sin(2 * math.pi * x / period_m)))
         terms.append((Term(f"cos(2 pi x / {period_m * mm:.3g} mm)", "N", words, "position",
-                           f"math.cos({s} * x)", f"-{s} * math.sin({s} * x)", slug="cos"),
-                      np.cos(2 * math.pi * x / period_m)))
+                           f"math.cos({k} * x / {{L}})",
+                           f"-{k} / {{L}} * math.sin({k} * x / {{L}})", slug="cos",
+                           period_m=period_m), np.cos(2 * math.pi * x / period_m)))
     return terms
 
 
@@ -1041,10 +1048,24 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
         # near the flexible estimate: within its noise, or a small share of its gain
         matches = d > -max(2.0 * se, 4.0, 0.02 * gain)
         closed = (chosen, d, se, matches)
+    series = {t.slug: v for t, v in terms}
+    folder = Path(plugin_dir) if plugin_dir is not None else Path.cwd()
+    existing = {str(f) for f in folder.glob("*.py")} if folder.is_dir() else set()
     if closed is not None and closed[3]:
         chosen, d, se, _ = closed
         return _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
-                               command, series={t.slug: v for t, v in terms})
+                               command, series=series)
+    if closed is not None and verify and all(t.writable for t, _ in closed[0]):
+        # the linearisation may be what keeps it from the flexible estimate (a steep
+        # force, a period slightly off): the nonlinear refit decides
+        chosen, d, se, _ = closed
+        prop = _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
+                               command, series=series)
+        v = prop.verified
+        if v is not None and v["adequate"] and v["ratio"] <= 1.5:
+            return prop
+        if prop.plugin is not None and prop.plugin not in existing:
+            Path(prop.plugin).unlink(missing_ok=True)  # written by this run, not kept
     # no closed form near the flexible estimate: the flexible shape itself, tabulated
     if top in WRITABLE:
         b = next(b for b in blocks if b.state == top)
@@ -1167,12 +1188,14 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
                   "+ _COEFS[3, k]",
                   "    slope = inside * ((3.0 * _COEFS[0, k] * h + 2.0 * _COEFS[1, k]) * h "
                   "+ _COEFS[2, k])"]
+    period = next((t.period_m for t, _ in chosen if t.period_m is not None), None)
+    per = f"q[{len(chosen)}]"  # the period, after the coefficients
     for k, (t, _) in enumerate(chosen):
-        lines.append(f"    f += q[{k}] * ({t.force})")
+        lines.append(f"    f += q[{k}] * ({t.force.replace('{L}', per)})")
         if t.dx != "0.0":
-            lines.append(f"    fx += q[{k}] * ({t.dx})")
+            lines.append(f"    fx += q[{k}] * ({t.dx.replace('{L}', per)})")
         if t.dv != "0.0":
-            lines.append(f"    fv += q[{k}] * ({t.dv})")
+            lines.append(f"    fv += q[{k}] * ({t.dv.replace('{L}', per)})")
     lines += ["    return f, fx, fv", "", "", "class ProposedEffect(pb.Effect):",
               f'    """{description}"""', "", f"    name = {name!r}", '    stage = "force"',
               "    parameters = ("]
@@ -1185,6 +1208,11 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
                      f"pb.Normal({coef!r}, {sd!r}), bounds=({lo!r}, {hi!r}), null=0.0,")
         meaning = f"coefficient of {t.name}: {t.words}"
         lines.append(f"                     description={meaning!r}),")
+    if period is not None:
+        lines.append(f"        pb.Parameter('L_period', 'm', {period!r}, pb.Normal({period!r}, "
+                     f"{0.03 * period!r}), bounds=({0.8 * period!r}, {1.25 * period!r}), "
+                     f"null={period!r},")
+        lines.append("                     description='period in position of the force'),")
     lines += ["    )", f"    description = {description!r}", "    physics = staticmethod(_physics)",
               ""]
     return "\n".join(lines) + "\n"
@@ -1259,6 +1287,11 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
                     verified = _verify(problem, path, chosen)
                     told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
         plugin = str(path)
+    if verified is not None and "L_period" in verified["values"]:
+        mm = verified["values"]["L_period"] * 1e3  # the refitted period, in the words too
+        told = [(replace(t, name=re.sub(r"/ [0-9.e+-]+ mm\)", f"/ {mm:.4g} mm)", t.name),
+                         words=re.sub(r"period of [0-9.e+-]+ mm", f"period of {mm:.4g} mm",
+                                      t.words)), c) for t, c in told]
     expression, description = _describe(told, kind)
     terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
               "words": t.words, "writable": t.writable} for t, c in told]
@@ -1281,7 +1314,8 @@ def _verify(problem: _Problem, path: Path, chosen: list, n_iter: int = 12) -> di
     model = problem.model.with_effects(eff)
     lik = Likelihood(model, problem.dataset, substeps=problem.lik.substeps)
     start = {k: v for k, v in problem.values.items() if k in model.parameter_names}
-    start.update({p.name: c for p, (_, c) in zip(eff.parameters, chosen, strict=True)})
+    # the coefficients; a period parameter after them starts at its default
+    start.update({p.name: c for p, (_, c) in zip(eff.parameters, chosen, strict=False)})
     values = _gauss_newton(lik, problem.noise, model, start, n_iter)
     sim = simulate_dataset(model, values, problem.dataset, substeps=lik.substeps, states=True)
     sig = residual_signature(lik, problem.noise, sim)
