@@ -1357,7 +1357,14 @@ def _gauss_newton(lik: Likelihood, noise, model: Model, start: dict, n_iter: int
         ata, atb = _at_b(jn, jn), _at_b(jn, r0)
         improved = False
         for _ in range(8):
-            step = _spd_solve(ata + mu * np.diag(np.diag(ata) + 1e-12), atb) / norms
+            # a parameter the output does not see (at a bound, a vanishing term) has a
+            # zero column: the identity term keeps the damped system definite
+            damped = ata + mu * np.diag(np.diag(ata)) + 1e-9 * np.eye(len(idx))
+            try:
+                step = _spd_solve(damped, atb) / norms
+            except np.linalg.LinAlgError:
+                mu *= 10.0
+                continue
             trial = theta.copy()
             trial[idx] = np.clip(theta[idx] + step, lo, hi)
             c1, r1, _ = cost(trial)
