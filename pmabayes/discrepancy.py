@@ -1346,6 +1346,7 @@ def _gauss_newton(lik: Likelihood, noise, model: Model, start: dict, n_iter: int
     for _ in range(n_iter):
         before = c0
         h = 1e-6 * np.maximum(np.maximum(np.abs(theta[idx]), defaults), 1e-6)
+        h = np.where(theta[idx] + h > hi, -h, h)  # step inward from an upper bound
         rows = np.repeat(theta[None], len(idx) + 1, axis=0)
         for k, j in enumerate(idx):
             rows[k + 1, j] += h[k]
