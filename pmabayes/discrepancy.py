@@ -628,6 +628,9 @@ class Term:
     period_m : float or None
         For a term periodic in position, its period: ``{L}`` in the expressions,
         written as a parameter of the effect that the refit adjusts.
+    breakpoint_m : float or None
+        For a spring acting below a position, that position: ``{B}`` in the
+        expressions, a parameter of the effect like the period.
     """
 
     name: str
@@ -639,6 +642,7 @@ class Term:
     dv: str = "0.0"
     slug: str = ""
     period_m: float | None = None
+    breakpoint_m: float | None = None
 
     @property
     def writable(self) -> bool:
@@ -692,11 +696,10 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
                            slug=f"tanh{v0 * mm:g}".replace(".", "p")), np.tanh(v / v0)))
     below, above = hinges
     for k, b in enumerate(below):
-        s = _f(b)
         terms.append((Term(f"(x - {b * mm:.3g} mm) [x<{b * mm:.3g} mm]", "N/m",
                            f"a spring acting only below x = {b * mm:.3g} mm (in compression)",
-                           "position", f"((x - {s}) if x < {s} else 0.0)",
-                           f"(1.0 if x < {s} else 0.0)", slug=f"xlo{k}"),
+                           "position", "((x - {B}) if x < {B} else 0.0)",
+                           "(1.0 if x < {B} else 0.0)", slug=f"xlo{k}", breakpoint_m=b),
                       np.where(x < b, x - b, 0.0)))
     for k, b in enumerate(above):
         s = _f(b)
@@ -1189,13 +1192,19 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
                   "    slope = inside * ((3.0 * _COEFS[0, k] * h + 2.0 * _COEFS[1, k]) * h "
                   "+ _COEFS[2, k])"]
     period = next((t.period_m for t, _ in chosen if t.period_m is not None), None)
-    per = f"q[{len(chosen)}]"  # the period, after the coefficients
+    brk = next((t.breakpoint_m for t, _ in chosen if t.breakpoint_m is not None), None)
+    per = f"q[{len(chosen)}]"  # the period, after the coefficients, then the breakpoint
+    bq = f"q[{len(chosen) + (period is not None)}]"
+
+    def fill(expr: str) -> str:
+        return expr.replace("{L}", per).replace("{B}", bq)
+
     for k, (t, _) in enumerate(chosen):
-        lines.append(f"    f += q[{k}] * ({t.force.replace('{L}', per)})")
+        lines.append(f"    f += q[{k}] * ({fill(t.force)})")
         if t.dx != "0.0":
-            lines.append(f"    fx += q[{k}] * ({t.dx.replace('{L}', per)})")
+            lines.append(f"    fx += q[{k}] * ({fill(t.dx)})")
         if t.dv != "0.0":
-            lines.append(f"    fv += q[{k}] * ({t.dv.replace('{L}', per)})")
+            lines.append(f"    fv += q[{k}] * ({fill(t.dv)})")
     lines += ["    return f, fx, fv", "", "", "class ProposedEffect(pb.Effect):",
               f'    """{description}"""', "", f"    name = {name!r}", '    stage = "force"',
               "    parameters = ("]
@@ -1213,6 +1222,11 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
                      f"{0.03 * period!r}), bounds=({0.8 * period!r}, {1.25 * period!r}), "
                      f"null={period!r},")
         lines.append("                     description='period in position of the force'),")
+    if brk is not None:
+        lines.append(f"        pb.Parameter('x_break', 'm', {brk!r}, pb.Normal({brk!r}, 0.01), "
+                     f"bounds=({brk - 0.05!r}, {brk + 0.05!r}), null={brk!r},")
+        lines.append("                     description='position below which the spring "
+                     "acts'),")
     lines += ["    )", f"    description = {description!r}", "    physics = staticmethod(_physics)",
               ""]
     return "\n".join(lines) + "\n"

@@ -135,18 +135,18 @@ def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
     terms = [(Term("v|v|", "N s^2/m^2", "a quadratic drag", "velocity", "v * abs(v)",
                    dv="2.0 * abs(v)", slug="vabsv"), 250.0),
              (Term("(x - 20 mm) [x<20 mm]", "N/m", "a spring in compression", "position",
-                   "((x - 0.02) if x < 0.02 else 0.0)", "(1.0 if x < 0.02 else 0.0)",
-                   slug="xlo"), -300.0)]
+                   "((x - {B}) if x < {B} else 0.0)", "(1.0 if x < {B} else 0.0)",
+                   slug="xlo", breakpoint_m=0.02), -300.0)]
     body = _plugin_source("proposed_test", terms, "a drag and a spring")
     path = tmp_path / "proposed_test.py"
     path.write_text(body + _REGISTER)
     eff = _load_unregistered(path)
     assert eff.name == "proposed_test" and "proposed_test" not in pb.registered_effects()
-    assert [p.name for p in eff.parameters] == ["c_vabsv", "c_xlo"]
+    assert [p.name for p in eff.parameters] == ["c_vabsv", "c_xlo", "x_break"]
     p0 = eff.parameters[0]
     assert p0.unit == "N s^2/m^2" and p0.default == 250.0 and p0.null == 0.0
     assert p0.bounds[0] <= 0.0 <= p0.bounds[1] and "quadratic drag" in p0.description
-    q = np.array([250.0, -300.0])
+    q = np.array([250.0, -300.0, 0.02])
     for x, v in ((0.01, 0.05), (0.03, -0.02)):
         f, fx, fv = eff.physics(q, x, v, 3e5)
         assert f == pytest.approx(250.0 * v * abs(v) - 300.0 * min(x - 0.02, 0.0))
@@ -205,12 +205,7 @@ CASES = [
     # so the library's position_offset removes 91% of the excess and diagnose's rule
     # names it first (leaving 15.7x the floor); added, the spring is what is left
     pytest.param(HiddenCompressionSpring, {"k_cs": 3000.0, "x_cs": 0.005}, 33, "position",
-                 ("position_offset",), id="hidden_compression_spring",
-                 marks=pytest.mark.xfail(strict=True, reason=(
-                     "known limit: the one-sided spring is proposed with its breakpoint "
-                     "fixed at the scanned value; added, it leaves 8x the floor (measured), "
-                     "and the breakpoint would have to be refitted as the detent's period "
-                     "is"))),
+                 ("position_offset",), id="hidden_compression_spring"),
 ]
 
 
