@@ -1306,6 +1306,11 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
         told = [(replace(t, name=re.sub(r"/ [0-9.e+-]+ mm\)", f"/ {mm:.4g} mm)", t.name),
                          words=re.sub(r"period of [0-9.e+-]+ mm", f"period of {mm:.4g} mm",
                                       t.words)), c) for t, c in told]
+    if verified is not None and "x_break" in verified["values"]:
+        mm = verified["values"]["x_break"] * 1e3  # the refitted breakpoint, in the words too
+        told = [(replace(t, name=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.name),
+                         words=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.words))
+                 if t.breakpoint_m is not None else t, c) for t, c in told]
     expression, description = _describe(told, kind)
     terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
               "words": t.words, "writable": t.writable} for t, c in told]
