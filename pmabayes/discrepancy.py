@@ -1040,6 +1040,11 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
         # the sparsest support within two standard errors (or 2) of the best
         best = min((c for c in scored if c[0] >= top_d - max(2.0 * c[1], 2.0)),
                    key=lambda c: (len(c[2]), -c[0]))
+        writable = [c for c in scored if all(terms[j][0].writable for j in c[2])]
+        if writable and not all(terms[j][0].writable for j in best[2]):
+            # a term in z or memory cannot be written today: the best writable form is
+            # proposed instead, and the nonlinear refit below judges it
+            best = max(writable, key=lambda c: c[0])
     top = states[0].state if states else None
     closed = None
     if best is not None:
