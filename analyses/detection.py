@@ -35,7 +35,7 @@ force outside the library (:mod:`pmabayes.discrepancy`) instead of the sweeps:
 * ``--null`` null data sets (20): a proposed effect is a false alarm;
 * ``--outside`` data sets (12) with one hidden effect that no library holds, cycling
   through a rail detent periodic in position, a quadratic drag and a spring acting only
-  in compression, each at a size drawn log-uniformly over a decade: a proposal is
+  in compression (below 5 mm), each at a size drawn log-uniformly over a decade: a proposal is
   correct when the state the force depends on most is the right one (position,
   velocity, position) and the written effect, refitted (the step's own nonlinear
   check), brings the model to adequate within 1.5x the floor.
@@ -151,8 +151,8 @@ class OutsideCompressionSpring(pb.Effect):
     parameters = (
         pb.Parameter("k_cs", "N/m", 0.0, pb.HalfNormal(1e3), bounds=(0.0, 1e5), null=0.0,
                      description="stiffness in compression"),
-        pb.Parameter("x_cs", "m", 0.02, pb.HalfNormal(0.05), bounds=(-1.0, 1.0), null=0.02,
-                     vary=False, description="where it engages"),
+        pb.Parameter("x_cs", "m", 0.005, pb.HalfNormal(0.05), bounds=(-1.0, 1.0),
+                     null=0.005, vary=False, description="where it engages"),
     )
     description = "A spring stiffening the muscle in compression only."
     physics = staticmethod(_compression)
@@ -162,7 +162,7 @@ class OutsideCompressionSpring(pb.Effect):
 OUTSIDE = (
     (OutsideDetent, "F_det", (1.0, 10.0), "position"),
     (OutsideDrag, "c_od", (150.0, 1500.0), "velocity"),
-    (OutsideCompressionSpring, "k_cs", (200.0, 2000.0), "position"),
+    (OutsideCompressionSpring, "k_cs", (1500.0, 6000.0), "position"),
 )
 
 
