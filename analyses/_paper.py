@@ -40,6 +40,11 @@ DATA_DIR = ROOT / "data"
 
 #: the hidden effects of ``data/pma_chirp_lab.csv`` (see data/README.md)
 LAB_EFFECTS = {"regulator_lag": 0.045, "coulomb_friction": 0.8}
+#: the candidates of the paper's criticism loop: the library the paper describes (the
+#: six effects of round one), so that its figures and tables do not change as the
+#: library grows
+ROUND_ONE_EFFECTS = ("regulator_lag", "transport_delay", "coulomb_friction",
+                     "cubic_stiffness", "pressure_stiffness", "position_offset")
 #: the short chirp of the quick mode
 QUICK_CHIRP = Chirp(duration_s=6.0, f0_hz=0.5, f1_hz=3.0)
 QUICK_TRIALS = 4

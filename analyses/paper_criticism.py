@@ -30,6 +30,7 @@ import time
 
 import arviz as az
 from _paper import (
+    ROUND_ONE_EFFECTS,
     Numbers,
     cached_fit,
     lab_dataset,
@@ -94,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     diagnoses = []
     for k in range(MAX_STEPS + 1):
         start = time.perf_counter()
-        d = diagnose(ds, effects=effects, seed=args.seed, **QUICK_DIAGNOSE if args.quick else {})
+        d = diagnose(ds, effects=effects, candidates=ROUND_ONE_EFFECTS, seed=args.seed,
+                     **QUICK_DIAGNOSE if args.quick else {})
         secs = time.perf_counter() - start
         diagnoses.append((list(effects), d))
         print(f"step {k} ({_label(effects)}): RMS {d.rms_m * 1e6:.3g} um = "

@@ -6,7 +6,10 @@ the ``pmabayes`` attributes) without sampling. Tests import it
 (``from conftest import fake_fit``); ``tests/test_conftest.py`` checks it.
 
 Tests marked ``@pytest.mark.slow`` take long; ``python -m pytest -q -m "not slow"``
-leaves them out (CI runs everything).
+leaves them out. Tests marked ``@pytest.mark.extended`` (and ``slow``) are the long
+studies that would push CI past its 30 minutes: they are skipped, with the reason
+shown, unless ``--extended`` is given (``python -m pytest -q -m extended
+--extended`` runs just them). CI runs everything else.
 """
 
 from __future__ import annotations
@@ -17,11 +20,30 @@ from pathlib import Path
 
 import arviz as az
 import numpy as np
+import pytest
 import xarray as xr
 
 from pmabayes.likelihood import NOISE_PARAMETERS
 from pmabayes.model import PAPER_VALUES, Model
 from pmabayes.posterior import save_fit
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    """``--extended``: also run the tests marked ``extended``."""
+    parser.addoption("--extended", action="store_true", default=False,
+                     help="also run the tests marked extended (long studies, skipped "
+                     "by default to keep CI under 30 minutes)")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list) -> None:
+    """Skip the ``extended`` tests, saying how to run them, unless ``--extended``."""
+    if config.getoption("--extended"):
+        return
+    skip = pytest.mark.skip(reason="extended tier: run with --extended")
+    for item in items:
+        if "extended" in item.keywords:
+            item.add_marker(skip)
+
 
 #: the disturbance of a fake fit whose posterior does not hold the noise
 _SIGMA_M, _RHO = 5e-5, 0.9

@@ -292,8 +292,14 @@ def library() -> tuple[str, ...]:
                  if e.__module__ == "pmabayes.effects")
 
 
+#: cases in the extended tier (run with --extended), so that CI stays under 30 minutes
+EXTENDED = ("maxwell_creep", "bouc_wen_exponent")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(("name", "value", "param"), HIDDEN)
+@pytest.mark.parametrize(("name", "value", "param"), [
+    pytest.param(*h, id=h[0], marks=[pytest.mark.extended] if h[0] in EXTENDED else [])
+    for h in HIDDEN])
 def test_a_hidden_effect_is_found_added_and_the_error_falls_to_the_floor(name, value, param):
     from pmabayes.criticism import diagnose
 

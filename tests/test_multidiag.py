@@ -200,6 +200,7 @@ def test_with_the_lag_added_the_model_is_adequate_in_both(lagged):
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_a_perfect_model_is_adequate_across_the_experiments():
     d = diagnose([chirp(seed=21), sine(seed=22)], candidates=BUILTINS, max_refits=2, seed=0)
     assert d.adequate and d.missing is None, d.verdict
@@ -208,6 +209,7 @@ def test_a_perfect_model_is_adequate_across_the_experiments():
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_one_data_set_is_diagnosed_as_before():
     """A Dataset and a list of one give the same diagnosis, to the bit, with the keys of
     one experiment only."""
@@ -221,6 +223,7 @@ def test_one_data_set_is_diagnosed_as_before():
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_records_without_repeats_say_they_have_no_floor():
     """A single non-periodic record beside a repeated experiment: its noise is identified
     with the model, and the diagnosis says it has no floor instead of failing."""
@@ -235,6 +238,7 @@ def test_records_without_repeats_say_they_have_no_floor():
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_cli_diagnose_several_files(lagged, tmp_path, capsys):
     from pmabayes.cli import main
 
@@ -292,6 +296,7 @@ def test_compare_fits_of_several_experiments(joint_fits, lagged, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_compare_refuses_fits_of_other_experiments(joint_fits, lagged, tmp_path, capsys):
     from pmabayes.cli import main
 
