@@ -65,7 +65,8 @@ from pmabayes.data import Dataset
 from pmabayes.parallel import Runner
 from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
-#: the built-in library (a user's plugins would join the candidates otherwise)
+#: the round-one library, as the paper's detection table was made with (a user's plugins,
+#: and the effects added since, would join the candidates otherwise)
 CANDIDATES = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiffness",
               "pressure_stiffness", "position_offset")
 #: effect, parameter, unit shown, scale to that unit, sizes swept (SI)
