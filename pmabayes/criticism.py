@@ -590,21 +590,29 @@ class Diagnosis:
         """Names of the experiments whose residual is not consistent with the noise."""
         return [e.name for e in self.experiments if not e.adequate]
 
+    def _first(self) -> ExperimentDiagnosis:
+        """The first experiment (built from the fields of a Diagnosis made without them)."""
+        if self.experiments:
+            return self.experiments[0]
+        return ExperimentDiagnosis(
+            name=self.dataset.source or "data", dataset=self.dataset, model=self.model,
+            noise=self.noise, noise_source="trials", simulation=self.simulation,
+            signature=self.signature, adequate=self.adequate)
+
     @property
     def residual_m(self) -> np.ndarray:
         """Trial mean minus model, ``(n_samples,)`` (the first experiment's)."""
-        return self.dataset.mean_position_m - self.simulation.position_m[0]
+        return self._first().residual_m
 
     @property
     def innovations(self) -> np.ndarray:
         """The residual whitened by the identified noise model (the first experiment's)."""
-        lik = Likelihood(self.model, self.dataset)
-        return innovations(lik, self.simulation.position_m[0], self.noise)
+        return self._first().innovations
 
     @property
     def frequency_hz(self) -> np.ndarray:
         """Instantaneous frequency of the command at each sample (for the figures)."""
-        return instantaneous_frequency(self.dataset)
+        return self._first().frequency_hz
 
     @property
     def score_threshold(self) -> float:
@@ -612,10 +620,9 @@ class Diagnosis:
         return significance_threshold(self.settings["level"], len(self.ranking))
 
     def whiteness_curves(self) -> WhitenessCurves:
-        """The whiteness figure's curves of the whitened residual (lags to 0.2 s, 99% bound)."""
-        label = " + ".join(["base", *self.model.effect_names])
-        rate = np.gradient(self.dataset.input[0], self.dataset.time_s)
-        return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s)
+        """The whiteness figure's curves of the whitened residual (lags to 0.2 s, 99% bound;
+        the first experiment's)."""
+        return self._first().whiteness_curves()
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the keys of ``pmabayes diagnose --json``).
