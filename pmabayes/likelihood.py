@@ -291,6 +291,22 @@ def _noise_loglik(y: np.ndarray, x: np.ndarray, scale: float, sigma: np.ndarray,
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _rms_by_time(y, xt):
+    """RMS of ``y - xt[:, b]`` per column of ``xt`` ``(n, batch)``, in one pass over
+    memory in its own order (NumPy's reduction across the strided axis is slow)."""
+    n, batch = xt.shape
+    out = np.zeros(batch)
+    for k in range(n):
+        yk = y[k]
+        for b in range(batch):
+            d = yk - xt[k, b]
+            out[b] += d * d
+    for b in range(batch):
+        out[b] = math.sqrt(out[b] / n)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _kalman_innovations(y, scale, sigma, rho, white):
     """Standardised innovations ``v_k / sqrt(S_k)`` of ``scale * y`` (one series).
 
@@ -487,7 +503,10 @@ class Likelihood:
 
     def rms_cost(self, x: np.ndarray) -> np.ndarray:
         """The paper's cost: RMS of the trial mean minus the model, per batch member."""
-        return np.sqrt(np.mean((self.y_mean - np.atleast_2d(x)) ** 2, axis=1))
+        x = np.atleast_2d(x)
+        if x.shape[0] > 1 and x.T.flags.c_contiguous:  # the simulator's own layout
+            return _rms_by_time(self.y_mean, x.T)
+        return np.sqrt(np.mean((self.y_mean - x) ** 2, axis=1))
 
     # -- likelihood -------------------------------------------------------------
     @staticmethod

@@ -365,16 +365,12 @@ class Posterior:
         sub = theta[ok]
         full = self.full_theta(sub)
         xs = [lik.simulate(full) for lik in self.likelihoods]
-        finite = np.all([np.all(np.isfinite(x), axis=1) for x in xs], axis=0)
-        ll_ok = np.full(sub.shape[0], -np.inf)
-        if finite.any():
-            total = np.zeros(int(finite.sum()))
-            for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
-                sigma, rho, white = (np.asarray(v)[finite] if np.ndim(v) else v
-                                     for v in self.noise_of(e, sub))
-                total += lik.mean_log_likelihood(x[finite], sigma, rho, white)
-            ll_ok[finite] = total
-        ll[ok] = ll_ok
+        total = np.zeros(sub.shape[0])
+        for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
+            total += lik.mean_log_likelihood(x, *self.noise_of(e, sub))
+        # a failed simulation (non-finite output) has a non-finite likelihood: each
+        # member's filter is its own arithmetic, so the others are unchanged
+        ll[ok] = np.where(np.isfinite(total), total, -np.inf)
         if not return_x:
             return lp, ll, None
         x = np.full((theta.shape[0], self.likelihood.n_samples), np.nan)

@@ -958,18 +958,32 @@ def simulate(
     n = u.shape[-1]
     if n < 2:
         raise SimulationError("need at least 2 samples")
+    if steady_state:
+        if not steady_state_tol_m > 0:
+            raise SimulationError(f"steady_state_tol_m must be > 0, got {steady_state_tol_m!r}")
+        if not (isinstance(max_warmup_periods, int | np.integer) and max_warmup_periods >= 3):
+            raise SimulationError(
+                f"max_warmup_periods must be an integer >= 3, got {max_warmup_periods!r}")
     t, dt = _time_axis(n, dt_s, time_s)
-    period = _check_period(period_samples, steady_state, n)
-    run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=int(substeps),
+    return _simulate_on_grid(model, theta, u, t, dt, substeps=int(substeps), states=states,
+                             between_samples=between_samples,
+                             period=_check_period(period_samples, steady_state, n),
+                             steady_state=steady_state, steady_state_tol_m=steady_state_tol_m,
+                             max_warmup_periods=max_warmup_periods,
+                             initial_state=initial_state)
+
+
+def _simulate_on_grid(model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray,
+                      dt: float, *, substeps: int, states: bool, between_samples: str,
+                      period: int | None, steady_state: bool, steady_state_tol_m: float,
+                      max_warmup_periods: int, initial_state: str):
+    """:func:`simulate` on a checked input and time grid (the data set's own, checked
+    when it was made: the sampler calls this thousands of times)."""
+    run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=substeps,
                states=states, between_samples=between_samples, period=period,
                initial_state=initial_state)
     if not steady_state:
         return _run(**run, warmup=0)
-    if not steady_state_tol_m > 0:
-        raise SimulationError(f"steady_state_tol_m must be > 0, got {steady_state_tol_m!r}")
-    if not (isinstance(max_warmup_periods, int | np.integer) and max_warmup_periods >= 3):
-        raise SimulationError(
-            f"max_warmup_periods must be an integer >= 3, got {max_warmup_periods!r}")
     tol = float(steady_state_tol_m)
     warmup = min(3, int(max_warmup_periods))
     while True:
@@ -1087,9 +1101,14 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
     numpy.ndarray or Simulation
         As :func:`simulate`.
     """
-    return simulate(model, params, dataset.input[0], time_s=dataset.time_s,
-                    substeps=substeps, states=states,
-                    between_samples=dataset.input_between_samples,
-                    period_samples=dataset.period_samples,
-                    steady_state=dataset.starts_in_steady_state,
-                    initial_state=dataset.initial_state)
+    if not (isinstance(substeps, int | np.integer) and substeps >= 1):
+        raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
+    return _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
+                             dataset.grid_dt_s, substeps=int(substeps), states=states,
+                             between_samples=dataset.input_between_samples,
+                             period=(None if dataset.period_samples is None
+                                     else int(dataset.period_samples)),
+                             steady_state=dataset.starts_in_steady_state,
+                             steady_state_tol_m=STEADY_STATE_TOL_M,
+                             max_warmup_periods=MAX_WARMUP_PERIODS,
+                             initial_state=dataset.initial_state)

@@ -405,7 +405,7 @@ class Dataset:
         _check_rig_input(self.metadata, self.input_name, where)
 
         time_s = self._as_float(self.time_s, "time_s", where)
-        check_time_grid(time_s, source=where)
+        grid_dt_s = check_time_grid(time_s, source=where)
         n = time_s.size
         arrays = {}
         for name, value in (("input", self.input), ("position_m", self.position_m)):
@@ -453,6 +453,7 @@ class Dataset:
             object.__setattr__(self, name, a)
         object.__setattr__(self, "metadata", dict(self.metadata))
         object.__setattr__(self, "source", source)
+        object.__setattr__(self, "_grid_dt_s", grid_dt_s)
         _check_metadata_rate(self.metadata, self.sample_rate_hz, f"{where}: metadata")
         _check_period(self.metadata, n, where)
 
@@ -525,6 +526,12 @@ class Dataset:
     def dt_s(self) -> float:
         """Uniform sample interval in s, ``(t[-1] - t[0]) / (n_samples - 1)``."""
         return float(self.time_s[-1] - self.time_s[0]) / (self.n_samples - 1)
+
+    @property
+    def grid_dt_s(self) -> float:
+        """The sample interval the simulator integrates with: the mean interval of
+        ``time_s``, as :func:`check_time_grid` found it when the data set was made."""
+        return self._grid_dt_s
 
     @property
     def sample_rate_hz(self) -> float:
