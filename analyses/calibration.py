@@ -11,6 +11,8 @@ Usage::
     python analyses/calibration.py [--datasets 20] [--seed 0] [--out DIR] [--quick]
                                    [--processes N | --dask ADDRESS]
                                    [--single {record,periodic}]
+                                   [--noise {default,two-scale}]
+                                   [--noise-model {auto,ar1,ar}]
 
 Writes ``calibration.csv`` and ``calibration.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``coverage_min: <fraction>``. ``--quick``
@@ -30,6 +32,14 @@ here and on the workers); the rows are the same.
   0.5 Hz, phases from the data set's seed) from rest, at 500 Hz, with the default
   measurement (AR(1) of 60 um and 0.1 s, quantised). Periods 2 to 4 are the
   noise's repeats.
+
+``--noise two-scale`` draws the repeated chirps' disturbance with two time scales
+(:data:`TWO_SCALE_NOISE`: 20 um of 10 ms correlation time plus 50 um of 1 s, then
+encoder quantisation), which the likelihood's AR(1) + white noise model does not
+describe; ``--noise-model`` chooses the fits' noise model (:func:`pmabayes.fit.fit`'s
+``noise_model``: ``auto``, the default, uses the repeats' AR(p) where they reject
+AR(1) + white). Its files are ``calibration_two-scale_NOISEMODEL.*``. With
+``--quick``, ``--datasets`` still sets the number of (short) data sets.
 """
 
 from __future__ import annotations
@@ -58,6 +68,10 @@ SINGLE_MODES = ("record", "periodic")
 #: the single non-periodic record's chirp and measurement (a fast disturbance)
 RECORD_CHIRP = Chirp(duration_s=8.0, f0_hz=0.2, f1_hz=3.0, sample_rate_hz=500.0)
 RECORD_NOISE = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002)
+#: a disturbance of two time scales (``--noise two-scale``)
+TWO_SCALE_NOISE = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.010,
+                                   slow_std_m=50e-6, slow_corr_time_s=1.0)
+NOISES = {"default": MeasurementNoise(), "two-scale": TWO_SCALE_NOISE}
 
 
 def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods: int = 4,
@@ -88,7 +102,7 @@ def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods:
 def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trials: int = 10,
               settings: FitSettings | None = None, verbose: bool = True,
               processes: int | None = None, single: str | None = None,
-              client=None) -> list[dict]:
+              client=None, noise: str = "default", noise_model: str = "auto") -> list[dict]:
     """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter.
 
     The data sets are drawn here, in order, from ``seed``; their fits run on
@@ -98,7 +112,9 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
     value; called from Python with a client, the scheduler and the workers must be able
     to import this module (``analyses/`` on their ``PYTHONPATH``).
     ``single`` (``"record"`` or ``"periodic"``) fits single records instead of
-    ``n_trials`` repeated chirps (see the module's docstring).
+    ``n_trials`` repeated chirps (see the module's docstring). ``noise`` (a key of
+    :data:`NOISES`) is the repeated chirps' measurement, and ``noise_model`` the fits'
+    (:func:`pmabayes.fit.fit`).
     """
     if single is not None and single not in SINGLE_MODES:
         raise ValueError(f"single must be one of {SINGLE_MODES} or None, got {single!r}")
@@ -107,7 +123,8 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
     for i in range(n_datasets):
         truth = draw_plausible(rng)
         jobs.append({"index": i, "truth": truth, "seed": int(rng.integers(2**31)),
-                     "chirp": chirp, "n_trials": n_trials, "single": single})
+                     "chirp": chirp, "n_trials": n_trials, "single": single,
+                     "noise": noise, "noise_model": noise_model})
     runner = Runner(processes, client=client, tasks=n_datasets)
     settings = FitSettings() if settings is None else settings
     if not runner.local:  # the data sets share the cores; a fit needs no pool of its own
@@ -136,9 +153,11 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                                     noise=RECORD_NOISE, params=truth)
     else:
         ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed,
-                                    chirp=job["chirp"], params=truth)
+                                    chirp=job["chirp"], params=truth,
+                                    noise=NOISES[job.get("noise", "default")])
     start = time.perf_counter()
-    tree = fit(ds, Model(), seed=data_seed, settings=job["settings"])
+    tree = fit(ds, Model(), seed=data_seed, settings=job["settings"],
+               noise_model=job.get("noise_model", "auto"))
     info = fit_info(tree)
     hdi = az.hdi(tree, prob=0.9)
     rows = []
@@ -149,7 +168,8 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                      "truth": truth[name], "hdi90_low": lo, "hdi90_high": hi,
                      "covered": bool(lo <= truth[name] <= hi),
                      "z": float((truth[name] - draws.mean()) / draws.std()),
-                     "converged": info["convergence"]["converged"]})
+                     "converged": info["convergence"]["converged"],
+                     "noise_model": info["experiments"][0]["noise_model"]["model"]})
     return rows, time.perf_counter() - start
 
 
@@ -172,7 +192,8 @@ def z_spread(rows: list[dict]) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     """Run the study, write the tables and print ``coverage_min`` last."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--datasets", type=int, default=20)
+    parser.add_argument("--datasets", type=int, default=None,
+                        help="number of data sets (20; 4 with --quick)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1]
                         / "paper" / "tables")
@@ -184,22 +205,31 @@ def main(argv: list[str] | None = None) -> int:
                         "repeats) or 'periodic' (one multisine record, its periods as repeats)")
     parser.add_argument("--steps", type=int, default=None,
                         help="budget of sampler steps per ensemble (FitSettings' default)")
+    parser.add_argument("--noise", choices=tuple(NOISES), default="default",
+                        help="the repeated chirps' measurement: 'default' (AR(1) disturbance) "
+                        "or 'two-scale' (a disturbance of two time scales)")
+    parser.add_argument("--noise-model", choices=("auto", "ar1", "ar"), default="auto",
+                        help="the fits' noise model (pmabayes fit --noise-model)")
     parser.add_argument("--dask", metavar="ADDRESS", default=None,
                         help="run the fits on this Dask scheduler (tcp://HOST:8786)")
     args = parser.parse_args(argv)
     if args.dask is not None and args.processes is not None:
         parser.error("give --processes or --dask, not both")
-    chirp, n_trials, n = None, 10, args.datasets
+    if args.single is not None and args.noise != "default":
+        parser.error("--noise applies to repeated chirps, not to --single")
+    chirp, n_trials, n = None, 10, args.datasets or 20
     if args.quick:
-        chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, 4
+        chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, args.datasets or 4
     settings = FitSettings() if args.steps is None else FitSettings(max_steps=args.steps)
     stem = "calibration" if args.single is None else f"calibration_single_{args.single}"
+    if args.noise != "default":
+        stem = f"calibration_{args.noise}_{args.noise_model}"
     start = time.perf_counter()
     with (dask_client(args.dask) if args.dask is not None
           else contextlib.nullcontext()) as client:
         rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
                          processes=args.processes, single=args.single, settings=settings,
-                         client=client)
+                         client=client, noise=args.noise, noise_model=args.noise_model)
     cov = coverage(rows)
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)

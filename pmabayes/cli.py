@@ -288,7 +288,8 @@ def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out
         warnings.simplefilter("ignore", ConvergenceWarning)
         tree = fit(datasets if len(datasets) > 1 else datasets[0], model, seed=args.seed,
                    settings=_fit_settings(args), chains_dir=chains, restart=args.restart,
-                   tie_noise=args.tie_noise, substeps=args.substeps)
+                   tie_noise=args.tie_noise, substeps=args.substeps,
+                   noise_model=args.noise_model)
     save_fit(tree, out)
     info = fit_info(tree)
     conv = info["convergence"]
@@ -675,6 +676,11 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-noise", action="store_true",
                    help="one noise model for all experiments (same sensor and disturbance) "
                    "instead of one per experiment")
+    p.add_argument("--noise-model", choices=("auto", "ar1", "ar"), default="auto",
+                   help="noise model of the likelihood where the noise comes from repeats: "
+                   "'auto' (AR(1) + white unless the repeats reject it, then their AR(p)), "
+                   "'ar1' or 'ar' (always one of them); records without repeats keep "
+                   "AR(1) + white")
     _exclude_option(p)
 
 
@@ -725,6 +731,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     if args.tie_noise:
         raise CliError("--tie-noise: each data set of a batch is fitted alone, as one "
                        "experiment; to fit experiments together use `pmabayes fit A B ...`")
+    if args.noise_model != "auto":
+        raise CliError(f"--noise-model {args.noise_model}: a batch fits with the default "
+                       "'auto'; fit the data set alone with `pmabayes fit` to choose")
     effects = tuple(args.effects)
     try:
         result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],

@@ -7,7 +7,9 @@ The pipeline of :func:`fit`:
    alone (see :mod:`pmabayes.likelihood` for why). That gives their posterior from
    (R - 1) x n_samples values, by a Laplace approximation in (log sigma, atanh rho,
    log sigma_w). The model parameters are then identified given the noise at its
-   posterior mode.
+   posterior mode. The repeats also test that AR(1) + white noise model
+   (:func:`pmabayes.likelihood.choose_noise_model`); where they reject it, the
+   trial mean's likelihood uses their AR(p) model instead (``noise_model``).
 1. **Global search** (the paper's GlobalSearch): differential evolution on the
    paper's cost, the RMS error of the trial mean, over the prior's plausible
    region (0.5% to 99.5% prior quantiles) of the model's free parameters.
@@ -59,7 +61,15 @@ import xarray as xr
 from scipy.optimize import differential_evolution, minimize
 
 from pmabayes.data import DataError, Dataset, check_same_input_kind
-from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, LikelihoodError
+from pmabayes.likelihood import (
+    NOISE_PARAMETERS,
+    JointLikelihood,
+    Likelihood,
+    LikelihoodError,
+    NoiseChoice,
+    check_noise_model_name,
+    choose_noise_model,
+)
 from pmabayes.model import Model, ModelError, Rig
 from pmabayes.parallel import Runner
 from pmabayes.posterior import (
@@ -773,6 +783,10 @@ def _fingerprint(posterior: Posterior, settings: FitSettings, seed) -> str:
         extra.update(rigs=[lik.model.rig.to_dict() for lik in liks],
                      names=posterior.experiment_names, groups=posterior.groups,
                      sampled_noise=list(posterior.names[posterior.n_model:]))
+    if any(lik.ar_noise is not None for lik in liks):
+        # chains of an AR(1) + white likelihood are not those of an AR(p) one
+        extra["noise_models"] = [None if lik.ar_noise is None
+                                 else lik.ar_noise.autocovariance_m2.tolist() for lik in liks]
     arrays = [a for lik in liks for a in (lik.dataset.position_m, lik.input)]
     return fingerprint(*arrays, extra)
 
@@ -839,6 +853,7 @@ def fit(
     restart: bool = False,
     substeps: int = 1,
     tie_noise: bool = False,
+    noise_model: str = "auto",
 ) -> xr.DataTree:
     """Identify a model's parameters from one or more experiments: MAP, then posterior.
 
@@ -875,6 +890,13 @@ def fit(
     tie_noise : bool
         One noise for all experiments (same sensor, same disturbance) instead of
         one per experiment.
+    noise_model : {"auto", "ar1", "ar"}
+        The noise model of the trial mean's likelihood where the noise comes from
+        repeats (:func:`pmabayes.likelihood.choose_noise_model`): ``"auto"`` keeps
+        AR(1) + white unless the repeats' deviations reject it (then their AR(p)
+        model), ``"ar1"`` always keeps it, ``"ar"`` always uses the AR(p). Records
+        without repeats keep the sampled AR(1) + white under its guard. The fit
+        file records each experiment's (``experiments[i]["noise_model"]``).
 
     Returns
     -------
@@ -895,11 +917,16 @@ def fit(
     start = time.perf_counter()
     settings = FitSettings() if settings is None else settings
     model = Model() if model is None else model
-    posterior = _posterior(model, datasets, substeps, tie_noise=tie_noise)
+    posterior = _posterior(model, datasets, substeps, tie_noise=tie_noise,
+                           noise_model=noise_model)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
     say = Progress("fit", settings.progress)
+    for name, lik, choice in zip(posterior.experiment_names, posterior.likelihoods,
+                                 posterior.noise_choices, strict=True):
+        if lik.n_repeats >= 2:
+            say.say(f"noise of {name}: {choice.describe()}")
     with _chains_folder(chains_dir) as folder:
         chains = _Chains(folder, settings.n_ensembles,
                          _fingerprint(posterior, settings, seed))
@@ -933,9 +960,15 @@ def fit(
     return tree
 
 
-def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False) -> Posterior:
-    """The posterior to sample: a likelihood per experiment, and each noise group's
-    estimate from its repeats (None where it has none: sampled with the model)."""
+def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False,
+               noise_model: str = "auto") -> Posterior:
+    """The posterior to sample: a likelihood per experiment, each noise group's
+    estimate from its repeats (None where it has none: sampled with the model), and
+    the noise model each group's repeats choose (``noise_model``)."""
+    try:
+        check_noise_model_name(noise_model)
+    except ValueError as err:
+        raise FitError(str(err)) from None
     datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
     if not datasets:
         raise FitError("no data: give at least one data set")
@@ -958,11 +991,21 @@ def _posterior(model: Model, datasets, substeps: int, *, tie_noise: bool = False
         check_trials(ds, warn=True)
     groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
     noises = []
+    choices: list[NoiseChoice | None] = [None] * len(liks)
     for g in range(max(groups) + 1):
         members = [lik for lik, gg in zip(liks, groups, strict=True) if gg == g]
-        noises.append(estimate_noise(members) if any(lik.n_repeats >= 2 for lik in members)
-                      else None)
-    return Posterior(liks, noises, names=names, noise_groups=groups)
+        est = (estimate_noise(members) if any(lik.n_repeats >= 2 for lik in members)
+               else None)
+        noises.append(est)
+        # the repeats test AR(1) + white; where they reject it the trial mean's
+        # likelihood uses their AR(p) (fixed, as the AR(1) noise from repeats is)
+        choice = (choose_noise_model(members, est.sigma, est.rho, est.white, noise_model)
+                  if est is not None else NoiseChoice(noise_model, None, math.nan))
+        for e, gg in enumerate(groups):
+            if gg == g:
+                liks[e].use_ar_noise(choice.ar)
+                choices[e] = choice
+    return Posterior(liks, noises, names=names, noise_groups=groups, noise_choices=choices)
 
 
 def _on_rig(model: Model, dataset: Dataset) -> Model:

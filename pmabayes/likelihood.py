@@ -85,9 +85,11 @@ same) and the quality check.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from scipy import signal
 
 from pmabayes.data import Dataset
 from pmabayes.model import Model
@@ -95,7 +97,10 @@ from pmabayes.parameters import LogNormal, Parameter, Uniform
 from pmabayes.simulator import simulate_dataset
 
 __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
-           "LikelihoodError", "ar1_noise", "measurement_noise"]
+           "LikelihoodError", "ar1_noise", "measurement_noise", "NOISE_MODELS", "LEVEL_ADEQUATE",
+           "MAX_AR_ORDER", "LJUNG_BOX_LAGS", "ljung_box_statistic", "levinson", "ArNoise",
+           "ar_noise_from_repeats", "NoiseChoice", "check_noise_model_name",
+           "ar1_whiteness_of_repeats", "choose_noise_model"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
@@ -438,6 +443,45 @@ class Likelihood:
             self._contrasts = np.zeros((0, self.n_samples))
             self._d = np.zeros((0, self.n_samples))
         self.motion_m = motion
+        self.ar_noise: ArNoise | None = None
+
+    # -- the noise model ----------------------------------------------------------
+    @property
+    def contrasts(self) -> np.ndarray:
+        """The repeats' Helmert contrasts ``(n_repeats - 1, length)``: series of the
+        noise alone (none for a record without repeats)."""
+        return self._contrasts
+
+    def use_ar_noise(self, ar: ArNoise | None) -> None:
+        """Use an AR(p) noise (from the repeats) instead of AR(1) + white, or go back.
+
+        With ``ar`` set, :meth:`mean_log_likelihood`, :meth:`log_likelihood` and
+        :meth:`pointwise` are exact AR(p) densities and ignore their ``sigma``,
+        ``rho`` and ``white`` (the noise is fixed); :meth:`deviation_log_likelihood`,
+        :meth:`whiten` and :meth:`innovations` stay AR(1) + white, which
+        :func:`pmabayes.fit.estimate_noise` and the noise check need.
+
+        Parameters
+        ----------
+        ar : ArNoise or None
+            None for AR(1) + white.
+        """
+        if ar is not None and not isinstance(ar, ArNoise):
+            raise TypeError(f"ar must be an ArNoise or None, got {type(ar).__name__}")
+        self.ar_noise = ar
+
+    @property
+    def noise_model_name(self) -> str:
+        """The noise model of the likelihood in words."""
+        return "AR(1) + white" if self.ar_noise is None else self.ar_noise.name
+
+    def _ar_loglik(self, y: np.ndarray, x: np.ndarray, scale: float) -> np.ndarray:
+        """The :class:`ArNoise` density of ``scale * (y[m] - x[b])``, ``(batch, series)``."""
+        ar = self.ar_noise
+        xt = np.ascontiguousarray(np.atleast_2d(x).T)  # the simulator's (n, batch): no copy
+        out = _ar_loglik_fixed_noise(np.ascontiguousarray(y), xt, scale, ar.coefficients,
+                                     ar.variances)
+        return np.ascontiguousarray(out.T)
 
     # -- the noise guard for records without repeats ----------------------------
     @property
@@ -545,7 +589,9 @@ class Likelihood:
 
         The density of ``sqrt(R) (ybar - x)``, one more series of the noise process
         and the orthonormal complement of the contrasts, so that it adds to
-        :meth:`deviation_log_likelihood` exactly.
+        :meth:`deviation_log_likelihood` exactly. Under AR(1) + white (a Kalman
+        filter), or under the AR(p) of the repeats once :meth:`use_ar_noise` set it
+        (then ``sigma``, ``rho`` and ``white`` are ignored).
 
         Parameters
         ----------
@@ -560,6 +606,8 @@ class Likelihood:
             ``(batch,)``.
         """
         x = np.atleast_2d(x)
+        if self.ar_noise is not None:
+            return self._ar_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials))[:, 0]
         pars = self._params(sigma, rho, white, x.shape[0])
         return _noise_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials), *pars)[:, 0]
 
@@ -587,6 +635,9 @@ class Likelihood:
         mean = self.mean_log_likelihood(x, sigma, rho, white)
         if self.noise_source != "trials":
             return mean
+        if self.ar_noise is not None:
+            zero = np.zeros((1, self.n_samples))
+            return self._ar_loglik(self._contrasts, zero, 1.0).sum(axis=1) + mean
         return self.deviation_log_likelihood(*self._params(sigma, rho, white, x.shape[0])) + mean
 
     def whiten(self, v: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
@@ -644,6 +695,8 @@ class Likelihood:
         numpy.ndarray
         """
         x = np.atleast_2d(x)
+        if self.ar_noise is not None:
+            return self._ar_loglik(self._trials, x, 1.0)
         pars = self._params(sigma, rho, white, x.shape[0])
         return _noise_loglik(self._trials, x, 1.0, *pars)
 
@@ -734,3 +787,488 @@ class JointLikelihood:
         """
         rel = self.rms_costs(x) / self.motions_m
         return self.motions_m.mean() * np.sqrt(np.mean(rel * rel, axis=1))
+
+
+# ---------------------------------------------------------------------------------
+# a higher-order noise model: AR(p) from the repeats
+
+#: Noise models a fit may use (:func:`choose_noise_model`): ``"auto"`` keeps AR(1) +
+#: white unless the repeats reject it, ``"ar1"`` always keeps it, ``"ar"`` always uses
+#: the AR(p) of the repeats.
+NOISE_MODELS: tuple[str, ...] = ("auto", "ar1", "ar")
+
+#: Level of the Ljung-Box tests of whiteness: of an adequate model's whitened residual
+#: (:mod:`pmabayes.residuals`), and of the repeats whitened by AR(1) + white
+#: (:func:`choose_noise_model`).
+LEVEL_ADEQUATE = 0.01
+
+#: Largest order of the autoregressive noise model fitted to the repeats
+#: (:func:`ar_noise_from_repeats`).
+MAX_AR_ORDER = 60
+
+#: Lags of the Ljung-Box statistic.
+LJUNG_BOX_LAGS = 25
+
+
+def ljung_box_statistic(e: np.ndarray, *, max_lag: int = LJUNG_BOX_LAGS) -> float:
+    """The Ljung-Box statistic ``n (n + 2) sum_k acf_k^2 / (n - k)``, ``k = 1..max_lag``.
+
+    Chi-squared with ``max_lag`` degrees of freedom for a white series
+    (:func:`pmabayes.residuals.ljung_box` adds its p-value).
+
+    Parameters
+    ----------
+    e : numpy.ndarray
+        The series.
+    max_lag : int
+        Number of lags.
+
+    Returns
+    -------
+    float
+    """
+    e = np.asarray(e, float)
+    n = e.size
+    a = (e - e.mean()) / e.std()
+    lags = np.arange(1, max_lag + 1)
+    acf = np.array([np.dot(a[k:n], a[0:n - k]) / n for k in lags])
+    return float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
+
+
+def levinson(acov: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Durbin-Levinson: predictor coefficients and innovation variances of orders 0..order.
+
+    Parameters
+    ----------
+    acov : numpy.ndarray
+        Autocovariance at lags ``0 .. order`` (at least).
+    order : int
+        Largest order.
+
+    Returns
+    -------
+    coefficients : numpy.ndarray
+        ``(order + 1, max(order, 1))``: row ``m`` holds the order-``m`` one-step
+        predictor's coefficients (of lags 1..m) in its first ``m`` entries.
+    variances : numpy.ndarray
+        ``(order + 1,)``: the one-step prediction variances of those orders.
+    """
+    phi = np.zeros((order + 1, max(order, 1)))
+    var = np.empty(order + 1)
+    var[0] = acov[0]
+    for m in range(1, order + 1):
+        prev = phi[m - 1, : m - 1]
+        k = (acov[m] - prev @ acov[m - 1:0:-1]) / var[m - 1]
+        phi[m, : m - 1] = prev - k * prev[::-1]
+        phi[m, m - 1] = k
+        var[m] = var[m - 1] * (1.0 - k * k)
+    return phi, var
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _ar_loglik_fixed_noise(y, xt, scale, phi, var):
+    """Exact Gaussian log-likelihood of ``scale * (y[m] - xt[:, b])`` under a stationary
+    AR(p) noise, ``(series, batch)``; ``xt`` is ``(n, batch)`` (the simulator's layout).
+
+    The innovations come from the Durbin-Levinson predictors of orders 0..p: the
+    order-``k`` one for sample ``k < p`` and the order-``p`` one after, so the density
+    is exact, not conditional on the first ``p`` samples. The batch is the inner loop,
+    so that its members' filters run side by side.
+    """
+    n = y.shape[1]
+    n_series = y.shape[0]
+    batch = xt.shape[1]
+    p = var.shape[0] - 1
+    out = np.zeros((n_series, batch))
+    const = 0.0
+    for k in range(n):
+        const += math.log(var[k if k < p else p])
+    v = np.empty((n, batch))
+    e = np.empty(batch)
+    for m in range(n_series):
+        acc = out[m]
+        for k in range(n):
+            y_mk = y[m, k]
+            x_k = xt[k]
+            v_k = v[k]
+            for b in range(batch):
+                v_k[b] = scale * (y_mk - x_k[b])
+        for k in range(n):
+            o = k if k < p else p
+            v_k = v[k]
+            for b in range(batch):
+                e[b] = v_k[b]
+            for j in range(o):
+                c = phi[o, j]
+                v_j = v[k - 1 - j]
+                for b in range(batch):
+                    e[b] -= c * v_j[b]
+            inv = 1.0 / var[o]
+            for b in range(batch):
+                acc[b] -= 0.5 * e[b] * e[b] * inv
+        for b in range(batch):
+            acc[b] -= 0.5 * (const + n * math.log(2.0 * math.pi))
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _ar_filter_draws(white, phi, var):
+    """Stationary AR(p) series from standard normal ``white`` ``(series, n)``, in place:
+    each sample is its Durbin-Levinson prediction from the past plus the innovation
+    (orders 0..p, as in :func:`_ar_loglik_fixed_noise`), so the series are exact draws."""
+    n_series, n = white.shape
+    p = var.shape[0] - 1
+    for m in range(n_series):
+        w = white[m]
+        for k in range(n):
+            o = k if k < p else p
+            pred = 0.0
+            for j in range(o):
+                pred += phi[o, j] * w[k - 1 - j]
+            w[k] = pred + math.sqrt(var[o]) * w[k]
+    return white
+
+
+@dataclass(frozen=True, eq=False)
+class ArNoise:
+    """A stationary AR(p) model of one trial's noise (disturbance and sensor together).
+
+    Defined by its autocovariance at lags ``0 .. order`` (from the repeats,
+    :func:`ar_noise_from_repeats`); its predictors of orders ``0 .. order`` and their
+    variances follow by :func:`levinson`, so the exact likelihood
+    (:meth:`Likelihood.mean_log_likelihood` once :meth:`Likelihood.use_ar_noise`), the
+    whitening (:meth:`whiten`) and the draws (:meth:`draw`) are exact from the first
+    sample.
+
+    Parameters
+    ----------
+    autocovariance_m2 : numpy.ndarray
+        Autocovariance at lags ``0 .. order``, in m^2.
+
+    Attributes
+    ----------
+    order : int
+    coefficients : numpy.ndarray
+        ``(order + 1, max(order, 1))``, Durbin-Levinson predictor coefficients (row
+        ``m``: order ``m``, first ``m`` entries).
+    variances : numpy.ndarray
+        ``(order + 1,)``, one-step prediction variances in m^2.
+    """
+
+    autocovariance_m2: np.ndarray
+    order: int = field(init=False)
+    coefficients: np.ndarray = field(init=False, repr=False)
+    variances: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        acov = np.ascontiguousarray(np.asarray(self.autocovariance_m2, dtype=float).reshape(-1))
+        if acov.size < 1 or not np.all(np.isfinite(acov)) or not acov[0] > 0:
+            raise ValueError(f"an AR noise needs a finite autocovariance with a positive "
+                             f"variance at lag 0, got {acov[:3]}...")
+        order = acov.size - 1
+        phi, var = levinson(acov, order)
+        if not np.all(var > 0):
+            raise ValueError("the autocovariance is not positive definite (a prediction "
+                             "variance is not positive); it cannot define an AR noise")
+        object.__setattr__(self, "autocovariance_m2", acov)
+        object.__setattr__(self, "order", order)
+        object.__setattr__(self, "coefficients", np.ascontiguousarray(phi))
+        object.__setattr__(self, "variances", np.ascontiguousarray(var))
+
+    @property
+    def name(self) -> str:
+        """The model in words, e.g. ``"AR(7) from the repeats"``."""
+        return f"AR({self.order}) from the repeats"
+
+    def autocovariance(self, n_lags: int) -> np.ndarray:
+        """The model's autocovariance at lags ``0 .. n_lags - 1`` (m^2).
+
+        Lags up to :attr:`order` are the defining ones; beyond, the AR recursion
+        extends them.
+
+        Parameters
+        ----------
+        n_lags : int
+
+        Returns
+        -------
+        numpy.ndarray
+        """
+        p = self.order
+        out = np.zeros(max(n_lags, p + 1))
+        out[: p + 1] = self.autocovariance_m2
+        a = self.coefficients[p, :p]
+        for k in range(p + 1, out.size):
+            out[k] = a @ out[k - 1:k - 1 - p:-1]  # lags k-1 .. k-p
+        return out[:n_lags]
+
+    def log_likelihood(self, v: np.ndarray) -> np.ndarray:
+        """Exact log density of series of this noise.
+
+        Parameters
+        ----------
+        v : numpy.ndarray
+            ``(n_samples,)`` or ``(series, n_samples)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(series,)``.
+        """
+        v = np.ascontiguousarray(np.atleast_2d(np.asarray(v, dtype=float)))
+        zero = np.zeros((v.shape[1], 1))
+        return _ar_loglik_fixed_noise(v, zero, 1.0, self.coefficients, self.variances)[:, 0]
+
+    def whiten(self, v: np.ndarray) -> np.ndarray:
+        """Exact standardised innovations of a series of one trial's noise.
+
+        Parameters
+        ----------
+        v : numpy.ndarray
+            ``(n_samples,)``, e.g. a Helmert contrast, or ``sqrt(R)`` times the
+            trial mean's residual.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_samples,)``; independent N(0, 1) when the AR model holds.
+        """
+        v = np.asarray(v, dtype=float).reshape(-1)
+        p = min(self.order, v.size)
+        out = np.empty(v.size)
+        for t in range(p):  # the start: predictors of growing order (Durbin-Levinson)
+            out[t] = (v[t] - self.coefficients[t, :t] @ v[t - 1::-1][:t]) / math.sqrt(
+                self.variances[t])
+        a = np.concatenate(([1.0], -self.coefficients[p, :p]))
+        out[p:] = signal.lfilter(a, [1.0], v)[p:] / math.sqrt(self.variances[p])
+        return out
+
+    def draw(self, n_series: int, n_samples: int, rng: np.random.Generator) -> np.ndarray:
+        """Draw stationary series of this noise, exact from the first sample.
+
+        Parameters
+        ----------
+        n_series, n_samples : int
+            Output shape.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(n_series, n_samples)``.
+        """
+        white = rng.standard_normal((n_series, n_samples))
+        return _ar_filter_draws(white, self.coefficients, self.variances)
+
+    def to_dict(self) -> dict:
+        """JSON-ready record: ``model``, ``order``, ``coefficients`` (the order-p
+        predictor's), ``innovation_std_m`` and ``autocovariance_m2`` (what defines it,
+        :meth:`from_dict`)."""
+        return {"model": self.name, "order": self.order,
+                "coefficients": [float(c) for c in self.coefficients[self.order, : self.order]],
+                "innovation_std_m": float(math.sqrt(self.variances[self.order])),
+                "autocovariance_m2": [float(c) for c in self.autocovariance_m2]}
+
+    @classmethod
+    def from_dict(cls, record: dict) -> ArNoise:
+        """Rebuild from :meth:`to_dict`'s record (its ``autocovariance_m2``).
+
+        Parameters
+        ----------
+        record : dict
+
+        Returns
+        -------
+        ArNoise
+        """
+        return cls(np.asarray(record["autocovariance_m2"], dtype=float))
+
+
+def ar_noise_from_repeats(contrasts, *, max_order: int = MAX_AR_ORDER) -> ArNoise:
+    """The AR model of one trial's noise from the repeats' contrasts (model-free).
+
+    Yule-Walker: the autocovariance of the Helmert contrasts (series of the noise
+    alone), pooled over them, then the order by AIC from 1 up to ``max_order``
+    (at most a tenth of the shortest series).
+
+    Parameters
+    ----------
+    contrasts : numpy.ndarray or sequence of them
+        ``(n_contrasts, n_samples)`` (:attr:`Likelihood.contrasts`), or several such
+        arrays (experiments that share their noise) pooled together.
+    max_order : int
+        Largest order tried.
+
+    Returns
+    -------
+    ArNoise
+    """
+    arrays = [np.asarray(contrasts, dtype=float)] if isinstance(contrasts, np.ndarray) else [
+        np.asarray(c, dtype=float) for c in contrasts]
+    arrays = [c for c in arrays if c.shape[0] > 0]
+    if not arrays:
+        raise ValueError("no repeats: an AR noise is estimated from two or more repeats")
+    n_min = min(c.shape[1] for c in arrays)
+    order_max = int(max(1, min(max_order, n_min // 10)))
+    raw = 0.0
+    for c in arrays:
+        n = c.shape[1]
+        spec = np.fft.rfft(c, n=2 * n, axis=1)
+        raw = raw + np.fft.irfft(np.sum(np.abs(spec) ** 2, axis=0), axis=0)[: order_max + 1]
+    n_eff = sum(c.shape[0] * c.shape[1] for c in arrays)
+    acov = raw / n_eff
+    _, var = levinson(acov, order_max)
+    aic = n_eff * np.log(np.maximum(var, 1e-300)) + 2.0 * np.arange(order_max + 1)
+    order = int(np.argmin(aic[1:]) + 1)
+    return ArNoise(acov[: order + 1])
+
+
+@dataclass(frozen=True)
+class NoiseChoice:
+    """Which noise model an experiment's likelihood uses, and why (:func:`choose_noise_model`).
+
+    Parameters
+    ----------
+    requested : str
+        ``"auto"``, ``"ar1"`` or ``"ar"`` (:data:`NOISE_MODELS`).
+    ar : ArNoise or None
+        The AR model of the repeats the trial-mean likelihood uses, or None for AR(1)
+        + white.
+    ljung_box_p : float
+        Pooled Ljung-Box p-value of the repeats' contrasts whitened by AR(1) + white
+        (NaN without repeats, or when not tested).
+    level : float
+        The test's level.
+    """
+
+    requested: str
+    ar: ArNoise | None
+    ljung_box_p: float
+    level: float = LEVEL_ADEQUATE
+
+    @property
+    def name(self) -> str:
+        """The noise model in words."""
+        return "AR(1) + white" if self.ar is None else self.ar.name
+
+    def describe(self) -> str:
+        """One sentence for the progress line and reports."""
+        tested = (f"Ljung-Box of the repeats whitened by AR(1) + white p = "
+                  f"{self.ljung_box_p:.2g}" if math.isfinite(self.ljung_box_p) else "")
+        if self.ar is None:
+            if self.requested == "ar1":
+                return "AR(1) + white (as asked" + (f"; {tested})" if tested else ")")
+            if not tested:
+                return "AR(1) + white (no repeats to test it on)"
+            return f"AR(1) + white: the repeats accept it ({tested})"
+        if self.requested == "ar":
+            return f"{self.ar.name}, as asked" + (f" ({tested})" if tested else "")
+        return f"{self.ar.name}: the repeats reject AR(1) + white ({tested})"
+
+    def to_dict(self) -> dict:
+        """JSON-ready record: ``model``, ``requested``, ``ljung_box_p``, ``level``, and
+        for an AR model its :meth:`ArNoise.to_dict` (``order``, ``coefficients``, ...)."""
+        out = {"model": self.name, "requested": self.requested,
+               "ljung_box_p": self.ljung_box_p if math.isfinite(self.ljung_box_p) else None,
+               "level": self.level, "order": 1}
+        if self.ar is not None:
+            out.update(self.ar.to_dict())
+        return out
+
+
+def check_noise_model_name(noise_model: str) -> str:
+    """``noise_model`` if it is one of :data:`NOISE_MODELS`, else a clear error.
+
+    Parameters
+    ----------
+    noise_model : str
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ValueError
+        Naming the allowed values.
+    """
+    if not isinstance(noise_model, str) or noise_model not in NOISE_MODELS:
+        raise ValueError(f"noise_model must be one of {', '.join(map(repr, NOISE_MODELS))}, "
+                         f"got {noise_model!r}: 'auto' tests AR(1) + white on the repeats and "
+                         "uses their AR(p) when it is rejected")
+    return noise_model
+
+
+def ar1_whiteness_of_repeats(likelihoods, sigma: float, rho: float, white: float
+                             ) -> tuple[float, float, list[np.ndarray]]:
+    """Whiten the repeats' contrasts by AR(1) + white and test them (pooled Ljung-Box).
+
+    Parameters
+    ----------
+    likelihoods : Likelihood or sequence of Likelihood
+        Experiments sharing the noise (only those with repeats count).
+    sigma, rho, white : float
+        The AR(1) + white noise (from the repeats, :func:`pmabayes.fit.estimate_noise`).
+
+    Returns
+    -------
+    ljung_box_p : float
+        Pooled over the contrasts (:data:`LJUNG_BOX_LAGS` lags each); NaN without
+        repeats.
+    energy : float
+        Mean square of the whitened contrasts.
+    innovations : list of numpy.ndarray
+        The whitened contrasts.
+    """
+    from scipy import stats
+
+    liks = [likelihoods] if isinstance(likelihoods, Likelihood) else list(likelihoods)
+    innov = []
+    for lik in liks:
+        # whiten() takes the trial mean's residual and scales it by sqrt(R)
+        innov += [lik.whiten(c / math.sqrt(lik.n_trials), sigma, rho, white)
+                  for c in lik.contrasts]
+    if not innov:
+        return math.nan, math.nan, innov
+    q = sum(ljung_box_statistic(e) for e in innov)
+    p = float(stats.chi2.sf(q, LJUNG_BOX_LAGS * len(innov)))
+    return p, float(np.mean(np.square(innov))), innov
+
+
+def choose_noise_model(likelihoods, sigma: float, rho: float, white: float,
+                       noise_model: str = "auto", *, level: float = LEVEL_ADEQUATE,
+                       max_order: int = MAX_AR_ORDER) -> NoiseChoice:
+    """The noise model of experiments whose noise comes from repeats.
+
+    ``"auto"``: AR(1) + white unless the repeats' contrasts whitened by it fail a
+    pooled Ljung-Box test at ``level`` (:func:`ar1_whiteness_of_repeats`); then the
+    AR(p) of the repeats (:func:`ar_noise_from_repeats`). ``"ar1"`` and ``"ar"`` force
+    one or the other. Without repeats the choice is AR(1) + white.
+
+    Parameters
+    ----------
+    likelihoods : Likelihood or sequence of Likelihood
+        Experiments that share the noise.
+    sigma, rho, white : float
+        Their AR(1) + white noise from the repeats.
+    noise_model : str
+        One of :data:`NOISE_MODELS`.
+    level : float
+        Level of the test.
+    max_order : int
+        Largest AR order tried.
+
+    Returns
+    -------
+    NoiseChoice
+    """
+    check_noise_model_name(noise_model)
+    liks = [likelihoods] if isinstance(likelihoods, Likelihood) else list(likelihoods)
+    contrasts = [lik.contrasts for lik in liks if lik.contrasts.shape[0] > 0]
+    if not contrasts:
+        return NoiseChoice(noise_model, None, math.nan, level)
+    p = ar1_whiteness_of_repeats(liks, sigma, rho, white)[0]
+    if noise_model == "ar1" or (noise_model == "auto" and p >= level):
+        return NoiseChoice(noise_model, None, p, level)
+    return NoiseChoice(noise_model, ar_noise_from_repeats(contrasts, max_order=max_order),
+                       p, level)

@@ -38,8 +38,17 @@ root attribute ``pmabayes``
     experiment too (:func:`experiment_records`: ``name``, ``source``, ``rig``,
     ``n_trials``, ``n_samples``, ``input_name``, ``input_between_samples``,
     ``period_samples``, ``starts_in_steady_state``, ``noise`` ``"own"`` or
-    ``"tied"``, ``noise_source``, ``noise_estimate``, ``noise_floor_m``,
-    ``rms_cost_m``, ``metadata``).
+    ``"tied"``, ``noise_source``, ``noise_estimate``, ``noise_model``,
+    ``noise_floor_m``, ``rms_cost_m``, ``metadata``). ``noise_model`` says which
+    noise model the experiment's likelihood used
+    (:meth:`pmabayes.likelihood.NoiseChoice.to_dict`): ``model`` in words
+    (``"AR(1) + white"`` or ``"AR(p) from the repeats"``), ``requested``,
+    ``ljung_box_p`` (the repeats' test of AR(1) + white), ``order``, and for an
+    AR(p) its ``coefficients``, ``innovation_std_m`` and the ``autocovariance_m2``
+    that defines it (:func:`noise_models` rebuilds it). With an AR(p), the noise
+    parameters in ``/posterior`` are still the AR(1) + white estimate from the
+    repeats (reported, not used by the likelihood), and ``/posterior_predictive``
+    and ``/log_likelihood`` use the AR(p).
 
 A fit of one experiment has exactly the layout above, whatever its noise source.
 For a record without repeats the noise parameters in ``/posterior`` are sampled
@@ -87,13 +96,20 @@ import xarray as xr
 
 from pmabayes import __version__
 from pmabayes.data import DataError, Dataset
-from pmabayes.likelihood import NOISE_PARAMETERS, JointLikelihood, Likelihood, measurement_noise
+from pmabayes.likelihood import (
+    NOISE_PARAMETERS,
+    ArNoise,
+    JointLikelihood,
+    Likelihood,
+    NoiseChoice,
+    measurement_noise,
+)
 from pmabayes.model import PAPER_VALUES, Model, Rig
 from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior, parse_prior
 
 __all__ = ["Posterior", "NoiseEstimate", "fit_tree", "set_fit_info", "save_fit", "load_fit",
            "fit_info", "model_from_fit", "check_dataset", "FitFileError", "experiment_records",
-           "experiment_names", "experiment_datasets", "experiment_models"]
+           "experiment_names", "experiment_datasets", "experiment_models", "noise_models"]
 
 
 # ---------------------------------------------------------------------------------
@@ -160,6 +176,10 @@ class Posterior:
     noise_groups : sequence of int, optional
         The noise group of each experiment: experiments of one group share their
         noise (``tie_noise``). Each its own by default.
+    noise_choices : sequence of NoiseChoice, optional
+        Per experiment, the noise model its likelihood uses and why
+        (:func:`pmabayes.likelihood.choose_noise_model`; the likelihoods already
+        use it), for the fit file. AR(1) + white, untested, by default.
 
     Attributes
     ----------
@@ -173,7 +193,8 @@ class Posterior:
         The one experiment's, or all of them seen as one (for the global search).
     """
 
-    def __init__(self, likelihood, noise, *, names=None, noise_groups=None) -> None:
+    def __init__(self, likelihood, noise, *, names=None, noise_groups=None,
+                 noise_choices=None) -> None:
         liks = [likelihood] if isinstance(likelihood, Likelihood) else list(likelihood)
         if not liks:
             raise ValueError("a posterior needs at least one experiment")
@@ -191,6 +212,10 @@ class Posterior:
                              f"entry per group, got {len(self.group_noise)}")
         self.likelihood = (liks[0] if len(liks) == 1
                            else JointLikelihood(liks, self.experiment_names))
+        self.noise_choices: list[NoiseChoice] = [
+            c if c is not None else NoiseChoice("ar1" if lik.ar_noise is None else "ar",
+                                                lik.ar_noise, math.nan)
+            for c, lik in zip(noise_choices or [None] * len(liks), liks, strict=True)]
         self.noise = self.group_noise[0]
         self.model = liks[0].model
         model = self.model
@@ -557,9 +582,12 @@ def _predictive(posterior: Posterior, e: int, theta, sigma, rho, white, pick: np
     sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
                          for v in (sigma, rho, white))
     x_pp = lik.simulate(posterior.full_theta(theta[pick]))
-    noise = measurement_noise(len(pick) * lik.n_trials, lik.n_samples,
-                              *(np.repeat(v[pick], lik.n_trials) for v in (sigma, rho, white)),
-                              rng)
+    if lik.ar_noise is not None:  # the likelihood's own noise model: the repeats' AR(p)
+        noise = lik.ar_noise.draw(len(pick) * lik.n_trials, lik.n_samples, rng)
+    else:
+        noise = measurement_noise(len(pick) * lik.n_trials, lik.n_samples,
+                                  *(np.repeat(v[pick], lik.n_trials)
+                                    for v in (sigma, rho, white)), rng)
     y_pp = x_pp[:, None, :] + noise.reshape(len(pick), lik.n_trials, lik.n_samples)
     return y_pp, x_pp
 
@@ -616,8 +644,11 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
             ("record", "the record itself, jointly with the model (sampled), the disturbance's "
                        "correlation time bounded far below the input's time scales"))
         if key in sources)
-    noise = {"model": "AR(1) disturbance plus white sensor noise per trial, stationary, "
-                      "independent between trials",
+    noise = {"model": ("AR(1) disturbance plus white sensor noise per trial, stationary, "
+                       "independent between trials"
+                       + ("" if all(c.ar is None for c in posterior.noise_choices) else
+                          "; where the repeats reject it, the likelihood uses their AR(p) "
+                          "model (experiments[i].noise_model)")),
              "parameters": [p.name for p in NOISE_PARAMETERS],
              "estimated_from": estimated_from, **noise_map}
     if posterior.n_experiments == 1:
@@ -683,7 +714,8 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``n_samples``, ``dt_s``, ``input_name``, ``input_between_samples``,
         ``period_samples``, ``starts_in_steady_state``, ``noise`` (``"own"`` or
         ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
-        ``"record"``), ``noise_estimate`` (the noise's mode), ``rms_cost_m``
+        ``"record"``), ``noise_estimate`` (the noise's mode), ``noise_model``
+        (:meth:`pmabayes.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
         ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
         ``metadata`` (the data set's, to rebuild it).
@@ -714,7 +746,8 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "period_samples": ds.period_samples,
             "starts_in_steady_state": ds.starts_in_steady_state,
             "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
-            "noise_estimate": est, "noise_floor_m": _finite_or_none(ds.noise_floor_m),
+            "noise_estimate": est, "noise_model": posterior.noise_choices[e].to_dict(),
+            "noise_floor_m": _finite_or_none(ds.noise_floor_m),
             "rms_cost_m": (None if theta is None
                            else _finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
@@ -819,6 +852,27 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
         out.append(Model(list(base.effect_names),
                          rig=Rig.from_dict(rig) if isinstance(rig, dict) else base.rig,
                          priors=priors or None, fixed=dict(base.fixed) or None))
+    return out
+
+
+def noise_models(tree: xr.DataTree) -> list[ArNoise | None]:
+    """The noise model each experiment's likelihood used, rebuilt from a fit.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    list of ArNoise or None
+        In the fit's experiment order: the AR(p) of the repeats, or None for AR(1)
+        + white (and for fits written before noise models were recorded).
+    """
+    out = []
+    for exp in _experiments_of(tree):
+        rec = exp.get("noise_model") or {}
+        out.append(ArNoise.from_dict(rec) if rec.get("autocovariance_m2") else None)
     return out
 
 

@@ -39,7 +39,17 @@ import numpy as np
 from scipy import signal, stats
 
 from pmabayes.data import Dataset
-from pmabayes.likelihood import Likelihood, _noise_repeats
+from pmabayes.likelihood import (
+    LEVEL_ADEQUATE,
+    LJUNG_BOX_LAGS,
+    MAX_AR_ORDER,
+    ArNoise,
+    Likelihood,
+    _noise_repeats,
+    ar1_whiteness_of_repeats,
+    ar_noise_from_repeats,
+    ljung_box_statistic,
+)
 
 __all__ = [
     "DEFAULT_BANDS_HZ",
@@ -88,8 +98,9 @@ DEFAULT_BANDS_HZ: tuple[tuple[float, float], ...] = (
 #: about a third of the noise level.
 ENERGY_TOLERANCE = 0.1
 
-#: Level of the Ljung-Box test of an adequate model's whitened residual.
-LEVEL_ADEQUATE = 0.01
+# LEVEL_ADEQUATE (the level of the Ljung-Box test of an adequate model's whitened
+# residual) and MAX_AR_ORDER live with the noise model, in pmabayes.likelihood, whose
+# choice of noise model for the sampler uses them too.
 
 
 def instantaneous_frequency(dataset: Dataset) -> np.ndarray:
@@ -537,10 +548,7 @@ def ljung_box(e: np.ndarray, *, max_lag: int = 25) -> tuple[float, float]:
         of freedom for a white series.
     p_value : float
     """
-    e = np.asarray(e, float)
-    n = e.size
-    lags, acf, _ = autocorrelation(e, max_lag=max_lag)
-    q = float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
+    q = ljung_box_statistic(e, max_lag=max_lag)
     return q, float(stats.chi2.sf(q, max_lag))
 
 
@@ -736,29 +744,6 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
     )
 
 
-#: Largest order of the autoregressive noise model fitted to the deviations between
-#: trials when AR(1) + white does not whiten them (:func:`check_noise_model`).
-MAX_AR_ORDER = 60
-
-
-def _levinson(acov: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Durbin-Levinson: predictor coefficients and innovation variances of orders 0..order.
-
-    Row ``m`` of the first output holds the order-``m`` coefficients in its first
-    ``m`` entries.
-    """
-    phi = np.zeros((order + 1, max(order, 1)))
-    var = np.empty(order + 1)
-    var[0] = acov[0]
-    for m in range(1, order + 1):
-        prev = phi[m - 1, : m - 1]
-        k = (acov[m] - prev @ acov[m - 1:0:-1]) / var[m - 1]
-        phi[m, : m - 1] = prev - k * prev[::-1]
-        phi[m, m - 1] = k
-        var[m] = var[m - 1] * (1.0 - k * k)
-    return phi, var
-
-
 @dataclass(frozen=True)
 class NoiseModelCheck:
     """Does AR(1) + white describe the trial-to-trial noise? Result of :func:`check_noise_model`.
@@ -802,6 +787,10 @@ class NoiseModelCheck:
         Samples in all the contrasts (0 without repeats: nothing tested).
     level : float
         Level of the test.
+    ar : pmabayes.likelihood.ArNoise or None
+        The AR model of the repeats itself (None without repeats): what
+        :meth:`whiten_series` whitens with, and what a fit's likelihood uses when
+        the repeats reject AR(1) + white (:func:`pmabayes.likelihood.choose_noise_model`).
     """
 
     ljung_box_p: float
@@ -816,6 +805,7 @@ class NoiseModelCheck:
     reference_energy: float
     reference_samples: int
     level: float = LEVEL_ADEQUATE
+    ar: ArNoise | None = None
 
     @property
     def noise_model(self) -> str:
@@ -836,15 +826,7 @@ class NoiseModelCheck:
         numpy.ndarray
             ``(n_samples,)``; independent N(0, 1) when the AR model holds.
         """
-        v = np.asarray(v, dtype=float).reshape(-1)
-        p = min(self.ar_order, v.size)
-        out = np.empty(v.size)
-        for t in range(p):  # the start: predictors of growing order (Durbin-Levinson)
-            out[t] = (v[t] - self.coefficients[t, :t] @ v[t - 1::-1][:t]) / math.sqrt(
-                self.variances[t])
-        a = np.concatenate(([1.0], -self.coefficients[p, :p]))
-        out[p:] = signal.lfilter(a, [1.0], v)[p:] / math.sqrt(self.variances[p])
-        return out
+        return self.ar.whiten(v)
 
     def whiten_residual(self, residual_m: np.ndarray) -> np.ndarray:
         """The trial mean's residual whitened by the AR model of the repeats.
@@ -901,8 +883,8 @@ class NoiseModelCheck:
                 f"(Ljung-Box {_p_text(self.ljung_box_p)}): the disturbance has more "
                 f"structure (several time scales, vibration, drift). The adequacy verdict "
                 f"whitens with an AR({self.ar_order}) model of the repeats instead (its "
-                f"Ljung-Box {_p_text(self.ar_ljung_box_p)}); the sampler's likelihood is "
-                "still AR(1) + white, so its intervals may be too narrow.")
+                f"Ljung-Box {_p_text(self.ar_ljung_box_p)}), and so does the sampler's "
+                "likelihood (pmabayes fit --noise-model auto, the default).")
 
     def to_dict(self) -> dict:
         """JSON-ready values."""
@@ -911,7 +893,7 @@ class NoiseModelCheck:
                 "ar_ljung_box_p": self.ar_ljung_box_p, "level": self.level}
 
 
-def _pooled_ljung_box(series: list, max_lag: int = 25) -> float:
+def _pooled_ljung_box(series: list, max_lag: int = LJUNG_BOX_LAGS) -> float:
     q = sum(ljung_box(e, max_lag=max_lag)[0] for e in series)
     return float(stats.chi2.sf(q, max_lag * len(series)))
 
@@ -945,33 +927,24 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
     -------
     NoiseModelCheck
     """
-    contrasts = np.asarray(likelihood._contrasts, dtype=float)
+    contrasts = np.asarray(likelihood.contrasts, dtype=float)
     r = likelihood.n_trials
     if contrasts.shape[0] == 0:  # a single record without periods: nothing to test on
         return NoiseModelCheck(ljung_box_p=math.nan, energy=math.nan, adequate=True, ar_order=0,
                                ar_ljung_box_p=math.nan, coefficients=np.zeros((1, 1)),
-                               variances=np.ones(1), n_trials=r, reference_acf=np.zeros(25),
-                               reference_energy=1.0, reference_samples=0, level=level)
-    n = contrasts.shape[1]
-    # whiten() takes the trial mean's residual and scales it by sqrt(R)
-    innov = [likelihood.whiten(c / math.sqrt(r), noise.sigma, noise.rho, noise.white)
-             for c in contrasts]
-    lb_p = _pooled_ljung_box(innov)
-    energy = float(np.mean(np.square(innov)))
-    # Yule-Walker on the contrasts, pooled: the autocovariance of one trial's noise
-    order_max = int(max(1, min(max_order, n // 10)))
-    spec = np.fft.rfft(contrasts, n=2 * n, axis=1)
-    acov = np.fft.irfft(np.sum(np.abs(spec) ** 2, axis=0), axis=0)[: order_max + 1] / (
-        contrasts.shape[0] * n)
-    phi, var = _levinson(acov, order_max)
-    n_eff = contrasts.shape[0] * n
-    aic = n_eff * np.log(np.maximum(var, 1e-300)) + 2.0 * np.arange(order_max + 1)
-    order = int(np.argmin(aic[1:]) + 1)
+                               variances=np.ones(1), n_trials=r,
+                               reference_acf=np.zeros(LJUNG_BOX_LAGS), reference_energy=1.0,
+                               reference_samples=0, level=level)
+    # the test and the AR model are the sampler's own (pmabayes.likelihood), so that the
+    # verdict and the intervals judge with the same noise model
+    lb_p, energy, _ = ar1_whiteness_of_repeats(likelihood, noise.sigma, noise.rho, noise.white)
+    ar = ar_noise_from_repeats(contrasts, max_order=max_order)
     check = NoiseModelCheck(ljung_box_p=lb_p, energy=energy, adequate=bool(lb_p >= level),
-                            ar_order=order, ar_ljung_box_p=math.nan,
-                            coefficients=phi[: order + 1, :order], variances=var[: order + 1],
-                            n_trials=r, reference_acf=np.zeros(25), reference_energy=1.0,
-                            reference_samples=int(contrasts.size), level=level)
+                            ar_order=ar.order, ar_ljung_box_p=math.nan,
+                            coefficients=ar.coefficients, variances=ar.variances,
+                            n_trials=r, reference_acf=np.zeros(LJUNG_BOX_LAGS),
+                            reference_energy=1.0, reference_samples=int(contrasts.size),
+                            level=level, ar=ar)
     white = [check.whiten_series(c) for c in contrasts]
     pooled = np.mean([autocorrelation(w, max_lag=25)[1] for w in white], axis=0)
     return NoiseModelCheck(**{**check.__dict__, "ar_ljung_box_p": _pooled_ljung_box(white),

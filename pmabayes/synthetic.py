@@ -141,7 +141,10 @@ class MeasurementNoise:
     Ornstein-Uhlenbeck) process with standard deviation ``disturbance_std_m`` and
     correlation time ``disturbance_corr_time_s``: it stands for what changes from
     one repetition to the next (supply pressure, temperature, the braid settling).
-    The encoder then reports ``counts_per_m``-quantised ``x + e``.
+    A second, independent AR(1) component of another time scale
+    (``slow_std_m``, ``slow_corr_time_s``) makes a disturbance of two time scales,
+    which the likelihood's AR(1) + white noise model does not describe (off by
+    default). The encoder then reports ``counts_per_m``-quantised ``x + e``.
 
     Parameters
     ----------
@@ -152,11 +155,18 @@ class MeasurementNoise:
         ``exp(-dt / corr_time)``.
     encoder_counts_per_m : float or None
         Encoder resolution; None for no quantisation.
+    slow_std_m : float
+        Standard deviation of the disturbance's second component; 0 (the default)
+        for a disturbance of one time scale.
+    slow_corr_time_s : float
+        Correlation time of the second component.
     """
 
     disturbance_std_m: float = 60e-6
     disturbance_corr_time_s: float = 0.1
     encoder_counts_per_m: float | None = ENCODER_COUNTS_PER_M
+    slow_std_m: float = 0.0
+    slow_corr_time_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.disturbance_std_m < 0:
@@ -167,11 +177,20 @@ class MeasurementNoise:
             )
         if self.encoder_counts_per_m is not None and not self.encoder_counts_per_m > 0:
             raise DataError(f"encoder_counts_per_m must be > 0, got {self.encoder_counts_per_m}")
+        if not self.slow_std_m >= 0:
+            raise DataError(f"slow_std_m must be >= 0, got {self.slow_std_m}")
+        if not self.slow_corr_time_s > 0:
+            raise DataError(f"slow_corr_time_s must be > 0, got {self.slow_corr_time_s}")
 
     def disturbance(self, n_trials: int, n_samples: int, dt_s: float, rng: np.random.Generator):
-        """Draw ``(n_trials, n_samples)`` stationary AR(1) disturbances."""
+        """Draw ``(n_trials, n_samples)`` stationary disturbances: AR(1), plus the
+        second time scale's AR(1) when ``slow_std_m > 0`` (drawn after the first)."""
         phi = math.exp(-dt_s / self.disturbance_corr_time_s)
-        return ar1_noise(n_trials, n_samples, self.disturbance_std_m, phi, rng)
+        e = ar1_noise(n_trials, n_samples, self.disturbance_std_m, phi, rng)
+        if self.slow_std_m > 0:
+            phi_slow = math.exp(-dt_s / self.slow_corr_time_s)
+            e += ar1_noise(n_trials, n_samples, self.slow_std_m, phi_slow, rng)
+        return e
 
     def apply(self, position_m: np.ndarray, dt_s: float, rng: np.random.Generator) -> np.ndarray:
         """Measure ``position_m`` (``(n_trials, n_samples)``): disturb, then quantise."""

@@ -62,7 +62,7 @@ from pmabayes.data import DataError, Dataset, DataWarning, load
 from pmabayes.effects import EffectError
 from pmabayes.likelihood import measurement_noise
 from pmabayes.model import Model, ModelError, Rig
-from pmabayes.posterior import check_dataset, fit_info, load_fit, model_from_fit
+from pmabayes.posterior import check_dataset, fit_info, load_fit, model_from_fit, noise_models
 from pmabayes.residuals import band_errors
 from pmabayes.simulator import simulate_dataset
 
@@ -339,6 +339,8 @@ class _FitDraws:
     dt_s: float | None   # the fit's sample interval (single-experiment fits)
     source: str | None
     n_total: int
+    # the noise model of each fitted experiment: the repeats' AR(p), or None (AR(1) + white)
+    noise_models: list = field(default_factory=list)
 
 
 def _flat(da: xr.DataArray, name: str, where: str) -> np.ndarray:
@@ -422,7 +424,7 @@ def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
     return _FitDraws(
         effects=fitted.effects, fixed=dict(fitted.fixed),
         input_kind=input_kind, draws=draws, noise=noise, experiments=experiments,
-        dt_s=dt_s, source=data.get("source"), n_total=n_total)
+        dt_s=dt_s, source=data.get("source"), n_total=n_total, noise_models=noise_models(tree))
 
 
 # ----------------------------------------------------------------------------- checks
@@ -502,13 +504,36 @@ def _noise_columns(fit: _FitDraws, rig: Rig, noise_from: str | None
 def _noise_draws(fit: _FitDraws, pick: np.ndarray, columns: list[int] | None,
                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                     float | None]:
-    """The noise parameters paired with the chosen draws, and their sample interval."""
+    """The noise parameters paired with the chosen draws, their sample interval, and the
+    fitted experiment each draw's noise comes from."""
     if columns is None:
-        return (*(fit.noise[n][pick] for n in NOISE_NAMES), fit.dt_s)
+        return (*(fit.noise[n][pick] for n in NOISE_NAMES), fit.dt_s,
+                np.zeros(pick.size, dtype=int))
     col = np.asarray(columns)[rng.integers(len(columns), size=pick.size)]
     dts = {fit.experiments[c]["dt_s"] for c in columns}
     dt = dts.pop() if len(dts) == 1 else None
-    return (*(fit.noise[n][pick, col] for n in NOISE_NAMES), dt)
+    return (*(fit.noise[n][pick, col] for n in NOISE_NAMES), dt, col)
+
+
+def _ar_noise(y: np.ndarray, col: np.ndarray, k: int, fit: _FitDraws, same_rate: bool,
+              rng: np.random.Generator, notes: list) -> None:
+    """Redraw, in place, the noise of the draws whose fitted experiment used the
+    repeats' AR(p) noise model (``y``: ``(draws * k, n)``), as its likelihood did."""
+    used = sorted({int(c) for c in col if c < len(fit.noise_models)
+                   and fit.noise_models[int(c)] is not None})
+    if not used:
+        return
+    if not same_rate:  # an AR(p) per sample does not rescale to another rate
+        notes.append("the fit's AR(p) noise model (from the repeats) is per sample at the "
+                     "fit's rate; at this data set's rate the band uses its AR(1) + white "
+                     "estimate instead")
+        return
+    for c in used:
+        ar = fit.noise_models[c]
+        rows = np.flatnonzero(np.repeat(col == c, k))
+        y[rows] = ar.draw(rows.size, y.shape[1], rng)
+    notes.append("the predictive noise is the fit's " + ", ".join(
+        sorted({fit.noise_models[c].name for c in used})) + ", as its likelihood used")
 
 
 # ----------------------------------------------------------------------------- validate
@@ -538,7 +563,7 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
     pick = rng.choice(fit.n_total, size=min(n_draws, fit.n_total), replace=False)
     theta = model.theta({n: _flat(fit.draws[n], n, where)[pick] for n in model.free_names})
     x = simulate_dataset(model, theta, ds, substeps=substeps)
-    sigma, rho, white, fit_dt = _noise_draws(fit, pick, columns, rng)
+    sigma, rho, white, fit_dt, col = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
     ok = np.all(np.isfinite(x), axis=1)
     if not ok.any():
@@ -549,7 +574,7 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                       "non-finite positions on this input and are left out of the bands",
                       DataWarning, stacklevel=3)
         notes.append(f"{int((~ok).sum())} of {pick.size} draws failed to simulate (left out)")
-        x, sigma, rho, white = x[ok], sigma[ok], rho[ok], white[ok]
+        x, sigma, rho, white, col = x[ok], sigma[ok], rho[ok], white[ok], col[ok]
     if fit_dt is not None and abs(ds.dt_s - fit_dt) > 1e-9 * fit_dt:
         ratio = ds.dt_s / fit_dt
         rho = np.sign(rho) * np.abs(rho) ** ratio
@@ -563,6 +588,8 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
     n = ds.n_samples
     y = measurement_noise(x.shape[0] * k, n, *(np.repeat(v, k) for v in (sigma, rho, white)),
                           rng)
+    _ar_noise(y, col, k, fit, fit_dt is not None and abs(ds.dt_s - fit_dt) <= 1e-9 * fit_dt,
+              rng, notes)
     y.reshape(x.shape[0], k, n)[...] += x[:, None, :]
     q = (1.0 - ci_prob) / 2.0
     low, high = np.quantile(y, [q, 1.0 - q], axis=0)
