@@ -1,4 +1,4 @@
-"""The likelihood of an experiment's trials under a model and an AR(1) noise model.
+"""The likelihood of an experiment's trials under a model and a noise model.
 
 Noise model
 -----------
@@ -72,6 +72,21 @@ A record without repeated trials (:attr:`Likelihood.noise_source`):
   then judges the model. The price: a disturbance that really is slow cannot be
   told from model error in one record, and is not modelled; repeat the record, or
   make it periodic.
+
+When the repeats reject AR(1) + white: AR(p)
+--------------------------------------------
+Real disturbances often have more structure (two time scales, vibration). The
+repeats show it without any model: their Helmert contrasts, whitened by the AR(1) +
+white noise, must be white (a pooled Ljung-Box test at :data:`LEVEL_ADEQUATE`,
+:func:`ar1_whiteness_of_repeats`). Where they are not, :func:`choose_noise_model`
+(``noise_model="auto"``, :func:`pmabayes.fit.fit`'s default) takes an AR(p) of the
+repeats instead (:func:`ar_noise_from_repeats`: Yule-Walker on the contrasts'
+pooled autocovariance, order by AIC up to :data:`MAX_AR_ORDER`), fixed like the
+AR(1) noise from repeats; :meth:`Likelihood.use_ar_noise` makes the trial mean's
+likelihood its exact Gaussian density (:class:`ArNoise`: innovations from the
+Durbin-Levinson predictors of orders 0..p, so not conditional on the first ``p``
+samples). The AR(p) is one trial's whole noise, disturbance and sensor together.
+Records without repeats keep AR(1) + white under the guard below.
 
 Several experiments
 -------------------
@@ -367,7 +382,10 @@ class LikelihoodError(ValueError):
 
 
 class Likelihood:
-    """AR(1) likelihood of the trials of one experiment, which share one input.
+    """Likelihood of the trials of one experiment, which share one input.
+
+    The noise is AR(1) + white (Kalman filter), or an AR(p) of the repeats once
+    :meth:`use_ar_noise` set one (see the module's docstring).
 
     Parameters
     ----------

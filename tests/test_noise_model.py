@@ -198,7 +198,8 @@ def test_a_two_time_scale_fit_uses_the_ar_model_and_covers_the_truth(tmp_path, c
     """A fit of two-time-scale data with "auto": the repeats' AR(p) in the likelihood,
     the fit file and the predictive noise, and 90% intervals that cover the truth."""
     ds = generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP, noise=TWO_SCALE)
-    settings = FitSettings(n_walkers=16, n_ensembles=2, max_steps=3000, check_every=200)
+    settings = FitSettings(n_walkers=16, n_ensembles=2, max_steps=3000, check_every=200,
+                           progress=True)
     tree = fit(ds, pb.Model(), seed=3, settings=settings)
     assert "reject AR(1) + white" in capsys.readouterr().err
     info = fit_info(tree)
