@@ -217,3 +217,54 @@ def test_a_two_time_scale_fit_uses_the_ar_model_and_covers_the_truth(tmp_path, c
     pp = tree["posterior_predictive"]
     dev = (pp["position_m"] - pp["model_position_m"]).values.reshape(-1, ds.n_samples)
     assert np.std(dev) == pytest.approx(math.sqrt(ar.autocovariance_m2[0]), rel=0.25)
+
+
+def _tree_from_draws(posterior, n_chain: int = 8, n_draw: int = 6, seed: int = 0):
+    """A fit file from draws scattered about the generator's values, as the sampler's."""
+    from pmabayes.posterior import fit_tree, set_fit_info
+
+    rng = np.random.default_rng(seed)
+    theta = pb.Model().theta(None)[:, posterior._free_cols]
+    z = posterior.to_unconstrained(np.repeat(theta, n_chain * n_draw, axis=0))
+    z = (z + 1e-3 * rng.standard_normal(z.shape)).reshape(n_chain, n_draw, -1)
+    lp = posterior.log_prob_z(z.reshape(-1, z.shape[-1])).reshape(n_chain, n_draw)
+    tree = fit_tree(posterior, z, lp, np.zeros(n_chain, dtype=int), ppc_draws=20, rng=rng)
+    set_fit_info(tree, posterior, map_record={}, convergence={}, seed=0, timings={})
+    return tree
+
+
+def test_the_fit_file_records_the_noise_model_and_predicts_with_it(tmp_path):
+    from pmabayes.validation import validate
+
+    ds = generate_chirp_dataset(n_trials=4, seed=21, chirp=CHIRP, noise=TWO_SCALE)
+    post = _posterior(pb.Model(), ds, 1)
+    ar = post.likelihoods[0].ar_noise
+    assert ar is not None
+    tree = _tree_from_draws(post)
+    rec = fit_info(tree)["experiments"][0]["noise_model"]
+    assert rec["model"] == ar.name and rec["order"] == ar.order and rec["requested"] == "auto"
+    np.testing.assert_allclose(rec["coefficients"], ar.coefficients[ar.order, : ar.order])
+    (back,) = noise_models(load_fit(save_fit(tree, tmp_path / "fit.nc")))
+    np.testing.assert_array_equal(back.variances, ar.variances)
+    # the predictive trials scatter as the AR(p) does, not as the AR(1) estimate would
+    pp = tree["posterior_predictive"]
+    dev = (pp["position_m"] - pp["model_position_m"]).values.reshape(-1, ds.n_samples)
+    assert np.std(dev) == pytest.approx(math.sqrt(ar.autocovariance_m2[0]), rel=0.15)
+    # the per-trial log likelihood is the AR(p)'s
+    first = np.array([[float(tree["posterior"][n].values[0, 0]) for n in post.names]])
+    x = post.likelihoods[0].simulate(post.full_theta(first))
+    np.testing.assert_allclose(tree["log_likelihood"]["position_m"].values[0, 0],
+                               post.likelihoods[0].pointwise(x, 0, 0, 0)[0], rtol=1e-5)
+    # validation's predictive band uses it too
+    other = generate_chirp_dataset(n_trials=4, seed=22, chirp=CHIRP, noise=TWO_SCALE)
+    v = validate(tree, other, n_draws=20).experiments[0]
+    assert any("AR(" in note for note in v.notes), v.notes
+
+
+def test_a_fit_with_ar1_noise_records_it_and_predicts_as_before():
+    ds = generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP)
+    post = _posterior(pb.Model(), ds, 1)
+    tree = _tree_from_draws(post)
+    rec = fit_info(tree)["experiments"][0]["noise_model"]
+    assert rec["model"] == "AR(1) + white" and rec["order"] == 1 and rec["ljung_box_p"] >= 0.01
+    assert "coefficients" not in rec and noise_models(tree) == [None]
