@@ -139,8 +139,16 @@ def test_auto_picks_ar_p_on_two_time_scales_and_ar1_on_the_default():
         assert choose_noise_model(lik, nz.sigma, nz.rho, nz.white, "ar").ar is not None
 
 
-def test_the_ar1_path_is_bit_identical_when_the_repeats_accept_it():
-    ds = generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP)
+@pytest.mark.parametrize("which", ["generated", "bundled"])
+def test_the_ar1_path_is_bit_identical_when_the_repeats_accept_it(which):
+    """Where the repeats accept AR(1) + white (the bundled data set does), the posterior
+    density is the one of before, bit for bit."""
+    from pathlib import Path
+
+    from pmabayes.data import load
+
+    ds = (generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP) if which == "generated"
+          else load(Path(__file__).resolve().parents[1] / "data" / "pma_chirp_lab.csv"))
     auto = _posterior(pb.Model(), ds, 1, noise_model="auto")
     assert auto.likelihoods[0].ar_noise is None
     assert auto.noise_choices[0].name == "AR(1) + white"
