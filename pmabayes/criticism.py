@@ -550,7 +550,11 @@ class Diagnosis:
     discrepancy : Discrepancy or None
         The missing force estimated from the data, when the model is above the floor
         and no candidate in the library accounts for it (see
-        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise.
+        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise. With
+        several experiments it is estimated on one of them.
+    discrepancy_experiment : str or None
+        The experiment the discrepancy was estimated on (the inadequate one furthest
+        above its floor); None without a discrepancy.
     """
 
     dataset: Dataset
@@ -567,6 +571,7 @@ class Diagnosis:
     settings: dict
     experiments: tuple = ()
     discrepancy: Discrepancy | None = None
+    discrepancy_experiment: str | None = None
 
     @property
     def rms_m(self) -> float:
@@ -632,9 +637,9 @@ class Diagnosis:
         ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands``,
         ``settings`` and ``discrepancy``. Several: the same keys, with ``data`` the
         sources joined by `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the
-        experiments (the floor None when one has no repeats), ``whiteness``,
-        ``bands`` and ``discrepancy`` None (the first two are per experiment, the
-        last is estimated for one experiment only), ``signature`` each experiment's
+        experiments (the floor None when one has no repeats), ``whiteness`` and
+        ``bands`` None (they are per experiment), ``discrepancy`` with one more key,
+        ``experiment`` (the one it was estimated on), ``signature`` each experiment's
         in turn, and two more:
         ``experiments`` (one :meth:`ExperimentDiagnosis.to_dict` each) and
         ``misfit_experiments`` (the names of those that are not adequate).
@@ -658,7 +663,9 @@ class Diagnosis:
                 "signature": " ".join(f"{e.name}: {e.signature.describe()}" for e in exps),
                 "bands": None,
                 "settings": dict(self.settings),
-                "discrepancy": None,  # estimated for one experiment only, for now
+                "discrepancy": (None if self.discrepancy is None else
+                                {**self.discrepancy.to_dict(),
+                                 "experiment": self.discrepancy_experiment}),
                 "experiments": [e.to_dict() for e in exps],
                 "misfit_experiments": self.misfit_experiments,
             }
@@ -1191,15 +1198,25 @@ def diagnose(
     verdict = _verdict(name, model.effect_names, experiments, adequate, missing, refits,
                        findings, min_explained, _twins(refits, missing, s))
     found = None
-    if discrepancy and not adequate and missing is None and len(datasets) > 1:
-        verdict += (" The data-driven discrepancy step takes one experiment for now; "
-                    "diagnose each experiment alone to estimate the missing force.")
-    elif discrepancy and not adequate and missing is None:
-        say.say("estimating the missing force from the data (discrepancy)")
-        found = estimate_discrepancy(base.likelihoods[0], base.noises[0], base.values,
-                                     base.simulations[0], plugin_dir=plugin_dir,
-                                     command=datasets[0].source,
+    if discrepancy and not adequate and missing is None:
+        # the missing force is estimated on one experiment: with several, the one whose
+        # residual is furthest above its floor (the others are named in the command
+        # that checks the proposal on all of them)
+        k = _worst_experiment(base.signatures, each)
+        if len(datasets) > 1:
+            say.say(f"estimating the missing force from {base.names[k]} (discrepancy; "
+                    "the experiment furthest above its floor)")
+        else:
+            say.say("estimating the missing force from the data (discrepancy)")
+        found = estimate_discrepancy(base.likelihoods[k], base.noises[k], base.values,
+                                     base.simulations[k], plugin_dir=plugin_dir,
+                                     command=" ".join(str(ds.source or "DATA")
+                                                      for ds in datasets),
                                      effects=model.effect_names)
+        if len(datasets) > 1:
+            verdict += (f" The missing force was estimated from {base.names[k]}, the "
+                        "experiment furthest above its floor; the command below checks the "
+                        "proposal on all of them.")
         verdict += " " + found.text
     say.say(verdict)
     return Diagnosis(
@@ -1213,7 +1230,19 @@ def diagnose(
                   "candidates": [f.effect for f in findings]},
         experiments=experiments,
         discrepancy=found,
+        discrepancy_experiment=None if found is None else base.names[k],
     )
+
+
+def _worst_experiment(signatures, adequate_each) -> int:
+    """Index of the inadequate experiment furthest above its floor (by the ratio of
+    its RMS error to its floor; by the whitened residual energy where it has none)."""
+    def excess(k: int) -> tuple:
+        sig = signatures[k]
+        ratio = sig.ratio
+        return (not adequate_each[k], math.isfinite(ratio),
+                ratio if math.isfinite(ratio) else sig.energy)
+    return max(range(len(signatures)), key=excess)
 
 
 def _sig_text(signature: Signature) -> str:
