@@ -3,7 +3,7 @@
 Fits ``data/pma_chirp_paper.csv`` (synthetic, made by the paper's model) with the
 base model and the default sampler settings: global search, MAP, then emcee
 ensembles until every parameter has R-hat across ensembles below 1.01, an ESS of at
-least 400 and a kept chain at least 50 autocorrelation times long. Compiling the
+least 400 and a kept chain at least 20 autocorrelation times long. Compiling the
 simulator (first use on a machine) is done before the clock starts and reported
 separately.
 
