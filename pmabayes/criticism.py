@@ -788,8 +788,7 @@ def _explanation(eff, evidence: float, p_value: float, significant: bool,
     text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
              f"{_after_text(refit.signatures, names)}, "
              f"{refit.explained:.0%} of the excess residual is removed, and the "
-             f"leave-one-trial-out ELPD changes by {refit.elpd_diff:+.1f} "
-             f"± {refit.elpd_diff_se:.1f}.")
+             f"leave-one-trial-out {_elpd_text(refit, 'changes by')}.")
     return text + contribution_text
 
 
@@ -1245,6 +1244,16 @@ def _worst_experiment(signatures, adequate_each) -> int:
     return max(range(len(signatures)), key=excess)
 
 
+def _elpd_text(refit, verb: str = "") -> str:
+    """``ΔELPD +d ± se`` of a refit, or that it could not be estimated (PSIS-LOO over
+    the refit's Laplace draws gave no finite value, e.g. when its draws do not
+    simulate)."""
+    if not (math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)):
+        return "ΔELPD not estimable: PSIS-LOO over the refit's Laplace draws gave no finite value"
+    head = f"ELPD {verb} " if verb else "ΔELPD "
+    return f"{head}{refit.elpd_diff:+.1f} ± {refit.elpd_diff_se:.1f}"
+
+
 def _sig_text(signature: Signature) -> str:
     overall = signature.bands[-1]
     floor = (f"against a floor of {overall.floor_m * 1e6:.4g} µm"
@@ -1308,7 +1317,7 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
                 "it.")
     if adequate:
         named = ", ".join(f"{f.effect} (p = {f.p_value:.2g}" + (
-            f", refit ΔELPD {f.refit.elpd_diff:+.1f} ± {f.refit.elpd_diff_se:.1f})"
+            f", refit {_elpd_text(f.refit)})"
             if f.refit else ")") for f in significant)
         return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}). "
                 f"The score test flags {named}, but no refit predicts left-out trials "
@@ -1322,8 +1331,8 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
                   "excess residual")
         if best.next_effect:
             detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
-        detail += (f", and at least {min_explained:.0%} is required (ΔELPD "
-                   f"{best.elpd_diff:+.1f} ± {best.elpd_diff_se:.1f})")
+        detail += (f", and at least {min_explained:.0%} is required "
+                   f"({_elpd_text(best)})")
     return (f"{name}: the residual is above the noise "
             f"floor ({sig}); candidates are significant but none explains the misfit:"
             f"{detail}. Something outside the library is missing; no candidate is named.")
