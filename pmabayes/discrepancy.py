@@ -696,13 +696,19 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
         (Term("z|z|", "1/N", "a hysteretic force growing as z|z| (a Bouc-Wen exponent above "
               "1)", "hysteresis", "z * abs(z)", dz="2.0 * abs(z)", slug="zabsz"),
          z * np.abs(z)),
-        (Term("|z|", "1", "a force in |z| (hysteresis acting one way)", "hysteresis",
-              "abs(z)", dz="(1.0 if z >= 0.0 else -1.0)", slug="absz"), np.abs(z)),
         (Term(f"v_lp(tau={memory_tau_s:g} s)", "N s/m",
               f"a force remembering the velocity over {memory_tau_s:g} s (creep, "
               "viscoelastic memory)", "memory", "s", ds="1.0", slug="vlp",
               memory_tau_s=float(memory_tau_s)), st["memory"]),
     ]
+    z_big = float(np.max(np.abs(z))) if z.size else 0.0
+    if z.min() < -0.1 * z_big and z.max() > 0.1 * z_big:
+        # where z keeps one sign, |z| is +-z, and a force c z is the base model itself
+        # with alpha, beta and gamma rescaled (z' = (1 + c) z obeys Bouc-Wen's law with
+        # (1 + c) alpha, beta / (1 + c), gamma / (1 + c)): not identifiable, so not offered
+        terms.append((Term("|z|", "1", "a force in |z| (hysteresis acting one way)",
+                           "hysteresis", "abs(z)", dz="(1.0 if z >= 0.0 else -1.0)",
+                           slug="absz"), np.abs(z)))
     for v0 in (5e-4, 5e-3, 5e-2):
         s = _f(v0)
         terms.append((Term(f"tanh(v/{v0 * mm:g} mm/s)", "N",
@@ -1072,8 +1078,30 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
     existing = {str(f) for f in folder.glob("*.py")} if folder.is_dir() else set()
     if closed is not None and closed[3]:
         chosen, d, se, _ = closed
-        return _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
+        prop = _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
                                command, series=series)
+        plain = [c for c in scored if all(terms[j][0].state in WRITABLE for j in c[2])]
+        v = prop.verified
+        if (v is None or (v["adequate"] and v["ratio"] <= 1.5) or not plain
+                or all(t.state in WRITABLE for t, _ in chosen)):
+            return prop
+        # terms in z or memory trade against the base model's own parameters in the
+        # nonlinear refit; when that refit fails, the best support in (x, v, p) alone
+        # is refitted too, and the better of the two is proposed
+        d2, se2, support2 = max(plain, key=lambda c: c[0])
+        idx = list(support2)
+        sub = np.concatenate([problem.j_w, white[:, idx]], axis=1)
+        w = stlsq(sub, problem.r_w, 0.0, keep=range(sub.shape[1]))
+        chosen2 = [(terms[j][0], float(w[k0 + i] / scale[j])) for i, j in enumerate(idx)]
+        prop2 = _write_proposal(problem, chosen2, "closed form", d2, se2, plugin_dir, verify,
+                                command, series=series)
+        v2 = prop2.verified
+        better = v2 is not None and (v2["adequate"], -v2["ratio"]) > (v["adequate"],
+                                                                       -v["ratio"])
+        keep, drop = (prop2, prop) if better else (prop, prop2)
+        if drop.plugin is not None and drop.plugin not in existing:
+            Path(drop.plugin).unlink(missing_ok=True)  # written by this run, not kept
+        return keep
     if closed is not None and verify and all(t.writable for t, _ in closed[0]):
         # the linearisation may be what keeps it from the flexible estimate (a steep
         # force, a period slightly off): the nonlinear refit decides
