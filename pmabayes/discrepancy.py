@@ -678,7 +678,7 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
          x**2),
         (Term("x^3", "N/m^3", "a cubic (hardening) spring", "position", "x * x * x",
               "3.0 * x * x", slug="x3"), x**3),
-        (Term("v|v|", "N s^2/m^2", "a quadratic drag, opposing motion", "velocity",
+        (Term("v|v|", "N s^2/m^2", "a quadratic drag", "velocity",
               "v * abs(v)", dv="2.0 * abs(v)", slug="vabsv"), v * np.abs(v)),
         (Term("v^3", "N s^3/m^3", "a cubic damping", "velocity", "v * v * v",
               dv="3.0 * v * v", slug="v3"), v**3),
@@ -712,7 +712,7 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
     for v0 in (5e-4, 5e-3, 5e-2):
         s = _f(v0)
         terms.append((Term(f"tanh(v/{v0 * mm:g} mm/s)", "N",
-                           f"a friction force opposing motion, smoothed over {v0 * mm:g} mm/s",
+                           f"a friction force, smoothed over {v0 * mm:g} mm/s",
                            "velocity", f"math.tanh(v / {s})",
                            dv=f"(1.0 - math.tanh(v / {s}) ** 2) / {s}",
                            slug=f"tanh{v0 * mm:g}".replace(".", "p")), np.tanh(v / v0)))
@@ -1305,6 +1305,10 @@ _REGISTER = ("\n# pmabayes' own check of this proposal imports the file without 
              "    pb.register_effect(ProposedEffect)\n")
 
 
+#: slugs of the dictionary's terms odd in velocity (a force along -v when positive)
+_ODD_IN_V = ("vabsv", "v3", "tanh")
+
+
 def _describe(chosen: list, kind: str) -> tuple[str, str]:
     if kind == "tabulated":
         t = chosen[0][0]
@@ -1313,7 +1317,11 @@ def _describe(chosen: list, kind: str) -> tuple[str, str]:
     parts, words = [], []
     for t, c in chosen:
         parts.append(f"{c:+.4g} {t.unit} * {t.name}")
-        sense = "opposing extension" if c > 0 else "toward extension"
+        if t.state == "velocity" and t.slug.startswith(_ODD_IN_V):
+            # odd in v: the sign says whether it opposes or aids the motion
+            sense = "opposing motion" if c > 0 else "aiding motion"
+        else:
+            sense = "opposing extension" if c > 0 else "toward extension"
         words.append(f"a force of about {abs(c):.3g} {t.unit} times {t.name}, {sense}: "
                      f"{t.words}")
     return " ".join(parts).lstrip("+"), "; ".join(words)
