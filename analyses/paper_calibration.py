@@ -8,7 +8,8 @@ needs.
 Usage::
 
     python analyses/paper_calibration.py [--out-root paper] [--quick] [--seed 1]
-                                         [--datasets N]
+                                         [--datasets N] [--fits-from CSV]
+                                         [--single-record-from CSV]
 
 Full mode: ``--datasets`` (default 20) data sets of 10 trials of the paper's 15 s
 chirp with the default sampler settings, as ``calibration.py``. Quick mode: 3 data
@@ -16,6 +17,12 @@ sets of 3 trials of a 4 s chirp with short chains (not converged; the numbers th
 only show that the pipeline runs). Writes ``tables/calibration.tex``,
 ``tables/calibration_fits.csv`` and ``tables/numbers_calibration.tex``; prints the
 table's path last.
+
+``--fits-from`` takes the per-fit rows (``calibration_fits.csv``) of a run of
+``analyses/calibration.py`` with its defaults (10 trials of the 15 s chirp) instead of
+fitting here, and ``--single-record-from`` those of ``calibration.py --single record``
+(``calibration_single_record_fits.csv``), which adds ``tables/calibration_single.tex``
+and its numbers (``pbCalSingle...``).
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ from __future__ import annotations
 import csv
 import sys
 import time
+from pathlib import Path
 
 from _paper import QUICK_SETTINGS, Numbers, out_dirs, parser, sig, symbol
 
@@ -54,26 +62,74 @@ def calibration_table(coverage: dict[str, float], z_rms: dict[str, float], n: in
     return "\n".join(table) + "\n"
 
 
+def read_fits(path: Path) -> list[dict]:
+    """The per-fit rows ``calibration.py`` writes (``*_fits.csv``), typed back.
+
+    Parameters
+    ----------
+    path : Path
+        The CSV file.
+
+    Returns
+    -------
+    list of dict
+        One row per data set and parameter, as :func:`calibration.calibrate` returns.
+    """
+    rows = []
+    with open(path, newline="") as fh:
+        for r in csv.DictReader(fh):
+            rows.append({**r, "dataset": int(r["dataset"]), "truth": float(r["truth"]),
+                         "z": float(r["z"]), "covered": r["covered"] == "True",
+                         "converged": r["converged"] == "True"})
+    if not rows:
+        raise SystemExit(f"{path}: no rows; give the *_fits.csv of a calibration.py run")
+    return rows
+
+
+def _single_record(rows: list[dict], tables: Path, nums: Numbers, calibration) -> None:
+    cov = calibration.coverage(rows)
+    spread = calibration.z_spread(rows)
+    n = len({r["dataset"] for r in rows})
+    (tables / "calibration_single.tex").write_text(calibration_table(cov, spread, n))
+    nums.add("pbCalSingleDatasets", n)
+    nums.add("pbCalSingleConverged", len({r["dataset"] for r in rows if r["converged"]}))
+    nums.add("pbCalSingleCovered", sum(r["covered"] for r in rows))
+    nums.add("pbCalSingleIntervals", len(rows))
+    nums.add("pbCalSingleCoverageMin", f"{100 * min(cov.values()):.0f}")
+    nums.add("pbCalSingleCoverageMax", f"{100 * max(cov.values()):.0f}")
+    nums.add("pbCalSingleZMin", f"{min(spread.values()):.2f}")
+    nums.add("pbCalSingleZMax", f"{max(spread.values()):.2f}")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Fit the data sets and write the table and its numbers."""
+    """Fit the data sets (or read a run's fits) and write the tables and numbers."""
     p = parser(__doc__)
     p.add_argument("--datasets", type=int, default=None, help="data sets (20; quick 3)")
+    p.add_argument("--fits-from", type=Path, default=None,
+                   help="calibration_fits.csv of an analyses/calibration.py run (defaults)")
+    p.add_argument("--single-record-from", type=Path, default=None,
+                   help="calibration_single_record_fits.csv of calibration.py --single record")
     args = p.parse_args(argv)
     import calibration  # after _paper, which puts the checkout on the path
 
     _, tables = out_dirs(args.out_root)
-    if args.quick:
+    if args.fits_from is not None:
+        rows = read_fits(args.fits_from)
+        n, n_trials, chirp = len({r["dataset"] for r in rows}), 10, None
+        seconds = None
+    elif args.quick:
         n = 3 if args.datasets is None else args.datasets
         chirp, n_trials, settings = Chirp(duration_s=4.0, f0_hz=0.3, f1_hz=2.0), 3, QUICK_SETTINGS
     else:
         n = 20 if args.datasets is None else args.datasets
         chirp, n_trials, settings = None, 10, None
-    if n < 1:
-        p.error("--datasets must be at least 1")
-    start = time.perf_counter()
-    rows = calibration.calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
-                                 settings=settings)
-    seconds = time.perf_counter() - start
+    if args.fits_from is None:
+        if n < 1:
+            p.error("--datasets must be at least 1")
+        start = time.perf_counter()
+        rows = calibration.calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
+                                     settings=settings)
+        seconds = time.perf_counter() - start
     cov = calibration.coverage(rows)
     spread = calibration.z_spread(rows)
     with open(tables / "calibration_fits.csv", "w", newline="") as fh:
@@ -92,11 +148,14 @@ def main(argv: list[str] | None = None) -> int:
     nums.add("pbCalCoverageMax", f"{100 * max(cov.values()):.0f}")
     nums.add("pbCalZMin", f"{min(spread.values()):.2f}")
     nums.add("pbCalZMax", f"{max(spread.values()):.2f}")
-    nums.add("pbCalSeconds", f"{seconds:.0f}")
+    if seconds is not None:
+        nums.add("pbCalSeconds", f"{seconds:.0f}")
+    if args.single_record_from is not None:
+        _single_record(read_fits(args.single_record_from), tables, nums, calibration)
     nums.write(tables)
     print(f"coverage {min(cov.values()):.2f}-{max(cov.values()):.2f}, RMS z "
-          f"{min(spread.values()):.2f}-{max(spread.values()):.2f}, {n_conv}/{n} converged, "
-          f"{seconds:.0f} s")
+          f"{min(spread.values()):.2f}-{max(spread.values()):.2f}, {n_conv}/{n} converged"
+          + (f", {seconds:.0f} s" if seconds is not None else ""))
     print(f"table: {path}")
     return 0
 

@@ -550,7 +550,11 @@ class Diagnosis:
     discrepancy : Discrepancy or None
         The missing force estimated from the data, when the model is above the floor
         and no candidate in the library accounts for it (see
-        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise.
+        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise. With
+        several experiments it is estimated on one of them.
+    discrepancy_experiment : str or None
+        The experiment the discrepancy was estimated on (the inadequate one furthest
+        above its floor); None without a discrepancy.
     """
 
     dataset: Dataset
@@ -567,6 +571,7 @@ class Diagnosis:
     settings: dict
     experiments: tuple = ()
     discrepancy: Discrepancy | None = None
+    discrepancy_experiment: str | None = None
 
     @property
     def rms_m(self) -> float:
@@ -632,9 +637,9 @@ class Diagnosis:
         ``values``, ``elpd_loo``, ``whiteness``, ``signature``, ``bands``,
         ``settings`` and ``discrepancy``. Several: the same keys, with ``data`` the
         sources joined by `` + ``, ``rms_m`` and ``noise_floor_m`` pooled over the
-        experiments (the floor None when one has no repeats), ``whiteness``,
-        ``bands`` and ``discrepancy`` None (the first two are per experiment, the
-        last is estimated for one experiment only), ``signature`` each experiment's
+        experiments (the floor None when one has no repeats), ``whiteness`` and
+        ``bands`` None (they are per experiment), ``discrepancy`` with one more key,
+        ``experiment`` (the one it was estimated on), ``signature`` each experiment's
         in turn, and two more:
         ``experiments`` (one :meth:`ExperimentDiagnosis.to_dict` each) and
         ``misfit_experiments`` (the names of those that are not adequate).
@@ -658,7 +663,9 @@ class Diagnosis:
                 "signature": " ".join(f"{e.name}: {e.signature.describe()}" for e in exps),
                 "bands": None,
                 "settings": dict(self.settings),
-                "discrepancy": None,  # estimated for one experiment only, for now
+                "discrepancy": (None if self.discrepancy is None else
+                                {**self.discrepancy.to_dict(),
+                                 "experiment": self.discrepancy_experiment}),
                 "experiments": [e.to_dict() for e in exps],
                 "misfit_experiments": self.misfit_experiments,
             }
@@ -781,8 +788,7 @@ def _explanation(eff, evidence: float, p_value: float, significant: bool,
     text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
              f"{_after_text(refit.signatures, names)}, "
              f"{refit.explained:.0%} of the excess residual is removed, and the "
-             f"leave-one-trial-out ELPD changes by {refit.elpd_diff:+.1f} "
-             f"± {refit.elpd_diff_se:.1f}.")
+             f"leave-one-trial-out {_elpd_text(refit, 'changes by')}.")
     return text + contribution_text
 
 
@@ -1191,15 +1197,25 @@ def diagnose(
     verdict = _verdict(name, model.effect_names, experiments, adequate, missing, refits,
                        findings, min_explained, _twins(refits, missing, s))
     found = None
-    if discrepancy and not adequate and missing is None and len(datasets) > 1:
-        verdict += (" The data-driven discrepancy step takes one experiment for now; "
-                    "diagnose each experiment alone to estimate the missing force.")
-    elif discrepancy and not adequate and missing is None:
-        say.say("estimating the missing force from the data (discrepancy)")
-        found = estimate_discrepancy(base.likelihoods[0], base.noises[0], base.values,
-                                     base.simulations[0], plugin_dir=plugin_dir,
-                                     command=datasets[0].source,
+    if discrepancy and not adequate and missing is None:
+        # the missing force is estimated on one experiment: with several, the one whose
+        # residual is furthest above its floor (the others are named in the command
+        # that checks the proposal on all of them)
+        k = _worst_experiment(base.signatures, each)
+        if len(datasets) > 1:
+            say.say(f"estimating the missing force from {base.names[k]} (discrepancy; "
+                    "the experiment furthest above its floor)")
+        else:
+            say.say("estimating the missing force from the data (discrepancy)")
+        found = estimate_discrepancy(base.likelihoods[k], base.noises[k], base.values,
+                                     base.simulations[k], plugin_dir=plugin_dir,
+                                     command=" ".join(str(ds.source or "DATA")
+                                                      for ds in datasets),
                                      effects=model.effect_names)
+        if len(datasets) > 1:
+            verdict += (f" The missing force was estimated from {base.names[k]}, the "
+                        "experiment furthest above its floor; the command below checks the "
+                        "proposal on all of them.")
         verdict += " " + found.text
     say.say(verdict)
     return Diagnosis(
@@ -1213,7 +1229,29 @@ def diagnose(
                   "candidates": [f.effect for f in findings]},
         experiments=experiments,
         discrepancy=found,
+        discrepancy_experiment=None if found is None else base.names[k],
     )
+
+
+def _worst_experiment(signatures, adequate_each) -> int:
+    """Index of the inadequate experiment furthest above its floor (by the ratio of
+    its RMS error to its floor; by the whitened residual energy where it has none)."""
+    def excess(k: int) -> tuple:
+        sig = signatures[k]
+        ratio = sig.ratio
+        return (not adequate_each[k], math.isfinite(ratio),
+                ratio if math.isfinite(ratio) else sig.energy)
+    return max(range(len(signatures)), key=excess)
+
+
+def _elpd_text(refit, verb: str = "") -> str:
+    """``ΔELPD +d ± se`` of a refit, or that it could not be estimated (PSIS-LOO over
+    the refit's Laplace draws gave no finite value, e.g. when its draws do not
+    simulate)."""
+    if not (math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)):
+        return "ΔELPD not estimable: PSIS-LOO over the refit's Laplace draws gave no finite value"
+    head = f"ELPD {verb} " if verb else "ΔELPD "
+    return f"{head}{refit.elpd_diff:+.1f} ± {refit.elpd_diff_se:.1f}"
 
 
 def _sig_text(signature: Signature) -> str:
@@ -1279,7 +1317,7 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
                 "it.")
     if adequate:
         named = ", ".join(f"{f.effect} (p = {f.p_value:.2g}" + (
-            f", refit ΔELPD {f.refit.elpd_diff:+.1f} ± {f.refit.elpd_diff_se:.1f})"
+            f", refit {_elpd_text(f.refit)})"
             if f.refit else ")") for f in significant)
         return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}). "
                 f"The score test flags {named}, but no refit predicts left-out trials "
@@ -1293,8 +1331,8 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
                   "excess residual")
         if best.next_effect:
             detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
-        detail += (f", and at least {min_explained:.0%} is required (ΔELPD "
-                   f"{best.elpd_diff:+.1f} ± {best.elpd_diff_se:.1f})")
+        detail += (f", and at least {min_explained:.0%} is required "
+                   f"({_elpd_text(best)})")
     return (f"{name}: the residual is above the noise "
             f"floor ({sig}); candidates are significant but none explains the misfit:"
             f"{detail}. Something outside the library is missing; no candidate is named.")

@@ -39,8 +39,9 @@ a tabulated effect with one amplitude. The proposal is written as a ready user e
 (a ``.py`` file for ``--plugin``) and checked by a real nonlinear refit
 (Gauss-Newton on the whitened residual, through the simulator).
 
-Only force terms in ``(x, v, p)`` can be written as effects today; terms that need
-``z`` or the memory state are reported, not written.
+Terms in ``(x, v, p)`` are written as plain force effects; a term in ``z`` as a force
+effect that reads ``z`` (``reads_z``), and the memory term as one with a state of its
+own, the low-passed velocity, advanced exactly over each step.
 """
 
 from __future__ import annotations
@@ -619,10 +620,13 @@ class Term:
     state : str
         The state it mainly depends on (one of :data:`STATES`).
     force : str or None
-        Numba-compatible expression in ``x``, ``v``, ``p`` (None: needs ``z`` or
-        memory, so it cannot be written as a force effect today).
+        Numba-compatible expression in ``x``, ``v``, ``p``, and ``z`` (the
+        hysteretic force) or ``s`` (the memory state) where the term needs them;
+        None if it cannot be written as an effect.
     dx, dv : str
         Its derivatives in ``x`` and ``v``.
+    dz, ds : str
+        Its derivatives in ``z`` and in the memory state.
     slug : str
         Identifier fragment for parameter names.
     period_m : float or None
@@ -631,6 +635,8 @@ class Term:
     breakpoint_m : float or None
         For a spring acting below a position, that position: ``{B}`` in the
         expressions, a parameter of the effect like the period.
+    memory_tau_s : float or None
+        For the memory term, the time constant of its low-passed velocity ``s``.
     """
 
     name: str
@@ -643,11 +649,19 @@ class Term:
     slug: str = ""
     period_m: float | None = None
     breakpoint_m: float | None = None
+    dz: str = "0.0"
+    ds: str = "0.0"
+    memory_tau_s: float | None = None
 
     @property
     def writable(self) -> bool:
-        """Whether a force-stage effect can express it (it depends on x, v, p only)."""
+        """Whether a force-stage effect can express it."""
         return self.force is not None
+
+    @property
+    def reads_z(self) -> bool:
+        """Whether its effect needs the hysteretic force ``z``."""
+        return self.state == "hysteresis"
 
 
 def _f(value: float) -> str:
@@ -664,7 +678,7 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
          x**2),
         (Term("x^3", "N/m^3", "a cubic (hardening) spring", "position", "x * x * x",
               "3.0 * x * x", slug="x3"), x**3),
-        (Term("v|v|", "N s^2/m^2", "a quadratic drag, opposing motion", "velocity",
+        (Term("v|v|", "N s^2/m^2", "a quadratic drag", "velocity",
               "v * abs(v)", dv="2.0 * abs(v)", slug="vabsv"), v * np.abs(v)),
         (Term("v^3", "N s^3/m^3", "a cubic damping", "velocity", "v * v * v",
               dv="3.0 * v * v", slug="v3"), v**3),
@@ -680,17 +694,25 @@ def _dictionary(st: dict, memory_tau_s: float, period_m: float | None, hinges: t
               "(x if v > 0.0 else 0.0)", "(1.0 if v > 0.0 else 0.0)", slug="xext"),
          np.where(v > 0, x, 0.0)),
         (Term("z|z|", "1/N", "a hysteretic force growing as z|z| (a Bouc-Wen exponent above "
-              "1)", "hysteresis", None, slug="zabsz"), z * np.abs(z)),
-        (Term("|z|", "1", "a force in |z| (hysteresis acting one way)", "hysteresis", None,
-              slug="absz"), np.abs(z)),
+              "1)", "hysteresis", "z * abs(z)", dz="2.0 * abs(z)", slug="zabsz"),
+         z * np.abs(z)),
         (Term(f"v_lp(tau={memory_tau_s:g} s)", "N s/m",
               f"a force remembering the velocity over {memory_tau_s:g} s (creep, "
-              "viscoelastic memory)", "memory", None, slug="vlp"), st["memory"]),
+              "viscoelastic memory)", "memory", "s", ds="1.0", slug="vlp",
+              memory_tau_s=float(memory_tau_s)), st["memory"]),
     ]
+    z_big = float(np.max(np.abs(z))) if z.size else 0.0
+    if z.min() < -0.1 * z_big and z.max() > 0.1 * z_big:
+        # where z keeps one sign, |z| is +-z, and a force c z is the base model itself
+        # with alpha, beta and gamma rescaled (z' = (1 + c) z obeys Bouc-Wen's law with
+        # (1 + c) alpha, beta / (1 + c), gamma / (1 + c)): not identifiable, so not offered
+        terms.append((Term("|z|", "1", "a force in |z| (hysteresis acting one way)",
+                           "hysteresis", "abs(z)", dz="(1.0 if z >= 0.0 else -1.0)",
+                           slug="absz"), np.abs(z)))
     for v0 in (5e-4, 5e-3, 5e-2):
         s = _f(v0)
         terms.append((Term(f"tanh(v/{v0 * mm:g} mm/s)", "N",
-                           f"a friction force opposing motion, smoothed over {v0 * mm:g} mm/s",
+                           f"a friction force, smoothed over {v0 * mm:g} mm/s",
                            "velocity", f"math.tanh(v / {s})",
                            dv=f"(1.0 - math.tanh(v / {s}) ** 2) / {s}",
                            slug=f"tanh{v0 * mm:g}".replace(".", "p")), np.tanh(v / v0)))
@@ -1040,11 +1062,6 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
         # the sparsest support within two standard errors (or 2) of the best
         best = min((c for c in scored if c[0] >= top_d - max(2.0 * c[1], 2.0)),
                    key=lambda c: (len(c[2]), -c[0]))
-        writable = [c for c in scored if all(terms[j][0].writable for j in c[2])]
-        if writable and not all(terms[j][0].writable for j in best[2]):
-            # a term in z or memory cannot be written today: the best writable form is
-            # proposed instead, and the nonlinear refit below judges it
-            best = max(writable, key=lambda c: c[0])
     top = states[0].state if states else None
     closed = None
     if best is not None:
@@ -1061,8 +1078,30 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
     existing = {str(f) for f in folder.glob("*.py")} if folder.is_dir() else set()
     if closed is not None and closed[3]:
         chosen, d, se, _ = closed
-        return _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
+        prop = _write_proposal(problem, chosen, "closed form", d, se, plugin_dir, verify,
                                command, series=series)
+        plain = [c for c in scored if all(terms[j][0].state in WRITABLE for j in c[2])]
+        v = prop.verified
+        if (v is None or (v["adequate"] and v["ratio"] <= 1.5) or not plain
+                or all(t.state in WRITABLE for t, _ in chosen)):
+            return prop
+        # terms in z or memory trade against the base model's own parameters in the
+        # nonlinear refit; when that refit fails, the best support in (x, v, p) alone
+        # is refitted too, and the better of the two is proposed
+        d2, se2, support2 = max(plain, key=lambda c: c[0])
+        idx = list(support2)
+        sub = np.concatenate([problem.j_w, white[:, idx]], axis=1)
+        w = stlsq(sub, problem.r_w, 0.0, keep=range(sub.shape[1]))
+        chosen2 = [(terms[j][0], float(w[k0 + i] / scale[j])) for i, j in enumerate(idx)]
+        prop2 = _write_proposal(problem, chosen2, "closed form", d2, se2, plugin_dir, verify,
+                                command, series=series)
+        v2 = prop2.verified
+        better = v2 is not None and (v2["adequate"], -v2["ratio"]) > (v["adequate"],
+                                                                       -v["ratio"])
+        keep, drop = (prop2, prop) if better else (prop, prop2)
+        if drop.plugin is not None and drop.plugin not in existing:
+            Path(drop.plugin).unlink(missing_ok=True)  # written by this run, not kept
+        return keep
     if closed is not None and verify and all(t.writable for t, _ in closed[0]):
         # the linearisation may be what keeps it from the flexible estimate (a steep
         # force, a period slightly off): the nonlinear refit decides
@@ -1176,9 +1215,24 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
                   "_COEFS = np.array(" + repr([[float(f"{c:.10g}") for c in row]
                                                for row in coefs]) + ")", "", "",
                   ]
-    lines += ["", "def _physics(q, x, v, p):",
-              '    """Force opposing extension, and its derivatives in x and v."""',
-              "    f = 0.0", "    fx = 0.0", "    fv = 0.0"]
+    reads_z = any(t.reads_z for t, _ in chosen)
+    tau = next((t.memory_tau_s for t, _ in chosen if t.memory_tau_s is not None), None)
+    extended = reads_z or tau is not None  # the signature of effects that read z or s
+    if tau is not None:
+        # the low-passed velocity s' = (v - s) / tau, exact over a step of constant v
+        lines += ["", f"_TAU_S = {float(tau)!r}", "", "",
+                  "def _advance(q, s, x0, x1, h):",
+                  '    """The memory state over a step: exact for a constant velocity."""',
+                  "    e = math.exp(-h / _TAU_S)",
+                  "    return s * e + (1.0 - e) * (x1 - x0) / h, (1.0 - e) / h", ""]
+    if extended:
+        lines += ["", "def _physics(q, x, v, p, z, s):",
+                  '    """Force opposing extension, and its derivatives in x, v, z and s."""',
+                  "    f = 0.0", "    fx = 0.0", "    fv = 0.0", "    fz = 0.0", "    fs = 0.0"]
+    else:
+        lines += ["", "def _physics(q, x, v, p):",
+                  '    """Force opposing extension, and its derivatives in x and v."""',
+                  "    f = 0.0", "    fx = 0.0", "    fv = 0.0"]
     if tables is not None:
         # the table is evaluated inline: a compiled helper would be a second function the
         # simulator's cached kernel could not find again in a later process
@@ -1210,9 +1264,18 @@ def _plugin_source(name: str, chosen: list, description: str, tables=None) -> st
             lines.append(f"    fx += q[{k}] * ({fill(t.dx)})")
         if t.dv != "0.0":
             lines.append(f"    fv += q[{k}] * ({fill(t.dv)})")
-    lines += ["    return f, fx, fv", "", "", "class ProposedEffect(pb.Effect):",
-              f'    """{description}"""', "", f"    name = {name!r}", '    stage = "force"',
-              "    parameters = ("]
+        if t.dz != "0.0":
+            lines.append(f"    fz += q[{k}] * ({t.dz})")
+        if t.ds != "0.0":
+            lines.append(f"    fs += q[{k}] * ({t.ds})")
+    lines += ["    return f, fx, fv" + (", fz, fs" if extended else ""), "", "",
+              "class ProposedEffect(pb.Effect):", f'    """{description}"""', "",
+              f"    name = {name!r}", '    stage = "force"']
+    if reads_z:
+        lines.append("    reads_z = True")
+    if tau is not None:
+        lines += ['    state = "v_lp_m_s"', "    advance = staticmethod(_advance)"]
+    lines.append("    parameters = (")
     for t, coef in chosen:
         pname = f"c_{t.slug}"
         sd = max(2.0 * abs(coef), 1e-12)
@@ -1242,6 +1305,10 @@ _REGISTER = ("\n# pmabayes' own check of this proposal imports the file without 
              "    pb.register_effect(ProposedEffect)\n")
 
 
+#: slugs of the dictionary's terms odd in velocity (a force along -v when positive)
+_ODD_IN_V = ("vabsv", "v3", "tanh")
+
+
 def _describe(chosen: list, kind: str) -> tuple[str, str]:
     if kind == "tabulated":
         t = chosen[0][0]
@@ -1250,7 +1317,11 @@ def _describe(chosen: list, kind: str) -> tuple[str, str]:
     parts, words = [], []
     for t, c in chosen:
         parts.append(f"{c:+.4g} {t.unit} * {t.name}")
-        sense = "opposing extension" if c > 0 else "toward extension"
+        if t.state == "velocity" and t.slug.startswith(_ODD_IN_V):
+            # odd in v: the sign says whether it opposes or aids the motion
+            sense = "opposing motion" if c > 0 else "aiding motion"
+        else:
+            sense = "opposing extension" if c > 0 else "toward extension"
         words.append(f"a force of about {abs(c):.3g} {t.unit} times {t.name}, {sense}: "
                      f"{t.words}")
     return " ".join(parts).lstrip("+"), "; ".join(words)
@@ -1449,7 +1520,7 @@ def _text(states, explained, ratio_after, gain, gain_se, proposal, other, comman
             text += (f" To add it: pmabayes --plugin {proposal.plugin} diagnose {data} "
                      f"--effects {names}")
         else:
-            text += " It needs z or a memory state, which a force effect cannot express today."
+            text += " It could not be written as an effect."
     if other:
         text += " " + other
     return text

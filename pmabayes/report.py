@@ -1165,9 +1165,12 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     if d.discrepancy is not None:
         fig = plots.plot_discrepancy(d.discrepancy)
         fig.savefig(out_dir / "discrepancy.png", dpi=plots.REPORT_DPI)
-        figs["discrepancy"] = ("The missing force estimated from the data: its partial "
-                               "dependence on each state (centred; band: two posterior sd), "
-                               "red where dropping the state loses predictive accuracy.")
+        figs["discrepancy"] = ("The missing force estimated from the data"
+                               + (f" of experiment {d.discrepancy_experiment}" if several
+                                  else "")
+                               + ": its partial dependence on each state (centred; band: two "
+                               "posterior sd), red where dropping the state loses predictive "
+                               "accuracy.")
     body += [
         "<h2>What is missing: the candidate effects</h2>",
         "<p>Refitted candidates first (by leave-one-trial-out ELPD"

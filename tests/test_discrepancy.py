@@ -78,6 +78,23 @@ class HiddenCompressionSpring(pb.Effect):
     physics = staticmethod(_compression)
 
 
+def _z_force(q, x, v, p, z, s):
+    return q[0] * z * abs(z), 0.0, 0.0, 2.0 * q[0] * abs(z), 0.0
+
+
+class HiddenZForce(pb.Effect):
+    """A hysteretic force growing as z|z|: a loop that fattens faster than z."""
+
+    __test__ = False
+    name = "hidden_z_force"
+    stage = "force"
+    reads_z = True
+    parameters = (pb.Parameter("c_hz", "1/N", 0.0, pb.HalfNormal(0.01), bounds=(0.0, 1.0),
+                               null=0.0, description="z|z| coefficient"),)
+    description = "A force in z|z|."
+    physics = staticmethod(_z_force)
+
+
 def hidden(effect, values, seed, n_trials=6, chirp=CHIRP):
     """Trials of the base model plus one hidden effect, with the usual measurement noise."""
     clean = generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp, noise=None)
@@ -156,6 +173,37 @@ def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
         assert fx == pytest.approx(-300.0 if x < 0.02 else 0.0)
 
 
+def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
+    """A z term reads z; the memory term carries the low-passed velocity as its state."""
+    from pmabayes.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+
+    terms = [(Term("z|z|", "1/N", "a hysteretic force growing as z|z|", "hysteresis",
+                   "z * abs(z)", dz="2.0 * abs(z)", slug="zabsz"), 0.004),
+             (Term("v_lp(tau=0.4 s)", "N s/m", "a force remembering the velocity", "memory",
+                   "s", ds="1.0", slug="vlp", memory_tau_s=0.4), 20.0)]
+    path = tmp_path / "proposed_zmem.py"
+    path.write_text(_plugin_source("proposed_zmem", terms, "z and memory") + _REGISTER)
+    eff = _load_unregistered(path)
+    assert eff.reads_z and eff.state == "v_lp_m_s"
+    q = np.array([0.004, 20.0])
+    z, sv = -30.0, 0.01
+    f, fx, fv, fz, fs = eff.physics(q, 0.01, 0.02, 3e5, z, sv)
+    assert f == pytest.approx(0.004 * z * abs(z) + 20.0 * sv)
+    assert (fx, fv) == (0.0, 0.0)
+    assert fz == pytest.approx(0.004 * 2.0 * abs(z)) and fs == pytest.approx(20.0)
+    # the state: a constant velocity's low pass, exact over any step
+    h, v = 1e-3, 0.05
+    s1, ds1 = eff.advance(q, sv, 0.0, v * h, h)
+    e = math.exp(-h / 0.4)
+    assert s1 == pytest.approx(sv * e + (1 - e) * v)
+    assert ds1 == pytest.approx((1 - e) / h)
+    two = eff.advance(q, eff.advance(q, sv, 0.0, v * h, h)[0], v * h, 2 * v * h, h)[0]
+    assert two == pytest.approx(eff.advance(q, sv, 0.0, 2 * v * h, 2 * h)[0], rel=1e-12)
+    # and the simulator takes it
+    x = pb.simulate(pb.Model([eff]), None, np.full(200, 2e5), dt_s=1e-3)
+    assert np.all(np.isfinite(x))
+
+
 def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
     """A shape in position written as a table evaluates like the spline it came from."""
     from scipy.interpolate import BSpline
@@ -208,6 +256,9 @@ CASES = [
     pytest.param(HiddenCompressionSpring, {"k_cs": 3000.0, "x_cs": 0.005}, 33, "position",
                  ("position_offset",), id="hidden_compression_spring",
                  marks=pytest.mark.extended),
+    # a force in z: written as an effect that reads z
+    pytest.param(HiddenZForce, {"c_hz": 0.03}, 35, "hysteresis", (), id="hidden_z_force",
+                 marks=pytest.mark.extended),
 ]
 
 
@@ -236,6 +287,32 @@ def test_an_effect_in_no_library_is_found_proposed_and_added(effect, values, see
     assert after.adequate, after.verdict
     assert after.rms_m <= 1.5 * after.noise_floor_m
     assert after.discrepancy is None
+
+
+@pytest.mark.slow
+@pytest.mark.extended  # two experiments, three diagnoses: CI stays under 30 minutes
+def test_several_experiments_estimate_it_on_the_worst_and_check_it_on_all(tmp_path):
+    from dataclasses import replace
+
+    from pmabayes.cli import load_plugin
+
+    a = replace(hidden(HiddenDrag, {"c_hd": 300.0}, 32), source="lab/chirp_a.csv")
+    b = replace(hidden(HiddenDrag, {"c_hd": 300.0}, 36,
+                       chirp=Chirp(duration_s=4.0, f0_hz=0.5, f1_hz=2.0)),
+                source="lab/chirp_b.csv")
+    before = diagnosis([a, b], plugin_dir=tmp_path)
+    assert before.missing is None and not before.adequate, before.verdict
+    d = before.discrepancy
+    assert d is not None and d.states[0].state == "velocity", before.verdict
+    worst = max(before.experiments, key=lambda e: e.signature.ratio)
+    assert before.discrepancy_experiment == worst.name
+    assert before.to_dict()["discrepancy"]["experiment"] == worst.name
+    assert "lab/chirp_a.csv lab/chirp_b.csv" in before.verdict
+    assert d.proposal is not None and d.proposal.plugin is not None, d.text
+    load_plugin(d.proposal.plugin)
+    after = diagnosis([a, b], effects=[d.proposal.effect], plugin_dir=tmp_path)
+    assert after.adequate, after.verdict
+    assert all(e.signature.ratio <= 1.5 for e in after.experiments)
 
 
 @pytest.mark.slow
