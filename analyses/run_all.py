@@ -10,6 +10,7 @@ step           script
 fig2           ``paper_fig2.py``: chirp, response, posterior predictive
 posterior      ``paper_posterior.py``: summary table and corner plot
 criticism      ``paper_criticism.py``: base -> + lag -> + friction
+discrepancy    ``paper_discrepancy.py``: a force outside the library, proposed
 robustness     ``paper_robustness.py``: bands and P(CT beats PID)
 figure5        ``paper_figure5.py``: PID vs computed torque, claims
 detection      ``paper_detection.py`` (wraps ``detection.py``)
@@ -40,7 +41,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _paper  # noqa: E402  (puts the checkout on the path)
 
-STEPS = ("fig2", "posterior", "criticism", "robustness", "figure5", "detection",
+STEPS = ("fig2", "posterior", "criticism", "discrepancy", "robustness", "figure5", "detection",
          "calibration", "benchmarks")
 MODULES = {s: f"paper_{s}" for s in STEPS}
 
