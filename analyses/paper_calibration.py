@@ -20,9 +20,10 @@ table's path last.
 
 ``--fits-from`` takes the per-fit rows (``calibration_fits.csv``) of a run of
 ``analyses/calibration.py`` with its defaults (10 trials of the 15 s chirp) instead of
-fitting here, and ``--single-record-from`` those of ``calibration.py --single record``
-(``calibration_single_record_fits.csv``), which adds ``tables/calibration_single.tex``
-and its numbers (``pbCalSingle...``).
+fitting here. The single-record table (``tables/calibration_single.tex`` and its
+numbers, ``pbCalSingle...``) comes from ``--single-record-from``, the rows of
+``calibration.py --single record`` (``calibration_single_record_fits.csv``), or else
+from fits made here (12 single records; 2 with short chains in quick mode).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from __future__ import annotations
 import csv
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from _paper import QUICK_SETTINGS, Numbers, out_dirs, parser, sig, symbol
@@ -116,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.fits_from is not None:
         rows = read_fits(args.fits_from)
         n, n_trials, chirp = len({r["dataset"] for r in rows}), 10, None
-        seconds = None
+        seconds, settings = None, None
     elif args.quick:
         n = 3 if args.datasets is None else args.datasets
         chirp, n_trials, settings = Chirp(duration_s=4.0, f0_hz=0.3, f1_hz=2.0), 3, QUICK_SETTINGS
@@ -151,7 +153,13 @@ def main(argv: list[str] | None = None) -> int:
     if seconds is not None:
         nums.add("pbCalSeconds", f"{seconds:.0f}")
     if args.single_record_from is not None:
-        _single_record(read_fits(args.single_record_from), tables, nums, calibration)
+        single = read_fits(args.single_record_from)
+    else:  # the single-record study here: 2 short fits in quick mode, else 12
+        # a single record samples its 3 noise parameters too: 9 parameters, 18+ walkers
+        single = calibration.calibrate(
+            2 if args.quick else 12, args.seed, single="record", verbose=False,
+            settings=None if settings is None else replace(settings, n_walkers=24))
+    _single_record(single, tables, nums, calibration)
     nums.write(tables)
     print(f"coverage {min(cov.values()):.2f}-{max(cov.values()):.2f}, RMS z "
           f"{min(spread.values()):.2f}-{max(spread.values()):.2f}, {n_conv}/{n} converged"

@@ -1250,7 +1250,8 @@ def ar1_whiteness_of_repeats(likelihoods, sigma: float, rho: float, white: float
         return math.nan, math.nan, innov
     q = sum(ljung_box_statistic(e) for e in innov)
     p = float(stats.chi2.sf(q, LJUNG_BOX_LAGS * len(innov)))
-    return p, float(np.mean(np.square(innov))), innov
+    # experiments of different lengths: the mean over every whitened sample
+    return p, float(np.mean(np.square(np.concatenate(innov)))), innov
 
 
 def choose_noise_model(likelihoods, sigma: float, rho: float, white: float,
