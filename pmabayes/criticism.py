@@ -1197,11 +1197,17 @@ def diagnose(
     verdict = _verdict(name, model.effect_names, experiments, adequate, missing, refits,
                        findings, min_explained, _twins(refits, missing, s))
     found = None
-    if discrepancy and not adequate and missing is None:
+    # its evidence leaves one trial out: it needs an experiment with repeated trials
+    repeated = [e for e, lik in enumerate(base.likelihoods) if lik.dataset.n_trials >= 2]
+    if discrepancy and not adequate and missing is None and not repeated:
+        verdict += (" The data-driven discrepancy step needs repeated trials (its evidence "
+                    "leaves one trial out), and these data have none; record repeats to "
+                    "estimate the missing force.")
+    elif discrepancy and not adequate and missing is None:
         # the missing force is estimated on one experiment: with several, the one whose
         # residual is furthest above its floor (the others are named in the command
         # that checks the proposal on all of them)
-        k = _worst_experiment(base.signatures, each)
+        k = _worst_experiment(base.signatures, each, repeated)
         if len(datasets) > 1:
             say.say(f"estimating the missing force from {base.names[k]} (discrepancy; "
                     "the experiment furthest above its floor)")
@@ -1233,15 +1239,16 @@ def diagnose(
     )
 
 
-def _worst_experiment(signatures, adequate_each) -> int:
-    """Index of the inadequate experiment furthest above its floor (by the ratio of
-    its RMS error to its floor; by the whitened residual energy where it has none)."""
+def _worst_experiment(signatures, adequate_each, among) -> int:
+    """Index, of those in ``among``, of the inadequate experiment furthest above its
+    floor (by the ratio of its RMS error to its floor; by the whitened residual energy
+    where it has none)."""
     def excess(k: int) -> tuple:
         sig = signatures[k]
         ratio = sig.ratio
         return (not adequate_each[k], math.isfinite(ratio),
                 ratio if math.isfinite(ratio) else sig.energy)
-    return max(range(len(signatures)), key=excess)
+    return max(among, key=excess)
 
 
 def _elpd_text(refit, verb: str = "") -> str:
