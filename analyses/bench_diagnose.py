@@ -22,43 +22,20 @@ import argparse
 import tempfile
 import time
 
-import numpy as np
-
-import pmabayes as pb
 from pmabayes.criticism import diagnose
 from pmabayes.data import Dataset
-from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
 
 #: the built-in library
 CANDIDATES = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiffness",
               "pressure_stiffness", "position_offset")
 
 
-def _drag(q, x, v, p):
-    return q[0] * v * abs(v), 0.0, 2.0 * q[0] * abs(v)
-
-
-class BenchDrag(pb.Effect):
-    """A quadratic drag, in no library (never registered)."""
-
-    name = "bench_drag"
-    stage = "force"
-    parameters = (pb.Parameter("c_bd", "N s^2/m^2", 0.0, pb.HalfNormal(500.0),
-                               bounds=(0.0, 1e5), null=0.0, description="drag"),)
-    description = "Quadratic drag."
-    physics = staticmethod(_drag)
-
-
 def data(n_trials: int, seed: int, chirp: Chirp | None = None) -> Dataset:
     """Trials of the base model plus a 300 N s^2/m^2 quadratic drag (synthetic)."""
-    clean = generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp, noise=None)
-    x = pb.simulate(pb.Model([BenchDrag]), {"c_bd": 300.0}, clean.input[0],
-                    time_s=clean.time_s)[0]
-    noisy = MeasurementNoise().apply(np.repeat(x[None], n_trials, axis=0), clean.dt_s,
-                                     np.random.default_rng(seed))
-    return Dataset(time_s=clean.time_s, input=clean.input, position_m=noisy,
-                   trial_ids=clean.trial_ids, input_name=clean.input_name,
-                   metadata={**clean.metadata, "description": "base + quadratic drag"})
+    return generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp,
+                                  effects={HiddenDrag: {"c_hidden": 300.0}},
+                                  description="base + quadratic drag (synthetic)")
 
 
 def main(argv: list[str] | None = None) -> int:

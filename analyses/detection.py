@@ -61,12 +61,17 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-import pmabayes as pb
 from pmabayes.batch import dask_client
 from pmabayes.criticism import diagnose
-from pmabayes.data import Dataset
 from pmabayes.parallel import Runner
-from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
+from pmabayes.synthetic import (
+    Chirp,
+    HiddenCompressionSpring,
+    HiddenDetent,
+    HiddenDrag,
+    draw_plausible,
+    generate_chirp_dataset,
+)
 
 #: the round-one library, as the paper's detection table was made with (a user's plugins,
 #: and the effects added since, would join the candidates otherwise)
@@ -106,62 +111,6 @@ def _run(job: dict) -> tuple[int, dict, float]:
 # the discrepancy part: effects in no library
 
 
-def _detent(q, x, v, p):
-    k = 2.0 * np.pi / q[1]
-    return q[0] * np.sin(k * x), q[0] * k * np.cos(k * x), 0.0
-
-
-class OutsideDetent(pb.Effect):
-    """A rail's detent force, periodic in position (in no library)."""
-
-    name = "outside_detent"
-    stage = "force"
-    parameters = (
-        pb.Parameter("F_det", "N", 1.0, pb.HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
-                     description="detent amplitude"),
-        pb.Parameter("L_det", "m", 0.01, pb.HalfNormal(0.05), bounds=(1e-4, 1.0), null=0.01,
-                     vary=False, description="detent period"),
-    )
-    description = "Detent force of a rail."
-    physics = staticmethod(_detent)
-
-
-def _drag(q, x, v, p):
-    return q[0] * v * abs(v), 0.0, 2.0 * q[0] * abs(v)
-
-
-class OutsideDrag(pb.Effect):
-    """A quadratic drag (in no library)."""
-
-    name = "outside_drag"
-    stage = "force"
-    parameters = (pb.Parameter("c_od", "N s^2/m^2", 0.0, pb.HalfNormal(500.0),
-                               bounds=(0.0, 1e5), null=0.0, description="drag"),)
-    description = "Quadratic drag."
-    physics = staticmethod(_drag)
-
-
-def _compression(q, x, v, p):
-    if x < q[1]:
-        return q[0] * (x - q[1]), q[0], 0.0
-    return 0.0, 0.0, 0.0
-
-
-class OutsideCompressionSpring(pb.Effect):
-    """A spring acting only below ``x_cs`` (in compression; in no library)."""
-
-    name = "outside_compression_spring"
-    stage = "force"
-    parameters = (
-        pb.Parameter("k_cs", "N/m", 0.0, pb.HalfNormal(1e3), bounds=(0.0, 1e5), null=0.0,
-                     description="stiffness in compression"),
-        pb.Parameter("x_cs", "m", 0.005, pb.HalfNormal(0.05), bounds=(-1.0, 1.0),
-                     null=0.005, vary=False, description="where it engages"),
-    )
-    description = "A spring stiffening the muscle in compression only."
-    physics = staticmethod(_compression)
-
-
 #: Library effects a data set may have added (each named missing in turn) before the
 #: discrepancy step is judged.
 MAX_LIBRARY_ROUNDS = 1
@@ -169,9 +118,9 @@ MAX_LIBRARY_ROUNDS = 1
 #: effect, its size parameter, sizes drawn log-uniformly in (low, high), the state
 #: its force depends on most
 OUTSIDE = (
-    (OutsideDetent, "F_det", (1.0, 10.0), "position"),
-    (OutsideDrag, "c_od", (150.0, 1500.0), "velocity"),
-    (OutsideCompressionSpring, "k_cs", (1500.0, 6000.0), "position"),
+    (HiddenDetent, "F_det", (1.0, 10.0), "position"),
+    (HiddenDrag, "c_hidden", (150.0, 1500.0), "velocity"),
+    (HiddenCompressionSpring, "k_cs", (1500.0, 6000.0), "position"),
 )
 
 
@@ -179,20 +128,12 @@ def _run_discrepancy(job: dict) -> tuple[int, dict, float]:
     """Diagnose one data set with a hidden effect outside the library (or none)."""
     import tempfile
 
-    clean = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"],
-                                   chirp=job["chirp"], params=job["truth"], noise=None)
-    if job["outside"] is None:
-        ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"],
-                                    chirp=job["chirp"], params=job["truth"])
-    else:
+    effects = None
+    if job["outside"] is not None:
         effect, param, _, _ = OUTSIDE[job["outside"]]
-        x = pb.simulate(pb.Model([effect]), {**job["truth"], param: job["size"]},
-                        clean.input[0], time_s=clean.time_s)[0]
-        noisy = MeasurementNoise().apply(np.repeat(x[None], job["n_trials"], axis=0),
-                                         clean.dt_s, np.random.default_rng(job["seed"]))
-        ds = Dataset(time_s=clean.time_s, input=clean.input, position_m=noisy,
-                     trial_ids=clean.trial_ids, input_name=clean.input_name,
-                     metadata=clean.metadata)
+        effects = {effect: {param: job["size"]}}
+    ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"], chirp=job["chirp"],
+                                params=job["truth"], effects=effects)
     start = time.perf_counter()
     added: list[str] = []
     first_ratio = float("nan")

@@ -3,7 +3,7 @@
 The README's worked example (section "Beyond the library"), through the public API:
 
 1. synthetic trials of the paper's model plus a quadratic drag of 300 N s²/m² that no
-   library holds: a user effect defined here, ``hidden_drag`` (parameter
+   library holds: ``pmabayes.synthetic.HiddenDrag``, ``hidden_drag`` (parameter
    ``c_hidden``), as ``pmabayes --plugin hidden.py simulate drag.csv --effect
    hidden_drag=300 --duration 8 --trials 6 --seed 3`` makes them;
 2. ``pmabayes.criticism.diagnose`` of the base model, with the built-in library as
@@ -62,11 +62,10 @@ from _paper import (
 )
 from matplotlib.figure import Figure
 
-import pmabayes as pb
 from pmabayes.cli import load_plugin
 from pmabayes.criticism import diagnose
 from pmabayes.effects import get_effect, registered_effects
-from pmabayes.synthetic import Chirp, generate_chirp_dataset
+from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
 
 #: the hidden drag coefficient in N s²/m² (the README's example)
 TRUE_DRAG = 300.0
@@ -76,24 +75,6 @@ N_TRIALS = 6
 #: quick mode: one refit per diagnosis and fewer Laplace draws (defaults 3 and 400)
 QUICK_DIAGNOSE = {"max_refits": 1, "n_draws": 100}
 NA = "n/a"
-
-
-def _hidden_drag(q, x, v, p):
-    c = q[0]
-    return c * v * abs(v), 0.0, 2.0 * c * abs(v)  # force, d/dx, d/dv
-
-
-class HiddenDrag(pb.Effect):
-    """The stand-in for the real world: a quadratic drag that no library holds."""
-
-    name = "hidden_drag"
-    stage = "force"
-    parameters = (
-        pb.Parameter("c_hidden", "N s^2/m^2", 50.0, pb.HalfNormal(200.0), bounds=(0.0, 1e5),
-                     null=0.0, description="drag force per squared velocity"),
-    )
-    description = "Drag growing with the square of the velocity (hidden; synthetic data)."
-    physics = staticmethod(_hidden_drag)
 
 
 def _verdict(d) -> str:
@@ -247,11 +228,10 @@ def main(argv: list[str] | None = None) -> int:
     for old in proposal_dir.glob("proposed_*.py"):  # this script's earlier proposals
         old.unlink()
 
-    library = tuple(registered_effects())  # the built-ins: the hidden one is never a candidate
-    pb.register_effect(HiddenDrag)
+    library = tuple(registered_effects())  # the built-ins; the hidden drag is never registered
     chirp, n_trials = (QUICK_CHIRP, QUICK_TRIALS) if args.quick else (CHIRP, N_TRIALS)
     ds = generate_chirp_dataset(n_trials=n_trials, seed=args.data_seed, chirp=chirp,
-                                effects={"hidden_drag": {"c_hidden": TRUE_DRAG}},
+                                effects={HiddenDrag: {"c_hidden": TRUE_DRAG}},
                                 description="paper model plus a hidden quadratic drag "
                                             "(synthetic)")
     kw = dict(candidates=library, seed=args.seed, plugin_dir=proposal_dir,

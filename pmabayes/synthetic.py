@@ -17,9 +17,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pmabayes.data import DataError, Dataset
-from pmabayes.effects import get_effect
+from pmabayes.effects import Effect, get_effect
 from pmabayes.likelihood import ar1_noise
 from pmabayes.model import Model, ModelError, Rig
+from pmabayes.parameters import HalfNormal, Parameter
 from pmabayes.simulator import simulate
 
 __all__ = [
@@ -30,6 +31,11 @@ __all__ = [
     "MeasurementNoise",
     "hidden_effects_model",
     "generate_chirp_dataset",
+    "HiddenDetent",
+    "HiddenDrag",
+    "HiddenCompressionSpring",
+    "HiddenZForce",
+    "OUTSIDE_LIBRARY",
 ]
 
 #: The paper's linear encoder: 2000 quadrature counts per inch.
@@ -201,7 +207,7 @@ class MeasurementNoise:
 
 
 def hidden_effects_model(
-    effects: Mapping[str, Mapping[str, float] | float] | None,
+    effects: Mapping[str | type[Effect], Mapping[str, float] | float] | None,
     *,
     rig: Rig | None = None,
 ) -> tuple[Model, dict[str, float]]:
@@ -210,9 +216,10 @@ def hidden_effects_model(
     Parameters
     ----------
     effects : mapping
-        Effect name to either a mapping of its parameter values, or one number for
-        its first varying parameter (``{"regulator_lag": 0.045}``). Parameters not
-        given keep their defaults.
+        Effect (a registered name, or an :class:`~pmabayes.effects.Effect` subclass
+        such as those of :data:`OUTSIDE_LIBRARY`, which no library holds) to either a
+        mapping of its parameter values, or one number for its first varying parameter
+        (``{"regulator_lag": 0.045}``). Parameters not given keep their defaults.
     rig : Rig, optional
         The rig; characterisation rig by default.
 
@@ -230,13 +237,13 @@ def hidden_effects_model(
     effects = dict(effects or {})
     model = Model(list(effects), rig=rig)
     values: dict[str, float] = {}
-    for name, setting in effects.items():
-        eff = get_effect(name)
+    for key, setting in effects.items():
+        eff = get_effect(key) if isinstance(key, str) else key
         if isinstance(setting, Mapping):
             for pname, value in setting.items():
                 if pname not in eff.parameter_names():
                     raise ModelError(
-                        f"effect {name!r} has no parameter {pname!r}; it has "
+                        f"effect {eff.name!r} has no parameter {pname!r}; it has "
                         f"{', '.join(eff.parameter_names())}"
                     )
                 values[pname] = float(value)
@@ -254,7 +261,7 @@ def generate_chirp_dataset(
     chirp: Chirp | None = None,
     noise: MeasurementNoise | None = MeasurementNoise(),
     params: Mapping[str, float] | None = None,
-    effects: Mapping[str, Mapping[str, float] | float] | None = None,
+    effects: Mapping[str | type[Effect], Mapping[str, float] | float] | None = None,
     rig: Rig | None = None,
     description: str = "",
 ) -> Dataset:
@@ -321,8 +328,8 @@ def generate_chirp_dataset(
             "n_trials": int(n_trials),
             "chirp": asdict(chirp),
             "noise": None if noise is None else asdict(noise),
-            "effects": {name: {p: effect_values[p] for p in get_effect(name).parameter_names()
-                               if p in effect_values} for name in model.effect_names},
+            "effects": {eff.name: {p: effect_values[p] for p in eff.parameter_names()
+                                   if p in effect_values} for eff in model.effects},
             "parameters": {k: float(v) for k, v in values.items()},
         },
     }
@@ -334,3 +341,92 @@ def generate_chirp_dataset(
         input_name=model.rig.input_name,
         metadata=metadata,
     )
+
+
+# ---------------------------------------------------------------------------------
+# Effects in no library: the stand-ins for physics pmabayes does not know, used to
+# hide an unknown effect in synthetic data (the discrepancy step's tests and studies).
+# They are never registered, so `diagnose` never offers them as candidates.
+
+
+def _detent(q, x, v, p):
+    k = 2.0 * np.pi / q[1]
+    return q[0] * np.sin(k * x), q[0] * k * np.cos(k * x), 0.0  # force, d/dx, d/dv
+
+
+class HiddenDetent(Effect):
+    """A rail's detent force, periodic in position (in no library)."""
+
+    __test__ = False  # not a pytest class
+    name = "hidden_detent"
+    stage = "force"
+    parameters = (
+        Parameter("F_det", "N", 1.0, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+                  description="detent amplitude"),
+        Parameter("L_det", "m", 0.01, HalfNormal(0.05), bounds=(1e-4, 1.0), null=0.01,
+                  vary=False, description="detent period"),
+    )
+    description = "Detent force of a rail, periodic in position (hidden; synthetic data)."
+    physics = staticmethod(_detent)
+
+
+def _drag(q, x, v, p):
+    return q[0] * v * abs(v), 0.0, 2.0 * q[0] * abs(v)
+
+
+class HiddenDrag(Effect):
+    """A quadratic drag, ``c_hidden v |v|`` (in no library)."""
+
+    __test__ = False
+    name = "hidden_drag"
+    stage = "force"
+    parameters = (
+        Parameter("c_hidden", "N s^2/m^2", 0.0, HalfNormal(500.0), bounds=(0.0, 1e5),
+                  null=0.0, description="drag force per squared velocity"),
+    )
+    description = "Drag growing with the square of the velocity (hidden; synthetic data)."
+    physics = staticmethod(_drag)
+
+
+def _compression(q, x, v, p):
+    if x < q[1]:
+        return q[0] * (x - q[1]), q[0], 0.0
+    return 0.0, 0.0, 0.0
+
+
+class HiddenCompressionSpring(Effect):
+    """A spring acting only below ``x_cs``, in compression (in no library)."""
+
+    __test__ = False
+    name = "hidden_compression_spring"
+    stage = "force"
+    parameters = (
+        Parameter("k_cs", "N/m", 0.0, HalfNormal(1e3), bounds=(0.0, 1e5), null=0.0,
+                  description="stiffness in compression"),
+        Parameter("x_cs", "m", 0.005, HalfNormal(0.05), bounds=(-1.0, 1.0), null=0.005,
+                  vary=False, description="where it engages"),
+    )
+    description = "A spring stiffening the muscle in compression only (hidden; synthetic data)."
+    physics = staticmethod(_compression)
+
+
+def _z_force(q, x, v, p, z, s):
+    return q[0] * z * abs(z), 0.0, 0.0, 2.0 * q[0] * abs(z), 0.0
+
+
+class HiddenZForce(Effect):
+    """A hysteretic force growing as ``z |z|``: a loop that fattens faster than z."""
+
+    __test__ = False
+    name = "hidden_z_force"
+    stage = "force"
+    reads_z = True
+    parameters = (Parameter("c_hz", "1/N", 0.0, HalfNormal(0.01), bounds=(0.0, 1.0),
+                            null=0.0, description="z|z| coefficient"),)
+    description = "A force in z|z| (hidden; synthetic data)."
+    physics = staticmethod(_z_force)
+
+
+#: The effects in no library, for hiding unknown physics in synthetic data.
+OUTSIDE_LIBRARY: tuple[type[Effect], ...] = (HiddenDetent, HiddenDrag,
+                                             HiddenCompressionSpring, HiddenZForce)

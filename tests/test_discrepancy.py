@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.data import Dataset
-from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
+from pmabayes.synthetic import (
+    Chirp,
+    HiddenCompressionSpring,
+    HiddenDetent,
+    HiddenDrag,
+    HiddenZForce,
+    generate_chirp_dataset,
+)
 
 CHIRP = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=3.0)
 BUILTINS = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiffness",
@@ -16,95 +22,14 @@ BUILTINS = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiff
 
 
 # ---------------------------------------------------------------------------------
-# hidden effects in no library: known only to this file, never registered
-
-
-def _detent(q, x, v, p):
-    k = 2.0 * np.pi / q[1]
-    return q[0] * np.sin(k * x), q[0] * k * np.cos(k * x), 0.0
-
-
-class HiddenDetent(pb.Effect):
-    """A rail's detent force, periodic in position."""
-
-    __test__ = False
-    name = "hidden_detent"
-    stage = "force"
-    parameters = (
-        pb.Parameter("F_det", "N", 1.0, pb.HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
-                     description="detent amplitude"),
-        pb.Parameter("L_det", "m", 0.01, pb.HalfNormal(0.05), bounds=(1e-4, 1.0), null=0.01,
-                     vary=False, description="detent period"),
-    )
-    description = "Detent force of a rail."
-    physics = staticmethod(_detent)
-
-
-def _drag(q, x, v, p):
-    return q[0] * v * abs(v), 0.0, 2.0 * q[0] * abs(v)
-
-
-class HiddenDrag(pb.Effect):
-    """A quadratic drag."""
-
-    __test__ = False
-    name = "hidden_drag"
-    stage = "force"
-    parameters = (pb.Parameter("c_hd", "N s^2/m^2", 0.0, pb.HalfNormal(500.0),
-                               bounds=(0.0, 1e5), null=0.0, description="drag"),)
-    description = "Quadratic drag."
-    physics = staticmethod(_drag)
-
-
-def _compression(q, x, v, p):
-    if x < q[1]:
-        return q[0] * (x - q[1]), q[0], 0.0
-    return 0.0, 0.0, 0.0
-
-
-class HiddenCompressionSpring(pb.Effect):
-    """A spring that acts only when the muscle is shorter than ``x_cs`` (in compression)."""
-
-    __test__ = False
-    name = "hidden_compression_spring"
-    stage = "force"
-    parameters = (
-        pb.Parameter("k_cs", "N/m", 0.0, pb.HalfNormal(1e3), bounds=(0.0, 1e5), null=0.0,
-                     description="stiffness in compression"),
-        pb.Parameter("x_cs", "m", 0.02, pb.HalfNormal(0.05), bounds=(-1.0, 1.0), null=0.02,
-                     vary=False, description="where it engages"),
-    )
-    description = "A spring stiffening the muscle in compression only."
-    physics = staticmethod(_compression)
-
-
-def _z_force(q, x, v, p, z, s):
-    return q[0] * z * abs(z), 0.0, 0.0, 2.0 * q[0] * abs(z), 0.0
-
-
-class HiddenZForce(pb.Effect):
-    """A hysteretic force growing as z|z|: a loop that fattens faster than z."""
-
-    __test__ = False
-    name = "hidden_z_force"
-    stage = "force"
-    reads_z = True
-    parameters = (pb.Parameter("c_hz", "1/N", 0.0, pb.HalfNormal(0.01), bounds=(0.0, 1.0),
-                               null=0.0, description="z|z| coefficient"),)
-    description = "A force in z|z|."
-    physics = staticmethod(_z_force)
+# hidden effects in no library (pmabayes.synthetic's, never registered)
 
 
 def hidden(effect, values, seed, n_trials=6, chirp=CHIRP):
     """Trials of the base model plus one hidden effect, with the usual measurement noise."""
-    clean = generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp, noise=None)
-    x = pb.simulate(pb.Model([effect]), values, clean.input[0], time_s=clean.time_s)[0]
-    noisy = MeasurementNoise().apply(np.repeat(x[None], n_trials, axis=0), clean.dt_s,
-                                     np.random.default_rng(seed))
-    return Dataset(time_s=clean.time_s, input=clean.input, position_m=noisy,
-                   trial_ids=clean.trial_ids, input_name=clean.input_name,
-                   metadata={**clean.metadata,
-                             "description": f"base model plus {effect.name} (synthetic)"})
+    return generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp,
+                                  effects={effect: values},
+                                  description=f"base model plus {effect.name} (synthetic)")
 
 
 # ---------------------------------------------------------------------------------
@@ -249,7 +174,7 @@ def diagnosis(ds, **kw):
 CASES = [
     pytest.param(HiddenDetent, {"F_det": 2.0}, 31, "position", (), id="hidden_detent",
                  marks=pytest.mark.extended),  # extended tier: CI stays under 30 minutes
-    pytest.param(HiddenDrag, {"c_hd": 300.0}, 32, "velocity", (), id="hidden_drag"),
+    pytest.param(HiddenDrag, {"c_hidden": 300.0}, 32, "velocity", (), id="hidden_drag"),
     # engaging in the lowest 5 mm only, like an end stop. It shifts the low positions,
     # so the library's position_offset removes 91% of the excess and diagnose's rule
     # names it first (leaving 15.7x the floor); added, the spring is what is left
@@ -296,8 +221,8 @@ def test_several_experiments_estimate_it_on_the_worst_and_check_it_on_all(tmp_pa
 
     from pmabayes.cli import load_plugin
 
-    a = replace(hidden(HiddenDrag, {"c_hd": 300.0}, 32), source="lab/chirp_a.csv")
-    b = replace(hidden(HiddenDrag, {"c_hd": 300.0}, 36,
+    a = replace(hidden(HiddenDrag, {"c_hidden": 300.0}, 32), source="lab/chirp_a.csv")
+    b = replace(hidden(HiddenDrag, {"c_hidden": 300.0}, 36,
                        chirp=Chirp(duration_s=4.0, f0_hz=0.5, f1_hz=2.0)),
                 source="lab/chirp_b.csv")
     before = diagnosis([a, b], plugin_dir=tmp_path)
