@@ -42,6 +42,24 @@ DEFAULT_REFERENCE = next(
     Path(__file__).resolve().parents[2] / "shared" / "bench" / "c_reference")
 
 
+def vector_extensions() -> str:
+    """The CPU's widest vector extension, from ``/proc/cpuinfo`` (Linux), for the record.
+
+    The batch loop's speed depends on it (AVX-512 vectors hold 8 doubles, AVX2 4);
+    the scalar C reference's much less.
+    """
+    try:
+        flags = next((line.split(":", 1)[1].split() for line in
+                      Path("/proc/cpuinfo").read_text().splitlines()
+                      if line.startswith("flags")), [])
+    except OSError:
+        return "unknown"
+    for flag, label in (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("sse2", "SSE2")):
+        if flag in flags:
+            return label
+    return "unknown"
+
+
 def c_reference_us(path: Path) -> float:
     """Run the C reference and parse its ``c_reference_us_per_trial`` figure."""
     out = subprocess.run([str(path)], check=True, capture_output=True, text=True).stdout
@@ -88,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
             Model(), pressure, dt_s, between_samples="bandlimited", substeps=substeps)
     c_us = c_reference_us(args.reference)  # measured after ours, in the same run
 
+    print(f"CPU vector extension: {vector_extensions()}")
     print(f"batch {BATCH} x 15 s chirp at 1 kHz, best of {REPEATS}; C reference "
           f"{c_us:.1f} us/trial")
     print(f"{'model':<22}{'us/trial':>10}{'ratio vs C':>12}")

@@ -383,7 +383,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     model = _model_for(datasets[0], args)
     result = diagnose(datasets if len(datasets) > 1 else datasets[0], model,
                       candidates=args.candidates or None, seed=args.seed,
-                      progress=not args.quiet,
+                      progress=not args.quiet, noise_model=args.noise_model,
                       plugin_dir=args.proposal_dir or args.out or Path.cwd())
     summary = result.to_dict()
     label = " + ".join(["base", *result.model.effect_names])
@@ -676,13 +676,17 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-noise", action="store_true",
                    help="one noise model for all experiments (same sensor and disturbance) "
                    "instead of one per experiment")
+    _noise_model_option(p)
+    _exclude_option(p)
+
+
+
+def _noise_model_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-model", choices=("auto", "ar1", "ar"), default="auto",
                    help="noise model of the likelihood where the noise comes from repeats: "
                    "'auto' (AR(1) + white unless the repeats reject it, then their AR(p)), "
                    "'ar1' or 'ar' (always one of them); records without repeats keep "
                    "AR(1) + white")
-    _exclude_option(p)
-
 
 
 def _fit_commands(sub) -> None:
@@ -801,6 +805,7 @@ def _criticism_commands(sub) -> None:
                       "the discrepancy step proposes one (default: --out, else the current "
                       "folder; an existing file is never overwritten)")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
+    _noise_model_option(diag)
     _prior_option(diag)
     diag.add_argument("--quiet", action="store_true", help="no progress lines")
     _exclude_option(diag)

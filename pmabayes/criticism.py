@@ -30,7 +30,7 @@ from pmabayes.data import DataError, Dataset, check_same_input_kind
 from pmabayes.discrepancy import Discrepancy, estimate_discrepancy
 from pmabayes.effects import get_effect, registered_effects
 from pmabayes.fit import NoiseEstimate, Posterior, _on_rig, estimate_noise, find_map
-from pmabayes.likelihood import Likelihood
+from pmabayes.likelihood import Likelihood, check_noise_model_name, choose_noise_model
 from pmabayes.model import Model
 from pmabayes.posterior import (
     check_dataset,
@@ -827,8 +827,10 @@ class _Settings:
     n_draws: int
     substeps: int
     candidates: tuple | None
+    noise_model: str = "auto"
 
     def __post_init__(self) -> None:
+        check_noise_model_name(self.noise_model)
         if not 0.0 < self.level < 1.0 or not 0.0 < self.level_adequate < 1.0:
             raise ValueError("level and level_adequate must be in (0, 1)")
         if not 0.0 < self.ci_prob < 1.0:
@@ -888,6 +890,10 @@ def _fit_base(models: list, datasets: list, names: list, s: _Settings,
     """Noise from the spread between repeats, the shared MAP, the signatures and the ELPD."""
     liks = [Likelihood(m, ds, substeps=s.substeps) for m, ds in zip(models, datasets, strict=True)]
     repeat_noise = [estimate_noise(lik) if lik.n_repeats >= 2 else None for lik in liks]
+    for lik, noise in zip(liks, repeat_noise, strict=True):
+        if noise is not None:  # the fit's choice: the repeats' AR(p) where they reject AR(1)
+            lik.use_ar_noise(choose_noise_model(lik, noise.sigma, noise.rho, noise.white,
+                                                s.noise_model).ar)
     posterior, best = _fit_map(liks, repeat_noise, names, rng)
     values = dict(best.values)
     noises = _experiment_noises(posterior, best)
@@ -903,6 +909,8 @@ def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> 
     it predicts."""
     ext_liks = [Likelihood(lik.model.with_effects(effect), lik.dataset, substeps=s.substeps)
                 for lik in base.likelihoods]
+    for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
+        ext.use_ar_noise(lik.ar_noise)
     ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng)
     ext = ext_liks[0].model
     eff = ext.effects[-1]
@@ -1061,6 +1069,7 @@ def diagnose(
     progress: bool = False,
     discrepancy: bool = True,
     plugin_dir=None,
+    noise_model: str = "auto",
 ) -> Diagnosis:
     """Fit a model, criticise it and find which effect in the library is missing.
 
@@ -1155,6 +1164,12 @@ def diagnose(
     plugin_dir : str or Path, optional
         Where the proposed effect's ``.py`` file is written (the current folder by
         default; an existing file is never overwritten).
+    noise_model : str
+        The likelihood's noise model where the noise comes from repeats, as in
+        :func:`pmabayes.fit.fit`: ``"auto"`` (AR(1) + white unless the repeats reject
+        it, then their AR(p)), ``"ar1"`` or ``"ar"``. It is what the MAP, the refits,
+        their intervals and the ELPD use; the score tests and the discrepancy step
+        whiten with AR(1) + white.
 
     Returns
     -------
@@ -1170,7 +1185,8 @@ def diagnose(
     s = _Settings(level=level, level_adequate=level_adequate,
                   energy_tolerance=energy_tolerance, max_refits=max_refits,
                   min_explained=min_explained, ci_prob=ci_prob, n_draws=n_draws,
-                  substeps=substeps, candidates=None if candidates is None else tuple(candidates))
+                  substeps=substeps, candidates=None if candidates is None else tuple(candidates),
+                  noise_model=noise_model)
     say = Progress("diagnose", progress)
     rng = np.random.default_rng(seed)
     datasets, models, names = _experiments(datasets, model, effects)
@@ -1232,7 +1248,10 @@ def diagnose(
                   "energy_tolerance": energy_tolerance, "max_refits": max_refits,
                   "min_explained": min_explained, "ci_prob": ci_prob, "n_draws": n_draws,
                   "seed": seed if isinstance(seed, int) else None, "substeps": substeps,
-                  "candidates": [f.effect for f in findings]},
+                  "candidates": [f.effect for f in findings],
+                  "noise_model": [lik.noise_model_name if noise is not None else None
+                                  for lik, noise in zip(base.likelihoods, base.repeat_noise,
+                                                        strict=True)]},
         experiments=experiments,
         discrepancy=found,
         discrepancy_experiment=None if found is None else base.names[k],

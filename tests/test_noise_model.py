@@ -276,3 +276,37 @@ def test_a_fit_with_ar1_noise_records_it_and_predicts_as_before():
     rec = fit_info(tree)["experiments"][0]["noise_model"]
     assert rec["model"] == "AR(1) + white" and rec["order"] == 1 and rec["ljung_box_p"] >= 0.01
     assert "coefficients" not in rec and noise_models(tree) == [None]
+
+
+# -- diagnose --------------------------------------------------------------------------
+
+def test_diagnose_rejects_an_unknown_noise_model_before_fitting():
+    from pmabayes.criticism import diagnose
+
+    ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
+    with pytest.raises(ValueError, match="noise_model"):
+        diagnose(ds, noise_model="ar2")
+
+
+@pytest.mark.slow
+def test_diagnose_refits_with_the_repeats_noise_model():
+    """On two-time-scale data a refit's interval and ELPD use the repeats' AR(p) with
+    "auto" (the same as "ar", not as "ar1"), and its interval covers the hidden lag."""
+    from pmabayes.criticism import diagnose
+
+    lag = 0.03
+    ds = generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP, noise=TWO_SCALE,
+                                effects={"regulator_lag": lag})
+    kw = dict(candidates=("regulator_lag",), max_refits=1, discrepancy=False, seed=0,
+              n_draws=100)
+    runs = {m: diagnose(ds, noise_model=m, **kw) for m in ("auto", "ar", "ar1")}
+    refits = {m: d.ranking[0].refit for m, d in runs.items()}
+    assert all(r is not None and r.effect == "regulator_lag" for r in refits.values())
+    assert refits["auto"].interval == refits["ar"].interval
+    assert refits["auto"].elpd == refits["ar"].elpd
+    assert refits["auto"].interval != refits["ar1"].interval
+    lo, hi = refits["auto"].interval["tau_reg"]
+    assert lo <= lag <= hi
+    assert runs["auto"].missing == "regulator_lag"
+    assert runs["auto"].settings["noise_model"][0].startswith("AR(")
+    assert runs["ar1"].settings["noise_model"] == ["AR(1) + white"]
