@@ -58,15 +58,31 @@ def test_new_effects_are_documented_builtins(name):
 
 
 def test_polynomial_helpers_match_libm():
+    """``decay`` and ``power`` against libm (measured: decay 2.2e-16 and 4.4e-16,
+    power 5.6e-16 on the small grid and 2.1e-14 over its whole domain)."""
     y = np.concatenate([[0.0, 1e-12, 1e-6], np.geomspace(1e-4, 39.0, 200), [41.0, 80.0]])
     for v in y:
         e, phi = decay(v)
-        assert e == pytest.approx(np.exp(-v), rel=3e-12, abs=5e-18)
+        assert e == pytest.approx(np.exp(-v), rel=3e-15, abs=5e-18)
         want = 1.0 if v == 0.0 else -np.expm1(-v) / v
-        assert phi == pytest.approx(want, rel=1e-13)
+        assert phi == pytest.approx(want, rel=3e-15)
     for base in np.geomspace(1e-6, 1e3, 97):
         for ex in (-0.3, -0.1, 0.0, 0.05, 0.5):
-            assert power(base, ex) == pytest.approx(base**ex, rel=2e-11)
+            assert power(base, ex) == pytest.approx(base**ex, rel=2e-14)
+    # power's whole domain: base in [2^-60, 2^60], |e ln base| <= 40, and its edges
+    rng = np.random.default_rng(20)
+    base = np.exp2(rng.uniform(-60.0, 60.0, 4000))
+    ex = rng.uniform(-40.0, 40.0, base.size) / np.abs(np.log(base))
+    edge = np.array([2.0**-60, 2.0**60, 1.0 + 2.0**-52, 1.0 - 2.0**-53, 0.5, 2.0])
+    base = np.concatenate([base, edge, edge])
+    ex = np.concatenate([ex, 40.0 / np.abs(np.log(edge)), -40.0 / np.abs(np.log(edge))])
+    got = np.array([power(b, x) for b, x in zip(base, ex, strict=True)])
+    assert np.max(np.abs(got / base**ex - 1.0)) <= 5e-14
+    # beyond it: the base and e ln base are clamped
+    assert power(1e-300, 0.5) == power(2.0**-60, 0.5)
+    assert power(1e300, -0.1) == power(2.0**60, -0.1)
+    assert power(2.0, 100.0) == pytest.approx(np.exp(40.0), rel=3e-14)
+    assert power(1e-6, -10.0) == pytest.approx(np.exp(40.0), rel=3e-14)
 
 
 @pytest.mark.parametrize("name", NEW)
