@@ -45,7 +45,7 @@ meaning together. It acts at one *stage* of the signal path:
     value at the step's mean ``|z|`` (second order, like the rest of the scheme).
     Keep ``g`` finite and of moderate size (``|c| g |dx|`` stays well below 1 over a
     step) and free of libm calls (``math.exp``, ``**``) if the batch loop is to
-    vectorise: :func:`power` is a polynomial-only ``y**e``. A model holds at most
+    vectorise: :func:`power` is a libm-free ``y**e``. A model holds at most
     one hysteresis effect.
 
 **Force effects that read z or carry a state.** A force effect may set
