@@ -12,10 +12,13 @@ The pipeline of :func:`fit`:
    trial mean's likelihood uses their AR(p) model instead (``noise_model``).
 1. **Global search** (the paper's GlobalSearch): differential evolution on the
    paper's cost, the RMS error of the trial mean, over the prior's plausible
-   region (0.5% to 99.5% prior quantiles) of the model's free parameters.
+   region (0.5% to 99.5% prior quantiles) of the model's free parameters. A noise
+   sampled with the model (a record without repeats), which that cost does not
+   see, starts at its posterior mode given the optimum, from its residual.
 2. **Local polish** (the paper's fmincon): L-BFGS-B on the negative log
    posterior from the global optimum. This is the MAP. Gradients and the
-   Hessian come from central differences evaluated in one batched simulation.
+   Hessian come from central differences evaluated in one batched simulation
+   (measured again along its own eigenvectors where it comes out indefinite).
 3. **Sampling**: emcee's ``EnsembleSampler``, vectorised over walkers through the
    batched simulator. Walkers start from the Laplace approximation at the MAP.
    Several independent ensembles run in parallel processes (one per core by
@@ -345,8 +348,10 @@ def find_map(
     The global search is differential evolution (strategy ``currenttobest1bin``)
     over the prior's plausible box. It stops when the whole population has come
     together in one basin (the spread of its costs at most 1% of their mean), or
-    after ``maxiter`` generations. Its optimum is polished (L-BFGS-B, then Newton
-    steps whose Hessian gives the Laplace covariance).
+    after ``maxiter`` generations. A noise sampled with the model (no repeats) is
+    not searched, since the cost does not depend on it: it starts at its mode
+    given the search's optimum (:func:`_noise_start`). The optimum is polished
+    (L-BFGS-B, then Newton steps whose Hessian gives the Laplace covariance).
 
     Parameters
     ----------
