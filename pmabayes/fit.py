@@ -241,6 +241,11 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
 
     out = z.copy()
     out[cols] = _minimise_noise(neg, u0)
+    # a correlation at its guard (a disturbance slower than the guard allows) starts
+    # the polish just inside it, where its finite differences stay in the support
+    rho = cols[1::3]
+    edge = np.arctanh(0.99 * posterior.upper[rho])
+    out[rho] = np.clip(out[rho], -edge, edge)
     return out
 
 
@@ -504,6 +509,8 @@ def _laplace_covariance(hess: np.ndarray, neg_logpost=None, u: np.ndarray | None
     """
     h = hess
     for k in range(passes + 1):
+        if not np.all(np.isfinite(h)):  # a step left the support: nothing to refine
+            break
         try:
             cov = np.linalg.inv(h)
             np.linalg.cholesky(cov)
@@ -513,6 +520,8 @@ def _laplace_covariance(hess: np.ndarray, neg_logpost=None, u: np.ndarray | None
                 break
         lam, vec = np.linalg.eigh(h)
         lam = np.abs(lam)
+        if not lam.max() > 0:
+            break
         t = vec / np.sqrt(np.maximum(lam, 1e-12 * lam.max()))  # columns: unit curvature
 
         def along(w: np.ndarray, t=t) -> np.ndarray:
