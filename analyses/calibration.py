@@ -99,6 +99,17 @@ def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods:
                    metadata=meta, source=f"periodic_{seed}.csv")
 
 
+def draw_jobs(n_datasets: int, seed: int) -> list[dict]:
+    """The study's data sets, drawn in order from ``seed``: per data set its
+    ``index``, ``truth`` (:func:`pmabayes.synthetic.draw_plausible`) and data ``seed``."""
+    rng = np.random.default_rng(seed)
+    jobs = []
+    for i in range(n_datasets):
+        truth = draw_plausible(rng)
+        jobs.append({"index": i, "truth": truth, "seed": int(rng.integers(2**31))})
+    return jobs
+
+
 def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trials: int = 10,
               settings: FitSettings | None = None, verbose: bool = True,
               processes: int | None = None, single: str | None = None,
@@ -118,13 +129,8 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
     """
     if single is not None and single not in SINGLE_MODES:
         raise ValueError(f"single must be one of {SINGLE_MODES} or None, got {single!r}")
-    rng = np.random.default_rng(seed)
-    jobs = []
-    for i in range(n_datasets):
-        truth = draw_plausible(rng)
-        jobs.append({"index": i, "truth": truth, "seed": int(rng.integers(2**31)),
-                     "chirp": chirp, "n_trials": n_trials, "single": single,
-                     "noise": noise, "noise_model": noise_model})
+    jobs = [{**job, "chirp": chirp, "n_trials": n_trials, "single": single, "noise": noise,
+             "noise_model": noise_model} for job in draw_jobs(n_datasets, seed)]
     runner = Runner(processes, client=client, tasks=n_datasets)
     settings = FitSettings() if settings is None else settings
     if not runner.local:  # the data sets share the cores; a fit needs no pool of its own

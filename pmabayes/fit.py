@@ -12,10 +12,13 @@ The pipeline of :func:`fit`:
    trial mean's likelihood uses their AR(p) model instead (``noise_model``).
 1. **Global search** (the paper's GlobalSearch): differential evolution on the
    paper's cost, the RMS error of the trial mean, over the prior's plausible
-   region (0.5% to 99.5% prior quantiles) of the model's free parameters.
+   region (0.5% to 99.5% prior quantiles) of the model's free parameters. A noise
+   sampled with the model (a record without repeats), which that cost does not
+   see, starts at its posterior mode given the optimum, from its residual.
 2. **Local polish** (the paper's fmincon): L-BFGS-B on the negative log
    posterior from the global optimum. This is the MAP. Gradients and the
-   Hessian come from central differences evaluated in one batched simulation.
+   Hessian come from central differences evaluated in one batched simulation
+   (measured again along its own eigenvectors where it comes out indefinite).
 3. **Sampling**: emcee's ``EnsembleSampler``, vectorised over walkers through the
    batched simulator. Walkers start from the Laplace approximation at the MAP.
    Several independent ensembles run in parallel processes (one per core by
@@ -156,19 +159,7 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
         sizes = [lik._d[:, lag:].size for lik in liks]
         return float(np.average(each, weights=sizes))
 
-    var, c1, c2 = moment(0), moment(1), moment(2)
-    rho0 = float(np.clip(c2 / c1, 0.0, 0.9999)) if c1 > 0 else 0.5
-    ar_var = min(max(c1 / max(rho0, 1e-3), 1e-3 * var), var)
-    white_var = max(var - ar_var, 1e-4 * var)
-    u0 = np.array([0.5 * math.log(max(ar_var, 1e-24)), math.atanh(rho0),
-                   0.5 * math.log(max(white_var, 1e-24))])
-    best = None
-    for start in (u0, u0 + np.array([0.0, 0.0, -2.0])):  # the white part may be tiny
-        res = minimize(lambda u: float(neg(u)[0]), start, method="Nelder-Mead",
-                       options={"xatol": 1e-9, "fatol": 1e-9, "maxiter": 6000})
-        if best is None or res.fun < best.fun:
-            best = res
-    u = best.x
+    u = _minimise_noise(neg, _moment_start(moment(0), moment(1), moment(2)))
     hess = _fd_hessian(neg, u, np.full(3, 1e-4))
     try:
         cov = np.linalg.inv(hess)
@@ -180,6 +171,82 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
                        "that they are not copies of one another, and record more repetitions"
                        ) from None
     return NoiseEstimate(float(np.exp(u[0])), float(np.tanh(u[1])), float(np.exp(u[2])), u, cov)
+
+
+def _moment_start(var: float, c1: float, c2: float, rho_high: float = 0.9999) -> np.ndarray:
+    """A start ``(log sigma, atanh rho, log sigma_w)`` for the noise from a series'
+    moments: its variance ``var`` and autocovariances ``c1``, ``c2`` at lags 1 and 2.
+
+    The disturbance's correlation from the decay of the autocovariance between lags
+    1 and 2 (clipped to ``[0, rho_high]``), its variance from lag 1, and the white
+    part from the drop of the autocovariance at lag one.
+    """
+    rho0 = float(np.clip(c2 / c1, 0.0, rho_high)) if c1 > 0 else min(0.5, rho_high)
+    ar_var = min(max(c1 / max(rho0, 1e-3), 1e-3 * var), var)
+    white_var = max(var - ar_var, 1e-4 * var)
+    return np.array([0.5 * math.log(max(ar_var, 1e-24)), math.atanh(rho0),
+                     0.5 * math.log(max(white_var, 1e-24))])
+
+
+def _minimise_noise(neg, u0: np.ndarray) -> np.ndarray:
+    """Minimise ``neg`` (batched) over noise coordinates from ``u0``, and from ``u0``
+    with every white part ``e^2`` times smaller (it may be tiny); the better optimum."""
+    best = None
+    shift = np.zeros(u0.size)
+    shift[2::3] = -2.0  # (log sigma, atanh rho, log sigma_w) per noise
+    for start in (u0, u0 + shift):
+        res = minimize(lambda u: float(neg(u)[0]), start, method="Nelder-Mead",
+                       options={"xatol": 1e-9, "fatol": 1e-9, "maxiter": 6000})
+        if best is None or res.fun < best.fun:
+            best = res
+    return best.x
+
+
+def _default_noise_z(posterior: Posterior) -> np.ndarray:
+    """The sampled noise parameters' defaults in unconstrained coordinates (none when
+    the noise comes from repeats)."""
+    theta = np.array([[p.default for p in posterior.parameters]])
+    return posterior.to_unconstrained(theta)[0, posterior.n_model:]
+
+
+def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
+    """``z`` with the noise sampled with the model (records without repeats) set to
+    its posterior mode given the model's parameters in ``z``.
+
+    The global search's cost does not depend on the noise, so it leaves the noise
+    anywhere; a polish started there can stop in a mode of the noise alone (all of
+    it white, or a negative correlation) far below the posterior's. The residual of
+    the search's optimum is a series of the noise (plus what misfit is left): its
+    moments start the search, over the noise coordinates only, of the posterior.
+    """
+    cols = np.arange(posterior.n_model, posterior.ndim)
+    if cols.size == 0:
+        return z
+    x = posterior.likelihood.simulate(posterior.full_theta(posterior.to_natural(z[None])))
+    parts = (posterior.likelihood.split(x) if isinstance(posterior.likelihood, JointLikelihood)
+             else [x])
+    starts: dict[int, np.ndarray] = {}  # per sampled group, from its first experiment
+    for e, (lik, xe) in enumerate(zip(posterior.likelihoods, parts, strict=True)):
+        g = posterior.groups[e]
+        if posterior.noise_sampled(e) and g not in starts:
+            r = lik.y_mean - xe[0]
+            c = [float(np.mean(r[k:] * r[: r.size - k])) for k in range(3)]
+            starts[g] = _moment_start(*c, rho_high=0.99 * lik.rho_max)
+    u0 = np.concatenate([starts[g] for g in sorted(starts)])  # the columns' order
+
+    def neg(u: np.ndarray) -> np.ndarray:
+        zz = np.repeat(z[None], np.atleast_2d(u).shape[0], axis=0)
+        zz[:, cols] = np.atleast_2d(u)
+        return -posterior.log_prob_z(zz)
+
+    out = z.copy()
+    out[cols] = _minimise_noise(neg, u0)
+    # a correlation at its guard (a disturbance slower than the guard allows) starts
+    # the polish just inside it, where its finite differences stay in the support
+    rho = cols[1::3]
+    edge = np.arctanh(0.99 * posterior.upper[rho])
+    out[rho] = np.clip(out[rho], -edge, edge)
+    return out
 
 
 # ---------------------------------------------------------------------------------
@@ -286,8 +353,10 @@ def find_map(
     The global search is differential evolution (strategy ``currenttobest1bin``)
     over the prior's plausible box. It stops when the whole population has come
     together in one basin (the spread of its costs at most 1% of their mean), or
-    after ``maxiter`` generations. Its optimum is polished (L-BFGS-B, then Newton
-    steps whose Hessian gives the Laplace covariance).
+    after ``maxiter`` generations. A noise sampled with the model (no repeats) is
+    not searched, since the cost does not depend on it: it starts at its mode
+    given the search's optimum (:func:`_noise_start`). The optimum is polished
+    (L-BFGS-B, then Newton steps whose Hessian gives the Laplace covariance).
 
     Parameters
     ----------
@@ -312,13 +381,17 @@ def find_map(
         what the model describes (wrong units, wrong rig, wrong column).
     """
     box = posterior.plausible_box(rng, posterior.names)
-    z_global, global_cost = _global_search(posterior, box, rng, popsize, maxiter)
+    # the search's cost does not depend on a sampled noise: searched over the model's
+    # parameters, it then starts the noise from the optimum's residual
+    n_model = posterior.n_model
+    z_model, global_cost = _global_search(posterior, box[:n_model], rng, popsize, maxiter)
+    z_global = _noise_start(posterior, np.concatenate([z_model, _default_noise_z(posterior)]))
     # optimise in coordinates scaled to the plausible box
     scale = box[:, 1] - box[:, 0]
     neg_logpost = _scaled_neg_log_posterior(posterior, z_global, scale)
     u, hess = _polish(neg_logpost, posterior.ndim)
     z_map = z_global + u * scale
-    cov_z = _laplace_covariance(hess) * np.outer(scale, scale)
+    cov_z = _laplace_covariance(hess, neg_logpost, u) * np.outer(scale, scale)
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
     cost = _check_fit_quality(posterior.likelihood, x[0])
@@ -340,8 +413,10 @@ def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generat
                    popsize: int, maxiter: int) -> tuple[np.ndarray, float]:
     """Differential evolution on the paper's RMS cost; the optimum and its cost."""
     lik = posterior.likelihood
+    rest = _default_noise_z(posterior)  # the cost does not depend on a sampled noise
 
     def rms(z: np.ndarray) -> np.ndarray:
+        z = np.hstack([z, np.repeat(rest[None], z.shape[0], axis=0)])
         theta = posterior.to_natural(z)
         lp = posterior.log_prior(theta)
         out = np.full(theta.shape[0], 1.0)  # 1 m: worse than anything real
@@ -420,14 +495,42 @@ def _scaled_hessian(neg_logpost, u: np.ndarray) -> np.ndarray:
     return _fd_hessian(neg_logpost, u, 0.2 / np.sqrt(np.where(hd > 0, hd, 1.0)))
 
 
-def _laplace_covariance(hess: np.ndarray) -> np.ndarray:
-    """The inverse Hessian, or a diagonal stand-in where that is not a covariance."""
-    try:
-        cov = np.linalg.inv(hess)
-        np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        cov = np.diag(1.0 / np.where(np.diag(hess) > 0, np.diag(hess), 1e6))
-    return cov
+def _laplace_covariance(hess: np.ndarray, neg_logpost=None, u: np.ndarray | None = None,
+                        passes: int = 2) -> np.ndarray:
+    """The inverse Hessian, or a diagonal stand-in where that is not a covariance.
+
+    A posterior whose parameters are strongly correlated has curvatures many orders
+    of magnitude apart; steps along the axes measure its flattest directions with
+    the rounding of its steepest, and the Hessian may come out indefinite. Given
+    ``neg_logpost`` and the point ``u``, the Hessian is then measured again (up to
+    ``passes`` times) along its own eigenvectors, each with steps of 0.2 of that
+    direction's curvature length, where it is near the identity, before the
+    diagonal stand-in (which drops the correlations) is taken.
+    """
+    h = hess
+    for k in range(passes + 1):
+        if not np.all(np.isfinite(h)):  # a step left the support: nothing to refine
+            break
+        try:
+            cov = np.linalg.inv(h)
+            np.linalg.cholesky(cov)
+            return cov
+        except np.linalg.LinAlgError:
+            if neg_logpost is None or k == passes:
+                break
+        lam, vec = np.linalg.eigh(h)
+        lam = np.abs(lam)
+        if not lam.max() > 0:
+            break
+        t = vec / np.sqrt(np.maximum(lam, 1e-12 * lam.max()))  # columns: unit curvature
+
+        def along(w: np.ndarray, t=t) -> np.ndarray:
+            return neg_logpost(u + np.atleast_2d(w) @ t.T)
+
+        hw = _fd_hessian(along, np.zeros(u.size), np.full(u.size, 0.2))
+        tinv = np.linalg.inv(t)
+        h = tinv.T @ hw @ tinv
+    return np.diag(1.0 / np.where(np.diag(hess) > 0, np.diag(hess), 1e6))
 
 
 def _check_fit_quality(lik: Likelihood | JointLikelihood, x: np.ndarray) -> float:

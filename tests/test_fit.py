@@ -32,7 +32,7 @@ from pmabayes.posterior import (
     load_fit,
     save_fit,
 )
-from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
+from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0)
 QUICK = FitSettings(n_walkers=16, n_ensembles=2, max_steps=3000, check_every=200)
@@ -461,3 +461,72 @@ def test_default_walkers_suffice_for_every_built_in_effect():
     assert set(built_in) <= set(registered_effects())
     largest = pb.Model(built_in)
     assert FitSettings().n_walkers >= 2 * len(largest.free_names)
+
+
+def test_map_of_a_single_record_finds_its_noise():
+    """The global search's cost does not depend on a record's sampled noise: the MAP
+    must start the noise from the residual, not from where the search left it.
+
+    Data set 9 of ``calibration.py --single record --seed 3``: before, the polish
+    stopped in a mode of the noise alone (sigma 0.3 um, all of it white), 523 log
+    units below the posterior at the truth.
+    """
+    rng = np.random.default_rng(3)
+    for _ in range(10):  # the study's draws, in its order
+        truth, seed = draw_plausible(rng), int(rng.integers(2**31))
+    chirp = Chirp(duration_s=8.0, f0_hz=0.2, f1_hz=3.0, sample_rate_hz=500.0)
+    noise = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002)
+    ds = generate_chirp_dataset(n_trials=1, seed=seed, chirp=chirp, noise=noise, params=truth)
+    lik = Likelihood(pb.Model(), ds)
+    post = Posterior(lik, None)
+    assert post.names[6:] == ("sigma_noise_m", "rho_noise", "sigma_white_m")
+    s_map = np.random.SeedSequence(seed).spawn(3)[0]  # as fit(ds, seed=seed) seeds it
+    result = find_map(post, rng=np.random.default_rng(s_map))
+    # the generator's disturbance: 20 um, lag-one correlation exp(-1) at 500 Hz
+    assert 15e-6 < result.values["sigma_noise_m"] < 25e-6
+    assert 0.2 < result.values["rho_noise"] < 0.55
+    at_truth = np.array([[truth[n] for n in BASE]
+                         + [20e-6, np.exp(-1.0), 0.0254 / 2000 / np.sqrt(12.0)]])
+    lp, ll, _ = post.evaluate(at_truth, return_x=False)
+    assert result.log_posterior > float(lp[0] + ll[0])
+    # its Laplace covariance is the posterior's: the truth within a few sd of the MAP
+    sd = np.sqrt(np.diag(result.covariance_z))
+    z_truth = post.to_unconstrained(at_truth)[0]
+    assert np.all(np.abs(z_truth[:6] - result.z[:6]) / sd[:6] < 4.0)
+
+
+def test_an_indefinite_hessian_is_measured_again_along_its_eigenvectors():
+    """Curvatures 1e8 apart, strongly correlated: a Hessian measured along the axes
+    can come out indefinite; measured along its eigenvectors it is the right one."""
+    from pmabayes.fit import _laplace_covariance
+
+    rot = np.array([[1.0, 1.0], [1.0, -1.0]]) / np.sqrt(2.0)
+    hess = rot @ np.diag([1e8, 1.0]) @ rot.T
+    center = np.array([0.3, -0.2])
+
+    def neg(u):
+        d = np.atleast_2d(u) - center
+        return 0.5 * np.einsum("bi,ij,bj->b", d, hess, d)
+
+    wrong = hess + np.diag([0.0, -2.0])  # the flat direction lost to rounding
+    assert np.linalg.eigvalsh(wrong).min() < 0
+    cov = _laplace_covariance(wrong, neg, center)
+    assert np.allclose(cov, np.linalg.inv(hess), rtol=1e-6, atol=1e-12)
+    # without the function, the diagonal stand-in (correlations dropped)
+    assert np.count_nonzero(_laplace_covariance(wrong) - np.diag(np.diag(
+        _laplace_covariance(wrong)))) == 0
+
+
+def test_map_of_a_record_whose_noise_sits_at_its_guard():
+    """A 2 Hz chirp bounds its noise's correlation at 0.20, below the generator's
+    0.37: the noise's mode lies on the guard, and the polish must start inside it."""
+    noise = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002)
+    chirp = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0, sample_rate_hz=500.0)
+    ds = generate_chirp_dataset(n_trials=1, seed=2, chirp=chirp, noise=noise)
+    lik = Likelihood(pb.Model(), ds)
+    assert lik.rho_max < 0.3
+    post = Posterior(lik, None)
+    result = find_map(post, rng=np.random.default_rng(0))
+    assert np.isfinite(result.log_posterior)
+    assert 0.9 * lik.rho_max < result.values["rho_noise"] <= lik.rho_max
+    assert np.all(np.linalg.eigvalsh(result.covariance_z) > 0)
