@@ -96,6 +96,29 @@ def oracle(lik: Likelihood, truth: dict, noise: tuple[float, float, float]) -> d
             "ratio": float(r_true @ r_true - sol.fun @ sol.fun)}
 
 
+def oracle_z(truth: dict, data_seed: int, noise: MeasurementNoise = RECORD_NOISE) -> dict:
+    """The oracle on one data set of ``calibration.py --single record``.
+
+    Parameters
+    ----------
+    truth : dict
+        The data set's physical parameters.
+    data_seed : int
+        Its data seed (the ``seed`` column of the study's rows).
+    noise : MeasurementNoise
+        Its measurement.
+
+    Returns
+    -------
+    dict
+        As :func:`oracle`.
+    """
+    ds = generate_chirp_dataset(n_trials=1, seed=data_seed, chirp=RECORD_CHIRP, noise=noise,
+                                params=truth)
+    return oracle(Likelihood(Model(), ds), truth,
+                  true_noise(noise, 1.0 / RECORD_CHIRP.sample_rate_hz))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the oracle over the data sets and print its calibration."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -107,14 +130,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     noise = (replace(RECORD_NOISE, encoder_counts_per_m=None) if args.no_quantisation
              else RECORD_NOISE)
-    known = true_noise(noise, 1.0 / RECORD_CHIRP.sample_rate_hz)
     start = time.perf_counter()
     rows = []
     for seed in args.seeds:
         for job in draw_jobs(args.datasets, seed):
-            ds = generate_chirp_dataset(n_trials=1, seed=job["seed"], chirp=RECORD_CHIRP,
-                                        noise=noise, params=job["truth"])
-            out = oracle(Likelihood(Model(), ds), job["truth"], known)
+            out = oracle_z(job["truth"], job["seed"], noise)
             rows.append({"calibration_seed": seed, "dataset": job["index"], "seed": job["seed"],
                          "ratio": out["ratio"], **{f"z_{p}": out["z"][p] for p in PARAMS}})
     z = np.array([[r[f"z_{p}"] for p in PARAMS] for r in rows])
