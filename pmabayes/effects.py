@@ -677,48 +677,9 @@ def _transport_delay(q, p_start, p_end, dt_s):
             p_end[k, i] = w[4, i] * a0 + w[5, i] * b0 + w[6, i] * a1 + w[7, i] * b1
 
 
-@intrinsic
-def _bits(typingctx, x):
-    # the int64 with a float64's bits (LLVM bitcast; numba has no scalar one)
-    def codegen(context, builder, sig, args):
-        return builder.bitcast(args[0], ir.IntType(64))
-
-    return types.int64(types.float64), codegen
-
-
-@intrinsic
-def _from_bits(typingctx, n):
-    # the float64 with an int64's bits
-    def codegen(context, builder, sig, args):
-        return builder.bitcast(args[0], ir.DoubleType())
-
-    return types.float64(types.int64), codegen
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _exp_neg(a):
-    # exp(-a) for a >= 0 from bit operations and polynomials only, so that the loop
-    # that calls it vectorises (relative error below 1e-15; exp(-80) ~ 2e-35 beyond
-    # a = 80). -a = n ln 2 + r: n rounded by the 1.5 * 2^52 shift, ln 2 in two parts,
-    # |r| <= 0.347, e^r = 1 + r p. Returns (e^-a, p, n), p and n for decay.
-    a = a if a < 80.0 else 80.0  # builtin min() would block vectorisation
-    s = a * -1.4426950408889634 + 6755399441055744.0  # n + 1.5 * 2^52
-    n = s - 6755399441055744.0
-    r = (n * -0.6931471803691238 - a) - n * 1.9082149292705877e-10
-    # p = sum r^i / (i + 1)!, i <= 11, in Estrin's scheme (a short dependency chain)
-    r2 = r * r
-    r4 = r2 * r2
-    r8 = r4 * r4
-    p = ((1.0 + r / 2) + r2 * (1 / 6 + r / 24)) + r4 * (
-        (1 / 120 + r / 720) + r2 * (1 / 5040 + r / 40320))
-    p = p + r8 * ((1 / 362880 + r / 3628800) + r2 * (1 / 39916800 + r / 479001600))
-    return _from_bits((_bits(s) + 1023) << 52) * (1.0 + r * p), p, n  # 2^n from s
-
-
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def smooth_sign(u):
-    """Hyperbolic tangent from bit operations and polynomials, so that loops calling it
-    vectorise.
+    """Hyperbolic tangent from polynomials only, so that loops calling it vectorise.
 
     libm's ``tanh`` is an opaque call that stops numba's loops from vectorising.
 
@@ -730,12 +691,25 @@ def smooth_sign(u):
     Returns
     -------
     float
-        ``tanh(u)`` to a relative error below 1e-15.
+        ``tanh(u)`` to a relative error below 1e-13.
     """
     a = abs(u)
-    ex, p, n = _exp_neg(2.0 * a)  # e^(-2|u|) = 2^n (1 + r p)
-    # 1 - e^(-2|u|): for n = 0, r = -2|u| exactly and it is 2|u| p, without cancellation
-    t = (2.0 * a * p if n == 0.0 else 1.0 - ex) / (1.0 + ex)
+    a = a if a < 40.0 else 40.0  # builtin min() would block vectorisation
+    q = -a / 64.0  # e^(-2a) = e^(128 q), |q| <= 0.625
+    phq = 1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (1 / 720 + q * (
+        1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
+            1 / 39916800 + q * (1 / 479001600 + q / 6227020800)))))))))))
+    # e^(128 q) - 1 = q phq (e + 1)(e^2 + 1)...(e^64 + 1), free of cancellation
+    e1 = 1.0 + q * phq
+    e2 = e1 * e1
+    e4 = e2 * e2
+    e8 = e4 * e4
+    e16 = e8 * e8
+    e32 = e16 * e16
+    e64 = e32 * e32
+    prod = phq * (e1 + 1.0) * (e2 + 1.0) * (e4 + 1.0) * (e8 + 1.0) * (e16 + 1.0)
+    prod *= (e32 + 1.0) * (e64 + 1.0)
+    t = a * prod / 64.0 / (1.0 + e64 * e64)
     return t if u >= 0.0 else -t
 
 
@@ -942,12 +916,27 @@ class PositionOffset(Effect):
 # and a second-order regulator. Each fits an existing stage unchanged.
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _exp_neg(a):
+    # exp(-a) for a >= 0 from polynomials only, like smooth_sign, so that the loop that
+    # calls it vectorises (relative error below 1e-11; exp(-80) ~ 2e-35 beyond a = 80)
+    a = a if a < 80.0 else 80.0
+    q = -a / 128.0
+    phq = 1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (1 / 720 + q * (
+        1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
+            1 / 39916800 + q * (1 / 479001600 + q / 6227020800)))))))))))
+    e = 1.0 + q * phq
+    for _ in range(7):
+        e = e * e
+    return e
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _stribeck_friction(q, x, v, p):
     # [F_k + F_s exp(-(v/v_s)^2)] tanh(v/v_st), with its exact velocity derivative
     th = smooth_sign(v / q[3])
     r = v / q[2]
-    e = _exp_neg(r * r)[0]
+    e = _exp_neg(r * r)
     level = q[0] + q[1] * e
     dlevel = -2.0 * q[1] * e * r / q[2]
     return level * th, 0.0, dlevel * th + level * (1.0 - th * th) / q[3]
@@ -1191,13 +1180,31 @@ def delay_effect() -> type[Effect]:
 # exp, log and pow stop numba's batch loop from vectorising)
 
 
+@intrinsic
+def _bits(typingctx, x):
+    # the int64 with a float64's bits (LLVM bitcast; numba has no scalar one)
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+
+    return types.int64(types.float64), codegen
+
+
+@intrinsic
+def _from_bits(typingctx, n):
+    # the float64 with an int64's bits
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+
+    return types.float64(types.int64), codegen
+
+
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def decay(y):
     """``exp(-y)`` and ``(1 - exp(-y)) / y`` for ``y >= 0``, from polynomials only.
 
     ``-y = n ln 2 + r``: ``n`` rounded by the ``1.5 * 2^52`` shift, ``r`` (``|r| <=
     0.347``) with ``ln 2`` in two parts, ``e^r`` a Taylor polynomial and ``2^n`` built
-    from bits (as in :func:`power`, no libm call).
+    from bits, as in :func:`power`.
 
     Parameters
     ----------
@@ -1211,9 +1218,21 @@ def decay(y):
         ``y <= 40`` (the first is 0 beyond, an absolute error below 5e-18; the
         second is 1 at ``y = 0``, without cancellation for small ``y``).
     """
-    ex, p, n = _exp_neg(y if y < 40.0 else 40.0)
-    # n = 0 (y < 0.347): r = -y exactly and (1 - e^-y) / y = p, without cancellation;
-    # else 1 - e^-y >= 0.29
+    a = y if y < 40.0 else 40.0  # builtin min() would block vectorisation
+    # -a = n ln 2 + r, n = round(-a / ln 2) by the 1.5 * 2^52 shift, |r| <= 0.347
+    s = a * -1.4426950408889634 + 6755399441055744.0
+    n = s - 6755399441055744.0
+    r = (n * -0.6931471803691238 - a) - n * 1.9082149292705877e-10  # ln 2 in two parts
+    # e^r = 1 + r p, p = sum r^i / (i + 1)!, i <= 11
+    r2 = r * r
+    r4 = r2 * r2
+    r8 = r4 * r4
+    p = ((1.0 + r / 2) + r2 * (1 / 6 + r / 24)) + r4 * (
+        (1 / 120 + r / 720) + r2 * (1 / 5040 + r / 40320))
+    p = p + r8 * ((1 / 362880 + r / 3628800) + r2 * (1 / 39916800 + r / 479001600))
+    ex = _from_bits((_bits(s) + 1023) << 52) * (1.0 + r * p)  # n in s's low bits
+    # n = 0 (a < 0.347): r = -a exactly and (1 - e^-a) / a = p, without cancellation;
+    # else 1 - e^-a >= 0.29
     far = (1.0 - ex) / (y if y > 0.34 else 0.34)
     return (ex if y <= 40.0 else 0.0), (p if n == 0.0 else far)
 
