@@ -10,6 +10,7 @@ Usage::
     python analyses/paper_calibration.py [--out-root paper] [--quick] [--seed 1]
                                          [--datasets N] [--fits-from CSV]
                                          [--single-record-from CSV]
+                                         [--single-periodic-from CSV]
 
 Full mode: ``--datasets`` (default 20) data sets of 10 trials of the paper's 15 s
 chirp with the default sampler settings, as ``calibration.py``. Quick mode: 3 data
@@ -23,7 +24,9 @@ table's path last.
 fitting here. The single-record table (``tables/calibration_single.tex`` and its
 numbers, ``pbCalSingle...``) comes from ``--single-record-from``, the rows of
 ``calibration.py --single record`` (``calibration_single_record_fits.csv``), or else
-from fits made here (12 single records; 2 with short chains in quick mode).
+from fits made here (12 single records; 2 with short chains in quick mode); the
+periodic records' (``tables/calibration_single_periodic.tex``, ``pbCalPeriodic...``)
+likewise from ``--single-periodic-from`` (``calibration.py --single periodic``).
 """
 
 from __future__ import annotations
@@ -101,7 +104,16 @@ def read_fits(path: Path) -> list[dict]:
     return rows
 
 
-def _single_record(rows: list[dict], tables: Path, nums: Numbers, calibration) -> None:
+#: per single-record study: its table's file and its numbers' prefix
+SINGLE_TABLES = {"record": ("calibration_single.tex", "pbCalSingle"),
+                 "periodic": ("calibration_single_periodic.tex", "pbCalPeriodic")}
+
+
+def _single_record(rows: list[dict], tables: Path, nums: Numbers, calibration,
+                   single: str = "record") -> None:
+    """The table and numbers of a single-record study (``calibration.py --single``),
+    beside the noise-known oracle on the same data sets."""
+    name, prefix = SINGLE_TABLES[single]
     cov = calibration.coverage(rows)
     spread = calibration.z_spread(rows)
     n = len({r["dataset"] for r in rows})
@@ -111,24 +123,23 @@ def _single_record(rows: list[dict], tables: Path, nums: Numbers, calibration) -
     truths: dict[int, dict] = {}
     for r in rows:
         truths.setdefault(r["dataset"], {"seed": int(r["seed"])})[r["parameter"]] = r["truth"]
-    z = [oracle_z({k: v for k, v in t.items() if k != "seed"}, t["seed"])["z"]
+    z = [oracle_z({k: v for k, v in t.items() if k != "seed"}, t["seed"], single=single)["z"]
          for t in truths.values()]
     o_cov = {k: float(np.mean([abs(zi[k]) < Z90 for zi in z])) for k in cov}
     o_rms = {k: float(np.sqrt(np.mean([zi[k] ** 2 for zi in z]))) for k in cov}
-    (tables / "calibration_single.tex").write_text(
-        calibration_table(cov, spread, n, oracle=(o_cov, o_rms)))
-    nums.add("pbCalSingleDatasets", n)
-    nums.add("pbCalSingleConverged", len({r["dataset"] for r in rows if r["converged"]}))
-    nums.add("pbCalSingleCovered", sum(r["covered"] for r in rows))
-    nums.add("pbCalSingleIntervals", len(rows))
-    nums.add("pbCalSingleCoverageMin", f"{100 * min(cov.values()):.0f}")
-    nums.add("pbCalSingleCoverageMax", f"{100 * max(cov.values()):.0f}")
-    nums.add("pbCalSingleZMin", f"{min(spread.values()):.2f}")
-    nums.add("pbCalSingleZMax", f"{max(spread.values()):.2f}")
-    nums.add("pbCalSingleOracleCoverageMin", f"{100 * min(o_cov.values()):.0f}")
-    nums.add("pbCalSingleOracleCoverageMax", f"{100 * max(o_cov.values()):.0f}")
-    nums.add("pbCalSingleOracleZMin", f"{min(o_rms.values()):.2f}")
-    nums.add("pbCalSingleOracleZMax", f"{max(o_rms.values()):.2f}")
+    (tables / name).write_text(calibration_table(cov, spread, n, oracle=(o_cov, o_rms)))
+    nums.add(f"{prefix}Datasets", n)
+    nums.add(f"{prefix}Converged", len({r["dataset"] for r in rows if r["converged"]}))
+    nums.add(f"{prefix}Covered", sum(r["covered"] for r in rows))
+    nums.add(f"{prefix}Intervals", len(rows))
+    nums.add(f"{prefix}CoverageMin", f"{100 * min(cov.values()):.0f}")
+    nums.add(f"{prefix}CoverageMax", f"{100 * max(cov.values()):.0f}")
+    nums.add(f"{prefix}ZMin", f"{min(spread.values()):.2f}")
+    nums.add(f"{prefix}ZMax", f"{max(spread.values()):.2f}")
+    nums.add(f"{prefix}OracleCoverageMin", f"{100 * min(o_cov.values()):.0f}")
+    nums.add(f"{prefix}OracleCoverageMax", f"{100 * max(o_cov.values()):.0f}")
+    nums.add(f"{prefix}OracleZMin", f"{min(o_rms.values()):.2f}")
+    nums.add(f"{prefix}OracleZMax", f"{max(o_rms.values()):.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,6 +150,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="calibration_fits.csv of an analyses/calibration.py run (defaults)")
     p.add_argument("--single-record-from", type=Path, default=None,
                    help="calibration_single_record_fits.csv of calibration.py --single record")
+    p.add_argument("--single-periodic-from", type=Path, default=None,
+                   help="calibration_single_periodic_fits.csv of calibration.py --single "
+                   "periodic")
     args = p.parse_args(argv)
     import calibration  # after _paper, which puts the checkout on the path
 
@@ -188,6 +202,12 @@ def main(argv: list[str] | None = None) -> int:
             2 if args.quick else 12, args.seed, single="record", verbose=False,
             settings=None if settings is None else replace(settings, n_walkers=24))
     _single_record(single, tables, nums, calibration)
+    if args.single_periodic_from is not None:
+        periodic = read_fits(args.single_periodic_from)
+    else:  # the periodic study here: 2 short fits in quick mode, else 12
+        periodic = calibration.calibrate(2 if args.quick else 12, args.seed, single="periodic",
+                                         verbose=False, settings=settings)
+    _single_record(periodic, tables, nums, calibration, "periodic")
     nums.write(tables)
     print(f"coverage {min(cov.values()):.2f}-{max(cov.values()):.2f}, RMS z "
           f"{min(spread.values()):.2f}-{max(spread.values()):.2f}, {n_conv}/{n} converged"

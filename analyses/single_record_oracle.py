@@ -1,8 +1,9 @@
-"""What the best intervals cover on the single records of ``calibration.py --single record``.
+"""What the best intervals cover on the single records of ``calibration.py --single``.
 
 The oracle knows the noise: the likelihood's AR(1) + white noise at the generator's
-values (20 um, lag-one correlation ``exp(-dt / 2 ms)``, and the encoder's
-quantisation as white noise of ``step / sqrt(12)``). For each data set it finds the
+values (for ``--single record`` 20 um, lag-one correlation ``exp(-dt / 2 ms)``; for
+``--single periodic`` the default 60 um and 0.1 s; and the encoder's quantisation as
+white noise of ``step / sqrt(12)``). For each data set it finds the
 maximum likelihood of the six physical parameters (Gauss-Newton on the Kalman-whitened
 residual, :meth:`pmabayes.likelihood.Likelihood.whiten`, in the sampler's log
 coordinates), and reports the Wald z of the truth, ``(truth - estimate) / sd``, with
@@ -14,9 +15,10 @@ at best match these z; where the oracle misses, so does any calibrated method.
 Usage::
 
     python analyses/single_record_oracle.py --seeds 2 3 [--datasets 12]
+                                            [--single {record,periodic}]
                                             [--no-quantisation] [--rows FILE]
 
-The data sets are those of ``calibration.py --single record --seed S --datasets N``
+The data sets are those of ``calibration.py --single SINGLE --seed S --datasets N``
 (the same draws, in order). Prints per parameter the RMS of z and the Wald 90%
 coverage, and the mean ratio; ``--rows`` writes one CSV row per data set.
 """
@@ -35,7 +37,14 @@ import numpy as np
 from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from calibration import PARAMS, RECORD_CHIRP, RECORD_NOISE, draw_jobs  # noqa: E402
+from calibration import (  # noqa: E402
+    PARAMS,
+    RECORD_CHIRP,
+    RECORD_NOISE,
+    SINGLE_MODES,
+    draw_jobs,
+    periodic_record,
+)
 
 from pmabayes import Model  # noqa: E402
 from pmabayes.likelihood import Likelihood  # noqa: E402
@@ -96,8 +105,9 @@ def oracle(lik: Likelihood, truth: dict, noise: tuple[float, float, float]) -> d
             "ratio": float(r_true @ r_true - sol.fun @ sol.fun)}
 
 
-def oracle_z(truth: dict, data_seed: int, noise: MeasurementNoise = RECORD_NOISE) -> dict:
-    """The oracle on one data set of ``calibration.py --single record``.
+def oracle_z(truth: dict, data_seed: int, noise: MeasurementNoise = RECORD_NOISE, *,
+             single: str = "record") -> dict:
+    """The oracle on one data set of ``calibration.py --single SINGLE``.
 
     Parameters
     ----------
@@ -106,17 +116,25 @@ def oracle_z(truth: dict, data_seed: int, noise: MeasurementNoise = RECORD_NOISE
     data_seed : int
         Its data seed (the ``seed`` column of the study's rows).
     noise : MeasurementNoise
-        Its measurement.
+        Its measurement (``"record"``; a periodic record has the default one,
+        :func:`calibration.periodic_record`).
+    single : {"record", "periodic"}
+        Which study's data set.
 
     Returns
     -------
     dict
         As :func:`oracle`.
     """
-    ds = generate_chirp_dataset(n_trials=1, seed=data_seed, chirp=RECORD_CHIRP, noise=noise,
-                                params=truth)
-    return oracle(Likelihood(Model(), ds), truth,
-                  true_noise(noise, 1.0 / RECORD_CHIRP.sample_rate_hz))
+    if single == "periodic":
+        ds = periodic_record(truth, data_seed)
+        noise = MeasurementNoise()
+    elif single == "record":
+        ds = generate_chirp_dataset(n_trials=1, seed=data_seed, chirp=RECORD_CHIRP,
+                                    noise=noise, params=truth)
+    else:
+        raise ValueError(f"single must be 'record' or 'periodic', got {single!r}")
+    return oracle(Likelihood(Model(), ds), truth, true_noise(noise, ds.dt_s))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,15 +144,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--datasets", type=int, default=12, help="data sets per seed")
     parser.add_argument("--no-quantisation", action="store_true",
                         help="the same records without the encoder's quantisation")
+    parser.add_argument("--single", choices=SINGLE_MODES, default="record",
+                        help="the data sets of calibration.py --single record (default) or "
+                        "--single periodic")
     parser.add_argument("--rows", type=Path, default=None, help="CSV, one row per data set")
     args = parser.parse_args(argv)
+    if args.no_quantisation and args.single != "record":
+        parser.error("--no-quantisation applies to --single record")
     noise = (replace(RECORD_NOISE, encoder_counts_per_m=None) if args.no_quantisation
              else RECORD_NOISE)
     start = time.perf_counter()
     rows = []
     for seed in args.seeds:
         for job in draw_jobs(args.datasets, seed):
-            out = oracle_z(job["truth"], job["seed"], noise)
+            out = oracle_z(job["truth"], job["seed"], noise, single=args.single)
             rows.append({"calibration_seed": seed, "dataset": job["index"], "seed": job["seed"],
                          "ratio": out["ratio"], **{f"z_{p}": out["z"][p] for p in PARAMS}})
     z = np.array([[r[f"z_{p}"] for p in PARAMS] for r in rows])

@@ -29,8 +29,8 @@ from scipy import stats
 from pmabayes.data import DataError, Dataset, check_same_input_kind
 from pmabayes.discrepancy import Discrepancy, estimate_discrepancy
 from pmabayes.effects import get_effect, registered_effects
-from pmabayes.fit import NoiseEstimate, Posterior, _on_rig, estimate_noise, find_map
-from pmabayes.likelihood import Likelihood, check_noise_model_name, choose_noise_model
+from pmabayes.fit import NoiseEstimate, Posterior, _group_noise, _on_rig, find_map
+from pmabayes.likelihood import Likelihood, check_noise_model_name
 from pmabayes.model import Model
 from pmabayes.posterior import (
     check_dataset,
@@ -792,11 +792,15 @@ def _explanation(eff, evidence: float, p_value: float, significant: bool,
     return text + contribution_text
 
 
-def _fit_map(likelihoods: list, repeat_noise: list, names: list, rng: np.random.Generator):
+def _fit_map(likelihoods: list, repeat_noise: list, names: list, rng: np.random.Generator,
+             choices: list, *, refer: bool):
     """The MAP of the experiments together: physical parameters shared, each experiment's
-    noise from its repeats (fixed) or, for a record without repeats (None), with the model."""
-    posterior = Posterior(likelihoods, repeat_noise, names=names)
-    return posterior, find_map(posterior, rng=rng)
+    noise from its repeats (fixed) or, for a record without repeats (None), with the model
+    (``choices``: each one's noise model). ``refer``: learn a record from rest's noise
+    from its periods' residual at the MAP, as the fit does (the base model); the refits
+    keep the base's, so that their likelihoods compare."""
+    posterior = Posterior(likelihoods, repeat_noise, names=names, noise_choices=choices)
+    return posterior, find_map(posterior, rng=rng, refer=refer)
 
 
 def _experiment_noises(posterior: Posterior, best) -> list[NoiseEstimate]:
@@ -858,6 +862,7 @@ class _Base:
     likelihoods: list
     names: list
     repeat_noise: list
+    noise_choices: list
     noises: list
     values: dict
     simulations: list
@@ -889,19 +894,19 @@ def _fit_base(models: list, datasets: list, names: list, s: _Settings,
               rng: np.random.Generator) -> _Base:
     """Noise from the spread between repeats, the shared MAP, the signatures and the ELPD."""
     liks = [Likelihood(m, ds, substeps=s.substeps) for m, ds in zip(models, datasets, strict=True)]
-    repeat_noise = [estimate_noise(lik) if lik.n_repeats >= 2 else None for lik in liks]
-    for lik, noise in zip(liks, repeat_noise, strict=True):
-        if noise is not None:  # the fit's choice: the repeats' AR(p) where they reject AR(1)
-            lik.use_ar_noise(choose_noise_model(lik, noise.sigma, noise.rho, noise.white,
-                                                s.noise_model).ar)
-    posterior, best = _fit_map(liks, repeat_noise, names, rng)
+    noise_and_choice = [_group_noise([lik], s.noise_model) for lik in liks]
+    posterior, best = _fit_map(liks, [n for n, _ in noise_and_choice], names, rng,
+                               [c for _, c in noise_and_choice], refer=True)
+    # as the fit: a record from rest's noise from its periods' residual at the MAP
+    repeat_noise = list(posterior.group_noise)
     values = dict(best.values)
     noises = _experiment_noises(posterior, best)
     sims = [_simulate(lik.model, values, lik, s.substeps) for lik in liks]
     signatures = [residual_signature(lik, noise, sim)
                   for lik, noise, sim in zip(liks, noises, sims, strict=True)]
     elpd, elpd_i, _ = _laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
-    return _Base(liks, names, repeat_noise, noises, values, sims, signatures, elpd, elpd_i)
+    return _Base(liks, names, repeat_noise, list(posterior.noise_choices), noises, values,
+                 sims, signatures, elpd, elpd_i)
 
 
 def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> Refit:
@@ -911,7 +916,8 @@ def _refit(base: _Base, effect: str, s: _Settings, rng: np.random.Generator) -> 
                 for lik in base.likelihoods]
     for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
         ext.use_ar_noise(lik.ar_noise)
-    ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng)
+    ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng,
+                                 base.noise_choices, refer=False)
     ext = ext_liks[0].model
     eff = ext.effects[-1]
     tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)

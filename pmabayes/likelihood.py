@@ -59,7 +59,14 @@ A record without repeated trials (:attr:`Likelihood.noise_source`):
   them when the record starts in steady state; from the second on when it starts
   from rest, since the first holds the transient. The noise is learnt from the
   periods' deviations from their mean, model-free as for trials; the model's
-  likelihood is that of the whole record.
+  likelihood is that of the whole record. From rest, hysteresis does not settle
+  in one period: it shakes down over tens (at the paper's values by about 0.84 a
+  period), and the raw periods' deviations hold that drift too (on the
+  calibration's multisines, noise estimates 1.9 to 240,000 times the drawn power
+  at low frequency). :func:`pmabayes.fit.find_map` therefore learns the noise again
+  from the periods of the residual at its MAP (:meth:`Likelihood.refer_periods_to`),
+  which removes the model's own change from period to period, while a misfit that
+  repeats every period still cancels.
 * **not periodic**: nothing but the record identifies the noise, so it is fitted
   with the model, and the guard above is replaced by one on the noise model
   itself (:meth:`Likelihood.noise_parameters`): the disturbance's correlation
@@ -358,16 +365,22 @@ NOISE_SOURCES: tuple[str, ...] = ("trials", "periods", "record")
 GUARD_FACTOR: float = 10.0
 
 
-def _noise_repeats(dataset: Dataset) -> tuple[str, np.ndarray]:
+def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None
+                   ) -> tuple[str, np.ndarray]:
     """The noise source of a data set and the repeated series it offers.
 
-    Trials when there are two or more; else the periods in steady state of a
-    periodic record (all of them when it starts in steady state, from the second
-    on when it starts from rest); else the record alone.
+    Trials when there are two or more; else the periods of a periodic record (all
+    of them when it starts in steady state, from the second on when it starts from
+    rest); else the record alone. Given the model's positions on a record that
+    starts from rest, its periods are those of the residual, record minus model:
+    the model's own change from period to period (its shakedown) is then not taken
+    for noise (see :meth:`Likelihood.refer_periods_to`).
     """
     if dataset.n_trials >= 2:
         return "trials", np.ascontiguousarray(dataset.position_m)
     y = dataset.position_m[0]
+    if model_position_m is not None and not dataset.starts_in_steady_state:
+        y = y - np.asarray(model_position_m, dtype=float).reshape(-1)
     period, n_per = dataset.period_samples, dataset.n_periods
     if period is not None and n_per is not None:
         first = 0 if dataset.starts_in_steady_state else 1
@@ -408,6 +421,9 @@ class Likelihood:
     n_repeats : int
         The number of repeated series the noise is learnt from without the model
         (trials or periods; 1 for ``"record"``).
+    periods_referred : bool
+        Whether the periods are those of the residual at a model's positions
+        (:meth:`refer_periods_to`) rather than of the record itself.
 
     Raises
     ------
@@ -445,6 +461,12 @@ class Likelihood:
         self._trials = np.ascontiguousarray(dataset.position_m)
         self.noise_source, repeats = _noise_repeats(dataset)
         self.n_repeats = repeats.shape[0]
+        self.periods_referred = False
+        self._set_repeats(repeats)
+        self.motion_m = motion
+        self.ar_noise: ArNoise | None = None
+
+    def _set_repeats(self, repeats: np.ndarray) -> None:
         self._repeats = repeats
         if self.n_repeats >= 2:
             # Helmert contrasts: R - 1 orthonormal combinations of the repeats that
@@ -460,8 +482,41 @@ class Likelihood:
         else:
             self._contrasts = np.zeros((0, self.n_samples))
             self._d = np.zeros((0, self.n_samples))
-        self.motion_m = motion
-        self.ar_noise: ArNoise | None = None
+
+    @property
+    def periods_from_rest(self) -> bool:
+        """Whether the noise comes from the periods of a record that starts from rest.
+
+        Such a record's periods after the first are not yet the same for the model
+        either: hysteresis shakes down over many periods (at the paper's values by
+        about 0.84 a period). Their deviations then hold the model's own drift as
+        well as the noise, until :meth:`refer_periods_to` removes it.
+        """
+        return self.noise_source == "periods" and not self.dataset.starts_in_steady_state
+
+    def refer_periods_to(self, model_position_m: np.ndarray) -> None:
+        """Take the noise from the periods of the residual, record minus model.
+
+        For a periodic record that starts from rest (:attr:`periods_from_rest`;
+        otherwise nothing changes). The model's change from period to period is
+        then not counted as noise, while any misfit that repeats every period still
+        cancels in the deviations, as for the raw periods: the noise stays what the
+        model cannot explain away. :func:`pmabayes.fit.find_map` calls this at its
+        first optimum and estimates the noise again.
+
+        Parameters
+        ----------
+        model_position_m : numpy.ndarray
+            The model's positions on the record, ``(n_samples,)``.
+        """
+        if not self.periods_from_rest:
+            return
+        x = np.asarray(model_position_m, dtype=float).reshape(-1)
+        if x.shape != (self.n_samples,) or not np.all(np.isfinite(x)):
+            raise LikelihoodError(f"{self.dataset.source or 'the data set'}: the model's "
+                                  f"positions must be {self.n_samples} finite values")
+        self._set_repeats(_noise_repeats(self.dataset, x)[1])
+        self.periods_referred = True
 
     # -- the noise model ----------------------------------------------------------
     @property

@@ -277,6 +277,23 @@ class Posterior:
         theta = np.atleast_2d(theta)
         return tuple(theta[:, c] for c in self._noise_cols[g])
 
+    def set_group_noise(self, group: int, estimate: NoiseEstimate,
+                        choice: NoiseChoice) -> None:
+        """Replace a noise group's estimate from repeats and its experiments' noise model.
+
+        The group's likelihoods must already use ``choice`` (``use_ar_noise``); used
+        when the periods of a record from rest are referred to the model
+        (:func:`pmabayes.fit.find_map`).
+        """
+        if self.group_noise[group] is None:
+            raise ValueError(f"noise group {group} is sampled with the model, not estimated "
+                             "from repeats")
+        self.group_noise[group] = estimate
+        for e, g in enumerate(self.groups):
+            if g == group:
+                self.noise_choices[e] = choice
+        self.noise = self.group_noise[0]
+
     def noise_sampled(self, experiment: int) -> bool:
         """Whether an experiment's noise is sampled with the model (no repeats)."""
         return self.group_noise[self.groups[experiment]] is None
@@ -714,7 +731,10 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``n_samples``, ``dt_s``, ``input_name``, ``input_between_samples``,
         ``period_samples``, ``starts_in_steady_state``, ``noise`` (``"own"`` or
         ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
-        ``"record"``), ``noise_estimate`` (the noise's mode), ``noise_model``
+        ``"record"``), ``periods_referred_to_model`` (the periods of a record from
+        rest taken from its residual at the first MAP,
+        :func:`pmabayes.fit.refer_periods`), ``noise_estimate`` (the noise's mode),
+        ``noise_model``
         (:meth:`pmabayes.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
         ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
@@ -746,7 +766,8 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "period_samples": ds.period_samples,
             "starts_in_steady_state": ds.starts_in_steady_state,
             "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
-            "noise_estimate": est, "noise_model": posterior.noise_choices[e].to_dict(),
+            "periods_referred_to_model": lik.periods_referred, "noise_estimate": est,
+            "noise_model": posterior.noise_choices[e].to_dict(),
             "noise_floor_m": _finite_or_none(ds.noise_floor_m),
             "rms_cost_m": (None if theta is None
                            else _finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),

@@ -403,7 +403,7 @@ def band_errors(
     spec = np.fft.rfft(resid)
     f, p_resid = power_spectrum(resid, dt)
     _, p_motion = power_spectrum(mean - mean.mean(), dt)
-    f_floor, p_floor = _floor_spectrum(dataset)
+    f_floor, p_floor = _floor_spectrum(dataset, x)
     rows = []
     for lo, hi in (*bands, (0.0, math.inf)):
         sel = (f >= lo) & (f < hi)
@@ -420,14 +420,16 @@ def band_errors(
     return rows
 
 
-def _floor_spectrum(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
+def _floor_spectrum(dataset: Dataset, model_position_m: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """The noise floor's spectrum: the power a perfect model's residual would have.
 
     From the trials' deviations from their mean (summed over ``R - 1``, divided by
     ``R`` for the trial mean); for a single periodic record, from its periods'
     deviations from their mean (the repeats :mod:`pmabayes.likelihood` learns the
-    noise from), on the period's coarser frequency grid, not divided (the record is
-    one series); NaN for a single record without repeats.
+    noise from: of the residual at ``model_position_m`` where the record starts from
+    rest), on the period's coarser frequency grid, not divided (the record is one
+    series); NaN for a single record without repeats.
     """
     dt = dataset.dt_s
     n_trials = dataset.n_trials
@@ -435,7 +437,7 @@ def _floor_spectrum(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
         dev = dataset.position_m - dataset.mean_position_m
         f, p = power_spectrum(dev, dt)
         return f, p.sum(axis=0) / ((n_trials - 1) * n_trials)
-    source, repeats = _noise_repeats(dataset)
+    source, repeats = _noise_repeats(dataset, model_position_m)
     if source == "periods":
         f, p = power_spectrum(repeats - repeats.mean(axis=0), dt)
         return f, p.sum(axis=0) / (repeats.shape[0] - 1)

@@ -126,6 +126,62 @@ def test_posterior_sums_the_experiments():
 # ----------------------------------------------------------------------------- slow
 
 
+def test_periods_of_a_record_from_rest_are_referred_to_the_model():
+    """At the paper's values the hysteresis shakes down over many periods, so the
+    periods after the first of a record from rest differ by far more than the noise:
+    taken raw they give a noise 20 times too large. The residual's periods give the
+    noise drawn; a record in steady state is left as it is."""
+    from pmabayes.fit import estimate_noise
+    from pmabayes.residuals import band_errors
+
+    noise = MeasurementNoise(disturbance_std_m=30e-6, disturbance_corr_time_s=0.05)
+    ds = sine_dataset(n_trials=1, seed=31, n_periods=4, periodic=True, noise=noise)
+    lik = Likelihood(pb.Model(), ds)
+    assert lik.periods_from_rest and not lik.periods_referred
+    raw = estimate_noise(lik).sigma
+    x = lik.simulate(pb.Model().theta(TRUE))[0]
+    raw_floor = band_errors(ds, np.zeros_like(x))[-1].floor_m
+    lik.refer_periods_to(x)
+    referred = estimate_noise(lik).sigma
+    assert lik.periods_referred
+    assert raw > 10 * noise.disturbance_std_m, raw
+    assert 0.8 < referred / noise.disturbance_std_m < 1.25, referred
+    # the noise floor of the error per band is the residual periods' as well
+    floor = band_errors(ds, x)[-1].floor_m
+    assert floor < raw_floor / 10 and 0.5 < floor / noise.disturbance_std_m < 1.5, floor
+    with pytest.raises(Exception, match="finite values"):
+        lik.refer_periods_to(x[:-1])
+    steady = Dataset(time_s=ds.time_s, input=ds.input, position_m=ds.position_m,
+                     trial_ids=ds.trial_ids, source="steady.csv",
+                     metadata={**ds.metadata, "starts_in_steady_state": True})
+    lik_s = Likelihood(pb.Model(), steady)
+    before = lik_s.contrasts.copy()
+    lik_s.refer_periods_to(x)
+    assert not lik_s.periods_from_rest and not lik_s.periods_referred
+    np.testing.assert_array_equal(lik_s.contrasts, before)
+
+
+def test_resumed_fit_of_a_record_from_rest_keeps_the_noise_of_its_chains(tmp_path):
+    """The noise of a record from rest is learnt at the MAP; resuming its chains
+    rebuilds that noise (from the point stored with them), not the raw periods'."""
+    ds = sine_dataset(n_trials=1, seed=32, n_periods=4, periodic=True,
+                      noise=MeasurementNoise(disturbance_std_m=30e-6,
+                                             disturbance_corr_time_s=0.05))
+    tiny = FitSettings(n_walkers=16, n_ensembles=2, max_steps=40, check_every=20,
+                       min_ess=10)
+    with pytest.warns(pb.fit.ConvergenceWarning):
+        first = fit(ds, pb.Model(), seed=3, settings=tiny, chains_dir=tmp_path / "c")
+    with pytest.warns(pb.fit.ConvergenceWarning):
+        again = fit(ds, pb.Model(), seed=3, settings=tiny, chains_dir=tmp_path / "c")
+    one, two = fit_info(first), fit_info(again)
+    assert two["convergence"]["resumed"] and not one["convergence"]["resumed"]
+    assert one["experiments"][0]["periods_referred_to_model"]
+    assert two["experiments"][0]["noise_estimate"] == one["experiments"][0]["noise_estimate"]
+    assert one["experiments"][0]["noise_estimate"]["sigma_noise_m"] < 60e-6
+    np.testing.assert_array_equal(again["posterior"]["alpha"].values,
+                                  first["posterior"]["alpha"].values)
+
+
 @pytest.fixture(scope="module")
 def joint_fit():
     """An unloaded chirp (characterisation rig, 3 trials) and a loaded sine (control rig,
@@ -199,6 +255,10 @@ def test_single_periodic_record_covers_the_truth():
     info = fit_info(tree)
     assert info["experiments"][0]["noise_source"] == "periods"
     assert info["experiments"][0]["period_samples"] == 500
+    # the periods' residual at the MAP, not the raw periods (which give 740 um)
+    assert info["experiments"][0]["periods_referred_to_model"]
+    sigma = info["experiments"][0]["noise_estimate"]["sigma_noise_m"]
+    assert 20e-6 < sigma < 45e-6, sigma
     cov = covered(tree)
     assert sum(cov.values()) >= 5, cov
 
