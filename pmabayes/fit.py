@@ -277,9 +277,10 @@ class MapResult:
     covariance_z : numpy.ndarray
         Laplace covariance in unconstrained coordinates (inverse negative Hessian).
     period_reference_z : numpy.ndarray or None
-        The first MAP, where the periods of records from rest were referred to the
-        model (:func:`refer_periods`) before the noise was learnt again and the MAP
-        polished again; None where no record needed it.
+        Where the periods of records from rest were last referred to the model
+        (:func:`refer_periods`: the MAP of the pass before) before the noise was
+        learnt again and the MAP polished again; None where no record needed it. A
+        resumed fit rebuilds its noise from it.
     """
 
     values: dict
@@ -1196,7 +1197,7 @@ def refer_periods(posterior: Posterior, z: np.ndarray) -> bool:
     posterior : Posterior
         Updated in place (:meth:`~pmabayes.posterior.Posterior.set_group_noise`).
     z : numpy.ndarray
-        The point, in unconstrained coordinates ``(ndim,)``: the first MAP.
+        The point, in unconstrained coordinates ``(ndim,)``: a MAP.
 
     Returns
     -------
@@ -1263,7 +1264,7 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
         for name, lik, choice in zip(posterior.experiment_names, posterior.likelihoods,
                                      posterior.noise_choices, strict=True):
             if lik.periods_referred:
-                say.say(f"noise of {name} from its periods' residual at the first MAP (the "
+                say.say(f"noise of {name} from its periods' residual at the MAP (the "
                         f"model's shakedown from rest removed): {choice.describe()}")
     chains.start(map_result, t_map)
     return map_result, t_map, False

@@ -732,7 +732,7 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``period_samples``, ``starts_in_steady_state``, ``noise`` (``"own"`` or
         ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
         ``"record"``), ``periods_referred_to_model`` (the periods of a record from
-        rest taken from its residual at the first MAP,
+        rest taken from its residual at the MAP,
         :func:`pmabayes.fit.refer_periods`), ``noise_estimate`` (the noise's mode),
         ``noise_model``
         (:meth:`pmabayes.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
