@@ -55,6 +55,7 @@ import argparse
 import contextlib
 import csv
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -99,7 +100,9 @@ def _run(job: dict) -> tuple[int, dict, float]:
     ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"], chirp=job["chirp"],
                                 params=job["truth"], effects=job["effects"])
     start = time.perf_counter()
-    d = diagnose(ds, candidates=CANDIDATES, seed=job["seed"], max_refits=job["max_refits"])
+    with tempfile.TemporaryDirectory() as folder:  # any proposal is written there, not in cwd
+        d = diagnose(ds, candidates=CANDIDATES, seed=job["seed"], max_refits=job["max_refits"],
+                     plugin_dir=folder)
     found = {"missing": d.missing, "adequate": d.adequate, "ratio": d.signature.ratio,
              "ranking": [{"effect": f.effect, "significant": f.significant,
                           "p_value": f.p_value, "interval": dict(f.interval)}
@@ -126,8 +129,6 @@ OUTSIDE = (
 
 def _run_discrepancy(job: dict) -> tuple[int, dict, float]:
     """Diagnose one data set with a hidden effect outside the library (or none)."""
-    import tempfile
-
     effects = None
     if job["outside"] is not None:
         effect, param, _, _ = OUTSIDE[job["outside"]]

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import sys
+import tempfile
 import time
 
 import arviz as az
@@ -95,8 +96,9 @@ def main(argv: list[str] | None = None) -> int:
     diagnoses = []
     for k in range(MAX_STEPS + 1):
         start = time.perf_counter()
-        d = diagnose(ds, effects=effects, candidates=ROUND_ONE_EFFECTS, seed=args.seed,
-                     **QUICK_DIAGNOSE if args.quick else {})
+        with tempfile.TemporaryDirectory() as folder:  # a proposal, if any, not in cwd
+            d = diagnose(ds, effects=effects, candidates=ROUND_ONE_EFFECTS, seed=args.seed,
+                         plugin_dir=folder, **QUICK_DIAGNOSE if args.quick else {})
         secs = time.perf_counter() - start
         diagnoses.append((list(effects), d))
         print(f"step {k} ({_label(effects)}): RMS {d.rms_m * 1e6:.3g} um = "
