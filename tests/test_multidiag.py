@@ -158,9 +158,9 @@ def lagged_diagnosis(lagged):
 @pytest.mark.slow
 def test_the_users_loop_on_a_periodic_record_from_rest():
     """One record of 5 periods from rest, with a hidden 45 ms regulator lag. Its raw
-    periods 2-5 differ by the hysteresis' shakedown (a floor of 114 um where 20 um was
-    drawn, which let the lagged model pass at 110 um). Round 1 names the lag; round 2,
-    the lag added, is adequate at the noise actually drawn."""
+    periods 2-5 differ by the hysteresis' shakedown (a noise of 787 um where 20 um was
+    drawn; under it the lagged model's MAP was 110 um off, and passed). Round 1 names
+    the lag; round 2, the lag added, is adequate at the noise actually drawn."""
     rig = Rig.characterisation()
     rate, period = 500.0, 500
     t = np.arange(5 * period) / rate
