@@ -49,6 +49,13 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list) -> None:
 _SIGMA_M, _RHO = 5e-5, 0.9
 
 
+@pytest.fixture(autouse=True)
+def _in_own_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test runs in its own folder: what pmabayes writes by default into the
+    working directory (a diagnosis' proposed plugin) stays out of the checkout."""
+    monkeypatch.chdir(tmp_path)
+
+
 def _chirp_pressure(t: np.ndarray) -> np.ndarray:
     """0.1 -> 3 Hz linear chirp around 0.2 MPa."""
     f0, f1, span = 0.1, 3.0, t[-1] - t[0]
