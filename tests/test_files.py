@@ -37,7 +37,11 @@ N = 200
 T = np.arange(N) / RATE_HZ
 P = 2e5 * (1.0 + np.sin(2 * np.pi * 2.0 * T))  # one command, gauge Pa, from 0 up
 X = 0.01 * np.sin(2 * np.pi * 2.0 * T)[:, np.newaxis] * np.array([1.0, 1.01, 0.99])  # N x 3
-REAL = Path("/work/shared/external/boucwen/original")
+#: the shared Bouc-Wen files, ``../shared`` beside the checkout (or a worktree one
+#: level deeper), wherever the checkout is
+REAL = next((p for p in (Path(__file__).resolve().parents[k] / "shared" / "external"
+                         / "boucwen" / "original" for k in (2, 3)) if p.is_dir()),
+            Path(__file__).resolve().parents[2] / "shared" / "external" / "boucwen" / "original")
 FORCE_RIG = {"moving_mass_kg": 2.0, "gravity_sign": 0.0, "area_m2": 1.0,
              "input_kind": "force", "g_m_s2": 9.81, "name": "force_oscillator"}
 
