@@ -678,6 +678,15 @@ def _transport_delay(q, p_start, p_end, dt_s):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _expm1_over(q):
+    # (e^q - 1) / q for |q| <= 0.625: its Taylor series to q^12, in Horner's form
+    phq = 1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (1 / 720 + q * (
+        1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
+            1 / 39916800 + q * (1 / 479001600 + q / 6227020800)))))))))))
+    return phq
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def smooth_sign(u):
     """Hyperbolic tangent from polynomials only, so that loops calling it vectorise.
 
@@ -696,9 +705,7 @@ def smooth_sign(u):
     a = abs(u)
     a = a if a < 40.0 else 40.0  # builtin min() would block vectorisation
     q = -a / 64.0  # e^(-2a) = e^(128 q), |q| <= 0.625
-    phq = 1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (1 / 720 + q * (
-        1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
-            1 / 39916800 + q * (1 / 479001600 + q / 6227020800)))))))))))
+    phq = _expm1_over(q)
     # e^(128 q) - 1 = q phq (e + 1)(e^2 + 1)...(e^64 + 1), free of cancellation
     e1 = 1.0 + q * phq
     e2 = e1 * e1
@@ -922,9 +929,7 @@ def _exp_neg(a):
     # calls it vectorises (relative error below 1e-11; exp(-80) ~ 2e-35 beyond a = 80)
     a = a if a < 80.0 else 80.0
     q = -a / 128.0
-    phq = 1.0 + q * (1 / 2 + q * (1 / 6 + q * (1 / 24 + q * (1 / 120 + q * (1 / 720 + q * (
-        1 / 5040 + q * (1 / 40320 + q * (1 / 362880 + q * (1 / 3628800 + q * (
-            1 / 39916800 + q * (1 / 479001600 + q / 6227020800)))))))))))
+    phq = _expm1_over(q)
     e = 1.0 + q * phq
     for _ in range(7):
         e = e * e

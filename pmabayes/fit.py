@@ -422,14 +422,13 @@ def find_map(
     # is learnt again from the residual's periods, and the MAP polished again, until
     # the MAP settles (a first MAP under the inflated noise misses the drift)
     reference = None
-    for _ in range(_REFER_PASSES if refer else 0):
+    for k in range(_REFER_PASSES if refer else 0):
         if not refer_periods(posterior, z_map):
             break
-        before = reference
         reference = z_map
         z_map, cov_z = _polish_from(posterior, reference, scale)
         moved = np.max(np.abs(z_map - reference) / np.sqrt(np.diag(cov_z)))
-        if before is not None and moved < _REFER_SETTLED:
+        if k > 0 and moved < _REFER_SETTLED:
             break
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
