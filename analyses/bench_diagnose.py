@@ -22,7 +22,7 @@ import argparse
 import tempfile
 import time
 
-from pmabayes.criticism import diagnose
+from pmabayes.criticism.diagnosis import diagnose
 from pmabayes.data import Dataset
 from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
 
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
         seconds = time.perf_counter() - start
         print(d.verdict)
         if d.discrepancy is not None:
-            from pmabayes.discrepancy import estimate_discrepancy
+            from pmabayes.criticism.discrepancy import estimate_discrepancy
 
             t0 = time.perf_counter()
             estimate_discrepancy(_likelihood(d), d.noise, d.values, d.simulation,
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _likelihood(d):
-    from pmabayes.likelihood import Likelihood
+    from pmabayes.inference.likelihood import Likelihood
 
     return Likelihood(d.model, d.dataset, substeps=d.settings["substeps"])
 

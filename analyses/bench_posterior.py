@@ -35,9 +35,9 @@ import numpy as np
 
 from pmabayes import Model, simulate
 from pmabayes.data import load
-from pmabayes.fit import FitSettings, fit
-from pmabayes.likelihood import Likelihood
-from pmabayes.posterior import fit_info
+from pmabayes.inference.fitfile import fit_info
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.sampler import FitSettings, fit
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1] / "data" / "pma_chirp_paper.csv"

@@ -22,11 +22,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from pmabayes.control.robustness import robustness_sweep, summarise_robustness
 from pmabayes.data import load
-from pmabayes.fit import FitSettings, fit
-from pmabayes.model import Model
-from pmabayes.posterior import save_fit
-from pmabayes.robustness import robustness_sweep, summarise_robustness
+from pmabayes.inference.fitfile import save_fit
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.model.model import Model
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1] / "data" / "pma_chirp_paper.csv"
 

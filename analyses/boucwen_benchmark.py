@@ -52,7 +52,7 @@ import numpy as np
 
 from pmabayes import Model, Rig
 from pmabayes.data import Dataset, load, save
-from pmabayes.simulator import simulate_dataset
+from pmabayes.model.simulator import simulate_dataset
 
 FS_HZ = 750.0
 PERIOD = 8192
@@ -181,7 +181,7 @@ def start_up_error(paths: dict[str, Path], substeps: int) -> list[list[float]]:
 
 def _posterior_summary(fit_path: Path) -> dict[str, list[float]]:
     """Posterior mean and equal-tailed 90% interval of every sampled quantity."""
-    from pmabayes.posterior import load_fit
+    from pmabayes.inference.fitfile import load_fit
 
     post = load_fit(fit_path)["posterior"]
     out = {}

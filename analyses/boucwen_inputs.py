@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from pmabayes import Model, Rig, simulate
-from pmabayes.simulator import BETWEEN_SAMPLES
+from pmabayes.model.simulator import BETWEEN_SAMPLES
 
 #: the benchmark's true values in pmabayes' form (beta = beta_b gamma_b, gamma = beta_b delta_b)
 TRUTH = {"alpha": 5e4, "beta": 800.0, "gamma": -1100.0, "d": 10.0, "K_e": 5e4}

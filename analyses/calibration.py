@@ -25,7 +25,7 @@ here and on the workers); the rows are the same.
 
 * ``record``: one chirp record, no repeats, not periodic (0.2 to 3 Hz over 8 s at
   500 Hz). Its noise is identified with the model under the guard of
-  :mod:`pmabayes.likelihood`, which assumes a disturbance much faster than the input:
+  :mod:`pmabayes.inference.likelihood`, which assumes a disturbance much faster than the input:
   the measurement is an AR(1) disturbance of 20 um and 2 ms correlation time, plus
   encoder quantisation.
 * ``periodic``: one record of 4 periods of a 2 s multisine (harmonics 1 to 4 of
@@ -36,7 +36,7 @@ here and on the workers); the rows are the same.
 ``--noise two-scale`` draws the repeated chirps' disturbance with two time scales
 (:data:`TWO_SCALE_NOISE`: 20 um of 10 ms correlation time plus 50 um of 1 s, then
 encoder quantisation), which the likelihood's AR(1) + white noise model does not
-describe; ``--noise-model`` chooses the fits' noise model (:func:`pmabayes.fit.fit`'s
+describe; ``--noise-model`` chooses the fits' noise model (:func:`pmabayes.inference.sampler.fit`'s
 ``noise_model``: ``auto``, the default, uses the repeats' AR(p) where they reject
 AR(1) + white). Its files are ``calibration_two-scale_NOISEMODEL.*``. With
 ``--quick``, ``--datasets`` still sets the number of (short) data sets.
@@ -56,11 +56,11 @@ import arviz as az
 import numpy as np
 
 from pmabayes import Model, simulate
-from pmabayes.batch import dask_client
 from pmabayes.data import Dataset
-from pmabayes.fit import FitSettings, fit
+from pmabayes.inference.batch import dask_client
+from pmabayes.inference.fitfile import fit_info
+from pmabayes.inference.sampler import FitSettings, fit
 from pmabayes.parallel import Runner
-from pmabayes.posterior import fit_info
 from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
 PARAMS = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")  # the noise has no single truth
@@ -125,7 +125,7 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
     ``single`` (``"record"`` or ``"periodic"``) fits single records instead of
     ``n_trials`` repeated chirps (see the module's docstring). ``noise`` (a key of
     :data:`NOISES`) is the repeated chirps' measurement, and ``noise_model`` the fits'
-    (:func:`pmabayes.fit.fit`).
+    (:func:`pmabayes.inference.sampler.fit`).
     """
     if single is not None and single not in SINGLE_MODES:
         raise ValueError(f"single must be one of {SINGLE_MODES} or None, got {single!r}")

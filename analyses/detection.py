@@ -1,6 +1,6 @@
 """Detection of hidden effects: false alarms on null data and detection rate against size.
 
-Diagnoses (``pmabayes.criticism.diagnose``) many synthetic data sets with the base
+Diagnoses (``pmabayes.criticism.diagnosis.diagnose``) many synthetic data sets with the base
 model, each drawn with its own seed and its own base-model parameters from
 ``pmabayes.synthetic.PLAUSIBLE_REGION``, with the default measurement (AR(1)
 disturbance and encoder quantisation):
@@ -30,7 +30,7 @@ scheduler's workers instead of local processes (``pip install pmabayes[dask]`` h
 on the workers); the rows are the same.
 
 The discrepancy part (``--discrepancy``) studies the step that estimates a missing
-force outside the library (:mod:`pmabayes.discrepancy`) instead of the sweeps:
+force outside the library (:mod:`pmabayes.criticism.discrepancy`) instead of the sweeps:
 
 * ``--null`` null data sets (20): a proposed effect is a false alarm;
 * ``--outside`` data sets (12) with one hidden effect that no library holds, cycling
@@ -62,8 +62,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from pmabayes.batch import dask_client
-from pmabayes.criticism import diagnose
+from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.inference.batch import dask_client
 from pmabayes.parallel import Runner
 from pmabayes.synthetic import (
     Chirp,

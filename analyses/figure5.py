@@ -7,11 +7,11 @@ Two cases, both with the controllers on the paper's identified base model:
   45 ms regulator lag and 0.8 N of Coulomb friction, that the paper's model lacks.
 
 For each, the figure (reference, PID and computed-torque responses, the error below
-each; :func:`pmabayes.plots.plot_figure5`), the metrics with the fraction of time the
+each; :func:`pmabayes.report.figures.plot_figure5`), the metrics with the fraction of time the
 command spends in the dead zone and at the upper limit and the difference between
 the last two periods (``settle mm``; large when the loop never settles), and a check
 of each of the
-paper's claims (:func:`pmabayes.reproduction.figure5`), reproduced or not, with the
+paper's claims (:func:`pmabayes.control.reproduction.figure5`), reproduced or not, with the
 numbers.
 
 Usage::
@@ -25,9 +25,9 @@ import argparse
 from pathlib import Path
 
 from pmabayes.control import inverse_model_pressure_pa
-from pmabayes.model import Model, Rig
-from pmabayes.plots import plot_figure5, plt
-from pmabayes.reproduction import figure5
+from pmabayes.control.reproduction import figure5
+from pmabayes.model.model import Model, Rig
+from pmabayes.report.figures import plot_figure5, plt
 
 
 def main(argv: list[str] | None = None) -> int:

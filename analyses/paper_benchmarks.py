@@ -26,7 +26,7 @@ import matplotlib.pyplot as plt
 from _paper import Numbers, cached_fit, out_dirs, paper_dataset, parser, sig
 
 from pmabayes import Model, registered_effects
-from pmabayes.posterior import fit_info
+from pmabayes.inference.fitfile import fit_info
 from pmabayes.synthetic import Chirp
 
 
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = {"base": bench_simulator.pmabayes_us(Model(), pressure, dt_s)}
     # the built-ins only: run_all's other steps may have registered a user effect
     for name in sorted(n for n, e in registered_effects().items()
-                       if e.__module__ == "pmabayes.effects"):
+                       if e.__module__ == "pmabayes.model.effects"):
         rows[f"+ {name}"] = bench_simulator.pmabayes_us(Model([name]), pressure, dt_s)
     ref = bench_simulator.DEFAULT_REFERENCE
     c_us = bench_simulator.c_reference_us(ref) if os.access(ref, os.X_OK) else None

@@ -2,10 +2,10 @@
 
 ``data/pma_chirp_lab.csv`` is synthetic and hides a 45 ms regulator lag and 0.8 N of
 Coulomb friction that the base model lacks. Three steps, each a
-``pmabayes.criticism.diagnose`` of the model so far (what is missing, from the
+``pmabayes.criticism.diagnosis.diagnose`` of the model so far (what is missing, from the
 residual's signature, the score test and refits), then a full posterior fit of each
-model (``pmabayes.fit.fit``) compared side by side
-(``pmabayes.criticism.compare_fits``: error per frequency band against the noise
+model (``pmabayes.inference.sampler.fit``) compared side by side
+(``pmabayes.criticism.diagnosis.compare_fits``: error per frequency band against the noise
 floor, whiteness, leave-one-trial-out ELPD). The base model is not told what to
 add: each step adds the effect that the previous diagnosis named missing, and the
 script stops when a diagnosis names nothing.
@@ -43,15 +43,15 @@ from _paper import (
     tex_escape,
 )
 
-from pmabayes.criticism import compare_fits, diagnose
-from pmabayes.plots import (
+from pmabayes.criticism.diagnosis import compare_fits, diagnose
+from pmabayes.inference.fitfile import fit_info
+from pmabayes.report.figures import (
     plot_band_errors,
     plot_ranking,
     plot_residual_signature,
     plot_whiteness,
     plt,
 )
-from pmabayes.posterior import fit_info
 
 #: at most this many effects are added (the library could in principle keep going)
 MAX_STEPS = 3

@@ -6,7 +6,7 @@ The README's worked example (section "Beyond the library"), through the public A
    library holds: ``pmabayes.synthetic.HiddenDrag``, ``hidden_drag`` (parameter
    ``c_hidden``), as ``pmabayes --plugin hidden.py simulate drag.csv --effect
    hidden_drag=300 --duration 8 --trials 6 --seed 3`` makes them;
-2. ``pmabayes.criticism.diagnose`` of the base model, with the built-in library as
+2. ``pmabayes.criticism.diagnosis.diagnose`` of the base model, with the built-in library as
    the candidates (``pmabayes diagnose drag.csv``): no library effect explains the
    misfit, so the discrepancy step estimates the missing force, ranks its states and
    writes a closed form as a ``.py`` plugin;
@@ -33,7 +33,7 @@ Writes ``figures/discrepancy_example.png``: (a) the flexible force's partial
 dependence on velocity with the proposed closed form (refitted) and the hidden drag,
 each less its least-squares line in velocity along the trajectory (the linear part is
 what the refitted damping takes; the diagnosis page's ``discrepancy.png``, from
-:func:`pmabayes.plots.plot_discrepancy`, shows the estimate with it), (b) the
+:func:`pmabayes.report.figures.plot_discrepancy`, shows the estimate with it), (b) the
 leave-one-trial-out ELPD lost when each state is dropped, (c) the residual of the
 trial mean before and after, against the noise floor. Also
 ``tables/numbers_discrepancy.tex``; prints the figure's path last.
@@ -63,8 +63,8 @@ from _paper import (
 from matplotlib.figure import Figure
 
 from pmabayes.cli import load_plugin
-from pmabayes.criticism import diagnose
-from pmabayes.effects import get_effect, registered_effects
+from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.model.effects import get_effect, registered_effects
 from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
 
 #: the hidden drag coefficient in N s²/m² (the README's example)

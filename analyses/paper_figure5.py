@@ -1,7 +1,7 @@
 """The paper's Fig. 5 redone (PID against computed torque at 0.5, 1, 2 Hz) with its claims.
 
 The same two cases as ``analyses/figure5.py``, through the same API
-(``pmabayes.reproduction.figure5`` and ``pmabayes.plots.plot_figure5``): the
+(``pmabayes.control.reproduction.figure5`` and ``pmabayes.report.figures.plot_figure5``): the
 controllers use the paper's base model and the gain rule's gains; the plant is that
 model (``nominal``) or the model plus the 45 ms regulator lag and 0.8 N friction
 hidden in ``data/pma_chirp_lab.csv`` (``lab``). The closed loops are cheap, so quick
@@ -29,9 +29,9 @@ from pmabayes.control import (
     operating_mean_m,
     tune_gains,
 )
-from pmabayes.model import Model, Rig
-from pmabayes.plots import plot_figure5, plt
-from pmabayes.reproduction import figure5
+from pmabayes.control.reproduction import figure5
+from pmabayes.model.model import Model, Rig
+from pmabayes.report.figures import plot_figure5, plt
 
 CLAIM_NAMES = ("Better", "Phase", "Overshoot")
 

@@ -3,10 +3,10 @@
 Pushes posterior samples of the case study's final lab fit (base + regulator lag +
 Coulomb friction on ``data/pma_chirp_lab.csv``; fitted here if
 ``paper_criticism.py`` has not cached it) through both controllers at several
-reference frequencies (``pmabayes.robustness.robustness_sweep``, mode ``plant``:
+reference frequencies (``pmabayes.control.robustness.robustness_sweep``, mode ``plant``:
 the plant is drawn from the posterior and the controllers use the posterior mean),
 and draws the RMS error and phase lag bands with P(CT beats PID)
-(``pmabayes.plots.plot_robustness``).
+(``pmabayes.report.figures.plot_robustness``).
 
 Usage::
 
@@ -31,8 +31,8 @@ import numpy as np
 from _paper import LAB_EFFECTS, Numbers, cached_fit, lab_dataset, out_dirs, parser, sig
 
 from pmabayes.control import DEFAULT_GAINS
-from pmabayes.plots import plot_robustness, plt
-from pmabayes.robustness import robustness_sweep, summarise_robustness
+from pmabayes.control.robustness import robustness_sweep, summarise_robustness
+from pmabayes.report.figures import plot_robustness, plt
 
 
 def main(argv: list[str] | None = None) -> int:

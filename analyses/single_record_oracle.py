@@ -5,7 +5,7 @@ values (for ``--single record`` 20 um, lag-one correlation ``exp(-dt / 2 ms)``; 
 ``--single periodic`` the default 60 um and 0.1 s; and the encoder's quantisation as
 white noise of ``step / sqrt(12)``). For each data set it finds the
 maximum likelihood of the six physical parameters (Gauss-Newton on the Kalman-whitened
-residual, :meth:`pmabayes.likelihood.Likelihood.whiten`, in the sampler's log
+residual, :meth:`pmabayes.inference.likelihood.Likelihood.whiten`, in the sampler's log
 coordinates), and reports the Wald z of the truth, ``(truth - estimate) / sd``, with
 ``sd`` from the inverse Fisher information ``J'J`` of the whitened residual, and the
 likelihood ratio ``2 (log L(estimate) - log L(truth))``. With a right likelihood the z
@@ -47,10 +47,10 @@ from calibration import (  # noqa: E402
 )
 
 from pmabayes import Model  # noqa: E402
-from pmabayes.likelihood import Likelihood  # noqa: E402
+from pmabayes.inference.likelihood import Likelihood
 from pmabayes.synthetic import MeasurementNoise, generate_chirp_dataset  # noqa: E402
 
-#: the parameters sampled in log coordinates (:mod:`pmabayes.posterior`)
+#: the parameters sampled in log coordinates (:mod:`pmabayes.inference.posterior`)
 LOG = np.array([True, True, False, True, True, False])
 #: the 90% interval's half-width in sd
 Z90 = 1.6448536269514722

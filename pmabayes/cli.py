@@ -56,15 +56,16 @@ import numpy as np
 
 from pmabayes.control import ControlError
 from pmabayes.data import DataError, Dataset, load, save
-from pmabayes.effects import EffectError, get_effect, registered_effects
-from pmabayes.fit import ConvergenceWarning, FitError, FitSettings, fit
-from pmabayes.likelihood import LikelihoodError
-from pmabayes.model import BASE_PARAMETERS, Model, ModelError, Rig
-from pmabayes.parameters import Prior, parse_prior
-from pmabayes.posterior import FitFileError, fit_info, load_fit, save_fit
-from pmabayes.simulator import SimulationError, simulate_dataset
+from pmabayes.inference.errors import ConvergenceWarning, FitError
+from pmabayes.inference.fitfile import FitFileError, fit_info, load_fit, save_fit
+from pmabayes.inference.likelihood import LikelihoodError
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.inference.trials import check_trials, exclude_trials, parse_trial_ids
+from pmabayes.model.effects import EffectError, get_effect, registered_effects
+from pmabayes.model.model import BASE_PARAMETERS, Model, ModelError, Rig
+from pmabayes.model.parameters import Prior, parse_prior
+from pmabayes.model.simulator import SimulationError, simulate_dataset
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
-from pmabayes.trials import check_trials, exclude_trials, parse_trial_ids
 
 __all__ = ["main", "load_plugin", "CliError"]
 
@@ -192,7 +193,7 @@ def _load_all(args: argparse.Namespace) -> list[Dataset]:
     """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
     if args.exclude_trials and len(args.data) > 1:
         raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
-                       "were given; leave the trials out of that file first (pmabayes.trials."
+                       "were given; leave the trials out of that file first (pmabayes.inference.trials."
                        "exclude_trials, then pmabayes.data.save), or fit it alone")
     return [_load_data(args, p) for p in args.data]
 
@@ -230,8 +231,8 @@ def load_plugin(spec: str) -> None:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from pmabayes.plots import plot_comparison  # matplotlib only where figures are made
-    from pmabayes.residuals import band_errors, band_label
+    from pmabayes.criticism.residuals import band_errors, band_label
+    from pmabayes.report.figures import plot_comparison  # matplotlib only where figures are made
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -311,7 +312,7 @@ def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
-    from pmabayes.report import experiment_adequacy  # the model's fit, not the sampler's
+    from pmabayes.report.pages import experiment_adequacy  # the model's fit, not the sampler's
 
     for name, adequacy in experiment_adequacy(tree, datasets=datasets):
         prefix = f"[{name}] " if len(datasets) > 1 else ""
@@ -344,7 +345,7 @@ def _report_datasets(tree, paths: Sequence[str] | None) -> list[Dataset] | None:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from pmabayes.report import experiment_adequacy, write_report
+    from pmabayes.report.pages import experiment_adequacy, write_report
 
     _out_folder(args.out)
     tree = load_fit(args.fit)
@@ -358,7 +359,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from pmabayes.report import write_report
+    from pmabayes.report.pages import write_report
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -372,7 +373,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     start = time.perf_counter()
     if args.out:
@@ -405,7 +406,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         _write_json(args.json, summary)
         print(f"wrote {args.json}")
     if args.out:
-        from pmabayes.report import write_diagnosis
+        from pmabayes.report.pages import write_diagnosis
 
         index = write_diagnosis(result, Path(args.out))
         print(f"wrote {index}")
@@ -414,8 +415,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from pmabayes.criticism import compare_fits
-    from pmabayes.report import write_comparison
+    from pmabayes.criticism.diagnosis import compare_fits
+    from pmabayes.report.pages import write_comparison
 
     labels = args.labels.split(",") if args.labels else None
     if len(args.fits) < 2 or (labels is not None and len(labels) != len(args.fits)):
@@ -484,7 +485,7 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 
 def _cmd_track(args: argparse.Namespace) -> int:
     from pmabayes.control import CONTROLLERS, track
-    from pmabayes.robustness import control_model_from_fit, posterior_mean
+    from pmabayes.control.robustness import control_model_from_fit, posterior_mean
 
     model, params, source = None, None, "the paper's values"
     if args.fit:
@@ -512,8 +513,11 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
-    from pmabayes.plots import plot_robustness, plt  # matplotlib only where figures are made
-    from pmabayes.robustness import robustness_sweep, summarise_robustness, write_robustness
+    from pmabayes.control.robustness import robustness_sweep, summarise_robustness, write_robustness
+    from pmabayes.report.figures import (  # matplotlib only where figures are made
+        plot_robustness,
+        plt,
+    )
 
     _out_folder(args.out)
     ds = robustness_sweep(args.fit, samples=args.samples, frequencies_hz=args.freqs,
@@ -539,7 +543,7 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from pmabayes.validation import validate
+    from pmabayes.criticism.validation import validate
 
     start = time.perf_counter()
     if args.out:
@@ -557,7 +561,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         _write_json(args.json, result.to_dict())
         print(f"wrote {args.json}")
     if args.out:
-        from pmabayes.report import write_validation
+        from pmabayes.report.pages import write_validation
 
         print(f"wrote {write_validation(result, Path(args.out))}")
     print(f"({time.perf_counter() - start:.1f} s)")
@@ -727,7 +731,7 @@ def _fit_commands(sub) -> None:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from pmabayes.batch import BatchError, BatchJob, fit_batch
+    from pmabayes.inference.batch import BatchError, BatchJob, fit_batch
 
     out = _out_folder(args.out)
     if args.processes is not None and args.dask is not None:

@@ -1,6 +1,6 @@
 """One parallel runner: local worker processes, this process, or a Dask cluster.
 
-Fit ensembles (:mod:`pmabayes.fit`), robustness sweeps (:mod:`pmabayes.robustness`)
+Fit ensembles (:mod:`pmabayes.inference.sampler`), robustness sweeps (:mod:`pmabayes.control.robustness`)
 and the studies in ``analyses/`` all run their tasks through :class:`Runner`.
 
 Local workers are forked where the platform can (spawned elsewhere): they inherit

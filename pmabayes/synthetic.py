@@ -17,11 +17,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pmabayes.data import DataError, Dataset
-from pmabayes.effects import Effect, get_effect
-from pmabayes.likelihood import ar1_noise
-from pmabayes.model import Model, ModelError, Rig
-from pmabayes.parameters import HalfNormal, Parameter
-from pmabayes.simulator import simulate
+from pmabayes.inference.likelihood import ar1_noise
+from pmabayes.model.effects import Effect, get_effect
+from pmabayes.model.model import ENCODER_COUNTS_PER_M, Model, ModelError, Rig
+from pmabayes.model.parameters import HalfNormal, Parameter
+from pmabayes.model.simulator import simulate
 
 __all__ = [
     "ENCODER_COUNTS_PER_M",
@@ -37,9 +37,6 @@ __all__ = [
     "HiddenZForce",
     "OUTSIDE_LIBRARY",
 ]
-
-#: The paper's linear encoder: 2000 quadrature counts per inch.
-ENCODER_COUNTS_PER_M = 2000 / 0.0254
 
 #: Where a PMA like the paper's plausibly lies: ``(low, high, scale)`` per base
 #: parameter, drawn uniformly (``"log"``: log-uniformly) by :func:`draw_plausible`.
@@ -216,7 +213,7 @@ def hidden_effects_model(
     Parameters
     ----------
     effects : mapping
-        Effect (a registered name, or an :class:`~pmabayes.effects.Effect` subclass
+        Effect (a registered name, or an :class:`~pmabayes.model.effects.Effect` subclass
         such as those of :data:`OUTSIDE_LIBRARY`, which no library holds) to either a
         mapping of its parameter values, or one number for its first varying parameter
         (``{"regulator_lag": 0.045}``). Parameters not given keep their defaults.

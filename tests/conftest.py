@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from pmabayes.likelihood import NOISE_PARAMETERS
-from pmabayes.model import PAPER_VALUES, Model
-from pmabayes.posterior import save_fit
+from pmabayes.inference.fitfile import save_fit
+from pmabayes.inference.likelihood import NOISE_PARAMETERS
+from pmabayes.model.model import PAPER_VALUES, Model
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -11,14 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pmabayes import Model, batch
-from pmabayes.batch import BatchError, BatchJob, dask_client, dataset_seed, fit_batch
+from pmabayes import Model
 from pmabayes.cli import main
 from pmabayes.data import load, save
-from pmabayes.effects import EffectError
-from pmabayes.fit import FitError, FitSettings, fit
-from pmabayes.parameters import parse_prior
-from pmabayes.posterior import fit_info, load_fit
+from pmabayes.inference import batch
+from pmabayes.inference.batch import BatchError, BatchJob, dask_client, dataset_seed, fit_batch
+from pmabayes.inference.errors import FitError
+from pmabayes.inference.fitfile import fit_info, load_fit
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.model.effects import EffectError
+from pmabayes.model.parameters import parse_prior
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=2.0, f0_hz=0.3, f1_hz=2.0, sample_rate_hz=500.0)
@@ -222,7 +224,7 @@ def batch_run():
 
 
 @pytest.mark.slow
-@pytest.mark.filterwarnings("ignore::pmabayes.fit.ConvergenceWarning")  # tiny runs, on purpose
+@pytest.mark.filterwarnings("ignore::pmabayes.inference.errors.ConvergenceWarning")  # tiny runs, on purpose
 def test_batch_on_two_processes_gives_the_fits_made_alone(batch_run):
     res = batch_run["result"]
     assert res.runner == "2 local processes"

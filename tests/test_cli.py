@@ -132,7 +132,7 @@ def test_fit_then_report_then_resume(tmp_path, capsys):
     # the same command again resumes the saved chains instead of starting over
     assert main([*args, "--quiet"]) == 0
     assert "resuming" not in capsys.readouterr().err  # --quiet
-    from pmabayes.posterior import fit_info, load_fit
+    from pmabayes.inference.fitfile import fit_info, load_fit
 
     assert fit_info(load_fit(fit_path))["convergence"]["resumed"] is True
 
@@ -389,7 +389,7 @@ def test_warnings_print_one_line_without_source(small_data, tmp_path, monkeypatc
 
 def test_unidentified_noise_names_the_file_and_the_fix(small_data, tmp_path, monkeypatch,
                                                        capsys):
-    import pmabayes.fit as fit_module
+    import pmabayes.inference.sampler as fit_module
 
     def singular(a):
         raise np.linalg.LinAlgError("singular matrix")

@@ -3,8 +3,8 @@
 import numpy as np
 from conftest import fake_fit
 
-from pmabayes.model import PAPER_VALUES, Rig
-from pmabayes.posterior import fit_info, load_fit
+from pmabayes.inference.fitfile import fit_info, load_fit
+from pmabayes.model.model import PAPER_VALUES, Rig
 
 
 def test_fake_fit_has_the_layout_of_a_fit(tmp_path):

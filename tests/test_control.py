@@ -11,7 +11,7 @@ import pytest
 import xarray as xr
 from conftest import fake_fit
 
-import pmabayes.robustness as robustness
+import pmabayes.control.robustness as robustness
 from pmabayes import Effect, HalfNormal, Model, Normal, Parameter, Rig, simulate
 from pmabayes.cli import main
 from pmabayes.control import (
@@ -32,14 +32,14 @@ from pmabayes.control import (
     tracking_metrics,
     tune_gains,
 )
-from pmabayes.plots import plot_figure5, plot_robustness, plt
-from pmabayes.reproduction import figure5, paper_claims
-from pmabayes.robustness import (
+from pmabayes.control.reproduction import figure5, paper_claims
+from pmabayes.control.robustness import (
     posterior_mean,
     robustness_sweep,
     summarise_robustness,
     write_robustness,
 )
+from pmabayes.report.figures import plot_figure5, plot_robustness, plt
 
 CONTROL = Model(rig=Rig.control())
 
@@ -501,7 +501,7 @@ def test_sweep_with_a_regulator_lag_same_numbers_however_chunked(tmp_path):
 
 def test_sweep_uses_the_operating_point_of_its_nominal_model(tmp_path):
     path = fake_fit(tmp_path / "fit.nc", values={"K_e": 0.8 * CONTROL.defaults["K_e"]})
-    from pmabayes.posterior import load_fit
+    from pmabayes.inference.fitfile import load_fit
 
     tree = load_fit(path)
     model = robustness.control_model_from_fit(tree)
@@ -562,7 +562,7 @@ def test_sweep_modes_draw_the_right_side(tmp_path, monkeypatch, mode):
 
 @pytest.mark.slow
 def test_sweep_tunes_both_controllers_on_the_posterior_mean(tmp_path):
-    from pmabayes.posterior import load_fit
+    from pmabayes.inference.fitfile import load_fit
 
     path = fake_fit(tmp_path / "fit.nc", effects=["regulator_lag"], values={"tau_reg": 0.03})
     kw = {**SMALL, "samples": 2, "frequencies_hz": (1.0,)}

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.criticism import (
+from pmabayes.criticism.diagnosis import (
     autocorrelation,
     band_errors,
     cross_correlation,
@@ -13,8 +13,8 @@ from pmabayes.criticism import (
     ljung_box,
 )
 from pmabayes.data import Dataset
-from pmabayes.fit import estimate_noise
-from pmabayes.likelihood import Likelihood
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.noise import estimate_noise
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=6.0, f0_hz=0.5, f1_hz=3.0)
@@ -76,7 +76,7 @@ def test_a_missing_lag_is_above_the_floor_and_not_white(lagged):
 
 
 def test_the_adequacy_rule_and_its_verdict(perfect, lagged):
-    from pmabayes.residuals import check_adequacy, is_adequate
+    from pmabayes.criticism.residuals import check_adequacy, is_adequate
 
     for case, expected in ((perfect, True), (lagged, False)):
         ds, lik, x, _ = judge(case)
@@ -94,7 +94,7 @@ def test_the_adequacy_rule_and_its_verdict(perfect, lagged):
 
 def two_time_scale(seed, effects=None, r=6):
     """Chirp trials with a disturbance on two time scales (10 ms and 1 s) and white noise."""
-    from pmabayes.likelihood import ar1_noise
+    from pmabayes.inference.likelihood import ar1_noise
 
     clean = generate_chirp_dataset(n_trials=r, seed=seed, chirp=CHIRP, noise=None,
                                    effects=effects)
@@ -109,7 +109,7 @@ def two_time_scale(seed, effects=None, r=6):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
-    from pmabayes.residuals import check_adequacy, check_noise_model, whiteness
+    from pmabayes.criticism.residuals import check_adequacy, check_noise_model, whiteness
 
     ds = two_time_scale(seed)
     lik = Likelihood(pb.Model(), ds)
@@ -133,7 +133,7 @@ def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
 @pytest.mark.slow
 def test_the_two_time_scale_verdict_is_calibrated():
     """20 data sets, a correct model: at most one called inadequate (README's numbers)."""
-    from pmabayes.residuals import check_adequacy
+    from pmabayes.criticism.residuals import check_adequacy
 
     model, x, adequate = pb.Model(), None, 0
     for seed in range(100, 120):
@@ -146,7 +146,7 @@ def test_the_two_time_scale_verdict_is_calibrated():
 
 
 def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
-    from pmabayes.residuals import check_adequacy, check_noise_model, whiteness
+    from pmabayes.criticism.residuals import check_adequacy, check_noise_model, whiteness
 
     for case in (perfect, lagged):
         ds, lik, x, e = judge(case)
@@ -230,7 +230,7 @@ def test_band_errors_add_up_to_the_total_for_any_input(kind):
 
 
 def test_the_bands_span_what_the_input_excites():
-    from pmabayes.residuals import excited_band, input_bands
+    from pmabayes.criticism.residuals import excited_band, input_bands
 
     t = np.arange(20000) * 1e-3
     u = sum(np.sin(2 * np.pi * f * t) for f in (0.6, 1.2, 2.4, 5.0))
@@ -266,8 +266,9 @@ BUILTINS = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiff
 
 
 def ranking(hidden):
-    from pmabayes.criticism import rank_effects
-    from pmabayes.fit import Posterior, find_map
+    from pmabayes.criticism.diagnosis import rank_effects
+    from pmabayes.inference.density import Posterior
+    from pmabayes.inference.search import find_map
 
     ds = generate_chirp_dataset(n_trials=6, seed=3, chirp=RANK_CHIRP, effects=hidden)
     lik = Likelihood(pb.Model(), ds)
@@ -332,8 +333,9 @@ pb.register_effect(CritQuadraticDrag)
 
 @pytest.mark.slow
 def test_a_hidden_user_effect_is_found():
-    from pmabayes.criticism import rank_effects
-    from pmabayes.fit import Posterior, find_map
+    from pmabayes.criticism.diagnosis import rank_effects
+    from pmabayes.inference.density import Posterior
+    from pmabayes.inference.search import find_map
 
     ds = generate_chirp_dataset(n_trials=6, seed=4, chirp=RANK_CHIRP,
                                 effects={"crit_quadratic_drag": 300.0})
@@ -360,7 +362,7 @@ HIDDEN = [
 
 
 def diagnosis(ds, effects=(), candidates=BUILTINS, **kw):
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     # two refits suffice here (the hidden effect, or the lag/delay twins, rank in the
     # top two by score) and keep the tests' time down; the default is three
@@ -479,7 +481,7 @@ def test_diagnosis_json_has_the_documented_keys():
 
 
 def test_diagnose_rejects_bad_settings(perfect):
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     with pytest.raises(ValueError, match="ci_prob"):
         diagnose(perfect[0], ci_prob=1.5)

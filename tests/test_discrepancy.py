@@ -37,7 +37,7 @@ def hidden(effect, values, seed, n_trials=6, chirp=CHIRP):
 
 
 def test_stlsq_recovers_a_sparse_combination():
-    from pmabayes.discrepancy import stlsq
+    from pmabayes.criticism.discrepancy import stlsq
 
     rng = np.random.default_rng(0)
     a = rng.standard_normal((2000, 12))
@@ -55,8 +55,8 @@ def test_stlsq_recovers_a_sparse_combination():
 @pytest.mark.parametrize("effects", [(), ("coulomb_friction",)])
 def test_the_linear_response_to_a_force_matches_the_simulator(effects):
     """The linearised model's response to x^3 against finite differences of cubic_stiffness."""
-    from pmabayes.discrepancy import _plant, force_response
-    from pmabayes.simulator import simulate_dataset
+    from pmabayes.criticism.discrepancy import _plant, force_response
+    from pmabayes.model.simulator import simulate_dataset
 
     ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
     model = pb.Model(list(effects))
@@ -72,7 +72,7 @@ def test_the_linear_response_to_a_force_matches_the_simulator(effects):
 
 
 def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
-    from pmabayes.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+    from pmabayes.criticism.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
 
     terms = [(Term("v|v|", "N s^2/m^2", "a quadratic drag", "velocity", "v * abs(v)",
                    dv="2.0 * abs(v)", slug="vabsv"), 250.0),
@@ -100,7 +100,7 @@ def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
 
 def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
     """A z term reads z; the memory term carries the low-passed velocity as its state."""
-    from pmabayes.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+    from pmabayes.criticism.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
 
     terms = [(Term("z|z|", "1/N", "a hysteretic force growing as z|z|", "hysteresis",
                    "z * abs(z)", dz="2.0 * abs(z)", slug="zabsz"), 0.004),
@@ -133,7 +133,7 @@ def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
     """A shape in position written as a table evaluates like the spline it came from."""
     from scipy.interpolate import BSpline
 
-    from pmabayes.discrepancy import (
+    from pmabayes.criticism.discrepancy import (
         _REGISTER,
         _Block,
         _bspline_design,
@@ -165,7 +165,7 @@ def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
 
 
 def diagnosis(ds, **kw):
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     kw.setdefault("max_refits", 2)
     return diagnose(ds, candidates=BUILTINS, seed=0, **kw)
@@ -250,9 +250,9 @@ def test_null_data_propose_nothing(tmp_path):
 
 def test_the_discrepancy_figure_and_page_section():
     """The partial-dependence figure and the diagnosis page's section, from a small result."""
-    from pmabayes.discrepancy import Discrepancy, Proposal, StateEvidence
-    from pmabayes.plots import plot_discrepancy
-    from pmabayes.report import _discrepancy_section
+    from pmabayes.criticism.discrepancy import Discrepancy, Proposal, StateEvidence
+    from pmabayes.report.figures import plot_discrepancy
+    from pmabayes.report.pages import _discrepancy_section
 
     grid = np.linspace(-0.1, 0.1, 50)
     states = [StateEvidence("velocity", "m/s", 120.0, 8.0, 1.3, True),
@@ -276,7 +276,7 @@ def test_the_discrepancy_figure_and_page_section():
 
 
 def test_a_periodic_proposal_carries_its_period_as_a_parameter(tmp_path):
-    from pmabayes.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+    from pmabayes.criticism.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
 
     k = "6.283185307179586"
     term = Term("sin(2 pi x / 10 mm)", "N", "a detent", "position", f"math.sin({k} * x / {{L}})",

@@ -16,7 +16,7 @@ import pytest
 from reference_solver import paper_chirp, reference_simulate
 
 import pmabayes as pb
-from pmabayes.effects import (
+from pmabayes.model.effects import (
     _mckibben_force,
     _regulator_lag,
     _regulator_second_order,
@@ -69,7 +69,7 @@ def run_linear(fn, q, u, dt=DT):
 def test_every_new_effect_is_registered_with_nulls_units_and_meaning():
     for name in LAB:
         eff = pb.get_effect(name)
-        assert eff.__module__ == "pmabayes.effects"
+        assert eff.__module__ == "pmabayes.model.effects"
         assert len(eff.description) > 200
         assert "residual" in eff.description.lower()
         for p in eff.parameters:
@@ -279,7 +279,7 @@ def test_the_null_of_each_effect_is_the_base_model():
 def _refit(effect, elpd_i, explained=0.99):
     from types import SimpleNamespace
 
-    from pmabayes.criticism import Refit
+    from pmabayes.criticism.diagnosis import Refit
 
     elpd_i = np.asarray(elpd_i, dtype=float)
     base_i = np.zeros_like(elpd_i)
@@ -295,7 +295,7 @@ def _refit(effect, elpd_i, explained=0.99):
 def test_the_verdict_says_when_two_refits_cannot_be_told_apart():
     from types import SimpleNamespace
 
-    from pmabayes.criticism import _missing, _Settings, _twins, _verdict
+    from pmabayes.criticism.diagnosis import _missing, _Settings, _twins, _verdict
 
     s = _Settings(level=0.05, level_adequate=0.01, energy_tolerance=0.1, max_refits=3,
                   min_explained=0.9, ci_prob=0.9, n_draws=400, substeps=1, candidates=None)
@@ -354,7 +354,7 @@ HIDDEN = [
 
 
 def diagnosis(ds, effects=(), **kw):
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     # three refits: the regulators and the delay share their first-order signature,
     # so all three tie in the score test and each must be refitted

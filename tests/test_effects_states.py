@@ -17,8 +17,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from reference_solver import paper_chirp, reference_simulate
 
 import pmabayes as pb
-from pmabayes.effects import EffectError, decay, power
-from pmabayes.model import ModelError
+from pmabayes.model.effects import EffectError, decay, power
+from pmabayes.model.model import ModelError
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
 DT = 1e-3
@@ -305,7 +305,7 @@ HIDDEN = [
 def library() -> tuple[str, ...]:
     """The built-in library (user effects registered by other tests left out)."""
     return tuple(n for n, e in pb.registered_effects().items()
-                 if e.__module__ == "pmabayes.effects")
+                 if e.__module__ == "pmabayes.model.effects")
 
 
 #: cases in the extended tier (run with --extended), so that CI stays under 30 minutes
@@ -317,7 +317,7 @@ EXTENDED = ("maxwell_creep", "bouc_wen_exponent")
     pytest.param(*h, id=h[0], marks=[pytest.mark.extended] if h[0] in EXTENDED else [])
     for h in HIDDEN])
 def test_a_hidden_effect_is_found_added_and_the_error_falls_to_the_floor(name, value, param):
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     ds = generate_chirp_dataset(n_trials=6, seed=3, chirp=RANK_CHIRP, effects={name: value})
     before = diagnose(ds, candidates=library(), seed=0, max_refits=2, ci_prob=0.99)

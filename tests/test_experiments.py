@@ -11,10 +11,8 @@ import pytest
 
 import pmabayes as pb
 from pmabayes.data import DataError, Dataset, check_same_input_kind
-from pmabayes.fit import FitError, FitSettings, fit
-from pmabayes.likelihood import Likelihood
-from pmabayes.model import PAPER_VALUES, Rig
-from pmabayes.posterior import (
+from pmabayes.inference.errors import FitError
+from pmabayes.inference.fitfile import (
     experiment_datasets,
     experiment_models,
     experiment_names,
@@ -22,6 +20,9 @@ from pmabayes.posterior import (
     load_fit,
     save_fit,
 )
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.model.model import PAPER_VALUES, Rig
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
 BASE = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")
@@ -97,11 +98,11 @@ def test_experiments_of_different_input_kinds_are_refused():
 def test_posterior_sums_the_experiments():
     """The joint density is the sum of each experiment's trial-mean likelihood given its
     own noise; a record without repeats brings its noise parameters into the posterior."""
-    from pmabayes.fit import _posterior
+    from pmabayes.inference.posterior import build_posterior
 
     a = chirp_dataset(n_trials=3, seed=1, duration_s=2.0, source="a.csv")
     b = sine_dataset(rig=Rig.control(), n_trials=2, seed=2, n_periods=2, source="b.csv")
-    post = _posterior(pb.Model(), [a, b], 1)
+    post = build_posterior(pb.Model(), [a, b])
     assert post.names == BASE and post.n_experiments == 2
     theta = np.array([[TRUE[n] for n in BASE]])
     lp, ll, x = post.evaluate(theta)
@@ -114,11 +115,11 @@ def test_posterior_sums_the_experiments():
     # the loaded rig is b's own: its simulation differs from the unloaded one
     assert post.likelihoods[1].model.rig == Rig.control()
     # tied noise: one estimate from both experiments' repeats
-    tied = _posterior(pb.Model(), [a, b], 1, tie_noise=True)
+    tied = build_posterior(pb.Model(), [a, b], tie_noise=True)
     assert tied.groups == [0, 0] and tied.noise_of(0) == tied.noise_of(1)
     # a single non-periodic record: its noise is sampled with the model, guarded
     c = sine_dataset(n_trials=1, seed=3, n_periods=2, source="c.csv")
-    joint = _posterior(pb.Model(), [a, c], 1)
+    joint = build_posterior(pb.Model(), [a, c])
     assert joint.names[-3:] == ("sigma_noise_m[c]", "rho_noise[c]", "sigma_white_m[c]")
     assert joint.upper[-2] == pytest.approx(joint.likelihoods[1].rho_max)
 
@@ -131,8 +132,8 @@ def test_periods_of_a_record_from_rest_are_referred_to_the_model():
     periods after the first of a record from rest differ by far more than the noise:
     taken raw they give a noise 20 times too large. The residual's periods give the
     noise drawn; a record in steady state is left as it is."""
-    from pmabayes.fit import estimate_noise
-    from pmabayes.residuals import band_errors
+    from pmabayes.criticism.residuals import band_errors
+    from pmabayes.inference.noise import estimate_noise
 
     noise = MeasurementNoise(disturbance_std_m=30e-6, disturbance_corr_time_s=0.05)
     ds = sine_dataset(n_trials=1, seed=31, n_periods=4, periodic=True, noise=noise)
@@ -267,7 +268,7 @@ def test_single_periodic_record_covers_the_truth():
 def test_a_wrong_model_on_a_single_record_is_still_inadequate():
     """The guard keeps the misfit of a model that lacks an effect visible: the noise
     model cannot turn it into slow noise, so the whitened residual is not white."""
-    from pmabayes.report import fit_adequacy
+    from pmabayes.report.pages import fit_adequacy
 
     lagged = generate_chirp_dataset(
         n_trials=1, seed=41, noise=FAST_NOISE, effects={"regulator_lag": 0.045},
@@ -279,7 +280,7 @@ def test_a_wrong_model_on_a_single_record_is_still_inadequate():
 
 @pytest.mark.slow
 def test_report_of_a_joint_fit_shows_each_experiment(joint_fit, tmp_path):
-    from pmabayes.report import experiment_adequacy, fit_adequacy, summary_table, write_report
+    from pmabayes.report.pages import experiment_adequacy, fit_adequacy, summary_table, write_report
 
     tree, (a, b) = joint_fit
     verdicts = experiment_adequacy(tree, datasets=[a, b])

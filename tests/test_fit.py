@@ -15,23 +15,19 @@ import pytest
 
 import pmabayes as pb
 from pmabayes.data import Dataset
-from pmabayes.fit import (
-    ConvergenceWarning,
-    FitError,
-    FitSettings,
-    Posterior,
-    estimate_noise,
-    find_map,
-    fit,
-)
-from pmabayes.likelihood import Likelihood
-from pmabayes.posterior import (
+from pmabayes.inference.density import Posterior
+from pmabayes.inference.errors import ConvergenceWarning, FitError
+from pmabayes.inference.fitfile import (
     experiment_datasets,
     experiment_models,
     fit_info,
     load_fit,
     save_fit,
 )
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.noise import estimate_noise
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.inference.search import find_map
 from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0)
@@ -138,7 +134,7 @@ def test_posterior_covers_the_truth(small_fit):
 def test_noise_estimate_recovers_the_generator():
     """AR(1) disturbance and white noise recovered from 20 pure-noise trials."""
     rng = np.random.default_rng(1)
-    from pmabayes.likelihood import ar1_noise
+    from pmabayes.inference.likelihood import ar1_noise
 
     e = ar1_noise(20, 4000, 4e-5, 0.97, rng) + 5e-6 * rng.standard_normal((20, 4000))
     ds = Dataset(time_s=np.arange(4000) * 1e-3, input=np.full((20, 4000), 2e5),
@@ -281,7 +277,7 @@ def test_too_small_a_budget_is_refused(small_data):
 
 def test_a_walker_that_has_not_moved_is_not_converged_not_a_crash():
     """emcee's tau is NaN for a walker that has not moved; that is 'too short to judge'."""
-    from pmabayes.fit import _convergence
+    from pmabayes.inference.sampler import _convergence
 
     rng = np.random.default_rng(0)
     chains = [rng.standard_normal((20, 16, 2)).cumsum(axis=0) for _ in range(2)]
@@ -356,7 +352,7 @@ def _alive(pid: int) -> bool:
 _KILLED_FIT = """
 import sys
 import pmabayes as pb
-from pmabayes.fit import FitSettings, fit
+from pmabayes.inference.sampler import FitSettings, fit
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 data = generate_chirp_dataset(n_trials=3, seed=11, chirp=Chirp(duration_s=3.0, f0_hz=0.3,
                                                                f1_hz=2.0))
@@ -409,8 +405,7 @@ def test_an_ensemble_already_ahead_is_left_as_it_is(tmp_path, monkeypatch):
     """A resumed round skips an ensemble that a killed run had already advanced."""
     import emcee
 
-    from pmabayes import fit as fit_module
-
+    from pmabayes.inference import sampler as fit_module
     path = str(tmp_path / "ensemble_0.h5")
     store = emcee.backends.HDFBackend(path, name="mcmc")
     store.reset(4, 2)
@@ -430,8 +425,7 @@ def test_an_ensemble_already_ahead_is_left_as_it_is(tmp_path, monkeypatch):
 def test_global_search_stops_when_its_population_agrees(small_data, monkeypatch):
     """The search ends well before its generation budget once its population is in one
     basin, and the polish from there finds the MAP a search run to the end finds."""
-    from pmabayes import fit as fit_module
-
+    from pmabayes.inference import sampler as fit_module
     lik = Likelihood(pb.Model(), small_data)
     post = Posterior(lik, estimate_noise(lik))
     simulated = []
@@ -454,7 +448,7 @@ def test_default_walkers_suffice_for_every_built_in_effect():
     the six effects of the first library (and a single record's sampled noise with
     three of them). The PMA library's near twins (issue 12) are alternatives to
     these, not additions; a model with more parameters passes n_walkers."""
-    from pmabayes.effects import registered_effects
+    from pmabayes.model.effects import registered_effects
 
     built_in = ["regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiffness",
                 "pressure_stiffness", "position_offset"]
@@ -521,7 +515,7 @@ def test_map_of_a_short_periodic_record_finds_the_right_basin():
 def test_an_indefinite_hessian_is_measured_again_along_its_eigenvectors():
     """Curvatures 1e8 apart, strongly correlated: a Hessian measured along the axes
     can come out indefinite; measured along its eigenvectors it is the right one."""
-    from pmabayes.fit import _laplace_covariance
+    from pmabayes.inference.laplace import _laplace_covariance
 
     rot = np.array([[1.0, 1.0], [1.0, -1.0]]) / np.sqrt(2.0)
     hess = rot @ np.diag([1e8, 1.0]) @ rot.T

@@ -11,7 +11,7 @@ from test_inputs import OSC_KW, OSC_SUBSTEPS, REQUIREMENT_M, multisine_fn
 from test_simulator import BENCH, BENCH_FS, BENCH_MASS, max_err
 
 import pmabayes as pb
-from pmabayes.simulator import (
+from pmabayes.model.simulator import (
     INITIAL_STATES,
     SimulationError,
     _generate,

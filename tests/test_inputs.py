@@ -21,7 +21,7 @@ from test_simulator import (
 )
 
 import pmabayes as pb
-from pmabayes.simulator import (
+from pmabayes.model.simulator import (
     BETWEEN_SAMPLES,
     SimulationError,
     SteadyStateWarning,
@@ -107,7 +107,7 @@ def _chirp_dataset(metadata: dict | None = None, between: str = "hold") -> pb.da
 
 def test_the_sidecar_declares_a_linear_input_and_the_likelihood_uses_it(tmp_path):
     from pmabayes.data import read_csv, write_csv
-    from pmabayes.likelihood import Likelihood
+    from pmabayes.inference.likelihood import Likelihood
 
     ds = _chirp_dataset({"input_between_samples": "linear"}, between="linear")
     write_csv(ds, tmp_path / "lin.csv")
@@ -283,7 +283,7 @@ def test_bandlimited_force_oscillator_within_1e5_m_of_the_exact_input(stretch, p
 def test_fft_reconstruction_is_exact_for_a_periodic_input():
     """The reconstructed input equals the continuous periodic multisine at every substep
     boundary, to rounding; the spline is close but not exact."""
-    from pmabayes.simulator import _fine_input
+    from pmabayes.model.simulator import _fine_input
 
     f = multisine_fn()
     u = f(np.arange(1500) / BENCH_FS)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from test_likelihood import brute_force
 
-from pmabayes.likelihood import _kalman_loglik, _noise_loglik
+from pmabayes.inference.likelihood import _kalman_loglik, _noise_loglik
 
 
 def _members_alone(y, x, scale, sigma, rho, white):

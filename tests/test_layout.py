@@ -9,29 +9,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pmabayes.effects as effects_module
+import pmabayes
+import pmabayes.model.effects as effects_module
+from pmabayes._layers import LAYERS, TOP_LEVEL_RANK
 
-PACKAGE = Path(effects_module.__file__).parent
+PACKAGE = Path(pmabayes.__file__).parent
 
-#: each module's stage; a module may import only modules of its own stage or lower
-RANK = {
-    "util": 0, "parallel": 0,
-    "data": 1,
-    "parameters": 2, "effects": 2, "model": 2,
-    "simulator": 3,
-    "likelihood": 4, "trials": 4,
-    "synthetic": 5,
-    "posterior": 6,
-    "fit": 7,
-    "residuals": 8, "discrepancy": 8, "criticism": 8, "control": 8, "robustness": 8,
-    "reproduction": 8,
-    "batch": 8, "validation": 8,
-    "plots": 9,
-    "report": 10,
-    "cli": 11,
-}
-#: ``import pmabayes`` (the top level) brings these stages
-TOP_LEVEL_RANK = 3
+RANK = {name: rank for name, (rank, _) in LAYERS.items()}
 
 
 def _stage(module: str) -> str:
@@ -56,7 +40,7 @@ def _source_modules():
     for path in sorted(PACKAGE.rglob("*.py")):
         rel = path.relative_to(PACKAGE).with_suffix("")
         stage = rel.parts[0]
-        if stage in ("__init__", "__main__"):
+        if stage in ("__init__", "__main__", "_layers"):
             continue
         yield path, stage
 
@@ -78,21 +62,85 @@ def test_every_module_has_a_stage():
     assert {stage for _, stage in _source_modules()} <= set(RANK)
 
 
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE).with_suffix("").parts
+    return ".".join(("pmabayes", *(rel[:-1] if rel[-1] == "__init__" else rel)))
+
+
+def _is_type_checking(node) -> bool:
+    return isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+
+
+def import_cycles(paths) -> list[list[str]]:
+    """Circles of imports among pmabayes' modules, at any depth (an import inside a
+    function closes a circle as surely, only later)."""
+    graph = {}
+    for path in paths:
+        tree = ast.parse(path.read_text())
+        typing_only = {id(n) for block in ast.walk(tree) if _is_type_checking(block)
+                       for stmt in block.body for n in ast.walk(stmt)}
+        deps = set()
+        for node in ast.walk(tree):
+            if id(node) in typing_only:  # for annotations only: never run
+                continue
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                deps.add(node.module)
+                deps.update(f"{node.module}.{a.name}" for a in node.names)
+            elif isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names)
+        graph[_module_name(path)] = deps
+    known = set(graph)
+    graph = {m: {d for d in deps if d in known and d != m} for m, deps in graph.items()}
+    # a package's __init__ runs before its modules: an import of the package from one
+    # of its own modules is not a circle the interpreter walks
+    graph = {m: {d for d in deps if not m.startswith(d + ".")} for m, deps in graph.items()}
+    cycles, state = [], {}
+
+    def visit(m, stack):
+        state[m] = 1
+        for d in sorted(graph[m]):
+            if state.get(d) == 1:
+                cycles.append(stack[stack.index(d):] + [d])
+            elif d not in state:
+                visit(d, stack + [d])
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    return cycles
+
+
+def test_no_module_imports_itself_round_a_circle():
+    assert import_cycles(sorted(PACKAGE.rglob("*.py"))) == []
+
+
+def test_the_circle_check_can_fail(tmp_path, monkeypatch):
+    pkg = tmp_path / "pmabayes"
+    (pkg / "data").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "data" / "a.py").write_text("from pmabayes.data.b import x\n")
+    (pkg / "data" / "b.py").write_text("from pmabayes.data.a import y\n")
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", pkg)
+    assert import_cycles(sorted(pkg.rglob("*.py"))) == [
+        ["pmabayes.data.a", "pmabayes.data.b", "pmabayes.data.a"]]
+
+
 def test_a_lower_stage_never_imports_a_higher_one():
     assert layout_violations(_source_modules()) == []
 
 
 def test_the_layout_check_can_fail(tmp_path):
     bad = tmp_path / "simulator.py"
-    bad.write_text("from pmabayes.fit import fit\n")
-    assert layout_violations([(bad, "simulator")]) == [
-        "simulator.py:1: simulator imports pmabayes.fit"]
+    bad.write_text("from pmabayes.inference.sampler import fit\n")
+    assert layout_violations([(bad, "model")]) == [
+        "simulator.py:1: model imports pmabayes.inference.sampler"]
 
 
 def _builtin_names() -> set[str]:
     names = set()
     for cls in effects_module.registered_effects().values():
-        if cls.__module__ == effects_module.__name__:
+        if cls.__module__.startswith(effects_module.__name__ + "."):
             names.add(cls.name)
             names.update(cls.parameter_names())
     return names
@@ -123,8 +171,8 @@ def test_no_module_but_effects_names_a_builtin_effect():
     builtin = _builtin_names()
     assert {"regulator_lag", "tau_reg", "position_offset", "x_offset"} <= builtin
     found = []
-    for path, stage in _source_modules():
-        if stage == "effects":
+    for path, _ in _source_modules():
+        if path.relative_to(PACKAGE).with_suffix("").parts[:2] == ("model", "effects"):
             continue
         found += [f"{path.relative_to(PACKAGE)}:{line}: {name}"
                   for line, name in sorted(_code_names(path)) if name in builtin]
@@ -132,7 +180,7 @@ def test_no_module_but_effects_names_a_builtin_effect():
 
 
 def test_import_picks_no_matplotlib_backend():
-    modules = ["pmabayes", "pmabayes.plots", "pmabayes.control", "pmabayes.report",
+    modules = ["pmabayes", "pmabayes.report.figures", "pmabayes.control", "pmabayes.report.pages",
                "pmabayes.cli"]
     code = (
         f"import sys; import {', '.join(modules)}; mpl = sys.modules.get('matplotlib'); "

@@ -7,7 +7,7 @@ import pytest
 
 import pmabayes as pb
 from pmabayes.data import Dataset
-from pmabayes.likelihood import Likelihood, LikelihoodError
+from pmabayes.inference.likelihood import Likelihood, LikelihoodError
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=0.4, f0_hz=1.0, f1_hz=3.0)  # short: the reference is dense

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.model import BASE_PARAMETERS, CARRIAGE_MASS_KG, PMA_MASS_KG
+from pmabayes.model.model import BASE_PARAMETERS, CARRIAGE_MASS_KG, PMA_MASS_KG
 
 
 def test_paper_values_are_the_defaults():
@@ -90,8 +90,9 @@ def test_overrides_must_name_parameters():
 
 def _posterior(model):
     """The one joint log prior lives on the posterior; a tiny data set builds one."""
-    from pmabayes.likelihood import Likelihood
-    from pmabayes.posterior import NoiseEstimate, Posterior
+    from pmabayes.inference.density import Posterior
+    from pmabayes.inference.likelihood import Likelihood
+    from pmabayes.inference.noise import NoiseEstimate
     from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
     ds = generate_chirp_dataset(n_trials=2, seed=0, chirp=Chirp(duration_s=1.0, f0_hz=0.5,
@@ -154,7 +155,7 @@ def test_every_base_parameter_is_documented():
                                   "Normal(-1100, 500)", "HalfNormal(50)",
                                   "LogNormal(1.2345678901e-07, 0.5)"])
 def test_a_prior_reads_back_from_its_printed_form(text):
-    from pmabayes.parameters import parse_prior
+    from pmabayes.model.parameters import parse_prior
 
     prior = parse_prior(text)
     assert parse_prior(str(prior)) == prior
@@ -168,7 +169,7 @@ def test_a_prior_reads_back_from_its_printed_form(text):
     ("LogNormal(-1, 1)", r"median > 0"),
 ])
 def test_a_bad_prior_says_what_is_accepted(text, pattern):
-    from pmabayes.parameters import parse_prior
+    from pmabayes.model.parameters import parse_prior
 
     with pytest.raises(ValueError, match=pattern):
         parse_prior(text)
@@ -179,8 +180,8 @@ def test_the_priors_a_fit_used_come_back_with_its_model():
 
     from conftest import fake_fit
 
-    from pmabayes.parameters import LogNormal
-    from pmabayes.posterior import model_from_fit
+    from pmabayes.inference.fitfile import model_from_fit
+    from pmabayes.model.parameters import LogNormal
 
     tree = fake_fit()
     info = json.loads(tree.attrs["pmabayes"])
@@ -195,7 +196,7 @@ def test_the_priors_a_fit_used_come_back_with_its_model():
 
 def test_the_cli_takes_priors_and_refuses_bad_ones(capsys):
     from pmabayes.cli import _parser
-    from pmabayes.parameters import LogNormal
+    from pmabayes.model.parameters import LogNormal
 
     args = _parser().parse_args(["fit", "d.csv", "--out", "f.nc",
                                  "--prior", "K_e=LogNormal(5e4, 2)"])

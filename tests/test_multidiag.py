@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.criticism import compare_fits, diagnose, rank_effects
+from pmabayes.criticism.diagnosis import compare_fits, diagnose, rank_effects
+from pmabayes.criticism.residuals import band_errors
 from pmabayes.data import DataError, Dataset, save
-from pmabayes.fit import FitSettings, estimate_noise, fit
-from pmabayes.likelihood import Likelihood
-from pmabayes.model import PAPER_VALUES, Rig
-from pmabayes.posterior import save_fit
-from pmabayes.residuals import band_errors
+from pmabayes.inference.fitfile import save_fit
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.noise import estimate_noise
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.model.model import PAPER_VALUES, Rig
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
 BASE = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")
@@ -296,7 +297,7 @@ def joint_fits(lagged):
 
 @pytest.mark.slow
 def test_compare_fits_of_several_experiments(joint_fits, lagged, tmp_path):
-    from pmabayes.report import write_comparison
+    from pmabayes.report.pages import write_comparison
 
     base, lag = joint_fits
     c = compare_fits([base, lag], list(lagged))

@@ -15,8 +15,10 @@ from scipy.linalg import toeplitz
 
 import pmabayes as pb
 from pmabayes.data import Dataset
-from pmabayes.fit import FitError, FitSettings, _posterior, estimate_noise, fit
-from pmabayes.likelihood import (
+from pmabayes.inference.density import Posterior
+from pmabayes.inference.errors import FitError
+from pmabayes.inference.fitfile import fit_info, load_fit, noise_models, save_fit
+from pmabayes.inference.likelihood import (
     ArNoise,
     Likelihood,
     ar_noise_from_repeats,
@@ -24,7 +26,9 @@ from pmabayes.likelihood import (
     choose_noise_model,
     levinson,
 )
-from pmabayes.posterior import Posterior, fit_info, load_fit, noise_models, save_fit
+from pmabayes.inference.noise import estimate_noise
+from pmabayes.inference.posterior import _posterior
+from pmabayes.inference.sampler import FitSettings, fit
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
 CHIRP = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0)
@@ -229,7 +233,7 @@ def test_a_two_time_scale_fit_uses_the_ar_model_and_covers_the_truth(tmp_path, c
 
 def _tree_from_draws(posterior, n_chain: int = 8, n_draw: int = 6, seed: int = 0):
     """A fit file from draws scattered about the generator's values, as the sampler's."""
-    from pmabayes.posterior import fit_tree, set_fit_info
+    from pmabayes.inference.fitfile import fit_tree, set_fit_info
 
     rng = np.random.default_rng(seed)
     theta = pb.Model().theta(None)[:, posterior._free_cols]
@@ -242,7 +246,7 @@ def _tree_from_draws(posterior, n_chain: int = 8, n_draw: int = 6, seed: int = 0
 
 
 def test_the_fit_file_records_the_noise_model_and_predicts_with_it(tmp_path):
-    from pmabayes.validation import validate
+    from pmabayes.criticism.validation import validate
 
     ds = generate_chirp_dataset(n_trials=4, seed=21, chirp=CHIRP, noise=TWO_SCALE)
     post = _posterior(pb.Model(), ds, 1)
@@ -281,7 +285,7 @@ def test_a_fit_with_ar1_noise_records_it_and_predicts_as_before():
 # -- diagnose --------------------------------------------------------------------------
 
 def test_diagnose_rejects_an_unknown_noise_model_before_fitting():
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
     with pytest.raises(ValueError, match="noise_model"):
@@ -292,7 +296,7 @@ def test_diagnose_rejects_an_unknown_noise_model_before_fitting():
 def test_diagnose_refits_with_the_repeats_noise_model():
     """On two-time-scale data a refit's interval and ELPD use the repeats' AR(p) with
     "auto" (the same as "ar", not as "ar1"), and its interval covers the hidden lag."""
-    from pmabayes.criticism import diagnose
+    from pmabayes.criticism.diagnosis import diagnose
 
     lag = 0.03
     ds = generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP, noise=TWO_SCALE,

@@ -14,9 +14,9 @@ import xarray as xr
 from conftest import _ar1, fake_fit
 
 from pmabayes.data import Dataset
-from pmabayes.model import PAPER_VALUES
-from pmabayes.posterior import fit_info, load_fit, save_fit
-from pmabayes.report import SUMMARY_COLUMNS, summary_table, write_report, write_summary
+from pmabayes.inference.fitfile import fit_info, load_fit, save_fit
+from pmabayes.model.model import PAPER_VALUES
+from pmabayes.report.pages import SUMMARY_COLUMNS, summary_table, write_report, write_summary
 
 PARAMS = {  # name: (unit, posterior mean, posterior sd)
     "alpha": ("N/m", 24.1, 0.6),
@@ -236,7 +236,7 @@ def test_report_dataset_mismatch(bad_fit, tmp_path):
 
 
 def test_predictive_quantiles_blockwise(monkeypatch):
-    import pmabayes.report as report
+    import pmabayes.report.pages as report
 
     rng = np.random.default_rng(3)
     da = xr.DataArray(rng.normal(size=(1, 6, 3, 101)).astype(np.float32),
@@ -251,7 +251,7 @@ def test_predictive_quantiles_blockwise(monkeypatch):
 def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    import pmabayes.plots as plots
+    import pmabayes.report.figures as plots
 
     def boom(*args, **kwargs):
         plt.figure()  # a half-made figure must not leak
@@ -279,9 +279,9 @@ def _fit_of(dataset: Dataset, model_m: np.ndarray, seed: int = 0) -> xr.DataTree
     The noise is identified from the data as ``pmabayes fit`` does; the predictive draws
     are the model plus that noise, so only the model decides whether the data fit.
     """
-    from pmabayes.fit import estimate_noise
-    from pmabayes.likelihood import Likelihood
-    from pmabayes.model import Model
+    from pmabayes.inference.likelihood import Likelihood
+    from pmabayes.inference.noise import estimate_noise
+    from pmabayes.model.model import Model
 
     rng = np.random.default_rng(seed)
     noise = estimate_noise(Likelihood(Model(), dataset))
@@ -350,7 +350,7 @@ def _ratio_in(text: str) -> float:
 
 
 def test_a_wrong_model_is_called_inadequate_first_with_the_next_command(hidden_lag):
-    from pmabayes.report import fit_adequacy
+    from pmabayes.report.pages import fit_adequacy
 
     ds, base, tree, index = hidden_lag
     text = _html(index)
@@ -376,7 +376,7 @@ def test_a_wrong_model_is_called_inadequate_first_with_the_next_command(hidden_l
 
 
 def test_a_right_model_is_called_adequate(no_hidden):
-    from pmabayes.report import fit_adequacy
+    from pmabayes.report.pages import fit_adequacy
 
     ds, base, tree, index = no_hidden
     text = _html(index)
@@ -395,7 +395,7 @@ def test_a_right_model_is_called_adequate(no_hidden):
 
 
 def test_the_report_line_says_when_the_trials_drift():
-    from pmabayes.report import _trials_line
+    from pmabayes.report.pages import _trials_line
 
     rng = np.random.default_rng(5)
     t = np.arange(3000) * 1e-3
@@ -409,7 +409,7 @@ def test_the_report_line_says_when_the_trials_drift():
 
 
 def test_the_verdict_names_the_effects_to_diagnose_with(hidden_lag):
-    from pmabayes.report import fit_adequacy
+    from pmabayes.report.pages import fit_adequacy
 
     ds, _, tree, _ = hidden_lag
     info = json.loads(tree.attrs["pmabayes"])

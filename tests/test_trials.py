@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from pmabayes.data import DataError, Dataset, save
-from pmabayes.likelihood import ar1_noise
-from pmabayes.trials import TrialWarning, check_trials, exclude_trials, parse_trial_ids
+from pmabayes.inference.likelihood import ar1_noise
+from pmabayes.inference.trials import TrialWarning, check_trials, exclude_trials, parse_trial_ids
 
 DT = 1e-3
 

@@ -1,4 +1,4 @@
-"""Validation on held-out experiments (``pmabayes.validation``, ``pmabayes validate``).
+"""Validation on held-out experiments (``pmabayes.criticism.validation``, ``pmabayes validate``).
 
 The held-out data are made here from one plant (the paper's values) with the
 synthetic generator's measurement (AR(1) disturbance and encoder quantisation):
@@ -19,11 +19,11 @@ import pytest
 from conftest import fake_fit
 
 from pmabayes.cli import main
+from pmabayes.criticism.validation import ValidationError, validate
 from pmabayes.data import Dataset, DataWarning, save
-from pmabayes.model import Model, Rig
-from pmabayes.simulator import simulate
+from pmabayes.model.model import Model, Rig
+from pmabayes.model.simulator import simulate
 from pmabayes.synthetic import MeasurementNoise, generate_chirp_dataset, hidden_effects_model
-from pmabayes.validation import ValidationError, validate
 
 RATE_HZ = 1000.0
 NOISE = MeasurementNoise()  # 60 um, 0.1 s, the paper's encoder
@@ -226,7 +226,7 @@ def test_the_fit_own_data_is_flagged_as_not_held_out(tmp_path):
 
 
 def test_html_page_and_figure(fit_tree, held_out_sets, tmp_path):
-    from pmabayes.report import write_validation
+    from pmabayes.report.pages import write_validation
 
     v = validate(fit_tree, [held_out(steps_pa(3.0), source="steps.csv"),
                             held_out(sine_pa(1.0, 3.0), source="sine_1hz.csv"),
@@ -272,7 +272,7 @@ def test_cli_end_to_end(tmp_path, capsys, held_out_sets):
 @pytest.mark.slow
 def test_validation_after_a_real_fit():
     """Fit a chirp from the plant, then validate on steps and sines of the same plant."""
-    from pmabayes.fit import FitSettings, fit
+    from pmabayes.inference.sampler import FitSettings, fit
     from pmabayes.synthetic import Chirp
 
     chirp = generate_chirp_dataset(n_trials=6, seed=4, chirp=Chirp(duration_s=8.0))

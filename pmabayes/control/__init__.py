@@ -7,7 +7,7 @@ simulates that rig as faithfully as the paper describes it:
 
 * **Plant**: the identified model (any composition of effects) on
   :meth:`Rig.control`, integrated at 1 kHz by exactly the scheme and the same
-  generated code as :func:`pmabayes.simulate` (``pmabayes.simulator.PlantCode``),
+  generated code as :func:`pmabayes.simulate` (``pmabayes.model.simulator.PlantCode``),
   so replaying the closed loop's pressure command open loop reproduces its position.
 * **Controller**: runs at 100 Hz on the encoder reading (quantised to the paper's
   2000 counts per inch, after the plant's measurement effects).
@@ -52,13 +52,13 @@ driven by the reading: ``z`` is rate independent, so the exact update of the
 simulator is applied to each 10 ms increment of the reading. The dead zone is
 inverted by adding ``p_dz``; a negative force asks for a pressure below ``p_dz``,
 which vents faster. Effects of the controller's model are inverted where they say
-how (the hooks of :class:`pmabayes.effects.Effect`; no effect is known here by name):
+how (the hooks of :class:`pmabayes.model.effects.Effect`; no effect is known here by name):
 
 * force effects (friction, cubic or pressure stiffness) are added to ``F``;
 * the zero-order hold (mean delay half the command period) and the pressure
   effects are inverted by prediction: the reference and the position are evaluated
   ``t_pred = T_cmd / 2 + sum of the leads`` ahead (``x_hat = y + v_hat t_pred``),
-  each pressure effect's lead from its :meth:`~pmabayes.effects.Effect.lead_s`
+  each pressure effect's lead from its :meth:`~pmabayes.model.effects.Effect.lead_s`
   (a transport delay's dead time: exact in phase; a regulator lag's time constant:
   the first-order lead ``1 + tau s ~ exp(tau s)``, right in phase at low frequency
   and without the lead's high-frequency gain; 0 for an effect that gives none);
@@ -78,8 +78,8 @@ in :func:`nominal_gains`): the gain set with the smallest RMS error at 0.5 Hz on
 log grid, among those that are robustly stable: with every gain doubled (a 6 dB gain
 margin), and separately with an extra 20 ms delay in the plant (a delay margin:
 added by the plant's effect that can absorb a delay,
-:meth:`~pmabayes.effects.Effect.add_delay`, or by
-:func:`pmabayes.effects.delay_effect` when it has none), the loop must still reach a
+:meth:`~pmabayes.model.effects.Effect.add_delay`, or by
+:func:`pmabayes.model.effects.delay_effect` when it has none), the loop must still reach a
 periodic steady state (the last two periods within 0.5 mm of each other) with an RMS
 error at most twice the nominal; and so must its neighbours on the grid, so that the
 choice is not on the knife edge of the stable set. Computed torque's natural
@@ -146,7 +146,7 @@ from pmabayes.control.operating import (
     operating_mean_m,
     reference_m,
 )
-from pmabayes.model import Model
+from pmabayes.model.model import Model
 
 __all__ = [
     "CONTROLLERS",

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from pmabayes import simulator as _simulator
 from pmabayes.control.kernel import (
     _GAIN_NAMES,
     CONTROLLERS,
@@ -35,9 +34,10 @@ from pmabayes.control.operating import (
     _reference_mean,
     _theta1,
 )
-from pmabayes.effects import delay_effect
-from pmabayes.model import Model, Rig
-from pmabayes.simulator import cache_dir
+from pmabayes.model import simulator as _simulator
+from pmabayes.model.effects import delay_effect
+from pmabayes.model.model import Model, Rig
+from pmabayes.model.simulator import cache_dir
 from pmabayes.util import fingerprint, source_text
 
 
@@ -181,9 +181,9 @@ def _delayed_plant(model: Model, theta: np.ndarray, delay_s: float) -> tuple[Mod
     """The plant with ``delay_s`` more delay on its pressure path, free or fixed.
 
     The first of the model's effects that can absorb a delay
-    (:meth:`~pmabayes.effects.Effect.add_delay`) takes it, in the full parameter
+    (:meth:`~pmabayes.model.effects.Effect.add_delay`) takes it, in the full parameter
     array (which the closed loop takes as given, fixed values included). A model
-    with none gains :func:`pmabayes.effects.delay_effect` at its null values.
+    with none gains :func:`pmabayes.model.effects.delay_effect` at its null values.
     """
     out = np.array(theta, dtype=float, copy=True)
     plant = model
@@ -375,7 +375,7 @@ def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | N
 
     :data:`DEFAULT_GAINS` for the paper's values; for another model (e.g. a fit's
     posterior mean with its effects) the rule is run on it, and the result cached on
-    disk (under :func:`pmabayes.simulator.cache_dir`, keyed by the model, the values,
+    disk (under :func:`pmabayes.model.simulator.cache_dir`, keyed by the model, the values,
     the timing, the reference mean and the code), so each nominal model is tuned once.
 
     Parameters

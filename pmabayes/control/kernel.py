@@ -25,8 +25,8 @@ from pmabayes.control.operating import (
     _value,
     reference_m,
 )
-from pmabayes.model import Model
-from pmabayes.simulator import (  # the internal code-generation API
+from pmabayes.model.model import ENCODER_COUNTS_PER_M, Model
+from pmabayes.model.simulator import (  # the internal code-generation API
     FASTMATH,
     PlantCode,
     cached_kernel,
@@ -34,7 +34,6 @@ from pmabayes.simulator import (  # the internal code-generation API
     indent_lines,
     structure_key,
 )
-from pmabayes.synthetic import ENCODER_COUNTS_PER_M
 
 #: Controller names, in the order used by arrays and datasets.
 CONTROLLERS = ("pid", "ct")
@@ -386,7 +385,7 @@ def _module_text(plant_model: Model, ctrl_model: Model, record: bool, body: list
     text += (", ".join(plant_model.effect_names) or "none") + "; controller model effects: "
     text += (", ".join(ctrl_model.effect_names) or "none") + f"; recording: {record}\n"
     text += "import math\nimport numpy as np\nfrom numba import njit\n"
-    text += "from pmabayes.simulator import discretise as _discretise\n"
+    text += "from pmabayes.model.simulator import discretise as _discretise\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -477,7 +476,7 @@ def _pressure_memory_steps(model: Model, theta: np.ndarray, dt: float,
                            memory_s: float | None) -> np.ndarray:
     """Look-back of each run's pressure effects in plant steps, ``(batch,)``.
 
-    The sum of the pressure effects' :meth:`~pmabayes.effects.Effect.history_s`,
+    The sum of the pressure effects' :meth:`~pmabayes.model.effects.Effect.history_s`,
     from each run's own parameters (never the batch's), so that a run's result does
     not depend on the runs it shares a kernel call with.
     """
@@ -495,7 +494,7 @@ def _pressure_memory_steps(model: Model, theta: np.ndarray, dt: float,
 def _prediction_s(model: Model, theta: np.ndarray, timing: Timing) -> np.ndarray:
     """Computed torque's prediction time per run: half the hold plus the pressure leads.
 
-    The leads (:meth:`~pmabayes.effects.Effect.lead_s`) are added in a fixed order,
+    The leads (:meth:`~pmabayes.model.effects.Effect.lead_s`) are added in a fixed order,
     by effect name, descending, so that the sum (to its last bit) does not depend on
     the order the model lists its effects in.
     """
@@ -553,7 +552,7 @@ def closed_loop_batch(
     pressure_memory_s : float, optional
         How far back the plant's pressure effects look (see the README), the same
         for every run; by default each run's own, from its parameters (the sum of
-        the pressure effects' :meth:`~pmabayes.effects.Effect.history_s`), so that
+        the pressure effects' :meth:`~pmabayes.model.effects.Effect.history_s`), so that
         no run depends on the batch it is in.
 
     Returns

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from pmabayes.model import Model, Rig
+from pmabayes.model.model import Model, Rig
 
 #: The paper's reference mean, in its own (unstated) origin.
 PAPER_REFERENCE_MEAN_M = 0.005

@@ -248,7 +248,7 @@ def _check_period(metadata: dict, n_samples: int, where: str) -> None:
             "correct 'period_samples'.")
 
 
-#: The input column each rig ``input_kind`` drives (a rig's kind, as pmabayes.model's
+#: The input column each rig ``input_kind`` drives (a rig's kind, as pmabayes.model.model's
 #: ``Rig`` names it, read here from the sidecar's dict: data do not import the model).
 _INPUT_OF_KIND = {"pressure": "pressure_pa", "force": "force_n"}
 

@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import decimal
 import difflib
-import json
 import math
 import os
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,40 +19,38 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from pmabayes.data.clock import _rounded_grid, _trial_blocks
 from pmabayes.data.dataset import (
     _REL_TOL,
     INPUT_NAMES,
     DataError,
     Dataset,
-    DataWarning,
     _check_metadata_rate,
     _first_in_file_order,
-    _first_nonuniform,
     _fmt,
     _json_roundtrip_check,
     check_time_grid,
 )
 from pmabayes.data.matlab import read_mat
 from pmabayes.data.plausibility import _checked
+from pmabayes.data.sidecar import _read_sidecar, _sidecar_path
 
-__all__ = ["load", "read_csv", "read_netcdf", "save", "write_csv", "write_netcdf"]
+__all__ = ["read_csv", "write_csv", "read_netcdf", "write_netcdf", "load", "save"]
+
 
 _NC_ENGINE = "h5netcdf"
+
 
 PathLike = str | os.PathLike[str]
 
 
-# ----------------------------------------------------------------------------- CSV
-
 _BASE_COLUMNS = ("trial", "time_s", "position_m")
+
+
 _EXPECTED_TEXT = (
     "expected columns: trial, time_s, position_m and exactly one of pressure_pa "
     "(commanded gauge pressure, Pa) or force_n (force, N), in any order"
 )
-
-
-def _sidecar_path(path: Path) -> Path:
-    return path.with_suffix(".json")
 
 
 def _parse_header(fields: list[str], where: str) -> tuple[list[str], str]:
@@ -171,29 +167,6 @@ def _read_text(path: Path, where: str) -> str:
         ) from None
 
 
-def _read_sidecar(sidecar: Path) -> dict:
-    where = str(sidecar)
-    try:
-        text = sidecar.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise DataError(
-            f"{where}: metadata sidecar is not valid UTF-8 ({exc.reason}); save it as UTF-8."
-        ) from None
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataError(
-            f"{where}: line {exc.lineno}, column {exc.colno}: metadata sidecar is not "
-            f"valid JSON ({exc.msg}); fix the JSON or remove the sidecar."
-        ) from None
-    if not isinstance(meta, dict):
-        raise DataError(
-            f"{where}: line 1: metadata sidecar holds a JSON {type(meta).__name__}, not an "
-            'object; wrap the metadata in {...} (e.g. {"description": "..."}).'
-        )
-    return meta
-
-
 def _csv_rows(path: Path, where: str) -> tuple[list[str], str, list[str]]:
     """The header's column names, the input column's name, and the data rows."""
     text = _read_text(path, where)
@@ -248,11 +221,6 @@ def _parse_rows(rows: list[str], names: list[str], where: str) -> np.ndarray:
     return table
 
 
-#: rounded times must lie this close (in units of the printed step) to the rebuilt grid:
-#: half a step of rounding, plus the fitted line's own error on short trials
-_ROUNDING_SLACK = 0.6
-
-
 def _printed_step(rows: list[str], column: int) -> float | None:
     """The finest decimal step the time column is printed with (1e-6 for 0.001333)."""
     exponents = set()
@@ -263,56 +231,6 @@ def _printed_step(rows: list[str], column: int) -> float | None:
             return None
     finest = min(exponents)
     return 10.0 ** finest if isinstance(finest, int) else None
-
-
-def _trial_blocks(trial: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, end)`` rows of each run of equal trial ids, in file order."""
-    starts = np.concatenate(([0], np.flatnonzero(trial[1:] != trial[:-1]) + 1))
-    ends = np.concatenate((starts[1:], [trial.size]))
-    return list(zip(starts.tolist(), ends.tolist(), strict=True))
-
-
-def _rounded_grid(trial: np.ndarray, time: np.ndarray, step_of: Callable[[], float | None],
-                  rate_hz: float | None, where: str, stored: str = "is printed to",
-                  fix: str = "Write times with more digits (or sample_rate_hz in the "
-                  "sidecar) to make this exact.") -> np.ndarray:
-    """The times, rebuilt as ``t0 + k / rate`` where they are a uniform grid rounded to
-    the precision they are stored with; unchanged where they are uniform already, or
-    where they are not uniform even to that precision (the grid check then says where).
-
-    A 750 Hz clock printed to microseconds (0.001333, 0.002667, ...) moves each interval
-    by far more than the grid check's 1e-6 relative tolerance, yet the grid is uniform.
-    ``step_of()`` gives that precision in s (called only when the grid is not uniform:
-    it may be slow), ``stored`` and ``fix`` complete the warning: how the times are
-    stored (CSV: printed; MATLAB: single precision), and how to make them exact.
-    """
-    blocks = [(s, e) for s, e in _trial_blocks(trial) if e - s >= 3]
-    if all(_first_nonuniform(time[s:e]) is None for s, e in blocks):
-        return time
-    step = step_of()
-    if step is None:
-        return time
-    out = np.array(time, dtype=float)
-    for s, e in blocks:
-        k = np.arange(e - s, dtype=float)
-        t = time[s:e]
-        if rate_hz:
-            dt = 1.0 / float(rate_hz)
-            t0 = float(np.mean(t - k * dt))
-        else:
-            dt, t0 = (float(c) for c in np.polyfit(k, t, 1))
-        grid = t0 + k * dt
-        tol = _ROUNDING_SLACK * step + 8 * np.finfo(float).eps * float(np.abs(t).max())
-        if step > 0.1 * dt or np.abs(t - grid).max() > tol:
-            return time  # a gap or jitter beyond the rounding: let the grid check report it
-        out[s:e] = grid
-    source = (f"the sidecar's sample_rate_hz = {float(rate_hz):g}" if rate_hz
-              else f"a straight-line fit of the times, {1.0 / dt:.7g} Hz")
-    warnings.warn(DataWarning(
-        f"{where}: time_s {stored} {step:g} s, so its intervals vary by up to "
-        f"{step:g} s; the times are a uniform grid to that precision, so the grid was "
-        f"rebuilt as t0 + k / rate from {source}. {fix}"), stacklevel=4)
-    return out
 
 
 def _shared_grid(
@@ -507,9 +425,6 @@ def write_csv(dataset: Dataset, path: PathLike) -> None:
         sidecar.unlink()
 
 
-# ----------------------------------------------------------------------------- NetCDF
-
-
 def read_netcdf(path: PathLike, *, check_units: bool = True) -> Dataset:
     """Read a NetCDF file written by :func:`write_netcdf`.
 
@@ -582,13 +497,13 @@ def write_netcdf(dataset: Dataset, path: PathLike) -> None:
     xds.to_netcdf(Path(path), engine=_NC_ENGINE, encoding=encoding)
 
 
-# ----------------------------------------------------------------------------- dispatch
-
 _READERS: dict[str, Callable[..., Dataset]] = {
     ".csv": read_csv,
     ".nc": read_netcdf,
     ".mat": read_mat,
 }
+
+
 _WRITERS: dict[str, Callable[[Dataset, PathLike], None]] = {
     ".csv": write_csv,
     ".nc": write_netcdf,

@@ -75,6 +75,7 @@ from typing import Any
 
 import numpy as np
 
+from pmabayes.data.clock import _rounded_grid
 from pmabayes.data.dataset import (
     _REL_TOL,
     INPUT_NAMES,
@@ -83,6 +84,8 @@ from pmabayes.data.dataset import (
     _check_declarations,
     check_time_grid,
 )
+from pmabayes.data.plausibility import _checked
+from pmabayes.data.sidecar import _read_sidecar, _sidecar_path
 
 __all__ = ["MAT_ROLES", "MAT_TRIALS", "read_mat"]
 
@@ -540,10 +543,6 @@ def read_mat(
         As :func:`pmabayes.data.read_csv` (pressure that looks absolute or offset),
         and when a single-precision time vector is rebuilt as a uniform grid.
     """
-    # files imports this module, so its helpers are imported here
-    from pmabayes.data.files import _read_sidecar, _rounded_grid, _sidecar_path
-    from pmabayes.data.plausibility import _checked
-
     path = Path(path)
     where = str(path)
     sidecar = _sidecar_path(path)

@@ -13,7 +13,7 @@ opposes extension (the characterisation rig), ``-1`` when it pulls toward extens
 (the control rig with its 500 g load), 0 without gravity.
 
 A :class:`Rig` holds what is known and fixed (masses, area, gravity); a
-:class:`Model` composes the base physics with :mod:`pmabayes.effects`.
+:class:`Model` composes the base physics with :mod:`pmabayes.model.effects`.
 """
 
 from __future__ import annotations
@@ -24,11 +24,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pmabayes.effects import Effect, resolve_effects
-from pmabayes.parameters import HalfNormal, LogNormal, Normal, Parameter, Prior, Uniform
+from pmabayes.model.effects import Effect, resolve_effects
+from pmabayes.model.parameters import HalfNormal, LogNormal, Normal, Parameter, Prior, Uniform
 
 __all__ = [
     "G_M_S2",
+    "ENCODER_COUNTS_PER_M",
     "PAPER_VALUES",
     "PMA_MASS_KG",
     "CARRIAGE_MASS_KG",
@@ -49,6 +50,8 @@ CARRIAGE_MASS_KG = 0.045
 CONTROL_LOAD_KG = 0.5
 PAPER_EXTENSION_M = 0.085
 PAPER_EXTENSION_PRESSURE_PA = 0.4e6
+#: The paper's linear encoder: 2000 quadrature counts per inch.
+ENCODER_COUNTS_PER_M = 2000 / 0.0254
 
 #: The paper's point estimate (GlobalSearch + fmincon on the trial-mean RMS error).
 PAPER_VALUES: dict[str, float] = {
@@ -384,12 +387,35 @@ class Model:
         -------
         Model
         """
-        rig_meta = dataset.metadata.get("rig") if dataset.metadata else None
-        try:
-            rig = Rig.from_dict(rig_meta) if isinstance(rig_meta, dict) else Rig.characterisation()
-        except ModelError as err:  # name the file: the rig comes from its sidecar
-            raise ModelError(f"{dataset.source or 'data set'}: metadata 'rig': {err}") from None
+        rig = _rig_of(dataset) or Rig.characterisation()
         return cls(effects, rig=rig, priors=priors, fixed=fixed)
+
+    def on_rig(self, dataset) -> Model:
+        """This model (effects, priors, fixed values) on the rig a data set records.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Data whose ``metadata["rig"]`` (if any) gives the rig.
+
+        Returns
+        -------
+        Model
+            This model itself where the data set records no rig; otherwise a model
+            with the same effects, free parameters, fixed values and the priors this
+            one replaced, on the recorded rig.
+
+        Raises
+        ------
+        ModelError
+            If the recorded rig is not valid (the message names the data's file).
+        """
+        rig = _rig_of(dataset)
+        if rig is None:
+            return self
+        kept_priors = {n: p for n, p in self.priors.items() if p is not self.parameter(n).prior}
+        return Model(self.effects, rig=rig, priors=kept_priors, fixed=dict(self.fixed),
+                     free=self.free_names)
 
     # -- parameter arrays -------------------------------------------------------
     @property
@@ -485,3 +511,14 @@ class Model:
     def __repr__(self) -> str:
         eff = ", ".join(self.effect_names) or "none"
         return f"Model(rig={self.rig.name}, effects={eff}, parameters={len(self.parameters)})"
+
+
+def _rig_of(dataset) -> Rig | None:
+    """The rig a data set's metadata records, or None where it records none."""
+    rig_meta = dataset.metadata.get("rig") if dataset.metadata else None
+    if not isinstance(rig_meta, dict):
+        return None
+    try:
+        return Rig.from_dict(rig_meta)
+    except ModelError as err:  # name the file: the rig comes from its sidecar
+        raise ModelError(f"{dataset.source or 'data set'}: metadata 'rig': {err}") from None

@@ -1,6 +1,6 @@
 """Residual statistics: how far a model's output is from repeated trials, and how.
 
-Stage 7 (diagnostics), below :mod:`pmabayes.criticism`. Everything here takes a
+Stage 7 (diagnostics), below :mod:`pmabayes.criticism.diagnosis`. Everything here takes a
 data set and a model output (and, for the whiteness tests, the identified noise)
 and measures the misfit against what repeatability allows; nothing fits or
 samples:
@@ -39,7 +39,7 @@ import numpy as np
 from scipy import signal, stats
 
 from pmabayes.data import Dataset
-from pmabayes.likelihood import (
+from pmabayes.inference.likelihood import (
     LEVEL_ADEQUATE,
     LJUNG_BOX_LAGS,
     MAX_AR_ORDER,
@@ -99,7 +99,7 @@ DEFAULT_BANDS_HZ: tuple[tuple[float, float], ...] = (
 ENERGY_TOLERANCE = 0.1
 
 # LEVEL_ADEQUATE (the level of the Ljung-Box test of an adequate model's whitened
-# residual) and MAX_AR_ORDER live with the noise model, in pmabayes.likelihood, whose
+# residual) and MAX_AR_ORDER live with the noise model, in pmabayes.inference.likelihood, whose
 # choice of noise model for the sampler uses them too.
 
 
@@ -196,7 +196,7 @@ def _finite_or_none(value: float) -> float | None:
 
 
 #: Deprecated alias of :class:`BandErrors` (a result, not an exception); kept so that
-#: ``from pmabayes.criticism import BandError`` goes on working.
+#: ``from pmabayes.criticism.diagnosis import BandError`` goes on working.
 BandError = BandErrors
 
 
@@ -426,7 +426,7 @@ def _floor_spectrum(dataset: Dataset, model_position_m: np.ndarray
 
     From the trials' deviations from their mean (summed over ``R - 1``, divided by
     ``R`` for the trial mean); for a single periodic record, from its periods'
-    deviations from their mean (the repeats :mod:`pmabayes.likelihood` learns the
+    deviations from their mean (the repeats :mod:`pmabayes.inference.likelihood` learns the
     noise from: of the residual at ``model_position_m`` where the record starts from
     rest), on the period's coarser frequency grid, not divided (the record is one
     series); NaN for a single record without repeats.
@@ -456,7 +456,7 @@ def innovations(likelihood: Likelihood, model_position_m: np.ndarray, noise) -> 
         Model output ``(n_samples,)``.
     noise : object
         With attributes ``sigma``, ``rho`` and ``white`` (a
-        :class:`pmabayes.fit.NoiseEstimate`).
+        :class:`pmabayes.inference.noise.NoiseEstimate`).
 
     Returns
     -------
@@ -714,7 +714,7 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
         Data and noise model.
     noise : object
         Identified noise (``sigma``, ``rho``, ``white``).
-    sim : pmabayes.simulator.Simulation
+    sim : pmabayes.model.simulator.Simulation
         The model's simulation (batch of one) with its states.
     max_lag_s : float
         Largest lag of the cross-correlation with the command's rate.
@@ -789,10 +789,10 @@ class NoiseModelCheck:
         Samples in all the contrasts (0 without repeats: nothing tested).
     level : float
         Level of the test.
-    ar : pmabayes.likelihood.ArNoise or None
+    ar : pmabayes.inference.likelihood.ArNoise or None
         The AR model of the repeats itself (None without repeats): what
         :meth:`whiten_series` whitens with, and what a fit's likelihood uses when
-        the repeats reject AR(1) + white (:func:`pmabayes.likelihood.choose_noise_model`).
+        the repeats reject AR(1) + white (:func:`pmabayes.inference.likelihood.choose_noise_model`).
     """
 
     ljung_box_p: float
@@ -937,7 +937,7 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
                                variances=np.ones(1), n_trials=r,
                                reference_acf=np.zeros(LJUNG_BOX_LAGS), reference_energy=1.0,
                                reference_samples=0, level=level)
-    # the test and the AR model are the sampler's own (pmabayes.likelihood), so that the
+    # the test and the AR model are the sampler's own (pmabayes.inference.likelihood), so that the
     # verdict and the intervals judge with the same noise model
     lb_p, energy, _ = ar1_whiteness_of_repeats(likelihood, noise.sigma, noise.rho, noise.white)
     ar = ar_noise_from_repeats(contrasts, max_order=max_order)
@@ -1226,7 +1226,7 @@ def check_adequacy(
     -------
     Adequacy
         With the default tolerance and level (:data:`ENERGY_TOLERANCE`,
-        :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnose` uses.
+        :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnosis.diagnose` uses.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
     if likelihood.dataset.n_trials >= 2:

@@ -1,9 +1,9 @@
 """The paper's Fig. 5 reproduced in simulation, and a verdict on each of its claims.
 
-Stage 7 (control), beside :mod:`pmabayes.control` and :mod:`pmabayes.robustness`:
+Stage 7 (control), beside :mod:`pmabayes.control` and :mod:`pmabayes.control.robustness`:
 :func:`figure5` runs PID and computed torque at 0.5, 1 and 2 Hz and checks the
 paper's three claims against the metrics; the figure itself is
-:func:`pmabayes.plots.plot_figure5`.
+:func:`pmabayes.report.figures.plot_figure5`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pmabayes.control import (
     operating_mean_m,
     resolve_gains,
 )
-from pmabayes.model import Model, Rig
+from pmabayes.model.model import Model, Rig
 
 __all__ = ["PAPER_FREQUENCIES_HZ", "figure5", "paper_claims"]
 
@@ -124,7 +124,7 @@ def figure5(*, model: Model | None = None, params=None, plant_model: Model | Non
     -------
     dict
         ``run`` (the :class:`pmabayes.control.ClosedLoop`, one run per frequency and
-        controller, for :func:`pmabayes.plots.plot_figure5`), ``metrics`` (per
+        controller, for :func:`pmabayes.report.figures.plot_figure5`), ``metrics`` (per
         frequency and controller, those of :func:`pmabayes.control.loop_metrics`),
         ``gains`` (those used), ``reference_mean_m`` and ``claims``
         (:func:`paper_claims`; empty unless the frequencies include 0.5, 1 and 2 Hz).

@@ -3,8 +3,8 @@
 Stage 8 (reports). Every figure of pmabayes is drawn here, from results that are
 passed in: data sets, simulations, band errors, correlation curves, rankings,
 predictive bands, posterior draws. Nothing here simulates, fits or computes a
-statistic (those come from :mod:`pmabayes.residuals`, :mod:`pmabayes.criticism`,
-:mod:`pmabayes.report` and :mod:`pmabayes.robustness`).
+statistic (those come from :mod:`pmabayes.criticism.residuals`, :mod:`pmabayes.criticism.diagnosis`,
+:mod:`pmabayes.report.pages` and :mod:`pmabayes.control.robustness`).
 
 The library never picks a matplotlib backend: figures are
 :class:`matplotlib.figure.Figure` objects, saved with ``fig.savefig`` (which needs
@@ -29,8 +29,8 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
 from pmabayes.control import CONTROLLERS, ClosedLoop
+from pmabayes.control.robustness import summarise_robustness
 from pmabayes.data import Dataset
-from pmabayes.robustness import summarise_robustness
 
 __all__ = [
     "plot_comparison",
@@ -56,7 +56,7 @@ _ZOOM_S = 1.0
 
 
 def __getattr__(name: str):
-    # ``from pmabayes.plots import plt`` worked while this module imported pyplot; it is
+    # ``from pmabayes.report.figures import plt`` worked while this module imported pyplot; it is
     # kept for old scripts, loaded only when asked for. Import matplotlib.pyplot instead.
     if name == "plt":
         import matplotlib.pyplot as plt
@@ -146,13 +146,13 @@ def plot_band_errors(
 ) -> Figure:
     """RMS error per frequency band for one or more models, beside the noise floor.
 
-    The bands are those of :func:`pmabayes.residuals.band_errors` (spectral, for
+    The bands are those of :func:`pmabayes.criticism.residuals.band_errors` (spectral, for
     any input); with a single trial there is no floor and no ratio to draw.
 
     Parameters
     ----------
     errors : dict
-        Label to a list of :class:`pmabayes.residuals.BandErrors` (same bands for
+        Label to a list of :class:`pmabayes.criticism.residuals.BandErrors` (same bands for
         every label, the last one overall), in the order to draw them: for
         example base, base + one effect, base + two effects.
     title : str
@@ -215,12 +215,12 @@ def plot_residual_signature(
     ----------
     dataset : Dataset
         The data.
-    simulation : pmabayes.simulator.Simulation
+    simulation : pmabayes.model.simulator.Simulation
         The model (batch of one) with its states.
     frequency_hz : numpy.ndarray
         Instantaneous frequency of the command at each sample
-        (:func:`pmabayes.residuals.instantaneous_frequency`, or
-        :attr:`pmabayes.criticism.Diagnosis.frequency_hz`).
+        (:func:`pmabayes.criticism.residuals.instantaneous_frequency`, or
+        :attr:`pmabayes.criticism.diagnosis.Diagnosis.frequency_hz`).
     label : str
         Name of the model in the title.
     path : str or Path, optional
@@ -266,10 +266,10 @@ def plot_whiteness(curves, *, path: str | Path | None = None) -> Figure:
 
     Parameters
     ----------
-    curves : pmabayes.residuals.WhitenessCurves
-        The curves, one per model (:func:`pmabayes.residuals.whiteness_curves`,
-        :meth:`pmabayes.criticism.Diagnosis.whiteness_curves` or
-        :meth:`pmabayes.criticism.FitComparison.whiteness_curves`).
+    curves : pmabayes.criticism.residuals.WhitenessCurves
+        The curves, one per model (:func:`pmabayes.criticism.residuals.whiteness_curves`,
+        :meth:`pmabayes.criticism.diagnosis.Diagnosis.whiteness_curves` or
+        :meth:`pmabayes.criticism.diagnosis.FitComparison.whiteness_curves`).
     path : str or Path, optional
         Where to save the figure.
 
@@ -306,11 +306,11 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
 
     Parameters
     ----------
-    findings : list of pmabayes.criticism.Finding
+    findings : list of pmabayes.criticism.diagnosis.Finding
         The ranking of a diagnosis.
     threshold : float, optional
         The significance threshold of the score statistic, drawn as a line
-        (:attr:`pmabayes.criticism.Diagnosis.score_threshold`); none drawn if not
+        (:attr:`pmabayes.criticism.diagnosis.Diagnosis.score_threshold`); none drawn if not
         given.
     level : float
         Family-wise level of that threshold, for its legend.
@@ -343,7 +343,7 @@ def plot_discrepancy(discrepancy, *, path: str | Path | None = None) -> Figure:
 
     Parameters
     ----------
-    discrepancy : pmabayes.discrepancy.Discrepancy
+    discrepancy : pmabayes.criticism.discrepancy.Discrepancy
         The discrepancy of a diagnosis.
     path : str or Path, optional
         Where to save the figure.
@@ -387,7 +387,7 @@ def plot_figure5(run: ClosedLoop, *, path: str | Path | None = None) -> Figure:
     Parameters
     ----------
     run : ClosedLoop
-        Closed-loop runs (e.g. from :func:`pmabayes.reproduction.figure5`), one per
+        Closed-loop runs (e.g. from :func:`pmabayes.control.reproduction.figure5`), one per
         frequency and controller.
     path : str or Path, optional
         Where to save the figure (PNG).
@@ -429,8 +429,8 @@ def plot_robustness(summary, *, path: str | Path | None = None) -> Figure:
     Parameters
     ----------
     summary : xarray.Dataset
-        The sweep's summary (:func:`pmabayes.robustness.summarise_robustness`). A
-        sweep itself (:func:`pmabayes.robustness.robustness_sweep`) is summarised by
+        The sweep's summary (:func:`pmabayes.control.robustness.summarise_robustness`). A
+        sweep itself (:func:`pmabayes.control.robustness.robustness_sweep`) is summarised by
         that function first.
     path : str or Path, optional
         Where to save the figure (PNG).
@@ -522,7 +522,7 @@ def plot_trace(tree: xr.DataTree, path: str | Path, *, units: Mapping[str, str])
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     path : str or Path
         Where to save the figure.
     units : mapping
@@ -577,7 +577,7 @@ def plot_rank(tree: xr.DataTree, path: str | Path) -> tuple[int, str | None]:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     path : str or Path
         Where to save the figure.
 
@@ -680,11 +680,11 @@ def plot_pair(tree: xr.DataTree, path: str | Path, rows: Sequence[Mapping],
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     path : str or Path
         Where to save the figure.
     rows : sequence of dict
-        Summary rows (:func:`pmabayes.report.summary_table`): ``name``, ``unit``,
+        Summary rows (:func:`pmabayes.report.pages.summary_table`): ``name``, ``unit``,
         ``map`` and ``paper`` of each variable.
     names : sequence of str, optional
         Variables to show, in order; all by default.
@@ -774,7 +774,7 @@ def plot_predictive(pred: Mapping[str, np.ndarray], path: str | Path, *, ci_prob
     Parameters
     ----------
     pred : mapping
-        The predictive band of :func:`pmabayes.report.predictive_band` (``time``,
+        The predictive band of :func:`pmabayes.report.pages.predictive_band` (``time``,
         ``trials``, ``data``, ``median``, ``low``, ``high``, ``coverage``).
     path : str or Path
         Where to save the figure.
@@ -871,8 +871,8 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
 
     Parameters
     ----------
-    experiment : pmabayes.validation.ExperimentValidation
-        One experiment of :func:`pmabayes.validation.validate`.
+    experiment : pmabayes.criticism.validation.ExperimentValidation
+        One experiment of :func:`pmabayes.criticism.validation.validate`.
     path : str or Path, optional
         Where to save the figure.
 

@@ -5,7 +5,7 @@ seen (other inputs, other rigs) and, for each of them:
 
 * simulates a seeded random subset of the posterior's draws on that data set's
   input, on **its own rig** (from its sidecar's ``rig``) with the fit's effects
-  and fixed values, through :func:`pmabayes.simulator.simulate_dataset` (which
+  and fixed values, through :func:`pmabayes.model.simulator.simulate_dataset` (which
   applies the data set's input conventions), all draws in one batched call;
 * adds the fit's noise to each simulated draw (AR(1) disturbance plus white sensor
   noise, drawn from the fit's noise posterior) to make the *predictive band*: the
@@ -34,7 +34,7 @@ noise-free position):
     About ``ci_prob`` when the model and the fit's noise describe the data.
 ``band_errors``
     The error of the trial mean per frequency band, from
-    :func:`pmabayes.residuals.band_errors`.
+    :func:`pmabayes.criticism.residuals.band_errors`.
 
 Fits of several experiments (one noise per fitted experiment, the noise variables
 then having an ``experiment`` dimension): the noise of the fitted experiment whose
@@ -58,20 +58,26 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from pmabayes.criticism.residuals import band_errors
 from pmabayes.data import DataError, Dataset, DataWarning, load
-from pmabayes.effects import EffectError
-from pmabayes.likelihood import measurement_noise
-from pmabayes.model import Model, ModelError, Rig
-from pmabayes.posterior import check_dataset, fit_info, load_fit, model_from_fit, noise_models
-from pmabayes.residuals import band_errors
-from pmabayes.simulator import simulate_dataset
+from pmabayes.inference.fitfile import (
+    check_dataset,
+    fit_info,
+    load_fit,
+    model_from_fit,
+    noise_models,
+)
+from pmabayes.inference.likelihood import measurement_noise
+from pmabayes.model.effects import EffectError
+from pmabayes.model.model import Model, ModelError, Rig
+from pmabayes.model.simulator import simulate_dataset
 
 __all__ = ["DEFAULT_DRAWS", "NOISE_NAMES", "ValidationError", "ExperimentValidation",
            "Validation", "validate"]
 
 #: Posterior draws simulated per held-out experiment by default.
 DEFAULT_DRAWS = 300
-#: The fit's noise variables, in the order :func:`pmabayes.likelihood.measurement_noise`
+#: The fit's noise variables, in the order :func:`pmabayes.inference.likelihood.measurement_noise`
 #: takes them.
 NOISE_NAMES: tuple[str, str, str] = ("sigma_noise_m", "rho_noise", "sigma_white_m")
 #: Predictive noise series per simulated draw: more series make the band's edges
@@ -98,7 +104,7 @@ class ExperimentValidation:
     synthetic : bool
         Whether its metadata says the data are synthetic.
     rig : dict
-        The rig it was simulated on (:meth:`pmabayes.model.Rig.to_dict`).
+        The rig it was simulated on (:meth:`pmabayes.model.model.Rig.to_dict`).
     input_name : str
         ``"pressure_pa"`` or ``"force_n"``.
     time_s : numpy.ndarray
@@ -130,9 +136,9 @@ class ExperimentValidation:
         the band of the parameters alone: the telling number for noiseless held-out
         data (a benchmark's test set), where the predictive band's noise makes
         ``band_coverage`` trivially high.
-    band_errors : list of pmabayes.residuals.BandErrors or None
+    band_errors : list of pmabayes.criticism.residuals.BandErrors or None
         Error of the trial mean per frequency band and overall
-        (:func:`pmabayes.residuals.band_errors`), None when they cannot be computed
+        (:func:`pmabayes.criticism.residuals.band_errors`), None when they cannot be computed
         (see ``notes``).
     noise : dict
         Where the predictive noise came from, and its median values.
@@ -636,7 +642,7 @@ def validate(
     Parameters
     ----------
     tree : xarray.DataTree or path
-        A fit (:func:`pmabayes.posterior.load_fit` reads a path).
+        A fit (:func:`pmabayes.inference.fitfile.load_fit` reads a path).
     datasets : Dataset, path, or a sequence of them
         The held-out experiments, one per data set (a path is read with
         :func:`pmabayes.data.load`). Each is simulated on the rig its metadata gives.

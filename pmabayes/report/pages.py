@@ -1,9 +1,9 @@
 """Report stage: the summary table, diagnostic figures and an offline HTML page of a fit.
 
-The input is a fit as laid out in :mod:`pmabayes.posterior` (an ArviZ 1.x
-:class:`xarray.DataTree`, usually read back with :func:`pmabayes.posterior.load_fit`).
+The input is a fit as laid out in :mod:`pmabayes.inference.posterior` (an ArviZ 1.x
+:class:`xarray.DataTree`, usually read back with :func:`pmabayes.inference.fitfile.load_fit`).
 Nothing here simulates or samples: every number and curve comes from the fit file.
-The figures are drawn by :mod:`pmabayes.plots` from what is computed here.
+The figures are drawn by :mod:`pmabayes.report.figures` from what is computed here.
 
 :func:`fit_adequacy`
     Whether the fitted model describes the data (error against the noise floor,
@@ -38,11 +38,9 @@ import arviz as az
 import numpy as np
 import xarray as xr
 
+from pmabayes.criticism.residuals import Adequacy, check_adequacy
 from pmabayes.data import DataError, Dataset
-from pmabayes.effects import EffectError
-from pmabayes.likelihood import Likelihood
-from pmabayes.model import Model, ModelError
-from pmabayes.posterior import (
+from pmabayes.inference.fitfile import (
     FitFileError,
     check_dataset,
     experiment_datasets,
@@ -50,8 +48,10 @@ from pmabayes.posterior import (
     fit_info,
     model_from_fit,
 )
-from pmabayes.residuals import Adequacy, check_adequacy
-from pmabayes.trials import check_trials
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.trials import check_trials
+from pmabayes.model.effects import EffectError
+from pmabayes.model.model import Model, ModelError
 
 __all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "write_report", "write_diagnosis",
            "write_comparison", "pair_figure", "predictive_band", "fit_adequacy",
@@ -164,7 +164,7 @@ def _check_tree(tree: xr.DataTree, groups: Sequence[str]) -> dict:
     if missing:
         raise FitFileError(
             f"the fit has no group(s) {', '.join(missing)}; a report needs the layout of "
-            "pmabayes.posterior (write the fit with `pmabayes fit`)"
+            "pmabayes.inference.posterior (write the fit with `pmabayes fit`)"
         )
     for name, var in tree["posterior"].data_vars.items():
         if set(var.dims) - {"experiment"} != {"chain", "draw"}:
@@ -215,7 +215,7 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     ci_prob : float, optional
         Probability mass of the highest density interval, default 0.9. It is passed
         to ArviZ explicitly with ``ci_kind="hdi"`` (ArviZ's own default is an 89%
@@ -385,7 +385,7 @@ def pair_figure(tree: xr.DataTree, path: str | Path, *, names: Sequence[str] | N
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     path : str or Path
         Where to save the figure (format from the suffix).
     names : sequence of str, optional
@@ -411,7 +411,7 @@ def pair_figure(tree: xr.DataTree, path: str | Path, *, names: Sequence[str] | N
         bad = [n for n in names if n not in known]
         if bad:
             raise ValueError(f"not posterior variables: {bad}; the fit has {known}")
-    from pmabayes.plots import plot_pair
+    from pmabayes.report.figures import plot_pair
 
     return plot_pair(tree, Path(path), rows, names)
 
@@ -475,7 +475,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     The sampler's convergence says that the posterior of the model is well sampled,
     not that the model fits. This judges the posterior median model (from the
     fit's posterior predictive draws) against the trials with the rule of
-    :func:`pmabayes.residuals.is_adequate`: its residual, whitened by the fit's
+    :func:`pmabayes.criticism.residuals.is_adequate`: its residual, whitened by the fit's
     noise estimate, must be as small and as white as pure noise. The error against
     the noise floor and the fraction of the data inside the predictive band are
     quoted beside it, and for a model that fails, the command that finds what is
@@ -484,7 +484,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     dataset : Dataset, optional
         The data the fit was made from (checked against it); its source names the
         data in the next command. Rebuilt from the fit's observed data if not given.
@@ -494,7 +494,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     Returns
     -------
     Adequacy
-        Print its :meth:`~pmabayes.residuals.Adequacy.lines`.
+        Print its :meth:`~pmabayes.criticism.residuals.Adequacy.lines`.
 
     Raises
     ------
@@ -505,7 +505,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
 
     Examples
     --------
-    >>> from pmabayes.posterior import load_fit
+    >>> from pmabayes.inference.posterior import load_fit
     >>> tree = load_fit("results/lab/fit.nc")  # doctest: +SKIP
     >>> print("\\n".join(fit_adequacy(tree).lines()))  # doctest: +SKIP
     """
@@ -514,7 +514,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     if len(info.get("experiments") or [None]) > 1:
         raise FitFileError(
             f"a fit of {len(info['experiments'])} experiments has a verdict per experiment; "
-            "use pmabayes.report.experiment_adequacy")
+            "use pmabayes.report.pages.experiment_adequacy")
     if dataset is not None:
         check_dataset(tree, dataset)
     return _adequacy(tree, info, dataset, _predictive(tree, ci_prob), ci_prob)
@@ -731,7 +731,7 @@ def write_report(
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`).
     out_dir : str or Path
         Destination folder, created if needed. Written: ``summary.csv``,
         ``summary.md``, ``trace.png``, ``rank.png``, ``pair.png``, ``ppc.png``,
@@ -762,7 +762,7 @@ def write_report(
 
     Examples
     --------
-    >>> from pmabayes.posterior import load_fit
+    >>> from pmabayes.inference.posterior import load_fit
     >>> tree = load_fit("results/lab/fit.nc")  # doctest: +SKIP
     >>> write_report(tree, "results/lab/report")  # doctest: +SKIP
     PosixPath('results/lab/report/index.html')
@@ -811,7 +811,7 @@ def write_report(
 
 
 def _trials_line(dataset: Dataset) -> str:
-    """The verdict of :func:`pmabayes.trials.check_trials` on the fitted trials, one line."""
+    """The verdict of :func:`pmabayes.inference.trials.check_trials` on the fitted trials, one line."""
     check = check_trials(dataset)
     text = html.escape(check.summary())
     return f"<p>{text}</p>" if check.exchangeable else f'<p class="note">{text}</p>'
@@ -821,8 +821,7 @@ def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
                               datasets: list[Dataset] | None, ci_prob: float) -> Path:
     """:func:`write_report` for a fit of several experiments: shared parameters, then a
     section per experiment."""
-    from pmabayes import plots
-
+    from pmabayes.report.pages import figures as plots
     datasets = _check_experiment_data(tree, datasets)
     out_dir.mkdir(parents=True, exist_ok=True)
     flat = _flat(tree)
@@ -899,8 +898,7 @@ def _noise_floor(info: dict, dataset: Dataset | None) -> float | None:
 def _report_figures(tree: xr.DataTree, rows: list, pred: Mapping, residual_m: np.ndarray,
                     quality: Mapping, out_dir: Path, ci_prob: float) -> dict[str, str]:
     """Draw the five figures of a fit report; returns each one's caption."""
-    from pmabayes import plots
-
+    from pmabayes.report.pages import figures as plots
     trace_note = plots.plot_trace(tree, out_dir / "trace.png",
                                   units={r["name"]: r["unit"] for r in rows})
     rank_thin, rank_note = plots.plot_rank(tree, out_dir / "rank.png")
@@ -1103,8 +1101,8 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
 
     Parameters
     ----------
-    diagnosis : pmabayes.criticism.Diagnosis
-        The result of :func:`pmabayes.criticism.diagnose`.
+    diagnosis : pmabayes.criticism.diagnosis.Diagnosis
+        The result of :func:`pmabayes.criticism.diagnosis.diagnose`.
     out_dir : str or Path
         Destination folder, created if needed. Written: ``comparison.png``,
         ``bands.png``, ``signature.png``, ``whiteness.png``, ``ranking.png``,
@@ -1118,8 +1116,7 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     Path
         The path of ``index.html`` (self-contained: figures embedded).
     """
-    from pmabayes import plots
-
+    from pmabayes.report.pages import figures as plots
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     d = diagnosis
@@ -1239,8 +1236,7 @@ def _diagnosis_experiment_section(e, several: bool) -> list[str]:
 def _experiment_figures(e, label: str, out_dir: Path, suffix: str = "") -> dict[str, str]:
     """Draw an experiment's four figures of a diagnosis (``NAME{suffix}.png``); returns each
     one's caption."""
-    from pmabayes import plots
-
+    from pmabayes.report.pages import figures as plots
     ds = e.dataset
     figs = {
         "comparison": (plots.plot_comparison(ds, e.simulation.position_m[0],
@@ -1271,8 +1267,8 @@ def write_comparison(comparison, out_dir: str | Path, *,
 
     Parameters
     ----------
-    comparison : pmabayes.criticism.FitComparison
-        From :func:`pmabayes.criticism.compare_fits`.
+    comparison : pmabayes.criticism.diagnosis.FitComparison
+        From :func:`pmabayes.criticism.diagnosis.compare_fits`.
     out_dir : str or Path
         Destination folder. Written: ``error_falling.png``, ``whiteness.png``,
         ``comparison.json``, ``comparison.md`` and ``index.html``. For fits of
@@ -1373,8 +1369,7 @@ def _comparison_rows(c, *, with_elpd: bool) -> tuple[list[str], list[list[Any]]]
 
 def _comparison_figures(c, out_dir: Path, suffix: str, name: str) -> list[str]:
     """Draw the error-falling and whiteness figures of one data set; their ``<img>``s."""
-    from pmabayes import plots
-
+    from pmabayes.report.pages import figures as plots
     plots.plot_band_errors(c.bands, title="the error falls as effects are added "
                                           "(label: multiple of the noise floor)"
                            + (f": {name}" if name else "")
@@ -1399,8 +1394,8 @@ def write_validation(validation, out_dir: str | Path) -> Path:
 
     Parameters
     ----------
-    validation : pmabayes.validation.Validation
-        The result of :func:`pmabayes.validation.validate`.
+    validation : pmabayes.criticism.validation.Validation
+        The result of :func:`pmabayes.criticism.validation.validate`.
     out_dir : str or Path
         Destination folder, created if needed. Written: one
         ``validation_<i>_<name>.png`` per experiment, ``validation.json`` and
@@ -1411,8 +1406,7 @@ def write_validation(validation, out_dir: str | Path) -> Path:
     Path
         The path of ``index.html`` (self-contained: figures embedded, no script).
     """
-    from pmabayes import plots
-
+    from pmabayes.report.pages import figures as plots
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     v = validation

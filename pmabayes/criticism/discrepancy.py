@@ -1,6 +1,6 @@
 """A data-driven discrepancy: the missing force, estimated from the data, and a closed form.
 
-Stage 7 (diagnostics), beside :mod:`pmabayes.criticism`, whose :func:`~pmabayes.criticism.diagnose`
+Stage 7 (diagnostics), beside :mod:`pmabayes.criticism.diagnosis`, whose :func:`~pmabayes.criticism.diagnosis.diagnose`
 calls :func:`estimate_discrepancy` when its verdict is "above the floor, no candidate in
 the library accounts for it".
 
@@ -23,13 +23,13 @@ low-passed with a time constant chosen by the evidence). Each spline block has a
 second-difference roughness penalty whose weight is chosen by the evidence (type-II
 maximum likelihood of the linear Gaussian model), so the flexible force does not
 absorb the noise. Everything is whitened by the likelihood's own noise model
-(:meth:`pmabayes.likelihood.Likelihood.whiten`), so the regression is generalised
+(:meth:`pmabayes.inference.likelihood.Likelihood.whiten`), so the regression is generalised
 least squares.
 
 The evidence for each state is the leave-one-trial-out ELPD lost when its terms are
 dropped: the flexible force is refitted to the mean of the other trials and scored
 on the left-out trial with the likelihood's per-trial density
-(:meth:`~pmabayes.likelihood.Likelihood.pointwise`).
+(:meth:`~pmabayes.inference.likelihood.Likelihood.pointwise`).
 
 The closed form is a sparse regression (sequentially thresholded least squares, as
 SINDy's STLSQ) over a dictionary of named physical terms, each with its unit; the
@@ -57,10 +57,10 @@ import numba
 import numpy as np
 from scipy.interpolate import BSpline, PPoly
 
-from pmabayes.likelihood import Likelihood
-from pmabayes.model import Model
-from pmabayes.residuals import band_errors, residual_signature
-from pmabayes.simulator import Simulation, simulate_dataset
+from pmabayes.criticism.residuals import band_errors, residual_signature
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.model.model import Model
+from pmabayes.model.simulator import Simulation, simulate_dataset
 
 __all__ = ["StateEvidence", "Term", "Proposal", "Discrepancy", "estimate_discrepancy",
            "force_response", "stlsq", "STATES"]

@@ -1,7 +1,7 @@
 """Fits of many independent data sets at once: local processes or a Dask cluster.
 
 A batch (a set of actuators, the data sets of a study) fits each data set alone,
-with :func:`pmabayes.fit.fit`, and writes each fit to ``OUT_DIR/<name>.nc``. The
+with :func:`pmabayes.inference.sampler.fit`, and writes each fit to ``OUT_DIR/<name>.nc``. The
 parallelism is over data sets, on the one :class:`pmabayes.parallel.Runner`: local
 worker processes, or the workers of a ``dask.distributed`` cluster. A fit inside a
 worker runs its ensembles one after another (``processes=1``) with its own progress
@@ -45,14 +45,15 @@ import numpy as np
 
 from pmabayes import __version__
 from pmabayes.data import DataError, Dataset, load
-from pmabayes.effects import EffectError, get_effect
-from pmabayes.fit import FitError, FitSettings, fit
-from pmabayes.likelihood import LikelihoodError
-from pmabayes.model import Model, ModelError
+from pmabayes.inference.errors import FitError
+from pmabayes.inference.fitfile import fit_info, save_fit
+from pmabayes.inference.likelihood import LikelihoodError
+from pmabayes.inference.sampler import FitSettings, fit
+from pmabayes.model.effects import EffectError, get_effect
+from pmabayes.model.model import Model, ModelError
+from pmabayes.model.parameters import Prior
+from pmabayes.model.simulator import SimulationError
 from pmabayes.parallel import Runner
-from pmabayes.parameters import Prior
-from pmabayes.posterior import fit_info, save_fit
-from pmabayes.simulator import SimulationError
 from pmabayes.util import Progress, fingerprint
 
 __all__ = ["BatchError", "BatchJob", "BatchResult", "dask_client", "dataset_seed", "fit_batch"]
@@ -396,7 +397,7 @@ def fit_batch(
         One progress line on stderr: data sets done of those to fit, elapsed
         time and an estimate of the time left.
     substeps : int
-        Simulator substeps per sample (as :func:`pmabayes.fit.fit` takes them).
+        Simulator substeps per sample (as :func:`pmabayes.inference.sampler.fit` takes them).
 
     Returns
     -------

@@ -1,84 +1,8 @@
-"""The posterior: its density, and the fit file that holds its draws.
-
-:class:`Posterior` is the log posterior density of a model's free parameters given
-the noise, in the unconstrained coordinates the sampler (:mod:`pmabayes.fit`)
-explores. :func:`fit_tree` turns the sampler's draws into the fit, an ArviZ 1.x
-DataTree, which :func:`save_fit` writes to NetCDF and :func:`load_fit` reads.
-The sampler fills what this module defines, so it sits below the sampler:
-likelihood -> posterior -> sampler (fit) -> diagnostics.
-
-Layout of a fit (what :func:`fit_tree` builds for :func:`pmabayes.fit.fit` and
-the reports read):
-
-``/posterior``
-    One variable per identified parameter (the model's free parameters plus the
-    noise parameters ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``), dims
-    ``(chain, draw)``.
-    A *chain* is one emcee walker; walkers of all independent ensembles are
-    stacked, ensemble after ensemble.
-``/sample_stats``
-    ``lp`` (log posterior, ``(chain, draw)``) and ``ensemble`` (``(chain,)``: the
-    independent ensemble each walker belongs to).
-``/log_likelihood``
-    ``position_m``, ``(chain, draw, trial)``: the log-likelihood of each trial, for
-    leave-one-trial-out comparison.
-``/observed_data``
-    ``position_m``, ``(trial, time)``.
-``/constant_data``
-    The input, ``pressure_pa`` or ``force_n``, ``(time,)``.
-``/posterior_predictive``
-    ``position_m``, ``(chain, draw, trial, time)`` (float32: one chain of
-    randomly chosen posterior draws, each with fresh measurement noise) and
-    ``model_position_m`` (the noise-free model output for the same draws).
-root attribute ``pmabayes``
-    A JSON string: the model (effects, rig, fixed values, priors), the data
-    source, the noise model, the MAP and the paper's RMS cost, convergence
-    diagnostics, seed and timings. :func:`fit_info` decodes it. Its
-    ``experiments`` entry is a list with one dict per experiment, for one
-    experiment too (:func:`experiment_records`: ``name``, ``source``, ``rig``,
-    ``n_trials``, ``n_samples``, ``input_name``, ``input_between_samples``,
-    ``period_samples``, ``starts_in_steady_state``, ``noise`` ``"own"`` or
-    ``"tied"``, ``noise_source``, ``noise_estimate``, ``noise_model``,
-    ``noise_floor_m``, ``rms_cost_m``, ``metadata``). ``noise_model`` says which
-    noise model the experiment's likelihood used
-    (:meth:`pmabayes.likelihood.NoiseChoice.to_dict`): ``model`` in words
-    (``"AR(1) + white"`` or ``"AR(p) from the repeats"``), ``requested``,
-    ``ljung_box_p`` (the repeats' test of AR(1) + white), ``order``, and for an
-    AR(p) its ``coefficients``, ``innovation_std_m`` and the ``autocovariance_m2``
-    that defines it (:func:`noise_models` rebuilds it). With an AR(p), the noise
-    parameters in ``/posterior`` are still the AR(1) + white estimate from the
-    repeats (reported, not used by the likelihood), and ``/posterior_predictive``
-    and ``/log_likelihood`` use the AR(p).
-
-A fit of one experiment has exactly the layout above, whatever its noise source.
-For a record without repeats the noise parameters in ``/posterior`` are sampled
-with the model rather than drawn from the repeats' Laplace approximation, and
-``data.noise_floor_m`` is None.
-
-A fit of several experiments (``NAME`` is an experiment's name, unique, from its
-file's stem; :func:`experiment_names`):
-
-``/posterior``
-    The model's parameters ``(chain, draw)``, shared; the noise parameters
-    ``(chain, draw, experiment)``, coordinate ``experiment`` = the names (with
-    ``tie_noise`` the values are the same for every experiment).
-``/observed_data``
-    ``position_m__NAME``, ``(trial__NAME, time__NAME)``.
-``/constant_data``
-    The input of each, ``pressure_pa__NAME`` or ``force_n__NAME``,
-    ``(time__NAME,)``.
-``/posterior_predictive``
-    ``position_m__NAME`` ``(chain, draw, trial__NAME, time__NAME)`` and
-    ``model_position_m__NAME`` ``(chain, draw, time__NAME)``, the same draws for
-    every experiment.
-``/log_likelihood``
-    ``position_m``, ``(chain, draw, trial)``: every trial of every experiment
-    along one ``trial`` dimension (experiment after experiment), with the
-    coordinates ``experiment`` and ``trial_id`` along it, so that ``az.loo``
-    leaves one trial out of all of them.
-
-:func:`experiment_datasets` and :func:`experiment_models` rebuild each
-experiment's data set and model from either layout.
+"""The fit file: the sampler's draws as an ArviZ 1.x DataTree
+(:func:`fit_tree`, :func:`set_fit_info`), written to NetCDF (:func:`save_fit`) and read
+back (:func:`load_fit`, :func:`fit_info`), with each experiment's data set, model and noise
+model rebuilt from it. The documentation's page on the fit file gives the layout, for
+one experiment and for several.
 """
 
 from __future__ import annotations
@@ -87,7 +11,6 @@ import json
 import math
 import os
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import arviz as az
@@ -96,354 +19,26 @@ import xarray as xr
 
 from pmabayes import __version__
 from pmabayes.data import DataError, Dataset
-from pmabayes.likelihood import (
-    NOISE_PARAMETERS,
-    ArNoise,
-    JointLikelihood,
-    Likelihood,
-    NoiseChoice,
-    measurement_noise,
-)
-from pmabayes.model import PAPER_VALUES, Model, Rig
-from pmabayes.parameters import HalfNormal, LogNormal, Parameter, Prior, parse_prior
+from pmabayes.inference.density import Posterior
+from pmabayes.inference.likelihood import NOISE_PARAMETERS, ArNoise, Likelihood, measurement_noise
+from pmabayes.model.model import PAPER_VALUES, Model, Rig
+from pmabayes.model.parameters import parse_prior
 
-__all__ = ["Posterior", "NoiseEstimate", "fit_tree", "set_fit_info", "save_fit", "load_fit",
-           "fit_info", "model_from_fit", "check_dataset", "FitFileError", "experiment_records",
-           "experiment_names", "experiment_datasets", "experiment_models", "noise_models"]
-
-
-# ---------------------------------------------------------------------------------
-# the density, in unconstrained coordinates
-
-
-def _log_sech2(z: np.ndarray) -> np.ndarray:
-    """``log(1 - tanh(z)^2) = -2 log cosh z``, without overflow: the log Jacobian of
-    the atanh coordinate."""
-    a = np.abs(z)
-    return -2.0 * (a + np.log1p(np.exp(-2.0 * a)) - math.log(2.0))
-
-
-def _transform_kind(p: Parameter, prior: Prior) -> str:
-    if p.name == "rho_noise":
-        return "atanh"
-    if p.bounds[0] >= 0.0 and isinstance(prior, LogNormal | HalfNormal):
-        return "log"
-    return "identity"
-
-
-@dataclass(frozen=True)
-class NoiseEstimate:
-    """The noise parameters' posterior from the spread between repeated trials.
-
-    Parameters
-    ----------
-    sigma, rho, white : float
-        Posterior mode of ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``.
-    mean_u : numpy.ndarray
-        Mode in ``(log sigma, atanh rho, log white)``.
-    cov_u : numpy.ndarray
-        Laplace covariance there.
-    """
-
-    sigma: float
-    rho: float
-    white: float
-    mean_u: np.ndarray
-    cov_u: np.ndarray
-
-    def draws(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
-        """``n`` independent posterior draws of ``(sigma, rho, white)``."""
-        u = rng.multivariate_normal(self.mean_u, self.cov_u, size=n, method="eigh")
-        return np.exp(u[:, 0]), np.tanh(u[:, 1]), np.exp(u[:, 2])
-
-
-class Posterior:
-    """Log posterior of a model's free parameters, given the noise, over experiments.
-
-    Parameters
-    ----------
-    likelihood : Likelihood or sequence of Likelihood
-        One per experiment: its data, its model (on its rig) and the noise model.
-        The experiments' models share their parameters.
-    noise : NoiseEstimate, None, or sequence of them
-        One per noise group (see ``noise_groups``): the estimate from repeats
-        (:func:`pmabayes.fit.estimate_noise`), at whose mode the likelihood is
-        evaluated, or None for a group without repeats, whose noise parameters
-        are then sampled with the model's (under the guard of
-        :meth:`pmabayes.likelihood.Likelihood.noise_parameters`).
-    names : sequence of str, optional
-        The experiments' names (``experiment_1``, ... by default).
-    noise_groups : sequence of int, optional
-        The noise group of each experiment: experiments of one group share their
-        noise (``tie_noise``). Each its own by default.
-    noise_choices : sequence of NoiseChoice, optional
-        Per experiment, the noise model its likelihood uses and why
-        (:func:`pmabayes.likelihood.choose_noise_model`; the likelihoods already
-        use it), for the fit file. AR(1) + white, untested, by default.
-
-    Attributes
-    ----------
-    names : tuple of str
-        Identified parameters: the model's free parameters, then any sampled noise
-        parameters (``sigma_noise_m``, ... for one group, ``sigma_noise_m[NAME]``,
-        ... per experiment otherwise).
-    likelihoods : list of Likelihood
-        One per experiment.
-    likelihood : Likelihood or JointLikelihood
-        The one experiment's, or all of them seen as one (for the global search).
-    """
-
-    def __init__(self, likelihood, noise, *, names=None, noise_groups=None,
-                 noise_choices=None) -> None:
-        liks = [likelihood] if isinstance(likelihood, Likelihood) else list(likelihood)
-        if not liks:
-            raise ValueError("a posterior needs at least one experiment")
-        self.likelihoods: list[Likelihood] = liks
-        self.n_experiments = len(liks)
-        self.experiment_names: list[str] = (list(names) if names is not None else
-                                            [f"experiment_{i + 1}" for i in range(len(liks))])
-        self.groups: list[int] = (list(noise_groups) if noise_groups is not None
-                                  else list(range(len(liks))))
-        n_groups = max(self.groups) + 1
-        self.group_noise: list[NoiseEstimate | None] = (
-            [noise] if noise is None or isinstance(noise, NoiseEstimate) else list(noise))
-        if len(self.group_noise) != n_groups or len(self.groups) != len(liks):
-            raise ValueError(f"{len(liks)} experiments in {n_groups} noise groups need one noise "
-                             f"entry per group, got {len(self.group_noise)}")
-        self.likelihood = (liks[0] if len(liks) == 1
-                           else JointLikelihood(liks, self.experiment_names))
-        self.noise_choices: list[NoiseChoice] = [
-            c if c is not None else NoiseChoice("ar1" if lik.ar_noise is None else "ar",
-                                                lik.ar_noise, math.nan)
-            for c, lik in zip(noise_choices or [None] * len(liks), liks, strict=True)]
-        self.noise = self.group_noise[0]
-        self.model = liks[0].model
-        model = self.model
-        model_params = tuple(model.parameter(n) for n in model.free_names)
-        self.n_model = len(model_params)
-        params: list[Parameter] = list(model_params)
-        priors: list[Prior] = [model.priors[n] for n in model.free_names]
-        names_out = [p.name for p in model_params]
-        # sampled noise: the columns of each group without repeats
-        self._noise_cols: dict[int, list[int]] = {}
-        for g in range(n_groups):
-            if self.group_noise[g] is not None:
-                continue
-            members = [e for e, gg in enumerate(self.groups) if gg == g]
-            # the strictest guard of the group's experiments
-            guarded = min((liks[e].noise_parameters() for e in members),
-                          key=lambda ps: ps[1].bounds[1])
-            label = (None if n_groups == 1 else
-                     "+".join(self.experiment_names[e] for e in members))
-            self._noise_cols[g] = []
-            for p in guarded:
-                self._noise_cols[g].append(len(params))
-                params.append(p)
-                priors.append(p.prior)
-                names_out.append(p.name if label is None else f"{p.name}[{label}]")
-        self.parameters: tuple[Parameter, ...] = tuple(params)
-        self.names: tuple[str, ...] = tuple(names_out)
-        self.priors: tuple[Prior, ...] = tuple(priors)
-        self.kinds = tuple(
-            _transform_kind(p, pr) for p, pr in zip(self.parameters, self.priors, strict=True)
-        )
-        self._free_cols = np.array([model.index(n) for n in model.free_names], dtype=int)
-        self._template = model.theta(model.defaults)[0]
-        self.lower = np.array([p.bounds[0] for p in self.parameters])
-        self.upper = np.array([p.bounds[1] for p in self.parameters])
-
-    def noise_of(self, experiment: int, theta: np.ndarray | None = None) -> tuple:
-        """The noise ``(sigma, rho, white)`` of an experiment.
-
-        Parameters
-        ----------
-        experiment : int
-            Its index.
-        theta : numpy.ndarray, optional
-            Identified values ``(batch, ndim)``; needed where the noise is sampled.
-
-        Returns
-        -------
-        tuple
-            Floats (noise from repeats, at its mode) or ``(batch,)`` arrays.
-        """
-        g = self.groups[experiment]
-        est = self.group_noise[g]
-        if est is not None:
-            return est.sigma, est.rho, est.white
-        if theta is None:
-            raise ValueError(f"the noise of experiment {self.experiment_names[experiment]} is "
-                             "sampled with the model: give theta")
-        theta = np.atleast_2d(theta)
-        return tuple(theta[:, c] for c in self._noise_cols[g])
-
-    def set_group_noise(self, group: int, estimate: NoiseEstimate,
-                        choice: NoiseChoice) -> None:
-        """Replace a noise group's estimate from repeats and its experiments' noise model.
-
-        The group's likelihoods must already use ``choice`` (``use_ar_noise``); used
-        when the periods of a record from rest are referred to the model
-        (:func:`pmabayes.fit.find_map`).
-        """
-        if self.group_noise[group] is None:
-            raise ValueError(f"noise group {group} is sampled with the model, not estimated "
-                             "from repeats")
-        self.group_noise[group] = estimate
-        for e, g in enumerate(self.groups):
-            if g == group:
-                self.noise_choices[e] = choice
-        self.noise = self.group_noise[0]
-
-    def noise_sampled(self, experiment: int) -> bool:
-        """Whether an experiment's noise is sampled with the model (no repeats)."""
-        return self.group_noise[self.groups[experiment]] is None
-
-    def noise_values(self, theta: np.ndarray) -> dict:
-        """The noise at one point ``(ndim,)``, for the MAP's record.
-
-        Returns
-        -------
-        dict
-            ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``: floats for one
-            experiment, ``{experiment name: value}`` for several.
-        """
-        theta = np.asarray(theta, dtype=float).reshape(1, -1)
-        per = [[float(np.asarray(v).reshape(-1)[0]) for v in self.noise_of(e, theta)]
-               for e in range(self.n_experiments)]
-        keys = [p.name for p in NOISE_PARAMETERS]
-        if self.n_experiments == 1:
-            return dict(zip(keys, per[0], strict=True))
-        return {k: {n: per[e][j] for e, n in enumerate(self.experiment_names)}
-                for j, k in enumerate(keys)}
-
-    @property
-    def ndim(self) -> int:
-        """Number of identified parameters."""
-        return len(self.names)
-
-    # -- coordinates ------------------------------------------------------------
-    def to_natural(self, z: np.ndarray) -> np.ndarray:
-        """Natural parameter values from unconstrained coordinates ``(batch, ndim)``."""
-        return self._map(z, 0)
-
-    def to_unconstrained(self, theta: np.ndarray) -> np.ndarray:
-        """Unconstrained coordinates from natural values ``(batch, ndim)``."""
-        return self._map(theta, 1)
-
-    #: each transform's (to natural, to unconstrained) maps
-    _MAPS = {"log": (np.exp, np.log), "atanh": (np.tanh, np.arctanh)}
-
-    def _map(self, values: np.ndarray, direction: int) -> np.ndarray:
-        values = np.atleast_2d(np.asarray(values, dtype=float))
-        out = values.copy()
-        with np.errstate(over="ignore", divide="ignore"):
-            for j, kind in enumerate(self.kinds):
-                if kind in self._MAPS:
-                    out[:, j] = self._MAPS[kind][direction](values[:, j])
-        return out
-
-    def log_jacobian(self, z: np.ndarray) -> np.ndarray:
-        """``log |d theta / d z|`` per batch member."""
-        z = np.atleast_2d(z)
-        total = np.zeros(z.shape[0])
-        for j, kind in enumerate(self.kinds):
-            if kind == "log":
-                total += z[:, j]
-            elif kind == "atanh":
-                total += _log_sech2(z[:, j])
-        return total
-
-    def full_theta(self, theta: np.ndarray) -> np.ndarray:
-        """The model's full parameter array for identified values ``(batch, ndim)``."""
-        theta = np.atleast_2d(theta)
-        full = np.repeat(self._template[None, :], theta.shape[0], axis=0)
-        full[:, self._free_cols] = theta[:, : self.n_model]
-        return full
-
-    # -- densities ----------------------------------------------------------------
-    def log_prior(self, theta: np.ndarray) -> np.ndarray:
-        """Log prior density in natural coordinates, ``-inf`` outside the bounds.
-
-        The one joint log prior of pmabayes: the sum of each parameter's
-        :meth:`~pmabayes.parameters.Parameter.log_prior` under the model's priors.
-        """
-        theta = np.atleast_2d(theta)
-        total = np.zeros(theta.shape[0])
-        with np.errstate(all="ignore"):  # densities are evaluated out of bounds too
-            for j, (p, prior) in enumerate(zip(self.parameters, self.priors, strict=True)):
-                total = total + p.log_prior(theta[:, j], prior)
-        return total
-
-    def evaluate(
-        self, theta: np.ndarray, *, return_x: bool = True
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Log prior, log likelihood and model output for natural values.
-
-        Parameters
-        ----------
-        theta : numpy.ndarray
-            ``(batch, ndim)`` natural values.
-        return_x : bool
-            Whether to return the model output (the sampler does not need it).
-
-        Returns
-        -------
-        log_prior, log_likelihood : numpy.ndarray
-            ``(batch,)``; ``-inf`` where out of bounds or the simulation failed. The
-            likelihood is the sum over experiments of that of the trial mean given
-            the experiment's noise (the deviations' part does not depend on the
-            model); for a sampled noise, the record's whole likelihood.
-        x : numpy.ndarray or None
-            Model positions of the valid members (NaN rows elsewhere; several
-            experiments' outputs concatenated along time), or None if no member was
-            valid or ``return_x`` is false.
-        """
-        theta = np.atleast_2d(theta)
-        lp = self.log_prior(theta)
-        ll = np.full(theta.shape[0], -np.inf)
-        ok = np.isfinite(lp)
-        if not ok.any():
-            return lp, ll, None
-        sub = theta[ok]
-        full = self.full_theta(sub)
-        xs = [lik.simulate(full) for lik in self.likelihoods]
-        total = np.zeros(sub.shape[0])
-        for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
-            total += lik.mean_log_likelihood(x, *self.noise_of(e, sub))
-        # a failed simulation (non-finite output) has a non-finite likelihood: each
-        # member's filter is its own arithmetic, so the others are unchanged
-        ll[ok] = np.where(np.isfinite(total), total, -np.inf)
-        if not return_x:
-            return lp, ll, None
-        x = np.full((theta.shape[0], self.likelihood.n_samples), np.nan)
-        x[ok] = np.concatenate(xs, axis=1)
-        return lp, ll, x
-
-    def log_prob_z(self, z: np.ndarray) -> np.ndarray:
-        """Log posterior density in unconstrained coordinates (what emcee samples)."""
-        z = np.atleast_2d(z)
-        theta = self.to_natural(z)
-        lp, ll, _ = self.evaluate(theta, return_x=False)
-        out = lp + ll + self.log_jacobian(z)
-        return np.where(np.isfinite(out), out, -np.inf)
-
-    def plausible_box(self, rng: np.random.Generator, names: tuple[str, ...]) -> np.ndarray:
-        """Unconstrained ``(lower, upper)`` of the 0.5-99.5% prior range of ``names``."""
-        idx = [self.names.index(n) for n in names]
-        box = np.empty((len(idx), 2))
-        for row, j in enumerate(idx):
-            draws = self.priors[j].sample(rng, 20000)
-            lo, hi = np.quantile(draws, [0.005, 0.995])
-            lo = max(lo, self.lower[j] + 1e-12 * max(1.0, abs(self.lower[j])))
-            hi = min(hi, self.upper[j])
-            ends = np.ones((2, self.ndim))
-            ends[:, j] = lo, hi
-            box[row] = self.to_unconstrained(ends)[:, j]
-        return box
-
-
-# ---------------------------------------------------------------------------------
-# the fit file
+__all__ = [
+    "fit_tree",
+    "set_fit_info",
+    "experiment_records",
+    "experiment_names",
+    "experiment_datasets",
+    "experiment_models",
+    "noise_models",
+    "FitFileError",
+    "save_fit",
+    "load_fit",
+    "fit_info",
+    "model_from_fit",
+    "check_dataset",
+]
 
 
 def fit_tree(posterior: Posterior, z: np.ndarray, lp_z: np.ndarray, ensemble: np.ndarray, *,
@@ -733,9 +328,9 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
         ``"record"``), ``periods_referred_to_model`` (the periods of a record from
         rest taken from its residual at the MAP,
-        :func:`pmabayes.fit.refer_periods`), ``noise_estimate`` (the noise's mode),
+        :func:`pmabayes.inference.noise.refer_periods`), ``noise_estimate`` (the noise's mode),
         ``noise_model``
-        (:meth:`pmabayes.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
+        (:meth:`pmabayes.inference.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
         ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
         ``metadata`` (the data set's, to rebuild it).

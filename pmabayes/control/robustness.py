@@ -16,7 +16,7 @@ Each run is a 10 s closed loop of :mod:`pmabayes.control` on :meth:`Rig.control`
 result is an ``xarray.Dataset`` over ``(sample, frequency, controller)`` with the
 metrics of :func:`pmabayes.control.tracking_metrics`; :func:`summarise_robustness`
 reduces it to medians, 90% bands and the probability that computed torque beats
-PID, and :func:`pmabayes.plots.plot_robustness` draws the bands against frequency.
+PID, and :func:`pmabayes.report.figures.plot_robustness` draws the bands against frequency.
 
 Both controllers are tuned by the same rule, :func:`pmabayes.control.tune_gains`, on
 the sweep's nominal model (the fit's model at its posterior mean, with its effects;
@@ -57,9 +57,9 @@ from pmabayes.control import (
     operating_mean_m,
     resolve_gains,
 )
-from pmabayes.model import Model, Rig
+from pmabayes.inference.fitfile import fit_info, load_fit
+from pmabayes.model.model import Model, Rig
 from pmabayes.parallel import Runner
-from pmabayes.posterior import fit_info, load_fit
 from pmabayes.util import Progress
 
 __all__ = [
@@ -86,7 +86,7 @@ def control_model_from_fit(tree: xr.DataTree) -> Model:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (:func:`pmabayes.posterior.load_fit`).
+        A fit (:func:`pmabayes.inference.fitfile.load_fit`).
 
     Returns
     -------
@@ -416,7 +416,7 @@ def write_robustness(ds: xr.Dataset, out_dir) -> dict[str, Path]:
     -------
     dict of str to Path
         ``netcdf``, ``summary_csv`` and ``summary_md`` (the figure is
-        :func:`pmabayes.plots.plot_robustness`).
+        :func:`pmabayes.report.figures.plot_robustness`).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

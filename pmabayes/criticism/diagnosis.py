@@ -1,6 +1,6 @@
 """Model criticism: which effect is missing, with what evidence, and what adding it does.
 
-Stage 7 (diagnostics), above :mod:`pmabayes.residuals` (the residual statistics:
+Stage 7 (diagnostics), above :mod:`pmabayes.criticism.residuals` (the residual statistics:
 band errors against the noise floor, whiteness and independence tests, the
 residual signature and the adequacy rule). Here the model is confronted with the
 candidate effects:
@@ -12,7 +12,7 @@ candidate effects:
   in words what is missing;
 * :func:`compare_fits`: fits of the same data side by side.
 
-The residual statistics are re-exported here, so ``from pmabayes.criticism import
+The residual statistics are re-exported here, so ``from pmabayes.criticism.diagnosis import
 band_errors`` (and every other name that lived here) keeps working.
 """
 
@@ -26,21 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from pmabayes.data import DataError, Dataset, check_same_input_kind
-from pmabayes.discrepancy import Discrepancy, estimate_discrepancy
-from pmabayes.effects import get_effect, registered_effects
-from pmabayes.fit import NoiseEstimate, Posterior, _group_noise, _on_rig, find_map
-from pmabayes.likelihood import Likelihood, check_noise_model_name
-from pmabayes.model import Model
-from pmabayes.posterior import (
-    check_dataset,
-    experiment_datasets,
-    experiment_models,
-    experiment_names,
-    fit_info,
-    model_from_fit,
-)
-from pmabayes.residuals import (
+from pmabayes.criticism.discrepancy import Discrepancy, estimate_discrepancy
+from pmabayes.criticism.residuals import (
     DEFAULT_BANDS_HZ,  # noqa: F401
     ENERGY_TOLERANCE,
     LEVEL_ADEQUATE,
@@ -61,7 +48,22 @@ from pmabayes.residuals import (
     residual_signature,
     whiteness_curves,
 )
-from pmabayes.simulator import Simulation, simulate_dataset
+from pmabayes.data import DataError, Dataset
+from pmabayes.inference.density import Posterior
+from pmabayes.inference.fitfile import (
+    check_dataset,
+    experiment_datasets,
+    experiment_models,
+    fit_info,
+    model_from_fit,
+)
+from pmabayes.inference.likelihood import Likelihood, check_noise_model_name
+from pmabayes.inference.noise import NoiseEstimate, group_noise
+from pmabayes.inference.posterior import experiments
+from pmabayes.inference.search import find_map
+from pmabayes.model.effects import get_effect, registered_effects
+from pmabayes.model.model import Model
+from pmabayes.model.simulator import Simulation, simulate_dataset
 from pmabayes.util import Progress
 
 #: the residual statistics of the old single module, still importable from here
@@ -150,7 +152,7 @@ def rank_effects(
         parameters (their rigs may differ).
     noise : object or sequence of object
         Identified noise (``sigma``, ``rho``, ``white``), e.g. from
-        :func:`pmabayes.fit.estimate_noise`; one per experiment with several.
+        :func:`pmabayes.inference.noise.estimate_noise`; one per experiment with several.
     values : dict
         The current model's parameter values at its MAP.
     candidates : iterable of str, optional
@@ -409,7 +411,7 @@ class ExperimentDiagnosis:
     Parameters
     ----------
     name : str
-        The experiment's name (its file's stem, :func:`pmabayes.posterior.experiment_names`).
+        The experiment's name (its file's stem, :func:`pmabayes.inference.fitfile.experiment_names`).
     dataset : Dataset
         Its data.
     model : Model
@@ -420,7 +422,7 @@ class ExperimentDiagnosis:
         MAP (``mean_u`` and ``cov_u`` None).
     noise_source : str
         ``"trials"``, ``"periods"`` or ``"record"``
-        (:attr:`pmabayes.likelihood.Likelihood.noise_source`).
+        (:attr:`pmabayes.inference.likelihood.Likelihood.noise_source`).
     simulation : Simulation
         The model at the shared MAP, on this experiment's rig and input.
     signature : Signature
@@ -550,7 +552,7 @@ class Diagnosis:
     discrepancy : Discrepancy or None
         The missing force estimated from the data, when the model is above the floor
         and no candidate in the library accounts for it (see
-        :func:`pmabayes.discrepancy.estimate_discrepancy`); None otherwise. With
+        :func:`pmabayes.criticism.discrepancy.estimate_discrepancy`); None otherwise. With
         several experiments it is estimated on one of them.
     discrepancy_experiment : str or None
         The experiment the discrepancy was estimated on (the inadequate one furthest
@@ -894,7 +896,7 @@ def _fit_base(models: list, datasets: list, names: list, s: _Settings,
               rng: np.random.Generator) -> _Base:
     """Noise from the spread between repeats, the shared MAP, the signatures and the ELPD."""
     liks = [Likelihood(m, ds, substeps=s.substeps) for m, ds in zip(models, datasets, strict=True)]
-    noise_and_choice = [_group_noise([lik], s.noise_model) for lik in liks]
+    noise_and_choice = [group_noise([lik], s.noise_model) for lik in liks]
     posterior, best = _fit_map(liks, [n for n, _ in noise_and_choice], names, rng,
                                [c for _, c in noise_and_choice], refer=True)
     # as the fit: a record from rest's noise from its periods' residual at the MAP
@@ -1038,23 +1040,14 @@ def _twins(refits: dict, missing: str | None, s: _Settings) -> list[tuple[str, f
 def _experiments(datasets, model: Model | None, effects: Iterable[str]
                  ) -> tuple[list[Dataset], list[Model], list[str]]:
     """The data sets, each one's model (on its rig) and the experiments' names."""
-    dss = [datasets] if isinstance(datasets, Dataset) else list(datasets)
-    if not dss:
-        raise ValueError("diagnose needs at least one data set")
-    for ds in dss:
-        if not isinstance(ds, Dataset):
-            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
-                            f"{type(ds).__name__}")
-    check_same_input_kind(dss)
+    dss, models, names = experiments(datasets, model or Model())
     if model is None:
         models = [Model.for_dataset(ds) for ds in dss]
-    else:  # as fit does: the model as given for one experiment, on each one's rig for several
-        models = [model] if len(dss) == 1 else [_on_rig(model, ds) for ds in dss]
     effects = list(effects)
     if effects:
         models = [m.with_effects(*[e for e in effects if e not in m.effect_names])
                   for m in models]
-    return dss, models, experiment_names([ds.source for ds in dss])
+    return dss, models, names
 
 
 def diagnose(
@@ -1080,7 +1073,7 @@ def diagnose(
     """Fit a model, criticise it and find which effect in the library is missing.
 
     1. The noise comes from the spread between trials and the model's MAP from
-       the trial mean (:func:`pmabayes.fit.find_map`).
+       the trial mean (:func:`pmabayes.inference.search.find_map`).
     2. The residual's signature: errors per frequency band against the noise
        floor, whiteness of the residual whitened by the noise model, its
        correlation with the model's states and with the command's rate.
@@ -1106,12 +1099,12 @@ def diagnose(
        be told apart by these data (near twins, such as a regulator lag and a
        well-damped second-order regulator).
     6. Then, with ``discrepancy``, the missing force is estimated from the data
-       (:func:`pmabayes.discrepancy.estimate_discrepancy`): the states it depends
+       (:func:`pmabayes.criticism.discrepancy.estimate_discrepancy`): the states it depends
        on, with their evidence, and a closed form written as a ready user effect
        (a ``.py`` file for ``--plugin``, in ``plugin_dir``).
 
     Several experiments (a sequence of data sets, each with its own input, rig
-    and trials, as :func:`pmabayes.fit.fit` takes them) are diagnosed together:
+    and trials, as :func:`pmabayes.inference.sampler.fit` takes them) are diagnosed together:
     one MAP of the shared physical parameters, each experiment on its own rig
     with its own noise; a signature and an adequacy verdict per experiment (the
     model is adequate only if it is in every one); the score test with the
@@ -1123,7 +1116,7 @@ def diagnose(
     a single periodic record (``period_samples``), whose spread also gives its
     noise floor. A single record without either has no floor; its noise is
     identified with the model (under the guard of
-    :meth:`pmabayes.likelihood.Likelihood.noise_parameters`), and the verdict
+    :meth:`pmabayes.inference.likelihood.Likelihood.noise_parameters`), and the verdict
     says that it is judged by its whitened residual alone.
 
     Parameters
@@ -1133,7 +1126,7 @@ def diagnose(
     model : Model, optional
         The model to diagnose; the base model on each data set's rig by default.
         With several experiments it is put on each one's rig (as
-        :func:`pmabayes.fit.fit` does).
+        :func:`pmabayes.inference.sampler.fit` does).
     effects : iterable of str
         Effects to add to ``model`` first (as ``--effects`` on the command line).
     candidates : iterable of str, optional
@@ -1172,7 +1165,7 @@ def diagnose(
         default; an existing file is never overwritten).
     noise_model : str
         The likelihood's noise model where the noise comes from repeats, as in
-        :func:`pmabayes.fit.fit`: ``"auto"`` (AR(1) + white unless the repeats reject
+        :func:`pmabayes.inference.sampler.fit`: ``"auto"`` (AR(1) + white unless the repeats reject
         it, then their AR(p)), ``"ar1"`` or ``"ar"``. It is what the MAP, the refits,
         their intervals and the ELPD use; the score tests and the discrepancy step
         whiten with AR(1) + white.
@@ -1495,7 +1488,7 @@ def compare_fits(fits, dataset: Dataset | Sequence[Dataset], *, labels=None,
     Parameters
     ----------
     fits : sequence of xarray.DataTree
-        Fits written by :func:`pmabayes.fit.fit` (same data, different models).
+        Fits written by :func:`pmabayes.inference.sampler.fit` (same data, different models).
     dataset : Dataset or sequence of Dataset
         The data they were made from (checked against each fit): one data set, or
         one per experiment in the fits' order.

@@ -43,7 +43,7 @@ the ``R`` trials factorises exactly into two parts:
 An evaluation for the model costs one simulation and one filter pass over ``g``
 (O(n_samples)), whatever the number of trials.
 
-:mod:`pmabayes.fit` learns the noise from the deviations alone, i.e. from the
+:mod:`pmabayes.inference.sampler` learns the noise from the deviations alone, i.e. from the
 spread between repeated trials, and the model given that noise. If the noise were
 fitted to the mean residual too, a model that cannot describe the data would
 have its error explained away as slow noise (``rho -> 1``, ``sigma`` inflated):
@@ -63,7 +63,7 @@ A record without repeated trials (:attr:`Likelihood.noise_source`):
   in one period: it shakes down over tens (at the paper's values by about 0.84 a
   period), and the raw periods' deviations hold that drift too (on the
   calibration's multisines, noise estimates 1.9 to 240,000 times the drawn power
-  at low frequency). :func:`pmabayes.fit.find_map` therefore learns the noise again
+  at low frequency). :func:`pmabayes.inference.search.find_map` therefore learns the noise again
   from the periods of the residual at its MAP (:meth:`Likelihood.refer_periods_to`),
   which removes the model's own change from period to period, while a misfit that
   repeats every period still cancels.
@@ -86,7 +86,7 @@ Real disturbances often have more structure (two time scales, vibration). The
 repeats show it without any model: their Helmert contrasts, whitened by the AR(1) +
 white noise, must be white (a pooled Ljung-Box test at :data:`LEVEL_ADEQUATE`,
 :func:`ar1_whiteness_of_repeats`). Where they are not, :func:`choose_noise_model`
-(``noise_model="auto"``, :func:`pmabayes.fit.fit`'s default) takes an AR(p) of the
+(``noise_model="auto"``, :func:`pmabayes.inference.sampler.fit`'s default) takes an AR(p) of the
 repeats instead (:func:`ar_noise_from_repeats`: Yule-Walker on the contrasts'
 pooled autocovariance, order by AIC up to :data:`MAX_AR_ORDER`), fixed like the
 AR(1) noise from repeats; :meth:`Likelihood.use_ar_noise` makes the trial mean's
@@ -98,7 +98,7 @@ Records without repeats keep AR(1) + white under the guard below.
 Several experiments
 -------------------
 Each experiment (a data set with its own input, rig and trials) has its own
-:class:`Likelihood`; :class:`pmabayes.posterior.Posterior` sums their log
+:class:`Likelihood`; :class:`pmabayes.inference.density.Posterior` sums their log
 likelihoods, each given its experiment's noise. :class:`JointLikelihood` presents
 them as one output for the global search (a cost that weighs every experiment the
 same) and the quality check.
@@ -114,9 +114,9 @@ import numpy as np
 from scipy import signal
 
 from pmabayes.data import Dataset
-from pmabayes.model import Model
-from pmabayes.parameters import LogNormal, Parameter, Uniform
-from pmabayes.simulator import simulate_dataset
+from pmabayes.model.model import Model
+from pmabayes.model.parameters import LogNormal, Parameter, Uniform
+from pmabayes.model.simulator import simulate_dataset
 
 __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
            "LikelihoodError", "ar1_noise", "measurement_noise", "NOISE_MODELS", "LEVEL_ADEQUATE",
@@ -501,7 +501,7 @@ class Likelihood:
         otherwise nothing changes). The model's change from period to period is
         then not counted as noise, while any misfit that repeats every period still
         cancels in the deviations, as for the raw periods: the noise stays what the
-        model cannot explain away. :func:`pmabayes.fit.find_map` calls this at its
+        model cannot explain away. :func:`pmabayes.inference.search.find_map` calls this at its
         first optimum and estimates the noise again.
 
         Parameters
@@ -532,7 +532,7 @@ class Likelihood:
         :meth:`pointwise` are exact AR(p) densities and ignore their ``sigma``,
         ``rho`` and ``white`` (the noise is fixed); :meth:`deviation_log_likelihood`,
         :meth:`whiten` and :meth:`innovations` stay AR(1) + white, which
-        :func:`pmabayes.fit.estimate_noise` and the noise check need.
+        :func:`pmabayes.inference.noise.estimate_noise` and the noise check need.
 
         Parameters
         ----------
@@ -871,7 +871,7 @@ class JointLikelihood:
 NOISE_MODELS: tuple[str, ...] = ("auto", "ar1", "ar")
 
 #: Level of the Ljung-Box tests of whiteness: of an adequate model's whitened residual
-#: (:mod:`pmabayes.residuals`), and of the repeats whitened by AR(1) + white
+#: (:mod:`pmabayes.criticism.residuals`), and of the repeats whitened by AR(1) + white
 #: (:func:`choose_noise_model`).
 LEVEL_ADEQUATE = 0.01
 
@@ -887,7 +887,7 @@ def ljung_box_statistic(e: np.ndarray, *, max_lag: int = LJUNG_BOX_LAGS) -> floa
     """The Ljung-Box statistic ``n (n + 2) sum_k acf_k^2 / (n - k)``, ``k = 1..max_lag``.
 
     Chi-squared with ``max_lag`` degrees of freedom for a white series
-    (:func:`pmabayes.residuals.ljung_box` adds its p-value).
+    (:func:`pmabayes.criticism.residuals.ljung_box` adds its p-value).
 
     Parameters
     ----------
@@ -1281,7 +1281,7 @@ def ar1_whiteness_of_repeats(likelihoods, sigma: float, rho: float, white: float
     likelihoods : Likelihood or sequence of Likelihood
         Experiments sharing the noise (only those with repeats count).
     sigma, rho, white : float
-        The AR(1) + white noise (from the repeats, :func:`pmabayes.fit.estimate_noise`).
+        The AR(1) + white noise (from the repeats, :func:`pmabayes.inference.noise.estimate_noise`).
 
     Returns
     -------

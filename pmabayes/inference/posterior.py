@@ -1,0 +1,121 @@
+"""The posterior to sample, built from a model and experiments: the experiments checked,
+a likelihood per experiment on its own rig, the repeated trials checked, and each noise
+group's estimate and noise model (:mod:`pmabayes.inference.noise`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from pmabayes.data import DataError, Dataset, check_same_input_kind
+from pmabayes.inference.density import Posterior
+from pmabayes.inference.errors import FitError
+from pmabayes.inference.fitfile import experiment_names
+from pmabayes.inference.likelihood import (
+    Likelihood,
+    LikelihoodError,
+    NoiseChoice,
+    check_noise_model_name,
+)
+from pmabayes.inference.noise import group_noise
+from pmabayes.inference.trials import check_trials
+from pmabayes.model.model import Model, ModelError
+
+__all__ = ["experiments", "build_posterior"]
+
+
+def experiments(datasets: Dataset | Sequence[Dataset], model: Model
+                ) -> tuple[list[Dataset], list[Model], list[str]]:
+    """The experiments of a fit or a diagnosis, checked, each with its model and name.
+
+    Parameters
+    ----------
+    datasets : Dataset or sequence of Dataset
+        One data set per experiment, all with the same kind of input.
+    model : Model
+        The model. With one experiment it is used as given; with several, each
+        experiment gets it on the rig its metadata records (:meth:`Model.on_rig`).
+
+    Returns
+    -------
+    datasets : list of Dataset
+    models : list of Model
+    names : list of str
+        The experiments' names (:func:`pmabayes.inference.fitfile.experiment_names`).
+
+    Raises
+    ------
+    FitError
+        With no data set, or experiments of different input kinds.
+    TypeError
+        If an item is not a Dataset.
+    """
+    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
+    if not datasets:
+        raise FitError("no data: give at least one data set")
+    for ds in datasets:
+        if not isinstance(ds, Dataset):
+            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
+                            f"{type(ds).__name__}")
+    try:
+        check_same_input_kind(datasets)
+    except DataError as err:
+        raise FitError(str(err)) from None
+    try:
+        models = [model] if len(datasets) == 1 else [model.on_rig(ds) for ds in datasets]
+    except ModelError as exc:
+        raise FitError(str(exc)) from None
+    return datasets, models, experiment_names([ds.source for ds in datasets])
+
+
+def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, substeps: int = 1,
+                    tie_noise: bool = False, noise_model: str = "auto") -> Posterior:
+    """The posterior to sample.
+
+    Parameters
+    ----------
+    model : Model
+        The model (see :func:`experiments` for several experiments).
+    datasets : Dataset or sequence of Dataset
+        The experiments.
+    substeps : int
+        Simulator substeps per sample.
+    tie_noise : bool
+        One noise group for all experiments instead of one each.
+    noise_model : {"auto", "ar1", "ar"}
+        The noise model each group's repeats choose
+        (:func:`pmabayes.inference.likelihood.choose_noise_model`).
+
+    Returns
+    -------
+    Posterior
+        A likelihood per experiment, each noise group's estimate from its repeats
+        (None where it has none: sampled with the model) and its noise model.
+
+    Raises
+    ------
+    FitError
+        For an unknown noise model, or experiments the model cannot describe.
+    """
+    try:
+        check_noise_model_name(noise_model)
+    except ValueError as err:
+        raise FitError(str(err)) from None
+    datasets, models, names = experiments(datasets, model)
+    try:
+        liks = [Likelihood(m, ds, substeps=substeps)
+                for m, ds in zip(models, datasets, strict=True)]
+    except (LikelihoodError, ModelError) as exc:
+        raise FitError(str(exc)) from None
+    for ds in datasets:  # before their spread is taken for noise
+        check_trials(ds, warn=True)
+    groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
+    noises = []
+    choices: list[NoiseChoice | None] = [None] * len(liks)
+    for g in range(max(groups) + 1):
+        est, choice = group_noise([lik for lik, gg in zip(liks, groups, strict=True)
+                                   if gg == g], noise_model)
+        noises.append(est)
+        for e, gg in enumerate(groups):
+            if gg == g:
+                choices[e] = choice
+    return Posterior(liks, noises, names=names, noise_groups=groups, noise_choices=choices)
