@@ -31,7 +31,7 @@ from pmabayes.data import Dataset, load  # noqa: E402
 from pmabayes.inference.fitfile import load_fit, save_fit
 from pmabayes.inference.likelihood import NOISE_PARAMETERS
 from pmabayes.inference.sampler import FitSettings, fit
-from pmabayes.model.effects import registered_effects  # noqa: E402
+from pmabayes.model.effects import registered_effects
 from pmabayes.model.model import BASE_PARAMETERS, Model  # noqa: E402
 from pmabayes.synthetic import Chirp, generate_chirp_dataset  # noqa: E402
 

@@ -16,12 +16,8 @@ import pytest
 from reference_solver import paper_chirp, reference_simulate
 
 import pmabayes as pb
-from pmabayes.model.effects import (
-    _mckibben_force,
-    _regulator_lag,
-    _regulator_second_order,
-    _stribeck_friction,
-)
+from pmabayes.model.effects.force import _mckibben_force, _stribeck_friction
+from pmabayes.model.effects.pressure import _regulator_lag, _regulator_second_order
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
 DT = 1e-3

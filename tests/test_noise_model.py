@@ -27,7 +27,7 @@ from pmabayes.inference.likelihood import (
     levinson,
 )
 from pmabayes.inference.noise import estimate_noise
-from pmabayes.inference.posterior import _posterior
+from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.sampler import FitSettings, fit
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
@@ -153,7 +153,7 @@ def test_the_ar1_path_is_bit_identical_when_the_repeats_accept_it(which):
 
     ds = (generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP) if which == "generated"
           else load(Path(__file__).resolve().parents[1] / "data" / "pma_chirp_lab.csv"))
-    auto = _posterior(pb.Model(), ds, 1, noise_model="auto")
+    auto = build_posterior(pb.Model(), ds, noise_model="auto")
     assert auto.likelihoods[0].ar_noise is None
     assert auto.noise_choices[0].name == "AR(1) + white"
     # the posterior as it was built before noise models: AR(1) + white from the repeats
@@ -164,17 +164,17 @@ def test_the_ar1_path_is_bit_identical_when_the_repeats_accept_it(which):
     z = before.to_unconstrained(np.repeat(theta, 16, axis=0))
     z = z + 0.02 * rng.standard_normal(z.shape)
     np.testing.assert_array_equal(auto.log_prob_z(z), before.log_prob_z(z))
-    forced = _posterior(pb.Model(), ds, 1, noise_model="ar1")
+    forced = build_posterior(pb.Model(), ds, noise_model="ar1")
     np.testing.assert_array_equal(forced.log_prob_z(z), before.log_prob_z(z))
     # with the AR(p) the density is another one
-    ar = _posterior(pb.Model(), ds, 1, noise_model="ar")
+    ar = build_posterior(pb.Model(), ds, noise_model="ar")
     assert ar.likelihoods[0].ar_noise is not None
     assert not np.array_equal(ar.log_prob_z(z), before.log_prob_z(z))
 
 
 def test_a_record_without_repeats_keeps_the_guarded_ar1():
     ds = generate_chirp_dataset(n_trials=1, seed=2, chirp=CHIRP, noise=TWO_SCALE)
-    post = _posterior(pb.Model(), ds, 1, noise_model="ar")
+    post = build_posterior(pb.Model(), ds, noise_model="ar")
     assert post.likelihoods[0].ar_noise is None and post.noise_sampled(0)
     assert "no repeats" in post.noise_choices[0].describe()
 
@@ -249,7 +249,7 @@ def test_the_fit_file_records_the_noise_model_and_predicts_with_it(tmp_path):
     from pmabayes.criticism.validation import validate
 
     ds = generate_chirp_dataset(n_trials=4, seed=21, chirp=CHIRP, noise=TWO_SCALE)
-    post = _posterior(pb.Model(), ds, 1)
+    post = build_posterior(pb.Model(), ds)
     ar = post.likelihoods[0].ar_noise
     assert ar is not None
     tree = _tree_from_draws(post)
@@ -275,7 +275,7 @@ def test_the_fit_file_records_the_noise_model_and_predicts_with_it(tmp_path):
 
 def test_a_fit_with_ar1_noise_records_it_and_predicts_as_before():
     ds = generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP)
-    post = _posterior(pb.Model(), ds, 1)
+    post = build_posterior(pb.Model(), ds)
     tree = _tree_from_draws(post)
     rec = fit_info(tree)["experiments"][0]["noise_model"]
     assert rec["model"] == "AR(1) + white" and rec["order"] == 1 and rec["ljung_box_p"] >= 0.01
