@@ -411,7 +411,7 @@ def test_builtin_hooks_give_history_lead_and_delay():
 
 
 def test_delay_effect_is_registered_and_takes_delay():
-    eff = pb.effects.delay_effect()
+    eff = pb.model.effects.delay_effect()
     assert pb.get_effect(eff.name) is eff and eff.stage == "pressure"
     q = np.array([[eff.null_values()[n] for n in eff.parameter_names()]])
     assert eff.add_delay(q, 0.02) is not None

@@ -170,9 +170,9 @@ def test_resumed_fit_of_a_record_from_rest_keeps_the_noise_of_its_chains(tmp_pat
                                              disturbance_corr_time_s=0.05))
     tiny = FitSettings(n_walkers=16, n_ensembles=2, max_steps=40, check_every=20,
                        min_ess=10)
-    with pytest.warns(pb.fit.ConvergenceWarning):
+    with pytest.warns(pb.inference.ConvergenceWarning):
         first = fit(ds, pb.Model(), seed=3, settings=tiny, chains_dir=tmp_path / "c")
-    with pytest.warns(pb.fit.ConvergenceWarning):
+    with pytest.warns(pb.inference.ConvergenceWarning):
         again = fit(ds, pb.Model(), seed=3, settings=tiny, chains_dir=tmp_path / "c")
     one, two = fit_info(first), fit_info(again)
     assert two["convergence"]["resumed"] and not one["convergence"]["resumed"]

@@ -425,7 +425,7 @@ def test_an_ensemble_already_ahead_is_left_as_it_is(tmp_path, monkeypatch):
 def test_global_search_stops_when_its_population_agrees(small_data, monkeypatch):
     """The search ends well before its generation budget once its population is in one
     basin, and the polish from there finds the MAP a search run to the end finds."""
-    from pmabayes.inference import sampler as fit_module
+    from pmabayes.inference import search as search_module
     lik = Likelihood(pb.Model(), small_data)
     post = Posterior(lik, estimate_noise(lik))
     simulated = []
@@ -435,7 +435,7 @@ def test_global_search_stops_when_its_population_agrees(small_data, monkeypatch)
     stopped = find_map(post, rng=np.random.default_rng(0))
     n_stopped = sum(simulated)
     simulated.clear()
-    monkeypatch.setattr(fit_module, "_DE_TOL", 1e-12)  # never: every generation runs
+    monkeypatch.setattr(search_module, "_DE_TOL", 1e-12)  # never: every generation runs
     full = find_map(post, rng=np.random.default_rng(0))
     assert n_stopped < 0.85 * sum(simulated), (n_stopped, sum(simulated))
     assert stopped.log_posterior == pytest.approx(full.log_posterior, abs=0.01)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from pmabayes.data import DataError, Dataset, check_same_input_kind
+from pmabayes.data import Dataset, check_same_input_kind
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.fitfile import experiment_names
@@ -44,26 +44,24 @@ def experiments(datasets: Dataset | Sequence[Dataset], model: Model
 
     Raises
     ------
-    FitError
-        With no data set, or experiments of different input kinds.
+    ValueError
+        With no data set.
     TypeError
         If an item is not a Dataset.
+    DataError
+        With experiments of different input kinds.
+    ModelError
+        If a data set records a rig that is not valid.
     """
     datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
     if not datasets:
-        raise FitError("no data: give at least one data set")
+        raise ValueError("no data: give at least one data set")
     for ds in datasets:
         if not isinstance(ds, Dataset):
             raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
                             f"{type(ds).__name__}")
-    try:
-        check_same_input_kind(datasets)
-    except DataError as err:
-        raise FitError(str(err)) from None
-    try:
-        models = [model] if len(datasets) == 1 else [model.on_rig(ds) for ds in datasets]
-    except ModelError as exc:
-        raise FitError(str(exc)) from None
+    check_same_input_kind(datasets)
+    models = [model] if len(datasets) == 1 else [model.on_rig(ds) for ds in datasets]
     return datasets, models, experiment_names([ds.source for ds in datasets])
 
 
@@ -98,13 +96,10 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, subs
     """
     try:
         check_noise_model_name(noise_model)
-    except ValueError as err:
-        raise FitError(str(err)) from None
-    datasets, models, names = experiments(datasets, model)
-    try:
+        datasets, models, names = experiments(datasets, model)
         liks = [Likelihood(m, ds, substeps=substeps)
                 for m, ds in zip(models, datasets, strict=True)]
-    except (LikelihoodError, ModelError) as exc:
+    except (ValueError, LikelihoodError, ModelError) as exc:  # DataError is a ValueError
         raise FitError(str(exc)) from None
     for ds in datasets:  # before their spread is taken for noise
         check_trials(ds, warn=True)

@@ -821,7 +821,7 @@ def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
                               datasets: list[Dataset] | None, ci_prob: float) -> Path:
     """:func:`write_report` for a fit of several experiments: shared parameters, then a
     section per experiment."""
-    from pmabayes.report.pages import figures as plots
+    from pmabayes.report import figures as plots
     datasets = _check_experiment_data(tree, datasets)
     out_dir.mkdir(parents=True, exist_ok=True)
     flat = _flat(tree)
@@ -898,7 +898,7 @@ def _noise_floor(info: dict, dataset: Dataset | None) -> float | None:
 def _report_figures(tree: xr.DataTree, rows: list, pred: Mapping, residual_m: np.ndarray,
                     quality: Mapping, out_dir: Path, ci_prob: float) -> dict[str, str]:
     """Draw the five figures of a fit report; returns each one's caption."""
-    from pmabayes.report.pages import figures as plots
+    from pmabayes.report import figures as plots
     trace_note = plots.plot_trace(tree, out_dir / "trace.png",
                                   units={r["name"]: r["unit"] for r in rows})
     rank_thin, rank_note = plots.plot_rank(tree, out_dir / "rank.png")
@@ -1116,7 +1116,7 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
     Path
         The path of ``index.html`` (self-contained: figures embedded).
     """
-    from pmabayes.report.pages import figures as plots
+    from pmabayes.report import figures as plots
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     d = diagnosis
@@ -1236,7 +1236,7 @@ def _diagnosis_experiment_section(e, several: bool) -> list[str]:
 def _experiment_figures(e, label: str, out_dir: Path, suffix: str = "") -> dict[str, str]:
     """Draw an experiment's four figures of a diagnosis (``NAME{suffix}.png``); returns each
     one's caption."""
-    from pmabayes.report.pages import figures as plots
+    from pmabayes.report import figures as plots
     ds = e.dataset
     figs = {
         "comparison": (plots.plot_comparison(ds, e.simulation.position_m[0],
@@ -1369,7 +1369,7 @@ def _comparison_rows(c, *, with_elpd: bool) -> tuple[list[str], list[list[Any]]]
 
 def _comparison_figures(c, out_dir: Path, suffix: str, name: str) -> list[str]:
     """Draw the error-falling and whiteness figures of one data set; their ``<img>``s."""
-    from pmabayes.report.pages import figures as plots
+    from pmabayes.report import figures as plots
     plots.plot_band_errors(c.bands, title="the error falls as effects are added "
                                           "(label: multiple of the noise floor)"
                            + (f": {name}" if name else "")
@@ -1406,7 +1406,7 @@ def write_validation(validation, out_dir: str | Path) -> Path:
     Path
         The path of ``index.html`` (self-contained: figures embedded, no script).
     """
-    from pmabayes.report.pages import figures as plots
+    from pmabayes.report import figures as plots
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     v = validation
