@@ -28,10 +28,10 @@ if str(ROOT) not in sys.path:  # run from a checkout without installing the pack
 import xarray as xr  # noqa: E402
 
 from pmabayes.data import Dataset, load  # noqa: E402
-from pmabayes.inference.fitfile import load_fit, save_fit
-from pmabayes.inference.likelihood import NOISE_PARAMETERS
-from pmabayes.inference.sampler import FitSettings, fit
-from pmabayes.model.effects import registered_effects
+from pmabayes.inference.fitfile import load_fit, save_fit  # noqa: E402
+from pmabayes.inference.likelihood import NOISE_PARAMETERS  # noqa: E402
+from pmabayes.inference.sampler import FitSettings, fit  # noqa: E402
+from pmabayes.model.effects import registered_effects  # noqa: E402
 from pmabayes.model.model import BASE_PARAMETERS, Model  # noqa: E402
 from pmabayes.synthetic import Chirp, generate_chirp_dataset  # noqa: E402
 

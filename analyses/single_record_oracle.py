@@ -47,7 +47,7 @@ from calibration import (  # noqa: E402
 )
 
 from pmabayes import Model  # noqa: E402
-from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.likelihood import Likelihood  # noqa: E402
 from pmabayes.synthetic import MeasurementNoise, generate_chirp_dataset  # noqa: E402
 
 #: the parameters sampled in log coordinates (:mod:`pmabayes.inference.posterior`)
