@@ -162,8 +162,8 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                                     chirp=job["chirp"], params=truth,
                                     noise=NOISES[job.get("noise", "default")])
     start = time.perf_counter()
-    tree = fit(ds, Model(), seed=data_seed, settings=job["settings"],
-               noise_model=job.get("noise_model", "auto"))
+    tree = fit(ds, Model(), seed=data_seed,
+               settings=replace(job["settings"], noise_model=job.get("noise_model", "auto")))
     info = fit_info(tree)
     hdi = az.hdi(tree, prob=0.9)
     rows = []

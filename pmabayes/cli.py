@@ -276,7 +276,9 @@ def _cmd_predict(args: argparse.Namespace) -> int:
 
 def _fit_settings(args: argparse.Namespace) -> FitSettings:
     return FitSettings(n_walkers=args.walkers, n_ensembles=args.ensembles,
-                       max_steps=args.steps, progress=not args.quiet)
+                       max_steps=args.steps, progress=not args.quiet, substeps=args.substeps,
+                       tie_noise=getattr(args, "tie_noise", False),
+                       noise_model=getattr(args, "noise_model", "auto"))
 
 
 def _floor_text(floor_m) -> str:
@@ -288,9 +290,7 @@ def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out
     with warnings.catch_warnings():  # the banner below says it once
         warnings.simplefilter("ignore", ConvergenceWarning)
         tree = fit(datasets if len(datasets) > 1 else datasets[0], model, seed=args.seed,
-                   settings=_fit_settings(args), chains_dir=chains, restart=args.restart,
-                   tie_noise=args.tie_noise, substeps=args.substeps,
-                   noise_model=args.noise_model)
+                   settings=_fit_settings(args), chains_dir=chains, restart=args.restart)
     save_fit(tree, out)
     info = fit_info(tree)
     conv = info["convergence"]
@@ -748,7 +748,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
                            out_dir=out,
                            settings=_fit_settings(args), seed=args.seed,
                            processes=args.processes, dask=args.dask, restart=args.restart,
-                           progress=not args.quiet, substeps=args.substeps)
+                           progress=not args.quiet)
     except BatchError as err:
         raise CliError(str(err)) from None
     summary = result.summary()

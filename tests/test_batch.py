@@ -87,7 +87,7 @@ def test_the_fingerprint_changes_with_what_changes_a_fit():
                                5, TINY),
         batch._fit_fingerprint(ds, Model(), 6, TINY),
         batch._fit_fingerprint(ds, Model(), 5, replace(TINY, max_steps=60)),
-        batch._fit_fingerprint(ds, Model(), 5, TINY, substeps=2),
+        batch._fit_fingerprint(ds, Model(), 5, replace(TINY, substeps=2)),
     ]
     assert key not in changed and len(set(changed)) == len(changed)
 
@@ -132,7 +132,7 @@ def test_unreadable_data_sets_are_reported_each_with_its_file(tmp_path):
     json.dumps(res.summary())  # JSON-able as it is
 
 
-def _fake_fit(dataset, model, *, seed, settings, substeps):
+def _fake_fit(dataset, model, *, seed, settings):
     """Stands in for the sampler (forked workers inherit it): a bug, or bad data."""
     if dataset.metadata.get("kind") == "bug":
         raise ZeroDivisionError("a bug")
@@ -224,7 +224,7 @@ def batch_run():
 
 
 @pytest.mark.slow
-@pytest.mark.filterwarnings("ignore::pmabayes.inference.errors.ConvergenceWarning")  # tiny runs, on purpose
+@pytest.mark.filterwarnings("ignore::pmabayes.inference.ConvergenceWarning")  # tiny, on purpose
 def test_batch_on_two_processes_gives_the_fits_made_alone(batch_run):
     res = batch_run["result"]
     assert res.runner == "2 local processes"

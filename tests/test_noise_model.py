@@ -184,7 +184,7 @@ def test_a_record_without_repeats_keeps_the_guarded_ar1():
 def test_an_unknown_noise_model_is_a_clear_error():
     ds = generate_chirp_dataset(n_trials=3, seed=11, chirp=CHIRP)
     with pytest.raises(FitError, match="noise_model must be one of 'auto', 'ar1', 'ar'"):
-        fit(ds, noise_model="arma")
+        fit(ds, settings=FitSettings(noise_model="arma"))
     with pytest.raises(ValueError, match="got 'AR1'"):
         check_noise_model_name("AR1")
     with pytest.raises(ValueError, match="positive variance at lag 0"):

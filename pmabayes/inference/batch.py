@@ -280,8 +280,7 @@ def _as_job(item, effects: tuple[str, ...], priors: Mapping[str, Prior] | None) 
                     f"{type(item).__name__}")
 
 
-def _fit_fingerprint(dataset: Dataset, model: Model, seed: int, settings: FitSettings,
-                     substeps: int = 1) -> str:
+def _fit_fingerprint(dataset: Dataset, model: Model, seed: int, settings: FitSettings) -> str:
     """What makes a fit file this data set's fit: the data, the model, the seed, the
     sampler settings that change the numbers, and the code's version."""
     sampling = {f.name: getattr(settings, f.name) for f in fields(settings)
@@ -291,7 +290,7 @@ def _fit_fingerprint(dataset: Dataset, model: Model, seed: int, settings: FitSet
         {"input_name": dataset.input_name, "metadata": dataset.metadata,
          "model": model.describe(), "rig": model.rig.to_dict(),
          "effects": list(model.effect_names), "fixed": dict(model.fixed), "seed": seed,
-         "settings": sampling, "substeps": substeps, "pmabayes_version": __version__},
+         "settings": sampling, "pmabayes_version": __version__},
     )
 
 
@@ -339,7 +338,7 @@ def _fit_one(task: dict) -> dict:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             tree = fit(task["dataset"], task["model"], seed=task["seed"],
-                       settings=task["settings"], substeps=task["substeps"])
+                       settings=task["settings"])
         # a convergence warning is in the record already (converged, messages)
         notes = sorted({str(w.message) for w in caught
                         if type(w.message).__name__ != "ConvergenceWarning"})
@@ -362,7 +361,6 @@ def fit_batch(
     runner: Runner | None = None,
     restart: bool = False,
     progress: bool = True,
-    substeps: int = 1,
 ) -> BatchResult:
     """Fit independent data sets in parallel, each to ``out_dir/<name>.nc``.
 
@@ -374,7 +372,7 @@ def fit_batch(
     out_dir : str or Path
         Folder of the fit files; created if missing.
     settings : FitSettings, optional
-        Sampler settings of every fit. Its ``progress`` is ignored (the batch
+        Settings of every fit (sampler, substeps, noise model). Its ``progress`` is ignored (the batch
         draws one bar); its ``processes`` is used only when the batch runs in this
         process, otherwise each fit samples its ensembles one after another.
     seed : int
@@ -396,9 +394,6 @@ def fit_batch(
     progress : bool
         One progress line on stderr: data sets done of those to fit, elapsed
         time and an estimate of the time left.
-    substeps : int
-        Simulator substeps per sample (as :func:`pmabayes.inference.sampler.fit` takes them).
-
     Returns
     -------
     BatchResult
@@ -433,8 +428,7 @@ def fit_batch(
                          "a folder (it is created if missing)")
     names = _unique_names(jobs)
     say = Progress("batch", progress)
-    records, tasks = _prepare(jobs, names, out_dir, settings, seed, restart, say,
-                              int(substeps))
+    records, tasks = _prepare(jobs, names, out_dir, settings, seed, restart, say)
     description = "nothing to fit"
     if tasks:
         with contextlib.ExitStack() as stack:
@@ -472,8 +466,7 @@ def _unique_names(jobs: list[BatchJob]) -> list[str]:
 
 
 def _prepare(jobs: list[BatchJob], names: list[str], out_dir: Path, settings: FitSettings,
-             seed: int, restart: bool, say: Progress, substeps: int
-             ) -> tuple[dict, list[dict]]:
+             seed: int, restart: bool, say: Progress) -> tuple[dict, list[dict]]:
     """Read every data set here: the records of those that fail or are up to date, and
     the tasks of the others."""
     records, tasks = {}, []
@@ -491,7 +484,7 @@ def _prepare(jobs: list[BatchJob], names: list[str], out_dir: Path, settings: Fi
         except (*_DATA_ERRORS, OSError) as exc:
             rec.update(_failure(exc), fit_file=None)
             continue
-        key = _fit_fingerprint(dataset, model, s, settings, substeps)
+        key = _fit_fingerprint(dataset, model, s, settings)
         stamp = _read_stamp(path) if path.exists() else None
         if stamp is not None and stamp[0].get("fingerprint") == key and not restart:
             rec.update(status="skipped", **_outcome(stamp[1]))
@@ -502,8 +495,7 @@ def _prepare(jobs: list[BatchJob], names: list[str], out_dir: Path, settings: Fi
             say.say(f"{name}: {path} holds another fit (or none readable); fitting again, "
                     "it will be replaced" if not restart else f"{name}: fitting again")
         rec["fingerprint"] = key
-        tasks.append({"name": name, "dataset": dataset, "model": model, "seed": s,
-                      "substeps": substeps})
+        tasks.append({"name": name, "dataset": dataset, "model": model, "seed": s})
     return records, tasks
 
 

@@ -34,6 +34,7 @@ from pmabayes.data import Dataset
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import ConvergenceWarning, FitError
 from pmabayes.inference.fitfile import fit_tree, set_fit_info
+from pmabayes.inference.likelihood import check_noise_model_name
 from pmabayes.inference.noise import refer_periods
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import MapResult, find_map
@@ -93,6 +94,25 @@ class FitSettings:
         ``"stretch"`` (emcee's default).
     progress : bool
         Print progress to stderr.
+    substeps : int
+        Simulator substeps per sample interval (more for a lightly damped
+        oscillator near the sample rate).
+    tie_noise : bool
+        One noise for all experiments (same sensor, same disturbance) instead of
+        one per experiment.
+    noise_model : {"auto", "ar1", "ar"}
+        The noise model of the trial mean's likelihood where the noise comes from
+        repeats (:func:`pmabayes.inference.likelihood.choose_noise_model`): ``"auto"``
+        keeps AR(1) + white unless the repeats' deviations reject it (then their
+        AR(p) model), ``"ar1"`` always keeps it, ``"ar"`` always uses the AR(p).
+        Records without repeats keep the sampled AR(1) + white under its guard. The
+        fit file records each experiment's (``experiments[i]["noise_model"]``).
+
+    Raises
+    ------
+    FitError
+        For a setting out of its range (the walkers' number is checked against the
+        model's parameters by :func:`fit`).
     """
 
     n_walkers: int = 24
@@ -107,6 +127,25 @@ class FitSettings:
     ppc_draws: int = 40
     moves: str = "de"
     progress: bool = False
+    substeps: int = 1
+    tie_noise: bool = False
+    noise_model: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 20:
+            raise FitError(f"max_steps must be at least 20 (the autocorrelation time needs a "
+                           f"chain), got {self.max_steps}")
+        if self.n_ensembles < 1:
+            raise FitError(f"n_ensembles must be at least 1 (2 or more for R-hat across "
+                           f"ensembles), got {self.n_ensembles}")
+        if self.substeps < 1:
+            raise FitError(f"substeps must be at least 1, got {self.substeps}")
+        if self.moves not in ("de", "stretch"):
+            raise FitError(f"unknown moves {self.moves!r}; use 'de' or 'stretch'")
+        try:
+            check_noise_model_name(self.noise_model)
+        except ValueError as err:
+            raise FitError(str(err)) from None
 
 
 _WORKER_POSTERIOR: Posterior | None = None
@@ -440,15 +479,12 @@ def fit(
     settings: FitSettings | None = None,
     chains_dir: str | Path | None = None,
     restart: bool = False,
-    substeps: int = 1,
-    tie_noise: bool = False,
-    noise_model: str = "auto",
 ) -> xr.DataTree:
     """Identify a model's parameters from one or more experiments: MAP, then posterior.
 
     Each data set is an experiment: its own input, length, rig (its metadata's
     ``rig``) and trials (one or more). The physical parameters are shared; the
-    noise belongs to each experiment unless ``tie_noise``. An experiment's noise is
+    noise belongs to each experiment unless ``settings.tie_noise``. An experiment's noise is
     learnt from its repeats (trials, or the periods of a single periodic record);
     a record without repeats has it identified jointly with the model under a guard
     (see :mod:`pmabayes.inference.likelihood`).
@@ -466,7 +502,7 @@ def fit(
         Seed of everything random (global search, walkers, emcee, predictive
         noise). The same seed gives the same numbers, to the bit.
     settings : FitSettings, optional
-        Sampler settings.
+        Sampler, simulator and noise-model settings.
     chains_dir : str or Path, optional
         Where the ensembles' HDF5 chains live. A run pointed at the chains of an
         interrupted run with the same data, model, seed and settings resumes them;
@@ -474,18 +510,6 @@ def fit(
         and a failure before any chain is written removes it again.
     restart : bool
         Discard existing chains in ``chains_dir`` instead of resuming.
-    substeps : int
-        Simulator substeps per sample.
-    tie_noise : bool
-        One noise for all experiments (same sensor, same disturbance) instead of
-        one per experiment.
-    noise_model : {"auto", "ar1", "ar"}
-        The noise model of the trial mean's likelihood where the noise comes from
-        repeats (:func:`pmabayes.inference.likelihood.choose_noise_model`): ``"auto"`` keeps
-        AR(1) + white unless the repeats' deviations reject it (then their AR(p)
-        model), ``"ar1"`` always keeps it, ``"ar"`` always uses the AR(p). Records
-        without repeats keep the sampled AR(1) + white under its guard. The fit
-        file records each experiment's (``experiments[i]["noise_model"]``).
 
     Returns
     -------
@@ -506,8 +530,8 @@ def fit(
     start = time.perf_counter()
     settings = FitSettings() if settings is None else settings
     model = Model() if model is None else model
-    posterior = build_posterior(model, datasets, substeps=substeps, tie_noise=tie_noise,
-                                noise_model=noise_model)
+    posterior = build_posterior(model, datasets, substeps=settings.substeps,
+                                tie_noise=settings.tie_noise, noise_model=settings.noise_model)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
@@ -550,15 +574,10 @@ def fit(
 
 
 def _check_settings(settings: FitSettings, posterior: Posterior) -> None:
-    if settings.max_steps < 20:
-        raise FitError(f"max_steps must be at least 20 (the autocorrelation time needs a "
-                       f"chain), got {settings.max_steps}")
+    """What the settings cannot check alone: enough walkers for the parameters."""
     if settings.n_walkers < 2 * posterior.ndim:
         raise FitError(f"n_walkers must be at least {2 * posterior.ndim} (twice the "
                        f"{posterior.ndim} parameters), got {settings.n_walkers}")
-    if settings.n_ensembles < 1:
-        raise FitError(f"n_ensembles must be at least 1 (2 or more for R-hat across "
-                       f"ensembles), got {settings.n_ensembles}")
 
 
 def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSequence,
