@@ -38,7 +38,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "paper"))  # the paper's steps
 import _paper  # noqa: E402  (puts the checkout on the path)
 
 STEPS = ("fig2", "posterior", "criticism", "discrepancy", "robustness", "figure5", "detection",

@@ -7,7 +7,7 @@ binomial intervals, and writes the LaTeX table and the numbers the text needs.
 
 Usage::
 
-    python analyses/paper_detection.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_detection.py [--out-root paper] [--quick] [--seed 1]
                                        [--null N] [--seeds N] [--sizes K] [--max-refits R]
 
 Full mode uses ``detection.py``'s sizes unless given (20 null data sets, 5 per size,

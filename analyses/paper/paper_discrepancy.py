@@ -26,7 +26,7 @@ Markdown table of ``analyses/detection.py --discrepancy`` is copied to
 
 Usage::
 
-    python analyses/paper_discrepancy.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_discrepancy.py [--out-root paper] [--quick] [--seed 1]
                                          [--data-seed 3] [--detection-table PATH]
 
 Writes ``figures/discrepancy_example.png``: (a) the flexible force's partial

@@ -10,7 +10,7 @@ and draws the RMS error and phase lag bands with P(CT beats PID)
 
 Usage::
 
-    python analyses/paper_robustness.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_robustness.py [--out-root paper] [--quick] [--seed 1]
                                         [--samples S]
 
 Full mode: 500 samples at the 8 default frequencies (0.25-3 Hz); quick mode: 16

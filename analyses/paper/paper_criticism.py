@@ -12,7 +12,7 @@ script stops when a diagnosis names nothing.
 
 Usage::
 
-    python analyses/paper_criticism.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_criticism.py [--out-root paper] [--quick] [--seed 1]
 
 Writes ``figures/criticism_bands.png`` (error per band for every step),
 ``figures/criticism_signature_<k>.png`` (the residual signature of step ``k`` that

@@ -7,7 +7,7 @@ needs.
 
 Usage::
 
-    python analyses/paper_calibration.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_calibration.py [--out-root paper] [--quick] [--seed 1]
                                          [--datasets N] [--fits-from CSV]
                                          [--single-record-from CSV]
                                          [--single-periodic-from CSV]

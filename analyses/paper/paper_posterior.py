@@ -8,7 +8,7 @@ with the MAP and the paper's values marked.
 
 Usage::
 
-    python analyses/paper_posterior.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_posterior.py [--out-root paper] [--quick] [--seed 1]
 
 Writes ``tables/posterior.tex``, ``figures/corner.png`` and
 ``tables/numbers_posterior.tex``; prints the figure's path last.

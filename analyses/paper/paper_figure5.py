@@ -9,7 +9,7 @@ and full mode are the same size.
 
 Usage::
 
-    python analyses/paper_figure5.py [--out-root paper] [--quick]
+    python analyses/paper/paper_figure5.py [--out-root paper] [--quick]
 
 Writes ``figures/fig5_nominal.png``, ``figures/fig5_lab.png``, ``tables/fig5.tex``
 and ``tables/numbers_figure5.tex``; prints the last figure's path last.

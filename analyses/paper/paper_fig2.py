@@ -7,7 +7,7 @@ and the residual of the trial mean against the noise floor.
 
 Usage::
 
-    python analyses/paper_fig2.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_fig2.py [--out-root paper] [--quick] [--seed 1]
 
 Writes ``figures/fig2_predictive.png`` and ``tables/numbers_fig2.tex``; prints the
 figure's path last.

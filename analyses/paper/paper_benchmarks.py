@@ -11,7 +11,7 @@ are reported as unavailable.
 
 Usage::
 
-    python analyses/paper_benchmarks.py [--out-root paper] [--quick] [--seed 1]
+    python analyses/paper/paper_benchmarks.py [--out-root paper] [--quick] [--seed 1]
 
 Writes ``figures/bench_simulator.png``, ``tables/bench.tex`` and
 ``tables/numbers_benchmarks.tex``; prints the figure's path last.
