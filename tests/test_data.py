@@ -500,7 +500,7 @@ def test_non_uniform_sampling(tmp_path: Path) -> None:
 def test_a_missing_sample_is_not_observed(tmp_path: Path) -> None:
     lines = [f"1,{k * 0.01!r},{1000 + k},0.001" for k in (0, 1, 2, 4, 5, 6)]
     path = write(tmp_path, rows(*lines))
-    with pytest.warns(DataWarning, match=at(path, r": 1 gap in the clock, 1 samples not "
+    with pytest.warns(DataWarning, match=at(path, r": 1 gap in the clock, 1 sample not "
                                                   r"observed .*after line 4")):
         ds = read_csv(path)
     assert ds.n_samples == 7 and ds.n_missing == 1

@@ -354,7 +354,7 @@ def test_single_precision_clock_is_a_uniform_grid(tmp_path: Path) -> None:
     gap = np.delete(np.arange(n + 1) / 750.0, 4000).astype(np.float32)  # one lost sample
     lost = v5(tmp_path / "gap.mat", {"t": gap, "p": np.full(n, 1e5), "x": np.zeros(n)},
               pressure_reference="gauge")
-    with pytest.warns(DataWarning, match=at(lost, r".*: 1 gap in the clock, 1 samples not "
+    with pytest.warns(DataWarning, match=at(lost, r".*: 1 gap in the clock, 1 sample not "
                                                   r"observed .*after sample 4000")):
         ds = load(lost, time_s="t", pressure_pa="p", position_m="x")
     assert ds.n_samples == n + 1 and np.flatnonzero(~ds.observed[0]).tolist() == [4000]

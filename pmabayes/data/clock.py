@@ -267,8 +267,11 @@ def _clock_segments(
         rows = np.concatenate([np.arange(s, e) for s, e in parts])
         first = float(time[parts[0][0]])
         clean = float(np.abs(r).max()) <= _REL_TOL * step
+        own = np.array(time[parts[0][0]:parts[0][1]], dtype=float)
         if clean and gaps:
-            grid = np.linspace(first, float(time[parts[0][1] - 1]), n)
+            grid = np.linspace(first, float(own[-1]), n)
+        elif clean and _first_nonuniform(own) is None:  # exact: kept, as the strict path does
+            grid = own
         else:
             grid = first + c + np.arange(n) * step
         shift = None
@@ -294,12 +297,13 @@ def _clock_note(segments: list[_Segment], worst: tuple, fixed_rate: bool,
     if gaps:
         missing = sum(g.n_missing for g in gaps)
         total = sum(seg.n_samples * (int(seg.block.max()) + 1) for seg in segments)
-        who = (lambda g: f"{label(g.block)}, ") if multi else (lambda g: "")
+        # the trial's name alone ("trial 2"), without the file's that label starts with
+        who = (lambda g: f"{label(g.block).rsplit(': ', 1)[-1]}, ") if multi else (lambda g: "")
         g0 = gaps[0]
-        text = (f"{len(gaps)} gap{'s' if len(gaps) > 1 else ''} in the clock, {missing} "
-                f"samples not observed ({100 * missing / total:.3g}% of the grid): "
+        text = (f"{len(gaps)} gap{'s' if len(gaps) > 1 else ''} in the clock, "
+                f"{_samples(missing)} not observed ({100 * missing / total:.3g}% of the grid): "
                 f"{who(g0)}{_dur(g0.duration_s)} after {locate(g0.after)} "
-                f"({g0.n_missing} samples missing)")
+                f"({_samples(g0.n_missing)} missing)")
         rest = gaps[1:]
         if rest:
             lo = min(g.duration_s for g in rest)
@@ -323,7 +327,7 @@ def _clock_note(segments: list[_Segment], worst: tuple, fixed_rate: bool,
         out.append(f"The gaps longer than max_gap_s = {max_gap_s:g} s split the record into "
                    f"{len(segments)} segments, each on its own grid: {parts}"
                    f"{', ...' if len(segments) > 6 else ''}.")
-    if worst[0] > 0:
+    if worst[0] > _REL_TOL:  # beyond the floating point of a clean clock
         source = "the sidecar's sample_rate_hz" if fixed_rate else "a straight-line fit"
         out.append(f"The times deviate from the uniform grid by up to {_dur(worst[2])} "
                    f"({worst[0]:.2g} steps, {locate(worst[1])}), within the "
@@ -335,6 +339,11 @@ def _clock_note(segments: list[_Segment], worst: tuple, fixed_rate: bool,
                    "its step in double precision: time_s counts from there (metadata "
                    "'time_origin_s').")
     return " ".join(out)
+
+
+def _samples(n: int) -> str:
+    """``"1 sample"``, ``"2 samples"``."""
+    return f"{n} sample{'' if n == 1 else 's'}"
 
 
 def _dur(seconds: float) -> str:

@@ -709,8 +709,8 @@ def _mat_datasets(path: str | os.PathLike[str], given: dict[str, Any], mat_trial
     _check_finite(x, x_labels, "position_m", where_v)
 
     u, x = to_si(u, names_as[input_name]), to_si(x, names_as["position_m"])
-    converted({r: names_as[r] for r in (input_name, "position_m", *(
-        ["time_s"] if time is not None else []))}, where_v)
+    metadata = converted({r: names_as[r] for r in (input_name, "position_m", *(
+        ["time_s"] if time is not None else []))}, where_v, metadata, declare)
     n_samples = x.shape[1]
     if time is None:
         rate = metadata.get("sample_rate_hz")

@@ -119,7 +119,7 @@ def _check_clock_unit(ds: Dataset, where: str, declare: str, column: str) -> Non
     given = (f"{where}: {column} gives a sample rate of {fs:.4g} Hz and an input that "
              f"cycles at about {f_in:.2g} Hz over {duration:.4g} s; a pneumatic muscle on a "
              f"rig responds from about {_MUSCLE_HZ[0]:g} to {_MUSCLE_HZ[1]:g} Hz and is "
-             f"logged at {_RATE_HZ[0]:g} Hz to {_RATE_HZ[1]:g} Hz, ")
+             f"logged at {_RATE_HZ[0]:g} Hz to {_RATE_HZ[1] / 1e3:g} kHz, ")
     rate = (f'or give the sample rate, "sample_rate_hz", in {declare} if the times really '
             f"are in {column.split('_')[1]}. ")
     if not fits:

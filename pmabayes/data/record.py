@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pmabayes.data.clock import _clock_segments, _dur, _rounded_grid, _Segment, _trial_blocks
+from pmabayes.data.clock import (
+    _clock_segments,
+    _dur,
+    _rounded_grid,
+    _samples,
+    _Segment,
+    _trial_blocks,
+)
 from pmabayes.data.dataset import (
     _REL_TOL,
     DataError,
@@ -156,7 +163,7 @@ def _check_estimate(metadata: dict, seg: _Segment, time: np.ndarray,
             raise DataError(
                 f"{label(g.block)}: initial_state 'estimate' estimates the state each trial "
                 f"starts in from its first {_ESTIMATE_S:g} s, but the clock has a gap of "
-                f"{_dur(g.duration_s)} after {locate(g.after)} ({g.n_missing} samples "
+                f"{_dur(g.duration_s)} after {locate(g.after)} ({_samples(g.n_missing)} "
                 f"missing, {_dur(float(time[g.after] - start))} after the start); start the "
                 f"record after the gap (a \"max_gap_s\" below {_fmt(g.duration_s)} s starts "
                 "a new segment there) or declare another initial_state.")
@@ -177,7 +184,8 @@ def _clocked(
             f"max_gap_s = {metadata['max_gap_s']:g} s (starting at {firsts}); read them "
             "with pmabayes.data.load_segments(path), one data set each, or remove max_gap_s "
             "to read one record with every gap as missing samples.")
-    warnings.warn(DataWarning(f"{where}: {note}"), stacklevel=4)
+    if note:
+        warnings.warn(DataWarning(f"{where}: {note}"), stacklevel=4)
     return segments
 
 
@@ -185,6 +193,7 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
                     check_units: bool, split: bool = False) -> list[Dataset]:
     """A text file's table as data sets: one, or one per segment when ``split``."""
     where = str(path)
+    _max_gap_s(metadata, declare)  # a bad declaration named where it is, before it is used
     first = table.first_line
     v = table.values
     rows = v["position_m"].size
@@ -193,13 +202,7 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
     if table.read_columns is not None:
         del meta["columns"]  # a directive for reading this file, not for what is written
         meta["read_columns"] = table.read_columns
-    record = converted(table.columns, where)
-    if record:
-        if "converted_units" in metadata:
-            raise DataError(
-                f"{declare}: 'converted_units' is written by pmabayes when it converts the "
-                "file's units, and this file's columns are converted again; remove it.")
-        meta["converted_units"] = record
+    meta = converted(table.columns, where, meta, declare)
     rate = _positive_rate(metadata)
     starts, ends, run_ids = _check_blocks(trial, where, first)
     if "time_s" in v:

@@ -17,14 +17,23 @@ import decimal
 import difflib
 import math
 import os
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pmabayes.data.dataset import INPUT_NAMES, DataError
-from pmabayes.data.units import UNITS, converted, quantity, role_problems, to_si, unknown_unit
+from pmabayes.data.dataset import INPUT_NAMES, DataError, DataWarning
+from pmabayes.data.units import (
+    UNITS,
+    _record,
+    _said,
+    quantity,
+    role_problems,
+    to_si,
+    unknown_unit,
+)
 
 __all__ = ["read_columns"]
 
@@ -420,7 +429,10 @@ def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[
     spec = _column_spec(columns, f"{where}: columns=")
     raw, _, _, _ = _numbers(path, where, spec)
     names = {UNITS[n][0]: n for n in spec.values() if n in UNITS}
-    converted(names, where)
+    record = _record(names)
+    if record:
+        warnings.warn(DataWarning(f"{where}: units converted to SI on reading: "
+                                  f"{_said(record)}; the arrays returned are SI."), stacklevel=2)
     out = {s: to_si(raw[n], n) for s, n in names.items()}
     if "trial" in raw:
         out["trial"] = raw["trial"]

@@ -16,7 +16,7 @@ import warnings
 
 import numpy as np
 
-from pmabayes.data.dataset import DataWarning, _fmt
+from pmabayes.data.dataset import DataError, DataWarning, _fmt
 
 __all__ = ["UNITS"]
 
@@ -86,24 +86,38 @@ def to_si(values: np.ndarray, name: str) -> np.ndarray:
     return values * factor
 
 
-def converted(names: dict[str, str], where: str) -> dict[str, dict]:
-    """Warn once for a file's unit conversions and return their record for the metadata.
+def _said(record: dict[str, dict]) -> str:
+    """The conversions of a record, for a message: ``pressure_psi (psi) x 6894.757 -> ...``."""
+    return "; ".join(
+        f"{r['from']} ({_SYMBOL[r['from'].split('_', 1)[1]]}) x {_fmt(r['factor'])} -> {si} "
+        f"({_SYMBOL[si.split('_', 1)[1]]})" for si, r in record.items())
 
-    ``names`` maps each SI name to the column it was read from; the record (empty when
-    nothing was converted) maps the SI name to ``{"from": column, "factor": f}``.
+
+def _record(names: dict[str, str]) -> dict[str, dict]:
+    """``{"pressure_pa": {"from": "pressure_psi", "factor": f}}`` for each conversion."""
+    return {si: {"from": col, "factor": UNITS[col][1]} for si, col in names.items()
+            if col != si}
+
+
+def converted(names: dict[str, str], where: str, metadata: dict, declare: str) -> dict:
+    """Warn once for a file's unit conversions; the metadata with their record added.
+
+    ``names`` maps each SI name to the column it was read from. The record, under
+    ``"converted_units"`` (only when something was converted), maps the SI name to
+    ``{"from": column, "factor": f}``.
     """
-    record = {si: {"from": col, "factor": UNITS[col][1]} for si, col in names.items()
-              if col != si}
-    if record:
-        said = "; ".join(
-            f"{col} ({_SYMBOL[col.split('_', 1)[1]]}) x {_fmt(UNITS[col][1])} -> {si} "
-            f"({_SYMBOL[si.split('_', 1)[1]]})" for si, col in
-            ((s, r["from"]) for s, r in record.items()))
-        warnings.warn(DataWarning(
-            f"{where}: units converted to SI on reading, as the column names say: {said}. "
-            "The data set holds SI values; its metadata 'converted_units' records the "
-            "conversion."), stacklevel=3)
-    return record
+    record = _record(names)
+    if not record:
+        return metadata
+    if "converted_units" in metadata:
+        raise DataError(
+            f"{declare}: 'converted_units' is written by pmabayes when it converts a file's "
+            "units, and this file's columns are converted again; remove it.")
+    warnings.warn(DataWarning(
+        f"{where}: units converted to SI on reading, as the column names say: "
+        f"{_said(record)}. The data set holds SI values; its metadata 'converted_units' "
+        "records the conversion."), stacklevel=3)
+    return {**metadata, "converted_units": record}
 
 
 def role_problems(names: list[str]) -> list[str]:
