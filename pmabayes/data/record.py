@@ -40,7 +40,7 @@ from pmabayes.data.dataset import (
 )
 from pmabayes.data.plausibility import _checked
 from pmabayes.data.text import _Table
-from pmabayes.data.units import converted
+from pmabayes.data.units import _HERE, converted
 
 #: how long a record must run without a gap for its initial state to be estimated
 _ESTIMATE_S = 1.0
@@ -185,7 +185,7 @@ def _clocked(
             "with pmabayes.data.load_segments(path), one data set each, or remove max_gap_s "
             "to read one record with every gap as missing samples.")
     if note:
-        warnings.warn(DataWarning(f"{where}: {note}"), stacklevel=4)
+        warnings.warn(DataWarning(f"{where}: {note}"), skip_file_prefixes=_HERE)
     return segments
 
 

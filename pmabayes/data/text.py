@@ -26,6 +26,7 @@ import numpy as np
 
 from pmabayes.data.dataset import INPUT_NAMES, DataError, DataWarning
 from pmabayes.data.units import (
+    _HERE,
     UNITS,
     _record,
     _said,
@@ -432,7 +433,8 @@ def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[
     record = _record(names)
     if record:
         warnings.warn(DataWarning(f"{where}: units converted to SI on reading: "
-                                  f"{_said(record)}; the arrays returned are SI."), stacklevel=2)
+                                  f"{_said(record)}; the arrays returned are SI."),
+                      skip_file_prefixes=_HERE)
     out = {s: to_si(raw[n], n) for s, n in names.items()}
     if "trial" in raw:
         out["trial"] = raw["trial"]

@@ -13,10 +13,14 @@ from __future__ import annotations
 
 import difflib
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 from pmabayes.data.dataset import DataError, DataWarning, _fmt
+
+#: warnings point at the caller's line, outside the data package
+_HERE = (str(Path(__file__).parent),)
 
 __all__ = ["UNITS"]
 
@@ -116,7 +120,7 @@ def converted(names: dict[str, str], where: str, metadata: dict, declare: str) -
     warnings.warn(DataWarning(
         f"{where}: units converted to SI on reading, as the column names say: "
         f"{_said(record)}. The data set holds SI values; its metadata 'converted_units' "
-        "records the conversion."), stacklevel=3)
+        "records the conversion."), skip_file_prefixes=_HERE)
     return {**metadata, "converted_units": record}
 
 
