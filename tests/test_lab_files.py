@@ -287,6 +287,27 @@ def test_max_gap_s_splits_the_record_into_segments(tmp_path: Path) -> None:
     assert load_segments(path) == [load(path)]  # no longer gap: one record, as load reads it
 
 
+def test_a_mat_time_vector_with_gaps_and_segments(tmp_path: Path) -> None:
+    k = np.concatenate([np.arange(300), np.arange(900, 1500)])  # a 0.6 s stop
+    k = np.delete(k, np.arange(600, 610))  # and 10 lost samples
+    t = k * 2e-3
+    x = 1e-3 * np.sin(t)[np.newaxis, :] * np.array([[1.0], [1.02]])
+    path = tmp_path / "daq.mat"
+    scipy.io.savemat(path, {"t": t, "p": 2e5 * (1 + np.sin(3 * t)), "x": x})
+    mapping = {"time_s": "t", "pressure_pa": "p", "position_m": "x"}
+    path.with_suffix(".json").write_text(json.dumps({"mat_variables": mapping,
+                                                     "max_gap_s": 0.1}))
+    with pytest.raises(DataError, match=r"splits into 2 segments .*load_segments"):
+        load(path)
+    with pytest.warns(DataWarning, match=r"1 gap in the clock, 10 samples not observed .*after "
+                                         r"sample 600.* 2 segments.*#2 sample 301 to sample "
+                                         r"890 \(after 1\.202 s\)"):
+        first, second = load_segments(path)
+    assert (first.n_samples, second.n_samples, second.n_missing) == (300, 600, 20)
+    assert second.observed.sum(axis=1).tolist() == [590, 590]
+    assert second.metadata["segment"]["name"] == "daq#2"
+
+
 def test_missing_samples_round_trip_exactly(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     n = 300

@@ -585,24 +585,16 @@ def read_mat(
                                     position_m=position_m), mat_trials, check_units, False)[0]
 
 
-def read_mat_segments(
-    path: str | os.PathLike[str],
-    *,
-    time_s: str | None = None,
-    pressure_pa: str | list[str] | None = None,
-    force_n: str | list[str] | None = None,
-    position_m: str | list[str] | None = None,
-    mat_trials: str | None = None,
-    check_units: bool = True,
-) -> list[Dataset]:
+def read_mat_segments(path: str | os.PathLike[str], **kwargs: Any) -> list[Dataset]:
     """Read a MATLAB ``.mat`` file as its segments (see :func:`pmabayes.data.load_segments`).
 
     Parameters
     ----------
     path : str or os.PathLike
         The ``.mat`` file, with its optional JSON sidecar.
-    time_s, pressure_pa, force_n, position_m, mat_trials, check_units
-        As for :func:`read_mat`.
+    **kwargs
+        The keywords of :func:`read_mat` (``time_s``, ``pressure_pa``, ``force_n``,
+        ``position_m``, ``mat_trials``, ``check_units``).
 
     Returns
     -------
@@ -611,11 +603,16 @@ def read_mat_segments(
 
     Raises
     ------
+    TypeError
+        For a keyword :func:`read_mat` does not take.
     DataError
         As :func:`read_mat`.
     """
-    return _mat_datasets(path, dict(time_s=time_s, pressure_pa=pressure_pa, force_n=force_n,
-                                    position_m=position_m), mat_trials, check_units, True)
+    given = {role: kwargs.pop(role, None) for role in MAT_ROLES}
+    mat_trials, check_units = kwargs.pop("mat_trials", None), kwargs.pop("check_units", True)
+    if kwargs:
+        raise TypeError(f"read_mat_segments got unexpected keyword(s) {sorted(kwargs)}")
+    return _mat_datasets(path, given, mat_trials, check_units, True)
 
 
 def _mat_datasets(path: str | os.PathLike[str], given: dict[str, Any], mat_trials: str | None,
