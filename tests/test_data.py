@@ -194,7 +194,7 @@ def test_load_save_reject_unknown_suffix(tmp_path: Path) -> None:
     pattern = r": unsupported file type '\.txt'.*\.csv, \.nc"
     with pytest.raises(DataError, match=at(tmp_path / "x.txt", pattern)):
         save(ds, tmp_path / "x.txt")
-    path = write(tmp_path, rows(*GOOD), "x.dat")
+    path = write(tmp_path, rows(*GOOD), "x.xlsx")
     with pytest.raises(DataError, match=at(path, r": unsupported file type")):
         load(path)
     with pytest.raises(DataError, match=r"no suffix"):
@@ -403,7 +403,13 @@ def test_missing_header(tmp_path: Path) -> None:
         ("trial,time,pressure_pa,position_m", r"'time' looks like 'time_s'.*ing column 'time_s'"),
         ("Trial,time_s,pressure_pa,position_m", r"'Trial' looks like 'trial'"),
         ("trial,time_s,force,position_m", r"'force' looks like 'force_n'"),
-        ("trial,time_s,pressure_pa,position_mm", r"'position_mm' looks like 'position_m'"),
+        ("trial,time_s,pressure_pa,position_cm",
+         r"pmabayes does not know the unit 'cm' of position; it reads position_m, position_mm, "
+         r"position_um \(if the values are in centimetres: multiply by 10 and name the column "
+         r"position_mm\)"),
+        ("trial,time_sec,pressure_pa,position_m", r"unit 'sec' of time.*did you mean time_s\?"),
+        ("trial,time_s,pressure_psi,pressure_kpa,position_m",
+         r"pressure_psi and pressure_kpa both give pressure_pa: keep one column for pressure"),
         ("trial,time_s,pressure_pa", r"missing column 'position_m'"),
         ("trial,time_s,pressure_pa,position_m,temp_c", r"unexpected column 'temp_c'"),
         ("trial,time_s,pressure_pa,position_m,time_s", r"'time_s' appears twice \(columns 2 and 5"),
@@ -476,23 +482,30 @@ def test_time_not_increasing(tmp_path: Path, lineno: int, text: str, pattern: st
 
 def test_non_uniform_sampling(tmp_path: Path) -> None:
     lines = [f"3,{k * 0.01!r},1000,0.001" for k in range(6)]
-    lines[4] = "3,0.0400001,1000,0.001"  # 1e-5 relative error on the interval
+    lines[4] = "3,0.043,1000,0.001"  # 30% of a step off: not a DAQ's jitter
     path = write(tmp_path, rows(*lines))
     with pytest.raises(
         DataError,
-        match=at(path, r": trial 3: line 6: time_s is not uniformly sampled: interval .* line 5"),
+        match=at(path, r": trial 3: line 6: time_s = 0.043 comes after 0.03 on line 5: an "
+                       r"interval of 1.300 steps .* more than 10% of a step off"),
     ):
         read_csv(path)
-    lines[4] = "3,0.04000000000001,1000,0.001"  # within 1e-6: accepted
+    lines[4] = "3,0.0400001,1000,0.001"  # 1e-5 of a step: jitter, read as the grid
+    with pytest.warns(DataWarning, match=r"deviate from the uniform grid by up to"):
+        assert read_csv(write(tmp_path, rows(*lines))).n_samples == 6
+    lines[4] = "3,0.04000000000001,1000,0.001"  # within 1e-6: accepted as it is
     assert read_csv(write(tmp_path, rows(*lines))).n_samples == 6
 
 
-def test_missing_sample_is_non_uniform(tmp_path: Path) -> None:
-    lines = [f"1,{k * 0.01!r},1000,0.001" for k in (0, 1, 2, 4, 5, 6)]
+def test_a_missing_sample_is_not_observed(tmp_path: Path) -> None:
+    lines = [f"1,{k * 0.01!r},{1000 + k},0.001" for k in (0, 1, 2, 4, 5, 6)]
     path = write(tmp_path, rows(*lines))
-    pattern = r": trial 1: line 5: time_s is not uniformly sampled"
-    with pytest.raises(DataError, match=at(path, pattern)):
-        read_csv(path)
+    with pytest.warns(DataWarning, match=at(path, r": 1 gap in the clock, 1 sample not "
+                                                  r"observed .*after line 4")):
+        ds = read_csv(path)
+    assert ds.n_samples == 7 and ds.n_missing == 1
+    assert ds.observed.tolist() == [[True, True, True, False, True, True, True]]
+    assert math.isnan(ds.position_m[0, 3]) and ds.input[0, 3] == 1002  # held
 
 
 def _rounded_rows(rate_hz: float, n: int, trials=(1, 2), decimals: int = 6, drop=None,
@@ -541,13 +554,15 @@ def test_exact_times_are_kept_without_a_note(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("kind", ["gap", "jitter"])
-def test_gaps_and_jitter_beyond_the_rounding_stay_errors(tmp_path: Path, kind: str) -> None:
-    bad = (_rounded_rows(750.0, 300, trials=(1,), drop=120) if kind == "gap"
+def test_gaps_and_jitter_beyond_the_rounding_are_a_lab_clock(tmp_path: Path, kind: str) -> None:
+    lab = (_rounded_rows(750.0, 300, trials=(1,), drop=120) if kind == "gap"
            else _rounded_rows(750.0, 300, trials=(1,), jitter_s=5e-6))
-    path = write(tmp_path, rows(*bad))
-    with pytest.raises(DataError, match=at(path, r": trial 1: line \d+: time_s is not "
-                                                 "uniformly sampled")):
-        read_csv(path)
+    path = write(tmp_path, rows(*lab))
+    found = r"1 gap in the clock" if kind == "gap" else r"The times deviate from the uniform grid"
+    with pytest.warns(DataWarning, match=at(path, ": " + found)):
+        ds = read_csv(path)
+    assert ds.n_samples == 300 and ds.n_missing == (kind == "gap")
+    np.testing.assert_allclose(ds.time_s, np.arange(300) / 750.0, rtol=0, atol=2e-6)
 
 
 def test_single_sample_trial(tmp_path: Path) -> None:
@@ -618,7 +633,10 @@ def test_position_looks_like_mm(tmp_path: Path) -> None:
         DataError,
         match=at(
             path,
-            r": position_m = 12.5 \(line 4, trial 1\) .*looks like millimetres, divide by 1000",
+            r": position_m = 12.5 \(line 4, trial 1\) exceeds 0.5 m in magnitude: not a "
+            r"muscle's position in m. The values look like millimetres \(a stroke of 12.5 mm: "
+            r"name the column position_mm\) or centimetres \(a stroke of 125 mm: multiply by 10 "
+            r"and name the column position_mm \(pmabayes has no position_cm\)\)",
         ),
     ) as info:
         read_csv(path)

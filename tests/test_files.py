@@ -352,10 +352,12 @@ def test_single_precision_clock_is_a_uniform_grid(tmp_path: Path) -> None:
         ds = load(path, time_s="t", pressure_pa="p", position_m="x")
     np.testing.assert_allclose(np.diff(ds.time_s), 1 / 750.0, rtol=1e-9)
     gap = np.delete(np.arange(n + 1) / 750.0, 4000).astype(np.float32)  # one lost sample
-    bad = v5(tmp_path / "gap.mat", {"t": gap, "p": np.full(n, 1e5), "x": np.zeros(n)})
-    with pytest.raises(DataError, match=at(bad, r".*time_s \(t\): sample \d+: time_s is not "
-                                                r"uniformly sampled")):
-        load(bad, time_s="t", pressure_pa="p", position_m="x")
+    lost = v5(tmp_path / "gap.mat", {"t": gap, "p": np.full(n, 1e5), "x": np.zeros(n)},
+              pressure_reference="gauge")
+    with pytest.warns(DataWarning, match=at(lost, r".*: 1 gap in the clock, 1 sample not "
+                                                  r"observed .*after sample 4000")):
+        ds = load(lost, time_s="t", pressure_pa="p", position_m="x")
+    assert ds.n_samples == n + 1 and np.flatnonzero(~ds.observed[0]).tolist() == [4000]
 
 
 def test_unit_checks_and_declarations_apply_to_mat_files(tmp_path: Path) -> None:
@@ -384,7 +386,8 @@ def test_unit_checks_and_declarations_apply_to_mat_files(tmp_path: Path) -> None
 
 
 def test_unsupported_suffix_lists_the_formats(tmp_path: Path) -> None:
-    with pytest.raises(DataError, match=r"use one of \.csv, \.nc, \.mat \(\.mat: MATLAB"):
+    with pytest.raises(DataError, match=r"use one of \.csv, \.txt, \.dat, \.nc, \.mat "
+                                        r"\(\.txt and \.dat: text read like \.csv; \.mat: MATLAB"):
         load(tmp_path / "x.xlsx")
     ds = load(v5(tmp_path / "w.mat", {"t": T, "p": P, "x": X}), time_s="t",
               pressure_pa="p", position_m="x", check_units=False)

@@ -10,7 +10,16 @@ CSV
     Header ``trial,time_s,pressure_pa,position_m`` (any column order; ``force_n`` may
     replace ``pressure_pa``), one row per sample, each trial's rows contiguous. An
     optional JSON sidecar with the same stem (``foo.csv`` -> ``foo.json``) holds a
-    free-form metadata object.
+    free-form metadata object. Column names may carry other units
+    (:data:`UNITS`: ``time_ms``, ``pressure_psi``, ``position_mm``, ``force_kn``,
+    ...), converted to SI on reading, said once in a :class:`DataWarning` and
+    recorded in the metadata (``"converted_units"``).
+Headerless text (``.csv``, ``.txt``, ``.dat``)
+    Comma- or whitespace-separated numbers, one value a line included; the sidecar's
+    ``"columns"`` names the columns read by number from 1 (``{"columns": {"3":
+    "time_s", "4": "pressure_psi", "5": "position_mm"}}``); columns it does not name
+    are not read. :func:`read_columns` reads named columns of any such file, for
+    signals kept in separate files.
 NetCDF
     Written and read through xarray with the ``h5netcdf`` engine; metadata is stored
     as a JSON string attribute. Intended for large data.
@@ -25,7 +34,15 @@ MATLAB (read only)
     ``"sample_rate_hz"`` gives the grid. Values must be SI; see
     :mod:`pmabayes.data.matlab` for the full schema.
 
-:func:`load` picks the reader from the suffix (``.csv``, ``.nc``, ``.mat``).
+:func:`load` picks the reader from the suffix (``.csv``, ``.txt``, ``.dat``, ``.nc``,
+``.mat``).
+
+A lab's clock: times within 10% of a step of a uniform grid (a DAQ's jitter) are that
+grid, and a gap in the clock is samples not observed, never invented ones:
+:attr:`Dataset.observed` is False there, the position NaN, and the input follows
+``input_between_samples`` across the gap. A sidecar ``"max_gap_s"`` splits a record
+at longer gaps into segments, each on its own grid: :func:`load_segments` returns
+them as data sets named ``stem#1``, ``stem#2``, ... (metadata ``"segment"``).
 
 Bad input raises :class:`DataError` with a message that names the file, the line or
 trial, and says how to fix it. Nothing is dropped, repaired or clipped silently.
@@ -51,8 +68,18 @@ from pmabayes.data.dataset import (
     check_same_input_kind,
     check_time_grid,
 )
-from pmabayes.data.files import load, read_csv, read_netcdf, save, write_csv, write_netcdf
-from pmabayes.data.matlab import MAT_ROLES, MAT_TRIALS, read_mat
+from pmabayes.data.files import (
+    load,
+    load_segments,
+    read_csv,
+    read_netcdf,
+    save,
+    write_csv,
+    write_netcdf,
+)
+from pmabayes.data.matlab import MAT_ROLES, MAT_TRIALS, read_mat, read_mat_segments
+from pmabayes.data.text import read_columns
+from pmabayes.data.units import UNITS
 
 __all__ = [
     "INPUT_NAMES",
@@ -64,11 +91,15 @@ __all__ = [
     "Dataset",
     "MAT_ROLES",
     "MAT_TRIALS",
+    "UNITS",
     "check_same_input_kind",
     "check_time_grid",
     "load",
+    "load_segments",
+    "read_columns",
     "read_csv",
     "read_mat",
+    "read_mat_segments",
     "read_netcdf",
     "save",
     "write_csv",

@@ -1,8 +1,9 @@
 """Data sets: trials on one uniform time grid, and the package's one time-grid check.
 
 :class:`Dataset` validates what it holds (shapes, finite values, unique trial ids,
-the time grid); :class:`DataError` and :class:`DataWarning` are the stage's error
-and warning. Reading and writing files is :mod:`pmabayes.data.files`.
+the time grid, which samples were observed); :class:`DataError` and
+:class:`DataWarning` are the stage's error and warning. Reading and writing files is
+:mod:`pmabayes.data.files`.
 """
 
 from __future__ import annotations
@@ -46,7 +47,9 @@ INITIAL_STATES = ("rest", "zero")
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
                  "pressure_reference", "ambient_pressure_pa", "check_units",
                  "converted_from_absolute", "input_between_samples", "period_samples",
-                 "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials")
+                 "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
+                 "columns", "read_columns", "converted_units", "max_gap_s", "segment",
+                 "time_origin_s")
 
 
 class DataError(ValueError):
@@ -125,14 +128,8 @@ def check_time_grid(
     if bad.any():
         j = int(np.argmax(bad))
         raise error(f"{source}: {where(j)}: time_s = {t[j]} is not finite; supply finite times.")
+    _check_increasing(t, source, where, error)
     d = np.diff(t)
-    if (d <= 0).any():
-        j = int(np.argmax(d <= 0)) + 1
-        raise error(
-            f"{source}: {where(j)}: time_s = {_fmt(t[j])} is not after {_fmt(t[j - 1])} "
-            f"on {where(j - 1)}; times must be strictly increasing: sort by time and "
-            "remove duplicate samples."
-        )
     i = _first_nonuniform(t)
     if i is not None:
         raise error(
@@ -142,6 +139,20 @@ def check_time_grid(
             "duplicated sample?); resample onto a uniform grid."
         )
     return float(d.mean())
+
+
+def _check_increasing(t: np.ndarray, source: str, where: Callable[[int], str],
+                      error: type[Exception] = DataError) -> None:
+    """Times must be strictly increasing; a clock that runs backwards names its line."""
+    d = np.diff(t)
+    if (d <= 0).any():
+        j = int(np.argmax(d <= 0)) + 1
+        back = " (the clock runs backwards)" if d[j - 1] < 0 else ""
+        raise error(
+            f"{source}: {where(j)}: time_s = {_fmt(t[j])} is not after {_fmt(t[j - 1])} "
+            f"on {where(j - 1)}{back}; times must be strictly increasing: sort by time and "
+            "remove duplicate samples."
+        )
 
 
 def _check_metadata_rate(metadata: dict, rate_hz: float, where: str) -> None:
@@ -226,6 +237,20 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
             "declared; a steady state needs a periodic input: declare 'period_samples' (the "
             "samples in one period), or set 'starts_in_steady_state' to false.")
+    _max_gap_s(metadata, where)
+
+
+def _max_gap_s(metadata: dict, where: str) -> float | None:
+    """The metadata's ``max_gap_s`` (None when not declared), checked."""
+    gap = metadata.get("max_gap_s")
+    if gap is not None and (isinstance(gap, bool) or not isinstance(gap, numbers.Real)
+                            or not math.isfinite(gap) or gap <= 0):
+        raise DataError(
+            f"{where}: metadata 'max_gap_s' is {gap!r}; it must be a positive number of "
+            "seconds: a gap in the clock longer than it starts a new segment "
+            "(pmabayes.data.load_segments). Fix it, or remove it to keep every gap as "
+            "missing samples of one record.")
+    return None if gap is None else float(gap)
 
 
 def _check_period(metadata: dict, n_samples: int, where: str) -> None:
@@ -331,6 +356,25 @@ def _first_in_file_order(mask: np.ndarray) -> tuple[int, int]:
     return int(k), int(j)
 
 
+def _fill_unobserved(u: np.ndarray, observed: np.ndarray, between: str) -> np.ndarray:
+    """The input at samples not observed, rebuilt from each trial's observed samples.
+
+    ``"hold"``: the last observed value, held (a DAQ's zero-order hold);
+    ``"linear"``: the line between the observed samples either side. Every trial's
+    first and last samples are observed (checked before).
+    """
+    out = np.array(u, dtype=np.float64, copy=True)
+    k = np.arange(u.shape[1])
+    for row, seen in zip(out, observed, strict=True):
+        if seen.all():
+            continue
+        if between == "hold":
+            row[~seen] = row[np.maximum.accumulate(np.where(seen, k, 0))][~seen]
+        else:
+            row[~seen] = np.interp(k[~seen], k[seen], row[seen])
+    return out
+
+
 # ----------------------------------------------------------------------------- Dataset
 
 
@@ -359,17 +403,32 @@ class Dataset:
         grid to within 1e-6 relative.
     source : str or None, optional
         Path the data were read from; used in error messages.
+    observed : numpy.ndarray or None, optional
+        Which samples were measured, boolean ``(n_trials, n_samples)``; None (the
+        default) means all of them. A sample not observed is a sample the record
+        does not hold (a gap in the lab's clock), never an invented one: its position
+        is NaN, and its input is rebuilt from the trial's observed samples as
+        ``input_between_samples`` says (``"hold"``: the last one held;
+        ``"linear"``: the line between the two either side; ``"bandlimited"`` cannot
+        cross a gap and is refused). Values passed at such samples are replaced. Each
+        trial's first and last samples must be observed.
 
     Raises
     ------
     DataError
-        If shapes, dtypes or values are invalid: non-finite values, time not strictly
-        increasing or not uniform, duplicate trial ids, unknown ``input_name``.
+        If shapes, dtypes or values are invalid: non-finite values at observed
+        samples, time not strictly increasing or not uniform, duplicate trial ids,
+        unknown ``input_name``, a trial that does not start and end with an observed
+        sample, or ``"bandlimited"`` input with samples not observed.
 
     Notes
     -----
-    Arrays are stored as read-only float64 (``trial_ids``: int64) copies. Two data sets
-    compare equal when all fields except ``source`` are equal.
+    Arrays are stored as read-only float64 (``trial_ids``: int64; ``observed``: bool)
+    copies. Two data sets compare equal when all fields except ``source`` are equal.
+    With samples not observed, the time grid is stored as
+    ``np.linspace(time_s[0], time_s[-1], n_samples)``: a file holds only the
+    observed samples' times, so the grid is defined by its ends and written and read
+    back exactly.
     """
 
     time_s: np.ndarray
@@ -379,6 +438,7 @@ class Dataset:
     input_name: str = "pressure_pa"
     metadata: dict = field(default_factory=dict)
     source: str | None = None
+    observed: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         """Validate the fields and freeze the arrays."""
@@ -440,15 +500,30 @@ class Dataset:
                 "trial ids must be unique."
             )
 
+        observed = self._observed(arrays["position_m"].shape, ids, where)
         for name, a in arrays.items():
-            bad = ~np.isfinite(a)
+            bad = ~np.isfinite(a) & observed
             if bad.any():
                 k, j = _first_in_file_order(bad)
                 raise DataError(
                     f"{where}: {name} of trial {ids[k]} is {a[k, j]} at sample {j}; "
-                    "all values must be finite (no NaN or inf)."
+                    "all values must be finite (no NaN or inf); a sample that was not "
+                    "measured is marked by observed=, not by its value."
                 )
-        for name, a in (("time_s", time_s), ("trial_ids", ids), *arrays.items()):
+        if not observed.all():
+            between = self.metadata.get("input_between_samples", "hold")
+            if between == "bandlimited":
+                raise DataError(
+                    f"{where}: input_between_samples is 'bandlimited' but "
+                    f"{int((~observed).sum())} samples are not observed; a band-limited "
+                    "reconstruction needs every sample. Declare \"input_between_samples\": "
+                    "\"linear\" (the samples joined by lines across a gap) or \"hold\", or "
+                    "split the record at its gaps (\"max_gap_s\", pmabayes.data.load_segments).")
+            arrays["input"] = _fill_unobserved(arrays["input"], observed, between)
+            arrays["position_m"][~observed] = np.nan
+            time_s = np.linspace(time_s[0], time_s[-1], n)
+        for name, a in (("time_s", time_s), ("trial_ids", ids), ("observed", observed),
+                        *arrays.items()):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
         object.__setattr__(self, "metadata", dict(self.metadata))
@@ -456,6 +531,27 @@ class Dataset:
         object.__setattr__(self, "_grid_dt_s", grid_dt_s)
         _check_metadata_rate(self.metadata, self.sample_rate_hz, f"{where}: metadata")
         _check_period(self.metadata, n, where)
+
+    def _observed(self, shape: tuple[int, int], ids: np.ndarray, where: str) -> np.ndarray:
+        """The ``observed`` mask, checked: boolean, of the data's shape, each trial
+        observed at its first and last sample."""
+        if self.observed is None:
+            return np.ones(shape, dtype=bool)
+        mask = np.asarray(self.observed)
+        if mask.dtype != bool or mask.shape != shape:
+            raise DataError(
+                f"{where}: observed must be a boolean array of shape {shape} (n_trials, "
+                f"n_samples), True where a sample was measured; got dtype {mask.dtype} "
+                f"and shape {mask.shape}.")
+        ends = mask[:, [0, -1]].all(axis=1)
+        if not ends.all():
+            k = int(np.argmin(ends))
+            which = "first" if not mask[k, 0] else "last"
+            raise DataError(
+                f"{where}: trial {ids[k]}: its {which} sample is not observed; a record "
+                "starts and ends with a measured sample: trim the unobserved samples off "
+                "its ends.")
+        return np.array(mask, dtype=bool, copy=True)
 
     @staticmethod
     def _as_float(value: Any, name: str, where: str) -> np.ndarray:
@@ -556,9 +652,23 @@ class Dataset:
         return self.input
 
     @property
+    def n_missing(self) -> int:
+        """Samples not observed, over all trials (0 for a complete record)."""
+        return int(self.observed.size - np.count_nonzero(self.observed))
+
+    @property
     def mean_position_m(self) -> np.ndarray:
-        """Position averaged over trials, shape ``(n_samples,)``."""
-        return self.position_m.mean(axis=0)
+        """Position averaged over trials, shape ``(n_samples,)``.
+
+        With samples not observed, the mean of the trials observed at each sample
+        (NaN where none is).
+        """
+        if not self.n_missing:
+            return self.position_m.mean(axis=0)
+        n = self.observed.sum(axis=0)
+        total = np.where(self.observed, self.position_m, 0.0).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n > 0, total / n, np.nan)
 
     @property
     def noise_floor_m(self) -> float:
@@ -566,12 +676,26 @@ class Dataset:
 
         Estimated from the spread between repeated trials: the root of the
         time-averaged sample variance across trials divided by the number of
-        trials. NaN with a single trial (no spread to estimate it from).
+        trials. NaN with a single trial (no spread to estimate it from). With
+        samples not observed, each sample's variance is over the trials observed
+        there and divided by their number, averaged over the samples observed in
+        two trials or more (NaN if there are none).
         """
         if self.n_trials < 2:
             return math.nan
-        var = self.position_m.var(axis=0, ddof=1).mean()
-        return float(math.sqrt(var / self.n_trials))
+        if not self.n_missing:
+            var = self.position_m.var(axis=0, ddof=1).mean()
+            return float(math.sqrt(var / self.n_trials))
+        n = self.observed.sum(axis=0)
+        both = n >= 2
+        if not both.any():
+            return math.nan
+        x = self.position_m[:, both]
+        seen = self.observed[:, both]
+        k = n[both]
+        mean = np.where(seen, x, 0.0).sum(axis=0) / k
+        var = np.where(seen, (x - mean) ** 2, 0.0).sum(axis=0) / (k - 1)
+        return float(math.sqrt(float(np.mean(var / k))))
 
     # -- methods
 
@@ -622,6 +746,7 @@ class Dataset:
             input_name=self.input_name,
             metadata=dict(self.metadata),
             source=self.source,
+            observed=self.observed[idx] if self.n_missing else None,
         )
 
     def to_xarray(self) -> xr.Dataset:
@@ -632,9 +757,10 @@ class Dataset:
         xarray.Dataset
             Dimensions ``("trial", "time_s")`` with coordinates ``trial`` (the trial
             ids) and ``time_s``; data variables named after the input (``pressure_pa``
-            or ``force_n``) and ``position_m``, each with a ``units`` attribute;
-            attributes ``input_name`` and ``metadata_json`` (the metadata as JSON).
-            Arrays are writable copies.
+            or ``force_n``) and ``position_m``, each with a ``units`` attribute, and,
+            only when samples are not observed, the boolean ``observed`` (position
+            NaN where it is False); attributes ``input_name`` and ``metadata_json``
+            (the metadata as JSON). Arrays are writable copies.
 
         Raises
         ------
@@ -643,11 +769,14 @@ class Dataset:
         """
         meta = _json_roundtrip_check(self.metadata, self.source or "Dataset")
         dims = ("trial", "time_s")
+        data_vars = {
+            self.input_name: (dims, self.input.copy(), {"units": _UNITS[self.input_name]}),
+            "position_m": (dims, self.position_m.copy(), {"units": "m"}),
+        }
+        if self.n_missing:
+            data_vars["observed"] = (dims, self.observed.copy())
         return xr.Dataset(
-            data_vars={
-                self.input_name: (dims, self.input.copy(), {"units": _UNITS[self.input_name]}),
-                "position_m": (dims, self.position_m.copy(), {"units": "m"}),
-            },
+            data_vars=data_vars,
             coords={
                 "trial": ("trial", self.trial_ids.copy()),
                 "time_s": ("time_s", self.time_s.copy(), {"units": "s"}),
@@ -663,8 +792,9 @@ class Dataset:
         ----------
         ds : xarray.Dataset
             Dimensions ``trial`` and ``time_s``; coordinates of the same names; data
-            variables ``position_m`` and exactly one of ``pressure_pa`` or ``force_n``.
-            An optional ``metadata_json`` attribute holds the metadata.
+            variables ``position_m`` and exactly one of ``pressure_pa`` or ``force_n``,
+            and optionally the boolean ``observed``. An optional ``metadata_json``
+            attribute holds the metadata.
         source : str or None, optional
             Where the data came from, for messages.
 
@@ -689,7 +819,7 @@ class Dataset:
         expected = "position_m and exactly one of pressure_pa or force_n"
         if len(inputs) != 1 or "position_m" not in names:
             raise DataError(f"{where}: data variables are {sorted(names)}; expected {expected}.")
-        extra = sorted(names - {"position_m", inputs[0]})
+        extra = sorted(names - {"position_m", inputs[0], "observed"})
         if extra:
             raise DataError(
                 f"{where}: unexpected data variable(s) {extra}; expected {expected}. Remove them."
@@ -701,7 +831,7 @@ class Dataset:
                     f"{where}: missing 1-D coordinate {coord!r} along dimension {coord!r}; "
                     "write the file with write_netcdf or Dataset.to_xarray."
                 )
-        for name in (input_name, "position_m"):
+        for name in (input_name, "position_m", *(["observed"] if "observed" in names else [])):
             if set(ds[name].dims) != {"trial", "time_s"}:
                 raise DataError(
                     f"{where}: {name} has dimensions {ds[name].dims}; expected ('trial', 'time_s')."
@@ -725,6 +855,11 @@ class Dataset:
                 f"{where}: attribute metadata_json holds a JSON {type(metadata).__name__}, "
                 "not an object; store a JSON object."
             )
+        observed = None
+        if "observed" in names:
+            observed = ds["observed"].transpose("trial", "time_s").values
+            if observed.dtype.kind in "iu" and np.isin(observed, (0, 1)).all():
+                observed = observed.astype(bool)  # a NetCDF writer may store bool as int
         return cls(
             time_s=ds["time_s"].values,
             input=ds[input_name].transpose("trial", "time_s").values,
@@ -733,6 +868,7 @@ class Dataset:
             input_name=input_name,
             metadata=metadata,
             source=source,
+            observed=observed,
         )
 
     # -- dunder
@@ -747,7 +883,8 @@ class Dataset:
             and np.array_equal(self.trial_ids, other.trial_ids)
             and np.array_equal(self.time_s, other.time_s)
             and np.array_equal(self.input, other.input)
-            and np.array_equal(self.position_m, other.position_m)
+            and np.array_equal(self.observed, other.observed)
+            and np.array_equal(self.position_m, other.position_m, equal_nan=True)
         )
 
     __hash__ = None  # type: ignore[assignment]  # mutable metadata, array fields
@@ -757,5 +894,6 @@ class Dataset:
         return (
             f"Dataset(n_trials={self.n_trials}, n_samples={self.n_samples}, "
             f"dt_s={self.dt_s:.6g}, input_name={self.input_name!r}, "
-            f"trial_ids={self.trial_ids.tolist()!r}, source={self.source!r})"
+            f"trial_ids={self.trial_ids.tolist()!r}, source={self.source!r}"
+            + (f", n_missing={self.n_missing})" if self.n_missing else ")")
         )

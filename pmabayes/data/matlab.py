@@ -85,9 +85,18 @@ from pmabayes.data.dataset import (
     check_time_grid,
 )
 from pmabayes.data.plausibility import _checked
+from pmabayes.data.record import (
+    _check_estimate,
+    _clocked,
+    _positive_rate,
+    _segment_metadata,
+    _segment_source,
+    _uniform,
+)
 from pmabayes.data.sidecar import _read_sidecar, _sidecar_path
+from pmabayes.data.units import UNITS, converted, quantity, role_problems, to_si, unknown_unit
 
-__all__ = ["MAT_ROLES", "MAT_TRIALS", "read_mat"]
+__all__ = ["MAT_ROLES", "MAT_TRIALS", "read_mat", "read_mat_segments"]
 
 #: The roles a ``mat_variables`` mapping (or :func:`read_mat`'s keywords) can name.
 MAT_ROLES: tuple[str, ...] = ("time_s", *INPUT_NAMES, "position_m")
@@ -235,8 +244,10 @@ def _check_names(value: Any, role: str, declared: str) -> str | list[str]:
     return value
 
 
-def _mapping(metadata: dict, given: dict[str, Any], declare: str, where: str) -> dict[str, Any]:
-    """The role -> variable mapping from the sidecar's ``mat_variables`` and keywords."""
+def _mapping(metadata: dict, given: dict[str, Any], declare: str, where: str
+             ) -> tuple[dict[str, Any], dict[str, str]]:
+    """The role -> variable mapping from the sidecar's ``mat_variables`` and keywords,
+    and the role -> name (with its unit: ``pressure_psi``) the variable was mapped as."""
     from_sidecar = metadata.get("mat_variables", {})
     if not isinstance(from_sidecar, dict):
         raise DataError(
@@ -244,12 +255,24 @@ def _mapping(metadata: dict, given: dict[str, Any], declare: str, where: str) ->
             f'roles to variable names, e.g. {{"time_s": "t", "pressure_pa": "p", '
             f'"position_m": "x"}}.')
     for key in from_sidecar:
-        if key not in MAT_ROLES:
+        if key not in UNITS:
+            if isinstance(key, str) and quantity(key):
+                raise DataError(f"{declare}: 'mat_variables': {unknown_unit(key)}.")
             close = difflib.get_close_matches(str(key), MAT_ROLES, n=1, cutoff=0.5)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise DataError(
                 f"{declare}: 'mat_variables' has the key {key!r}{hint}; the roles are "
-                f"{', '.join(MAT_ROLES)} (the name carries the SI unit the values must be in).")
+                f"{', '.join(MAT_ROLES)} (the name carries the unit of the values: "
+                "time_ms, pressure_psi, position_mm, ... are converted to SI).")
+    problems = role_problems(list(from_sidecar))
+    if problems:
+        raise DataError(f"{declare}: 'mat_variables': " + "; ".join(problems) + ".")
+    names = {role: role for role in MAT_ROLES}
+    sidecar_roles = {}
+    for key, value in from_sidecar.items():
+        sidecar_roles[UNITS[key][0]] = value
+        names[UNITS[key][0]] = key
+    from_sidecar = sidecar_roles
     mapping = {}
     for role in MAT_ROLES:
         a, b = from_sidecar.get(role), given.get(role)
@@ -266,7 +289,7 @@ def _mapping(metadata: dict, given: dict[str, Any], declare: str, where: str) ->
         raise DataError(
             f"{where}: both pressure_pa and force_n are mapped (in {declare} or by keyword); "
             "map exactly one input.")
-    return mapping
+    return mapping, names
 
 
 def _natural_key(name: str) -> tuple[str, int]:
@@ -463,6 +486,17 @@ def _stack(signals: list[_Signal], role: str, layout: str | None, n: int | None,
         listed = ", ".join(f"{lab}: {b.shape[1]}" for b, lab in
                            zip(blocks, [s.name for s in signals], strict=True))
         ref = f"not the record's {n}" if n is not None else "not one length"
+        turned = [(s, b) for s, b in zip(signals, blocks, strict=True)
+                  if s.values.ndim == 2 and b.shape[0] == n]
+        if turned:  # its trials run along the other axis
+            s, b = turned[0]
+            other = "rows" if s.values.shape[1] == n else "columns"
+            raise DataError(
+                f"{where}: {role}: {s.name!r} is {s.values.shape[0]}x{s.values.shape[1]}, "
+                f"read as {b.shape[0]} trials of {b.shape[1]} samples, but the record has "
+                f"{n} samples: its trials run along the other axis. Declare "
+                f'"mat_trials": "{other}" in the sidecar (or the keyword '
+                f'mat_trials="{other}").')
         raise DataError(
             f"{where}: {role}: samples per trial are {listed}, {ref}; every trial needs "
             "one sample per time step: trim the records to a common length.")
@@ -534,15 +568,56 @@ def read_mat(
     DataError
         If the file cannot be read, a mapped variable is missing (the message lists
         the file's variables), has a shape that is not accepted (the message says
-        which are), holds non-numbers or non-finite values, or the data fail the
-        checks every format shares. Messages name the file, the variable and the fix.
+        which are, and a transposed one which ``"mat_trials"`` reads it), holds
+        non-numbers or non-finite values, or the data fail the checks every format
+        shares (a time vector with gaps is read as for CSV: see
+        :func:`pmabayes.data.read_csv`). Messages name the file, the variable and
+        the fix.
 
     Warns
     -----
     DataWarning
-        As :func:`pmabayes.data.read_csv` (pressure that looks absolute or offset),
-        and when a single-precision time vector is rebuilt as a uniform grid.
+        As :func:`pmabayes.data.read_csv` (units converted, the clock's jitter and
+        gaps, pressure that looks absolute or offset), and when a single-precision
+        time vector is rebuilt as a uniform grid.
     """
+    return _mat_datasets(path, dict(time_s=time_s, pressure_pa=pressure_pa, force_n=force_n,
+                                    position_m=position_m), mat_trials, check_units, False)[0]
+
+
+def read_mat_segments(path: str | os.PathLike[str], **kwargs: Any) -> list[Dataset]:
+    """Read a MATLAB ``.mat`` file as its segments (see :func:`pmabayes.data.load_segments`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.mat`` file, with its optional JSON sidecar.
+    **kwargs
+        The keywords of :func:`read_mat` (``time_s``, ``pressure_pa``, ``force_n``,
+        ``position_m``, ``mat_trials``, ``check_units``).
+
+    Returns
+    -------
+    list of Dataset
+        One per segment between gaps longer than the sidecar's ``"max_gap_s"``.
+
+    Raises
+    ------
+    TypeError
+        For a keyword :func:`read_mat` does not take.
+    DataError
+        As :func:`read_mat`.
+    """
+    given = {role: kwargs.pop(role, None) for role in MAT_ROLES}
+    mat_trials, check_units = kwargs.pop("mat_trials", None), kwargs.pop("check_units", True)
+    if kwargs:
+        raise TypeError(f"read_mat_segments got unexpected keyword(s) {sorted(kwargs)}")
+    return _mat_datasets(path, given, mat_trials, check_units, True)
+
+
+def _mat_datasets(path: str | os.PathLike[str], given: dict[str, Any], mat_trials: str | None,
+                  check_units: bool, split: bool) -> list[Dataset]:
+    """The body of :func:`read_mat` and :func:`read_mat_segments`."""
     path = Path(path)
     where = str(path)
     sidecar = _sidecar_path(path)
@@ -552,9 +627,7 @@ def read_mat(
     variables, version = _variables(path, where)
     where_v = f"{where} (MATLAB {version})"
 
-    given = {"time_s": time_s, "pressure_pa": pressure_pa, "force_n": force_n,
-             "position_m": position_m}
-    mapping = _mapping(metadata, given, declare, where_v)
+    mapping, names_as = _mapping(metadata, given, declare, where_v)
     for role, default in (("time_s", "time_s"), ("position_m", "position_m")):
         if role not in mapping and default in variables:
             mapping[role] = default
@@ -632,6 +705,9 @@ def read_mat(
     _check_finite(u, u_labels, input_name, where_v)
     _check_finite(x, x_labels, "position_m", where_v)
 
+    u, x = to_si(u, names_as[input_name]), to_si(x, names_as["position_m"])
+    metadata = converted({r: names_as[r] for r in (input_name, "position_m", *(
+        ["time_s"] if time is not None else []))}, where_v, metadata, declare)
     n_samples = x.shape[1]
     if time is None:
         rate = metadata.get("sample_rate_hz")
@@ -645,13 +721,13 @@ def read_mat(
         time = np.arange(n_samples) / float(rate)
         time_name = f"sample_rate_hz = {rate:g} in {declare}"
     else:
-        rate = metadata.get("sample_rate_hz")
+        step = float(np.spacing(np.float32(np.abs(time).max())))
+        time = to_si(time, names_as["time_s"])
         if time_stored is not None and time_stored == np.float32:
-            step = float(np.spacing(np.float32(np.abs(time).max())))
             time = _rounded_grid(
-                np.zeros(time.size, dtype=np.int64), time, lambda: step,
-                rate if isinstance(rate, int | float) and not isinstance(rate, bool)
-                and rate > 0 else None, f"{where_v}: variable {time_name!r}",
+                np.zeros(time.size, dtype=np.int64), time,
+                lambda: step * UNITS[names_as["time_s"]][1], _positive_rate(metadata),
+                f"{where_v}: variable {time_name!r}",
                 "is stored in single precision, with a resolution of",
                 "Save the time in double precision (or drop it and give sample_rate_hz) "
                 "to make this exact.")
@@ -659,16 +735,46 @@ def read_mat(
         raise DataError(
             f"{where_v}: time_s ({time_name}) has {time.size} samples but the trials have "
             f"{n_samples}; map the time vector of the same record.")
-    check_time_grid(time, source=f"{where_v}: time_s ({time_name})",
-                    locate=lambda j: f"sample {j + 1}")
-
+    columns = {r: names_as[r] for r in ("position_m", input_name)}
+    if "sample_rate_hz" not in time_name:
+        columns["time_s"] = names_as["time_s"]
     ids = _trial_ids(positions, x.shape[0])
-    ds = Dataset(time_s=time, input=u, position_m=x, trial_ids=ids, input_name=input_name,
-                 metadata=metadata, source=where)
-    return _checked(
-        ds, where_v,
-        lambda k, j: f"{x_labels[k]}, trial {int(ids[k])}, sample {j + 1}",
-        declare, check_units)
+    source = f"{where_v}: time_s ({time_name})"
+    if _uniform(np.zeros(time.size, dtype=np.int64), time):
+        check_time_grid(time, source=source, locate=lambda j: f"sample {j + 1}")
+        ds = Dataset(time_s=time, input=u, position_m=x, trial_ids=ids, input_name=input_name,
+                     metadata=metadata, source=where)
+        return [_checked(
+            ds, where_v,
+            lambda k, j: f"{x_labels[k]}, trial {int(ids[k])}, sample {j + 1}",
+            declare, check_units, columns)]
+
+    def locate(j: int) -> str:
+        return f"sample {j + 1}"
+
+    segments = _clocked(np.zeros(time.size, dtype=np.int64), time, metadata, where=where_v,
+                        split=split, label=lambda b: source, locate=locate, declare=declare)
+    out = []
+    for i, seg in enumerate(segments, start=1):
+        shape = (x.shape[0], seg.n_samples)
+        arrays = [np.full(shape, np.nan) for _ in range(2)]
+        for a, values in zip(arrays, (u, x), strict=True):
+            a[:, seg.index] = values[:, seg.rows]
+        observed = np.zeros(shape, dtype=bool)
+        observed[:, seg.index] = True
+        seg_meta = _segment_metadata(metadata, seg, i, len(segments), path, locate)
+        _check_estimate(seg_meta, seg, time, lambda b: source, locate)
+        ds = Dataset(time_s=seg.time_s, input=arrays[0], position_m=arrays[1], trial_ids=ids,
+                     input_name=input_name, metadata=seg_meta,
+                     source=_segment_source(path, i, len(segments)), observed=observed)
+        at = np.full(seg.n_samples, -1)
+        at[seg.index] = seg.rows
+        out.append(_checked(
+            ds, where_v,
+            lambda k, j, at=at: f"{x_labels[k]}, trial {int(ids[k])}, "
+            + (f"sample {at[j] + 1}" if at[j] >= 0 else f"grid sample {j + 1}, not observed"),
+            declare, check_units, columns))
+    return out
 
 
 def _same_time(time: np.ndarray, name: str, s: _Signal, where: str) -> None:

@@ -2,15 +2,19 @@
 
 What a file's numbers can show about their units: pressure in MPa or bar, below
 vacuum, or looking absolute (the lowest command about one atmosphere) or offset
-(far below ambient); position in mm or no length at all. Errors for what cannot be
-right, :class:`DataWarning` for what looks wrong. The metadata declares what the
-checks cannot know: ``"check_units": false`` and ``"pressure_reference"``
-(``"gauge"``, or ``"absolute"`` to convert to gauge on reading).
+(far below ambient); position in mm, cm or um, or no length at all; times in ms or us
+read as s (a sample rate, and an input, far slower than a muscle on a rig). Errors for
+what cannot be right, :class:`DataWarning` for what looks wrong; each names the unit
+the numbers look like and the column name that reads them (:data:`~pmabayes.data.UNITS`).
+The metadata declares what the checks cannot know: ``"check_units": false``,
+``"sample_rate_hz"`` and ``"pressure_reference"`` (``"gauge"``, or ``"absolute"`` to
+convert to gauge on reading).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import numbers
 import warnings
 from collections.abc import Callable
@@ -18,6 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pmabayes.data.dataset import DataError, Dataset, DataWarning, _first_in_file_order, _fmt
+from pmabayes.data.units import UNITS
 
 _VACUUM_PA = -101325.0  # lowest possible gauge pressure (absolute vacuum at 1 atm)
 _ATM_PA = 101325.0  # standard atmosphere: the default ambient of "pressure_reference"
@@ -29,6 +34,17 @@ _MPA_BAR_MAX = 20.0  # max |p| at or below which pressure looks like MPa or bar
 _MM_MIN = 0.5  # max |x| above which position looks like mm
 _MM_MAX = 500.0  # max |x| above which position is not mm either (a PMA strokes < 0.5 m)
 _REFERENCES = ("gauge", "absolute")
+_STROKE_M = (1e-4, 0.2)  # a muscle's plausible motion (max - min position), m
+#: what position values too large for m may be: unit, m per unit, how to read them
+_LENGTHS = (("millimetres", 1e-3, "name the column position_mm"),
+            ("centimetres", 1e-2, "multiply by 10 and name the column position_mm "
+                                  "(pmabayes has no position_cm)"),
+            ("micrometres", 1e-6, "name the column position_um"))
+#: a muscle on a rig responds from about 0.01 to 50 Hz and is logged at 10 Hz to 100 kHz
+_MUSCLE_HZ = (0.01, 50.0)
+_RATE_HZ = (10.0, 1e5)
+_TIMES = (("seconds", 1.0, "time_s"), ("milliseconds", 1e-3, "time_ms"),
+          ("microseconds", 1e-6, "time_us"))
 
 
 def _silence(declare: str) -> str:
@@ -72,24 +88,75 @@ def _absolute_to_gauge(ds: Dataset, declare: str) -> Dataset:
     return dataclasses.replace(ds, input=ds.input - float(ambient), metadata=metadata)
 
 
+def _cycles_hz(u: np.ndarray, duration_s: float) -> float:
+    """How fast an input cycles: its swings between the lower and upper quarters of its
+    range, per second (half a cycle for a record that never swings)."""
+    lo, hi = float(u.min()), float(u.max())
+    if hi <= lo or duration_s <= 0:
+        return 0.5 / duration_s if duration_s > 0 else math.inf
+    state = np.where(u > lo + 0.75 * (hi - lo), 1, np.where(u < lo + 0.25 * (hi - lo), -1, 0))
+    state = state[state != 0]
+    swings = int(np.count_nonzero(np.diff(state)))
+    return max(swings / 2.0, 0.5) / duration_s
+
+
+def _check_clock_unit(ds: Dataset, where: str, declare: str, column: str) -> None:
+    """Refuse times whose unit looks wrong: a sample rate and an input far slower (or
+    faster) than a muscle on a rig, where another time unit makes both plausible."""
+    n = ds.n_samples
+    fs = ds.sample_rate_hz
+    duration = (n - 1) / fs
+    f_in = _cycles_hz(ds.input[0], duration)
+    slow = fs < _RATE_HZ[0] and f_in < _MUSCLE_HZ[0]
+    fast = fs > _RATE_HZ[1] and f_in > _MUSCLE_HZ[1]
+    if not (slow or fast):
+        return
+    declared = UNITS[column][1]
+    fits = [(name, declared / per_unit, col) for name, per_unit, col in _TIMES
+            if col != column
+            and _RATE_HZ[0] <= fs * declared / per_unit <= _RATE_HZ[1]
+            and _MUSCLE_HZ[0] <= f_in * declared / per_unit <= _MUSCLE_HZ[1]]
+    given = (f"{where}: {column} gives a sample rate of {fs:.4g} Hz and an input that "
+             f"cycles at about {f_in:.2g} Hz over {duration:.4g} s; a pneumatic muscle on a "
+             f"rig responds from about {_MUSCLE_HZ[0]:g} to {_MUSCLE_HZ[1]:g} Hz and is "
+             f"logged at {_RATE_HZ[0]:g} Hz to {_RATE_HZ[1] / 1e3:g} kHz, ")
+    rate = (f'or give the sample rate, "sample_rate_hz", in {declare} if the times really '
+            f"are in {column.split('_')[1]}. ")
+    if not fits:
+        raise DataError(given + "and no time unit makes this record one: check the time "
+                        "column (it may not hold times), " + rate + _silence(declare))
+    name, scale, col = fits[0]
+    raise DataError(
+        given + f"so the times look like {name}: a sample rate of {fs * scale:.4g} Hz, the "
+        f"input cycling at about {f_in * scale:.2g} Hz over {duration / scale:.4g} s. Fix: "
+        f"name the column {col}, " + rate + _silence(declare))
+
+
 def _check_units(
-    ds: Dataset, where: str, locate: Callable[[int, int], str], declare: str
+    ds: Dataset, where: str, locate: Callable[[int, int], str], declare: str,
+    columns: dict[str, str] | None = None,
 ) -> None:
     """Reject values that look like the wrong unit (pressure-driven data only).
 
     ``locate(k, j)`` describes trial index ``k``, sample ``j`` for the message;
-    ``declare`` names where the metadata can switch the check off.
+    ``declare`` names where the metadata can switch the check off; ``columns`` maps
+    an SI name to the file's column name for it (``pressure_psi``), when it differs.
     """
     if ds.input_name != "pressure_pa":
         return
+    columns = columns or {}
     p = ds.input
     absp = np.abs(p)
     pmax = float(absp.max())
     if 0.0 < pmax <= _MPA_BAR_MAX:
         k, j = np.unravel_index(int(np.argmax(absp)), p.shape)
+        col = columns.get("pressure_pa", "pressure_pa")
+        fix = ("" if col == "pressure_pa" else
+               f" ({col} gives {_fmt(pmax)} Pa at most)")
         raise DataError(
-            f"{where}: pressure_pa looks like MPa (multiply by 1e6) or bar (multiply by "
-            f"1e5), not Pa: the largest |value| is {_fmt(pmax)} ({locate(k, j)}). "
+            f"{where}: {col} looks like MPa (multiply by 1e6) or bar (multiply by "
+            f"1e5), not Pa{fix}: the largest |value| is {_fmt(pmax)} ({locate(k, j)}); or "
+            "name the column pressure_mpa or pressure_bar to have it converted. "
             + _silence(declare)
         )
     below = p < _VACUUM_PA
@@ -101,14 +168,25 @@ def _check_units(
             "pressure to gauge (subtract ambient) or check the unit. " + _silence(declare)
         )
     x = ds.position_m
-    big = np.abs(x) > _MM_MIN
+    with np.errstate(invalid="ignore"):
+        big = np.abs(x) > _MM_MIN  # NaN (a sample not observed) is not big
     if big.any():
         k, j = _first_in_file_order(big)
-        value = f"{where}: position_m = {_fmt(x[k, j])} ({locate(k, j)}) exceeds {_MM_MIN:g} m"
-        if abs(x[k, j]) <= _MM_MAX:
+        col = columns.get("position_m", "position_m")
+        per_unit = UNITS[col][1]
+        shown = x[k, j] / per_unit
+        value = (f"{where}: {col} = {_fmt(shown)} ({locate(k, j)}) exceeds {_MM_MIN:g} m"
+                 + ("" if col == "position_m" else f" ({_fmt(x[k, j])} m)"))
+        raw = x[ds.observed] / per_unit
+        fits = [(name, m, fix) for name, m, fix in _LENGTHS
+                if m != per_unit and np.abs(raw).max() * m <= _MM_MIN
+                and _STROKE_M[0] <= np.ptp(raw) * m <= _STROKE_M[1]]
+        if fits:
+            said = " or ".join(f"{name} (a stroke of {np.ptp(raw) * m * 1e3:.3g} mm: {fix})"
+                               for name, m, fix in fits)
             raise DataError(
-                f"{value} in magnitude and looks like millimetres, divide by 1000. "
-                + _silence(declare)
+                f"{value} in magnitude: not a muscle's position in m. The values look like "
+                f"{said}. " + _silence(declare)
             )
         raise DataError(
             f"{value} in magnitude: not a muscle's position in m, nor in mm (over "
@@ -166,12 +244,22 @@ def _checked(
     locate: Callable[[int, int], str],
     declare: str,
     check_units: bool,
+    columns: dict[str, str] | None = None,
 ) -> Dataset:
-    """Apply the metadata's declarations and the plausibility checks to read data."""
+    """Apply the metadata's declarations and the plausibility checks to read data.
+
+    ``columns`` maps an SI name to the file's column name for it; the time unit is
+    checked when the times come from a column (``"time_s"`` in it, the default) and
+    no ``sample_rate_hz`` is declared.
+    """
     check, reference = _declarations(ds.metadata, declare)
     check = check and check_units
+    columns = {"time_s": "time_s"} if columns is None else columns
     if check:  # on the values as read: MPa or bar shows before any ambient shift
-        _check_units(ds, where, locate, declare)
+        _check_units(ds, where, locate, declare, columns)
+        if (ds.input_name == "pressure_pa" and "time_s" in columns
+                and "sample_rate_hz" not in ds.metadata):
+            _check_clock_unit(ds, where, declare, columns["time_s"])
     if ds.input_name != "pressure_pa":
         return ds
     if reference == "absolute":

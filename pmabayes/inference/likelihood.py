@@ -429,11 +429,17 @@ class Likelihood:
     ------
     LikelihoodError
         With trials of different inputs, an input kind that does not match the rig,
-        or positions that never change.
+        positions that never change, or samples not observed (gaps in a lab's clock).
     """
 
     def __init__(self, model: Model, dataset: Dataset, *, substeps: int = 1) -> None:
         where = dataset.source or "the data set"
+        if dataset.n_missing:
+            raise LikelihoodError(
+                f"{where}: {dataset.n_missing} samples are not observed (gaps in the "
+                "clock); the likelihood of missing samples comes next. Until then, fit a "
+                "stretch without gaps: a sidecar \"max_gap_s\" below the shortest gap "
+                "splits the record there (pmabayes.data.load_segments)")
         if dataset.input_name != model.rig.input_name:
             raise LikelihoodError(
                 f"{where}: the input column is {dataset.input_name!r} but the model's rig "

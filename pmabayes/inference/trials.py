@@ -198,7 +198,8 @@ def check_trials(dataset: Dataset, *, level: float = LEVEL, n_null: int = 200,
     Returns
     -------
     TrialCheck
-        With no test (p-values None) for fewer than 3 trials.
+        With no test (p-values None) for fewer than 3 trials. With samples not
+        observed, only the samples every trial observed are compared.
 
     Raises
     ------
@@ -225,6 +226,8 @@ def _check_trials(dataset: Dataset, level: float, n_null: int,
                   seed: int | np.random.Generator) -> TrialCheck:
     rng = np.random.default_rng(seed)
     y = np.asarray(dataset.position_m, dtype=float)
+    if dataset.n_missing:  # the samples every trial observed: deviations need them all
+        y = y[:, dataset.observed.all(axis=0)]
     ids = [int(i) for i in dataset.trial_ids]
     r, n = y.shape
     if r < 2:

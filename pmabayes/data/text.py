@@ -1,0 +1,441 @@
+"""Delimited text files read into a table of SI columns: a CSV whose header names its
+columns, or a headerless file whose columns a sidecar's ``"columns"`` map names.
+
+Column names carry their unit (:data:`pmabayes.data.units.UNITS`): ``time_ms``,
+``pressure_psi``, ``position_mm`` are read and converted to ``time_s``,
+``pressure_pa``, ``position_m``. A headerless file (comma- or whitespace-separated,
+one value a line included) is read only through ``"columns"``, which names columns
+by number from 1, e.g. ``{"columns": {"3": "time_s", "4": "pressure_psi", "5":
+"position_mm"}}``; columns it does not name are not read, and a first line that is
+not numbers (the lab's own header) is skipped. :func:`read_columns` reads named
+columns of any such file, for records whose signals are in separate files.
+"""
+
+from __future__ import annotations
+
+import decimal
+import difflib
+import math
+import os
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pmabayes.data.dataset import INPUT_NAMES, DataError, DataWarning
+from pmabayes.data.units import (
+    _HERE,
+    UNITS,
+    _record,
+    _said,
+    quantity,
+    role_problems,
+    to_si,
+    unknown_unit,
+)
+
+__all__ = ["read_columns"]
+
+_EXPECTED_TEXT = (
+    "expected columns: trial, time_s, position_m and exactly one of pressure_pa "
+    "(commanded gauge pressure, Pa) or force_n (force, N), in any order; a name may "
+    "carry another unit (time_ms, pressure_kpa, pressure_psi, position_mm, force_kn, ...: "
+    "pmabayes.data.UNITS), trial may be left out for one trial, and time_s when the "
+    "sidecar gives sample_rate_hz"
+)
+_ROLES = ("trial", "time_s", "position_m")
+
+
+@dataclass(frozen=True)
+class _Table:
+    """A text file's rows as SI columns, and how they were read."""
+
+    values: dict[str, np.ndarray]  # SI name (or "trial") -> one value per row
+    columns: dict[str, str]  # SI name -> the file's name for it
+    input_name: str
+    first_line: int  # the file's line of row 0
+    printed_step: Callable[[], float | None]  # the time column's printed precision, in s
+    read_columns: dict[str, str] | None = None  # a headerless file's "columns" map
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return "_" not in text
+
+
+def _raise_nonfinite(where: str, lineno: int, name: str, text: str) -> None:
+    raise DataError(
+        f"{where}: line {lineno}, column {name}: value {text.strip()!r} is NaN or "
+        "infinite; missing or saturated samples must be handled before import "
+        "(nothing is dropped or filled in automatically)."
+    )
+
+
+def _read_text(path: Path, where: str) -> str:
+    if not path.exists():
+        raise DataError(f"{where}: file not found; check the path.")
+    if not path.is_file():
+        raise DataError(f"{where}: not a regular file; give the path of a data file.")
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        lineno = raw.count(b"\n", 0, exc.start) + 1
+        raise DataError(
+            f"{where}: line {lineno}: bytes are not valid UTF-8 ({exc.reason}); "
+            "save the file as UTF-8 (or plain ASCII) text."
+        ) from None
+
+
+def _lines(path: Path, where: str) -> list[str]:
+    """The file's lines, trailing blank lines dropped."""
+    lines = _read_text(path, where).replace("\r\n", "\n").split("\n")
+    while lines and not lines[-1].strip():
+        lines.pop()
+    return lines
+
+
+def _check_blank(rows: list[str], where: str, first_line: int) -> None:
+    for i, line in enumerate(rows):
+        if not line.strip():  # np.loadtxt would skip blank lines silently
+            raise DataError(
+                f"{where}: line {i + first_line} is blank; remove blank lines between data rows."
+            )
+
+
+def _printed_step(rows: list[str], column: int, delimiter: str | None = ",") -> float | None:
+    """The finest decimal step the time column is printed with (1e-6 for 0.001333)."""
+    exponents = set()
+    for line in rows:
+        try:
+            exponents.add(decimal.Decimal(line.split(delimiter)[column].strip())
+                          .as_tuple().exponent)
+        except (decimal.InvalidOperation, IndexError):
+            return None
+    finest = min(exponents)
+    return 10.0 ** finest if isinstance(finest, int) else None
+
+
+# ----------------------------------------------------------------------------- with a header
+
+
+def _parse_header(fields: list[str], where: str, has_rate: bool = False
+                  ) -> tuple[list[str], str]:
+    """Validate the header; return the column names and the input's SI name."""
+    problems = []
+    names = [f.strip() for f in fields]
+    if all(_is_number(n) for n in names if n):
+        raise DataError(
+            f"{where}: line 1: expected a header line such as "
+            f"'trial,time_s,pressure_pa,position_m', got {','.join(fields)!r}; "
+            "add the header as the first line (or name a headerless file's columns in the "
+            'sidecar: "columns": {"1": "time_s", ...}).'
+        )
+    for i, n in enumerate(names):
+        if not n:
+            problems.append(f"column {i + 1} has an empty name (stray comma?)")
+    seen: dict[str, int] = {}
+    for i, n in enumerate(names):
+        if n and n in seen:
+            problems.append(f"column {n!r} appears twice (columns {seen[n] + 1} and {i + 1})")
+        seen.setdefault(n, i)
+    present = {UNITS[n][0] for n in names if n in UNITS} | ({"trial"} & set(names))
+    inputs = [n for n in INPUT_NAMES if n in present]
+    problems += role_problems(list(dict.fromkeys(n for n in names if n)))
+    absent = [n for n in _ROLES if n not in present]
+    candidates = absent + ([] if inputs else list(INPUT_NAMES))
+    for n in names:
+        if not n or n in UNITS or n == "trial":
+            continue
+        if quantity(n):
+            problems.append(unknown_unit(n))
+            continue
+        match = difflib.get_close_matches(n.lower(), candidates, n=1, cutoff=0.6)
+        hint = f" ('{n}' looks like '{match[0]}')" if match else ""
+        problems.append(f"unexpected column {n!r}{hint}")
+    for n in absent:
+        if n == "position_m" or (n == "time_s" and not has_rate):
+            problems.append(f"missing column {n!r}")
+    if not inputs:
+        problems.append("missing input column: need one of 'pressure_pa' or 'force_n' (or "
+                        "the same in other units)")
+    if problems:
+        raise DataError(
+            f"{where}: line 1 (header): " + "; ".join(problems) + f". The {_EXPECTED_TEXT}; "
+            "rename, add or remove columns to match."
+        )
+    return names, inputs[0]
+
+
+def _scan_rows(lines: list[str], names: list[str], where: str) -> None:
+    """Slow row-by-row scan that raises for the first bad line (called on failure)."""
+    ncol = len(names)
+    i64 = np.iinfo(np.int64)
+    for i, line in enumerate(lines):
+        lineno = i + 2
+        fields = line.split(",")
+        if len(fields) != ncol:
+            what = "is blank" if not line.strip() else f"has {len(fields)} fields"
+            raise DataError(
+                f"{where}: line {lineno} {what}; every row needs {ncol} comma-separated "
+                f"fields ({','.join(names)}). Fix or remove the row."
+            )
+        for name, text in zip(names, fields, strict=True):
+            t = text.strip()
+            if name == "trial":
+                try:
+                    if "_" in t:
+                        raise ValueError
+                    value = int(t)
+                except ValueError:
+                    raise DataError(
+                        f"{where}: line {lineno}, column trial: trial id {text!r} is not "
+                        "an integer; use integer trial ids."
+                    ) from None
+                if not i64.min <= value <= i64.max:
+                    raise DataError(
+                        f"{where}: line {lineno}, column trial: trial id {t} is outside "
+                        "the int64 range; renumber the trials."
+                    )
+                continue
+            if not t or not _is_number(t):
+                raise DataError(
+                    f"{where}: line {lineno}, column {name}: {text!r} is not a number; "
+                    "write plain decimal numbers (e.g. 0.25 or 1.5e5) in the column's unit."
+                )
+            if not math.isfinite(float(t)):
+                _raise_nonfinite(where, lineno, name, text)
+
+
+def _parse_rows(rows: list[str], names: list[str], where: str) -> np.ndarray:
+    """The rows as a structured array of finite values (``trial`` as int64)."""
+    dtype = [(n, np.int64 if n == "trial" else np.float64) for n in names]
+    try:
+        table = np.loadtxt(rows, delimiter=",", dtype=dtype, comments=None, ndmin=1)
+    except ValueError as exc:
+        _scan_rows(rows, names, where)
+        raise DataError(
+            f"{where}: could not parse the data rows ({exc}; numpy counts rows from 0 at line 2). "
+            "Write plain comma-separated numbers."
+        ) from None
+
+    value_cols = [n for n in names if n != "trial"]
+    first_bad: tuple[int, str] | None = None
+    for n in value_cols:
+        bad = ~np.isfinite(table[n])
+        if bad.any():
+            r = int(np.argmax(bad))
+            if first_bad is None or r < first_bad[0]:
+                first_bad = (r, n)
+    if first_bad is not None:
+        r, n = first_bad
+        _raise_nonfinite(where, r + 2, n, rows[r].split(",")[names.index(n)])
+
+    return table
+
+
+def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
+    """A CSV file with a header line: its columns in SI."""
+    lines = _lines(path, where)
+    if not lines:
+        raise DataError(
+            f"{where}: file is empty; expected a header line "
+            "'trial,time_s,pressure_pa,position_m' followed by one row per sample."
+        )
+    names, input_name = _parse_header(lines[0].split(","), where, has_rate)
+    rows = lines[1:]
+    if not rows:
+        raise DataError(
+            f"{where}: line 2: header only, no data rows; add one row per sample "
+            f"({','.join(names)})."
+        )
+    _check_blank(rows, where, 2)
+    table = _parse_rows(rows, names, where)
+    si = {UNITS[n][0] if n in UNITS else n: n for n in names}
+    values = {s: table[n] if s == "trial" else to_si(table[n], n) for s, n in si.items()}
+    step = None
+    if "time_s" in si:
+        col, factor = names.index(si["time_s"]), UNITS[si["time_s"]][1]
+        step = _scaled(lambda: _printed_step(rows, col), factor)
+    return _Table(values, {s: n for s, n in si.items() if s != "trial"}, input_name, 2,
+                  step or (lambda: None))
+
+
+def _scaled(step: Callable[[], float | None], factor: float) -> Callable[[], float | None]:
+    def in_s() -> float | None:
+        value = step()
+        return None if value is None else value * factor
+    return in_s
+
+
+# ----------------------------------------------------------------------------- named by index
+
+
+def _column_spec(spec: object, declare: str) -> dict[int, str]:
+    """The sidecar's ``"columns"``: column number (from 1) to a name pmabayes reads."""
+    example = '{"1": "time_s", "3": "pressure_psi", "4": "position_mm"}'
+    if not isinstance(spec, dict) or not spec:
+        raise DataError(
+            f"{declare}: 'columns' is {spec!r}; it must map column numbers (from 1, as "
+            f"strings) to column names, e.g. {example}.")
+    out: dict[int, str] = {}
+    problems = []
+    for key, name in spec.items():
+        if not (isinstance(key, str) and key.strip().isdigit() and int(key) >= 1):
+            problems.append(f"key {key!r} is not a column number (columns are numbered from "
+                            "1: \"1\", \"2\", ...)")
+            continue
+        if not isinstance(name, str) or not (name in UNITS or name == "trial"):
+            if isinstance(name, str) and quantity(name):
+                problems.append(unknown_unit(name))
+            else:
+                close = difflib.get_close_matches(str(name), [*UNITS, "trial"], n=1, cutoff=0.6)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                problems.append(f"column {key} is named {name!r}{hint}, not a name pmabayes "
+                                f"reads: trial, {', '.join(UNITS)}")
+            continue
+        out[int(key)] = name
+    names = list(out.values())
+    seen = [n for n in set(names) if names.count(n) > 1]
+    problems += [f"{n} names two columns" for n in seen]
+    problems += role_problems([n for n in names if n not in seen])
+    if problems:
+        raise DataError(f"{declare}: 'columns': " + "; ".join(problems) +
+                        f". Fix the map, e.g. {example}.")
+    return out
+
+
+def _numbers(path: Path, where: str, spec: dict[int, str]
+             ) -> tuple[dict[str, np.ndarray], list[str], int, str | None]:
+    """The named columns of a headerless text file, as read (not converted): the values
+    by name, the data lines, the line of the first, the delimiter."""
+    lines = _lines(path, where)
+    if not lines:
+        raise DataError(f"{where}: file is empty; expected one row of numbers per sample.")
+    delimiter = "," if "," in lines[0] else None
+    split = (lambda line: line.split(",")) if delimiter else str.split
+    first_line = 1
+    if not all(_is_number(f.strip()) for f in split(lines[0])):
+        lines, first_line = lines[1:], 2  # the lab's own header line: skipped
+        if not lines:
+            raise DataError(f"{where}: line 2: a header line only, no data rows.")
+    _check_blank(lines, where, first_line)
+    width = len(split(lines[0]))
+    beyond = [k for k in spec if k > width]
+    if beyond:
+        sep = "comma-separated" if delimiter else "whitespace-separated"
+        raise DataError(
+            f"{where}: line {first_line}: the sidecar's 'columns' names column "
+            f"{beyond[0]} ({spec[beyond[0]]}) but the line has {width} {sep} fields; "
+            f"columns are numbered from 1 to {width}: fix the column numbers.")
+    cols = sorted(spec)
+    try:
+        table = np.loadtxt(lines, delimiter=delimiter, usecols=[k - 1 for k in cols],
+                           comments=None, ndmin=2, dtype=np.float64)
+    except ValueError:
+        table = None
+    if table is None or not np.isfinite(table).all():
+        for i, line in enumerate(lines):
+            fields = split(line)
+            for k in cols:
+                text = fields[k - 1].strip() if k <= len(fields) else ""
+                if k > len(fields):
+                    raise DataError(
+                        f"{where}: line {i + first_line} has {len(fields)} fields; column {k} "
+                        f"({spec[k]}) is missing. Fix or remove the row.")
+                if not _is_number(text):
+                    raise DataError(
+                        f"{where}: line {i + first_line}, column {k} ({spec[k]}): {text!r} "
+                        "is not a number; write plain decimal numbers.")
+                if not math.isfinite(float(text)):
+                    _raise_nonfinite(where, i + first_line, f"{k} ({spec[k]})", text)
+        raise DataError(f"{where}: could not parse the rows; write plain numbers.")
+    values = {spec[k]: table[:, j] for j, k in enumerate(cols)}
+    return values, lines, first_line, delimiter
+
+
+def _columns_table(path: Path, where: str, spec_in: object, declare: str,
+                   has_rate: bool) -> _Table:
+    """A headerless text file whose columns the sidecar's ``"columns"`` names."""
+    spec = _column_spec(spec_in, declare)
+    names = set(spec.values())
+    si = {UNITS[n][0]: n for n in names if n in UNITS}
+    missing = [r for r in ("position_m",) if r not in si]
+    if not any(r in si for r in INPUT_NAMES):
+        missing.insert(0, "pressure_pa or force_n")
+    if "time_s" not in si and not has_rate:
+        missing.insert(0, "time_s")
+    if missing:
+        raise DataError(
+            f"{declare}: 'columns' names no column for {' and '.join(missing)} (in any unit: "
+            "pmabayes.data.UNITS); name one"
+            + (", or give sample_rate_hz for a file without time" if "time_s" in missing
+               else "") + ".")
+    raw, lines, first_line, delimiter = _numbers(path, where, spec)
+    values = {s: to_si(raw[n], n) for s, n in si.items()}
+    if "trial" in names:
+        t = raw["trial"]
+        bad = t != np.round(t)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise DataError(f"{where}: line {i + first_line}, column trial: trial id "
+                            f"{t[i]!r} is not an integer; use integer trial ids.")
+        values["trial"] = t.astype(np.int64)
+    step = None
+    if "time_s" in si:
+        col = next(k for k, n in spec.items() if n == si["time_s"]) - 1
+        step = _scaled(lambda: _printed_step(lines, col, delimiter), UNITS[si["time_s"]][1])
+    input_name = next(r for r in INPUT_NAMES if r in si)
+    return _Table(values, si, input_name, first_line, step or (lambda: None),
+                  {str(k): n for k, n in sorted(spec.items())})
+
+
+def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[str, np.ndarray]:
+    """Read named columns of a text file, in SI: for signals kept in separate files.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A comma- or whitespace-separated text file of numbers (one value a line
+        included), optionally with one header line of text, which is skipped.
+    columns : dict
+        Column number (from 1, as a string) to a name pmabayes reads
+        (:data:`pmabayes.data.UNITS`, e.g. ``{"1": "force_kn"}``). Columns not named
+        are not read.
+
+    Returns
+    -------
+    dict
+        The SI name (``force_n``, ``position_m``, ...) to its values, float64.
+
+    Raises
+    ------
+    DataError
+        If the map names an unknown unit, two columns for one quantity, or a column
+        beyond the file's width, or a value is not a finite number; the message
+        names the file, the line and the fix.
+
+    Warns
+    -----
+    DataWarning
+        Once, naming each unit converted to SI.
+    """
+    path = Path(path)
+    where = str(path)
+    spec = _column_spec(columns, f"{where}: columns=")
+    raw, _, _, _ = _numbers(path, where, spec)
+    names = {UNITS[n][0]: n for n in spec.values() if n in UNITS}
+    record = _record(names)
+    if record:
+        warnings.warn(DataWarning(f"{where}: units converted to SI on reading: "
+                                  f"{_said(record)}; the arrays returned are SI."),
+                      skip_file_prefixes=_HERE)
+    out = {s: to_si(raw[n], n) for s, n in names.items()}
+    if "trial" in raw:
+        out["trial"] = raw["trial"]
+    return out

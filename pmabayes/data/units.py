@@ -1,0 +1,140 @@
+"""Units in column names: ``pressure_psi``, ``position_mm``, ``time_ms`` ... read and
+converted to the SI the package holds (``pressure_pa``, ``position_m``, ``time_s``,
+``force_n``), each conversion said once and recorded in the metadata.
+
+A column (a CSV header's name, a sidecar ``"columns"`` entry, a ``"mat_variables"``
+role) is named ``<quantity>_<unit>``; :data:`UNITS` lists every name pmabayes reads.
+A name whose quantity pmabayes reads but whose unit it does not know is refused with
+the known units and the near match (``position_cm``: multiply by 10 and name the
+column ``position_mm``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from pmabayes.data.dataset import DataError, DataWarning, _fmt
+
+#: warnings point at the caller's line, outside the data package
+_HERE = (str(Path(__file__).parent),)
+
+__all__ = ["UNITS"]
+
+#: 1 psi in Pa: a pound-force (0.45359237 kg x 9.80665 m/s^2) over a square inch
+_PSI_PA = 0.45359237 * 9.80665 / 0.0254 ** 2
+
+#: Every column name pmabayes reads, to the SI name it becomes and the factor that
+#: converts it (SI value = value x factor). Conversions by a power of ten below 1
+#: divide by its inverse, so that 1.5 mm is exactly 1.5 / 1000 m.
+UNITS: dict[str, tuple[str, float]] = {
+    "time_s": ("time_s", 1.0),
+    "time_ms": ("time_s", 1e-3),
+    "time_us": ("time_s", 1e-6),
+    "pressure_pa": ("pressure_pa", 1.0),
+    "pressure_kpa": ("pressure_pa", 1e3),
+    "pressure_bar": ("pressure_pa", 1e5),
+    "pressure_psi": ("pressure_pa", _PSI_PA),
+    "pressure_mpa": ("pressure_pa", 1e6),
+    "position_m": ("position_m", 1.0),
+    "position_mm": ("position_m", 1e-3),
+    "position_um": ("position_m", 1e-6),
+    "force_n": ("force_n", 1.0),
+    "force_kn": ("force_n", 1e3),
+}
+_DIVISORS = {1e-3: 1e3, 1e-6: 1e6}
+#: units named in messages the way people write them
+_SYMBOL = {"s": "s", "ms": "ms", "us": "us", "pa": "Pa", "kpa": "kPa", "bar": "bar",
+           "psi": "psi", "mpa": "MPa", "m": "m", "mm": "mm", "um": "um", "n": "N", "kn": "kN"}
+#: what a unit pmabayes does not read comes to, and how to get there
+_ADVICE = {
+    "position_cm": "centimetres: multiply by 10 and name the column position_mm",
+    "position_in": "inches: multiply by 25.4 and name the column position_mm",
+    "time_min": "minutes: multiply by 60 and name the column time_s",
+    "pressure_atm": "atmospheres: multiply by 101.325 and name the column pressure_kpa",
+    "force_lbf": "pounds-force: multiply by 4.4482216152605 and name the column force_n",
+}
+
+
+def quantity(name: str) -> str | None:
+    """``"pressure"`` for ``pressure_psi``: the quantity of a column name pmabayes knows
+    the quantity of (time, pressure, position, force), else None."""
+    head = name.split("_", 1)[0]
+    return head if head in {n.split("_")[0] for n in UNITS} and "_" in name else None
+
+
+def unknown_unit(name: str) -> str:
+    """Why ``name`` (a known quantity with an unknown unit) is refused, and the fix."""
+    q = quantity(name)
+    known = [n for n in UNITS if n.startswith(f"{q}_")]
+    advice = _ADVICE.get(name)
+    if advice is None:
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        advice = f"did you mean {close[0]}?" if close else f"convert it to {UNITS[known[0]][0]}"
+    else:
+        advice = f"if the values are in {advice}"
+    return (f"column {name!r}: pmabayes does not know the unit {name.split('_', 1)[1]!r} "
+            f"of {q}; it reads {', '.join(known)} ({advice})")
+
+
+def to_si(values: np.ndarray, name: str) -> np.ndarray:
+    """The values of column ``name`` in SI; the same array when it is SI already."""
+    factor = UNITS[name][1]
+    if factor == 1.0:
+        return values
+    if factor in _DIVISORS:
+        return values / _DIVISORS[factor]
+    return values * factor
+
+
+def _said(record: dict[str, dict]) -> str:
+    """The conversions of a record, for a message: ``pressure_psi (psi) x 6894.757 -> ...``."""
+    return "; ".join(
+        f"{r['from']} ({_SYMBOL[r['from'].split('_', 1)[1]]}) x {_fmt(r['factor'])} -> {si} "
+        f"({_SYMBOL[si.split('_', 1)[1]]})" for si, r in record.items())
+
+
+def _record(names: dict[str, str]) -> dict[str, dict]:
+    """``{"pressure_pa": {"from": "pressure_psi", "factor": f}}`` for each conversion."""
+    return {si: {"from": col, "factor": UNITS[col][1]} for si, col in names.items()
+            if col != si}
+
+
+def converted(names: dict[str, str], where: str, metadata: dict, declare: str) -> dict:
+    """Warn once for a file's unit conversions; the metadata with their record added.
+
+    ``names`` maps each SI name to the column it was read from. The record, under
+    ``"converted_units"`` (only when something was converted), maps the SI name to
+    ``{"from": column, "factor": f}``.
+    """
+    record = _record(names)
+    if not record:
+        return metadata
+    if "converted_units" in metadata:
+        raise DataError(
+            f"{declare}: 'converted_units' is written by pmabayes when it converts a file's "
+            "units, and this file's columns are converted again; remove it.")
+    warnings.warn(DataWarning(
+        f"{where}: units converted to SI on reading, as the column names say: "
+        f"{_said(record)}. The data set holds SI values; its metadata 'converted_units' "
+        "records the conversion."), skip_file_prefixes=_HERE)
+    return {**metadata, "converted_units": record}
+
+
+def role_problems(names: list[str]) -> list[str]:
+    """What is wrong with the quantities of a file's column names: two columns for one
+    quantity (``pressure_psi`` and ``pressure_kpa``), or both a pressure and a force."""
+    by_si: dict[str, list[str]] = {}
+    for n in names:
+        if n in UNITS:
+            by_si.setdefault(UNITS[n][0], []).append(n)
+    problems = [f"{' and '.join(cols)} both give {si}: keep one column for "
+                f"{si.split('_')[0]} (leave the other out, or rename it)"
+                for si, cols in by_si.items() if len(cols) > 1]
+    if "pressure_pa" in by_si and "force_n" in by_si:
+        problems.append(f"both {by_si['pressure_pa'][0]} and {by_si['force_n'][0]} are present; "
+                        "keep exactly one input column")
+    return problems
