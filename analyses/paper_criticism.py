@@ -5,7 +5,7 @@ Coulomb friction that the base model lacks. Three steps, each a
 ``pmabayes.criticism.diagnosis.diagnose`` of the model so far (what is missing, from the
 residual's signature, the score test and refits), then a full posterior fit of each
 model (``pmabayes.inference.sampler.fit``) compared side by side
-(``pmabayes.criticism.diagnosis.compare_fits``: error per frequency band against the noise
+(``pmabayes.criticism.compare.compare_fits``: error per frequency band against the noise
 floor, whiteness, leave-one-trial-out ELPD). The base model is not told what to
 add: each step adds the effect that the previous diagnosis named missing, and the
 script stops when a diagnosis names nothing.
@@ -43,7 +43,8 @@ from _paper import (
     tex_escape,
 )
 
-from pmabayes.criticism.diagnosis import compare_fits, diagnose
+from pmabayes.criticism.compare import compare_fits
+from pmabayes.criticism.diagnosis import diagnose
 from pmabayes.inference.fitfile import fit_info
 from pmabayes.report.figures import (
     plot_band_errors,

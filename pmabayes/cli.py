@@ -231,7 +231,7 @@ def load_plugin(spec: str) -> None:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from pmabayes.criticism.residuals import band_errors, band_label
+    from pmabayes.criticism.bands import band_errors, band_label
     from pmabayes.report.figures import plot_comparison  # matplotlib only where figures are made
 
     start = time.perf_counter()
@@ -415,7 +415,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from pmabayes.criticism.diagnosis import compare_fits
+    from pmabayes.criticism.compare import compare_fits
     from pmabayes.report.pages import write_comparison
 
     labels = args.labels.split(",") if args.labels else None

@@ -4,14 +4,8 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.criticism.diagnosis import (
-    autocorrelation,
-    band_errors,
-    cross_correlation,
-    innovations,
-    instantaneous_frequency,
-    ljung_box,
-)
+from pmabayes.criticism.bands import band_errors, instantaneous_frequency
+from pmabayes.criticism.whiteness import autocorrelation, cross_correlation, innovations, ljung_box
 from pmabayes.data import Dataset
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.inference.noise import estimate_noise
@@ -76,7 +70,7 @@ def test_a_missing_lag_is_above_the_floor_and_not_white(lagged):
 
 
 def test_the_adequacy_rule_and_its_verdict(perfect, lagged):
-    from pmabayes.criticism.residuals import check_adequacy, is_adequate
+    from pmabayes.criticism.adequacy import check_adequacy, is_adequate
 
     for case, expected in ((perfect, True), (lagged, False)):
         ds, lik, x, _ = judge(case)
@@ -109,7 +103,8 @@ def two_time_scale(seed, effects=None, r=6):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
-    from pmabayes.criticism.residuals import check_adequacy, check_noise_model, whiteness
+    from pmabayes.criticism.adequacy import check_adequacy
+    from pmabayes.criticism.whiteness import check_noise_model, whiteness
 
     ds = two_time_scale(seed)
     lik = Likelihood(pb.Model(), ds)
@@ -133,7 +128,7 @@ def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
 @pytest.mark.slow
 def test_the_two_time_scale_verdict_is_calibrated():
     """20 data sets, a correct model: at most one called inadequate (README's numbers)."""
-    from pmabayes.criticism.residuals import check_adequacy
+    from pmabayes.criticism.adequacy import check_adequacy
 
     model, x, adequate = pb.Model(), None, 0
     for seed in range(100, 120):
@@ -146,7 +141,8 @@ def test_the_two_time_scale_verdict_is_calibrated():
 
 
 def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
-    from pmabayes.criticism.residuals import check_adequacy, check_noise_model, whiteness
+    from pmabayes.criticism.adequacy import check_adequacy
+    from pmabayes.criticism.whiteness import check_noise_model, whiteness
 
     for case in (perfect, lagged):
         ds, lik, x, e = judge(case)
@@ -230,7 +226,7 @@ def test_band_errors_add_up_to_the_total_for_any_input(kind):
 
 
 def test_the_bands_span_what_the_input_excites():
-    from pmabayes.criticism.residuals import excited_band, input_bands
+    from pmabayes.criticism.bands import excited_band, input_bands
 
     t = np.arange(20000) * 1e-3
     u = sum(np.sin(2 * np.pi * f * t) for f in (0.6, 1.2, 2.4, 5.0))
@@ -266,7 +262,7 @@ BUILTINS = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiff
 
 
 def ranking(hidden):
-    from pmabayes.criticism.diagnosis import rank_effects
+    from pmabayes.criticism.scores import rank_effects
     from pmabayes.inference.density import Posterior
     from pmabayes.inference.search import find_map
 
@@ -333,7 +329,7 @@ pb.register_effect(CritQuadraticDrag)
 
 @pytest.mark.slow
 def test_a_hidden_user_effect_is_found():
-    from pmabayes.criticism.diagnosis import rank_effects
+    from pmabayes.criticism.scores import rank_effects
     from pmabayes.inference.density import Posterior
     from pmabayes.inference.search import find_map
 

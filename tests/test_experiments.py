@@ -132,7 +132,7 @@ def test_periods_of_a_record_from_rest_are_referred_to_the_model():
     periods after the first of a record from rest differ by far more than the noise:
     taken raw they give a noise 20 times too large. The residual's periods give the
     noise drawn; a record in steady state is left as it is."""
-    from pmabayes.criticism.residuals import band_errors
+    from pmabayes.criticism.bands import band_errors
     from pmabayes.inference.noise import estimate_noise
 
     noise = MeasurementNoise(disturbance_std_m=30e-6, disturbance_corr_time_s=0.05)

@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.criticism.diagnosis import compare_fits, diagnose, rank_effects
-from pmabayes.criticism.residuals import band_errors
+from pmabayes.criticism.bands import band_errors
+from pmabayes.criticism.compare import compare_fits
+from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.criticism.scores import rank_effects
 from pmabayes.data import DataError, Dataset, save
 from pmabayes.inference.fitfile import save_fit
 from pmabayes.inference.likelihood import Likelihood

@@ -146,13 +146,13 @@ def plot_band_errors(
 ) -> Figure:
     """RMS error per frequency band for one or more models, beside the noise floor.
 
-    The bands are those of :func:`pmabayes.criticism.residuals.band_errors` (spectral, for
+    The bands are those of :func:`pmabayes.criticism.bands.band_errors` (spectral, for
     any input); with a single trial there is no floor and no ratio to draw.
 
     Parameters
     ----------
     errors : dict
-        Label to a list of :class:`pmabayes.criticism.residuals.BandErrors` (same bands for
+        Label to a list of :class:`pmabayes.criticism.bands.BandErrors` (same bands for
         every label, the last one overall), in the order to draw them: for
         example base, base + one effect, base + two effects.
     title : str
@@ -219,8 +219,8 @@ def plot_residual_signature(
         The model (batch of one) with its states.
     frequency_hz : numpy.ndarray
         Instantaneous frequency of the command at each sample
-        (:func:`pmabayes.criticism.residuals.instantaneous_frequency`, or
-        :attr:`pmabayes.criticism.diagnosis.Diagnosis.frequency_hz`).
+        (:func:`pmabayes.criticism.bands.instantaneous_frequency`, or
+        :attr:`pmabayes.criticism.results.Diagnosis.frequency_hz`).
     label : str
         Name of the model in the title.
     path : str or Path, optional
@@ -266,10 +266,10 @@ def plot_whiteness(curves, *, path: str | Path | None = None) -> Figure:
 
     Parameters
     ----------
-    curves : pmabayes.criticism.residuals.WhitenessCurves
-        The curves, one per model (:func:`pmabayes.criticism.residuals.whiteness_curves`,
-        :meth:`pmabayes.criticism.diagnosis.Diagnosis.whiteness_curves` or
-        :meth:`pmabayes.criticism.diagnosis.FitComparison.whiteness_curves`).
+    curves : pmabayes.criticism.whiteness.WhitenessCurves
+        The curves, one per model (:func:`pmabayes.criticism.whiteness.whiteness_curves`,
+        :meth:`pmabayes.criticism.results.Diagnosis.whiteness_curves` or
+        :meth:`pmabayes.criticism.compare.FitComparison.whiteness_curves`).
     path : str or Path, optional
         Where to save the figure.
 
@@ -306,11 +306,11 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
 
     Parameters
     ----------
-    findings : list of pmabayes.criticism.diagnosis.Finding
+    findings : list of pmabayes.criticism.results.Finding
         The ranking of a diagnosis.
     threshold : float, optional
         The significance threshold of the score statistic, drawn as a line
-        (:attr:`pmabayes.criticism.diagnosis.Diagnosis.score_threshold`); none drawn if not
+        (:attr:`pmabayes.criticism.results.Diagnosis.score_threshold`); none drawn if not
         given.
     level : float
         Family-wise level of that threshold, for its legend.

@@ -38,7 +38,7 @@ import arviz as az
 import numpy as np
 import xarray as xr
 
-from pmabayes.criticism.residuals import Adequacy, check_adequacy
+from pmabayes.criticism.adequacy import Adequacy, check_adequacy
 from pmabayes.data import DataError, Dataset
 from pmabayes.inference.fitfile import (
     FitFileError,
@@ -475,7 +475,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     The sampler's convergence says that the posterior of the model is well sampled,
     not that the model fits. This judges the posterior median model (from the
     fit's posterior predictive draws) against the trials with the rule of
-    :func:`pmabayes.criticism.residuals.is_adequate`: its residual, whitened by the fit's
+    :func:`pmabayes.criticism.adequacy.is_adequate`: its residual, whitened by the fit's
     noise estimate, must be as small and as white as pure noise. The error against
     the noise floor and the fraction of the data inside the predictive band are
     quoted beside it, and for a model that fails, the command that finds what is
@@ -494,7 +494,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
     Returns
     -------
     Adequacy
-        Print its :meth:`~pmabayes.criticism.residuals.Adequacy.lines`.
+        Print its :meth:`~pmabayes.criticism.adequacy.Adequacy.lines`.
 
     Raises
     ------
@@ -1101,7 +1101,7 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
 
     Parameters
     ----------
-    diagnosis : pmabayes.criticism.diagnosis.Diagnosis
+    diagnosis : pmabayes.criticism.results.Diagnosis
         The result of :func:`pmabayes.criticism.diagnosis.diagnose`.
     out_dir : str or Path
         Destination folder, created if needed. Written: ``comparison.png``,
@@ -1267,8 +1267,8 @@ def write_comparison(comparison, out_dir: str | Path, *,
 
     Parameters
     ----------
-    comparison : pmabayes.criticism.diagnosis.FitComparison
-        From :func:`pmabayes.criticism.diagnosis.compare_fits`.
+    comparison : pmabayes.criticism.compare.FitComparison
+        From :func:`pmabayes.criticism.compare.compare_fits`.
     out_dir : str or Path
         Destination folder. Written: ``error_falling.png``, ``whiteness.png``,
         ``comparison.json``, ``comparison.md`` and ``index.html``. For fits of
