@@ -359,11 +359,13 @@ HIDDEN = [
 
 def diagnosis(ds, effects=(), candidates=BUILTINS, **kw):
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
     # two refits suffice here (the hidden effect, or the lag/delay twins, rank in the
     # top two by score) and keep the tests' time down; the default is three
     kw.setdefault("max_refits", 2)
-    return diagnose(ds, effects=effects, candidates=candidates, seed=0, **kw)
+    settings = DiagnoseSettings(candidates=candidates, **kw)
+    return diagnose(ds, effects=effects, settings=settings, seed=0)
 
 
 @pytest.mark.slow
@@ -478,8 +480,29 @@ def test_diagnosis_json_has_the_documented_keys():
 
 def test_diagnose_rejects_bad_settings(perfect):
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
+    from pmabayes.model.effects import EffectError
 
-    with pytest.raises(ValueError, match="ci_prob"):
-        diagnose(perfect[0], ci_prob=1.5)
+    with pytest.raises(ValueError, match="ci_prob must be in"):
+        DiagnoseSettings(ci_prob=1.5)
+    for bad, words in (({"level": 0.0}, "level must be in"), ({"n_draws": 10}, "n_draws"),
+                       ({"max_refits": 1.5}, "max_refits must be a whole number"),
+                       ({"energy_tolerance": -0.1}, "energy_tolerance must be positive"),
+                       ({"min_explained": float("nan")}, "min_explained"),
+                       ({"candidates": "regulator_lag"}, "split a comma-separated"),
+                       ({"noise_model": "ar2"}, "noise_model")):
+        with pytest.raises(ValueError, match=words):
+            DiagnoseSettings(**bad)
+    with pytest.raises(EffectError):
+        DiagnoseSettings(candidates=("no_such_effect",))
     with pytest.raises(TypeError):
-        diagnose(perfect[0], bogus=1)
+        DiagnoseSettings(bogus=1)
+    with pytest.raises(TypeError, match="DiagnoseSettings"):
+        diagnose(perfect[0], settings={"ci_prob": 0.5})
+    with pytest.raises(TypeError):
+        diagnose(perfect[0], ci_prob=0.5)  # a setting, not an argument
+    s = DiagnoseSettings(candidates=["regulator_lag"], max_refits=2)
+    assert s.candidates == ("regulator_lag",) and s.to_dict()["candidates"] == ["regulator_lag"]
+    assert set(s.to_dict()) == {"level", "level_adequate", "energy_tolerance", "max_refits",
+                                "min_explained", "ci_prob", "n_draws", "substeps",
+                                "candidates", "noise_model", "discrepancy"}

@@ -252,8 +252,8 @@ def test_null_data_propose_nothing(tmp_path):
 def test_the_discrepancy_figure_and_page_section():
     """The partial-dependence figure and the diagnosis page's section, from a small result."""
     from pmabayes.criticism.discrepancy import Discrepancy, Proposal, StateEvidence
+    from pmabayes.report.diagnosis_page import _discrepancy_section
     from pmabayes.report.figures import plot_discrepancy
-    from pmabayes.report.pages import _discrepancy_section
 
     grid = np.linspace(-0.1, 0.1, 50)
     states = [StateEvidence("velocity", "m/s", 120.0, 8.0, 1.3, True),

@@ -13,8 +13,9 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["cholesky", "solve_lower", "solve_lower_transposed", "at_b", "a_b", "spd_solve",
-           "orthonormal"]
+#: the compiled kernels (``cholesky``, ``solve_lower``, ``solve_lower_transposed``) are
+#: public to the package too
+__all__ = ["at_b", "a_b", "spd_solve", "orthonormal"]
 
 
 @numba.njit(cache=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 __all__ = ["StateEvidence", "Proposal", "Discrepancy"]
 
@@ -133,7 +133,6 @@ class Discrepancy:
     near_floor: bool
     other_cause: str | None
     text: str
-    extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
