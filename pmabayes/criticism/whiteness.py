@@ -258,19 +258,8 @@ class NoiseModelCheck:
         return "AR(1) + white" if self.adequate else f"AR({self.ar_order}) from the repeats"
 
     def whiten_series(self, v: np.ndarray) -> np.ndarray:
-        """Exact standardised innovations of a series of one trial's noise (AR model).
-
-        Parameters
-        ----------
-        v : numpy.ndarray
-            ``(n_samples,)``, e.g. a Helmert contrast, or ``sqrt(R)`` times the
-            trial mean's residual.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(n_samples,)``; independent N(0, 1) when the AR model holds.
-        """
+        """A series of one trial's noise whitened by the AR model of the repeats
+        (:meth:`pmabayes.inference.likelihood.ArNoise.whiten`)."""
         return self.ar.whiten(v)
 
     def whiten_residual(self, residual_m: np.ndarray) -> np.ndarray:

@@ -13,9 +13,9 @@ import math
 import numba
 import numpy as np
 
-#: the compiled kernels (``cholesky``, ``solve_lower``, ``solve_lower_transposed``) are
-#: public to the package too
-__all__ = ["at_b", "a_b", "spd_solve", "orthonormal"]
+#: the products (``at_b``, ``a_b``) and the compiled kernels (``cholesky``,
+#: ``solve_lower``, ``solve_lower_transposed``) are public to the package too
+__all__ = ["spd_solve", "orthonormal"]
 
 
 @numba.njit(cache=True)
@@ -98,38 +98,12 @@ def _product(a: np.ndarray, b: np.ndarray, transpose_a: bool) -> np.ndarray:
 
 
 def at_b(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a.T @ b`` in compiled loops.
-
-    Parameters
-    ----------
-    a : numpy.ndarray
-        ``(n, k)``.
-    b : numpy.ndarray
-        ``(n,)`` or ``(n, m)``.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(k,)`` or ``(k, m)``.
-    """
+    """``a.T @ b`` in compiled loops (``a``: ``(n, k)``; ``b``: ``(n,)`` or ``(n, m)``)."""
     return _product(a, b, True)
 
 
 def a_b(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b`` in compiled loops.
-
-    Parameters
-    ----------
-    a : numpy.ndarray
-        ``(n, k)``.
-    b : numpy.ndarray
-        ``(k,)`` or ``(k, m)``.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(n,)`` or ``(n, m)``.
-    """
+    """``a @ b`` in compiled loops (``a``: ``(n, k)``; ``b``: ``(k,)`` or ``(k, m)``)."""
     return _product(a, b, False)
 
 
