@@ -249,7 +249,20 @@ class ExperimentDiagnosis:
                 "model, whose correlation time is bounded far below the input's time scales")
 
     def to_dict(self) -> dict:
-        """JSON-ready summary of this experiment (an entry of ``experiments``)."""
+        """JSON-ready summary of this experiment (an entry of a diagnosis' ``experiments``).
+
+        Returns
+        -------
+        dict
+            ``name``, ``data`` (its source), ``synthetic``, ``rig``, ``n_trials``,
+            ``n_samples``, ``noise_source``, ``noise`` (``sigma_noise_m``,
+            ``rho_noise``, ``sigma_white_m``), ``rms_m``, ``noise_floor_m`` and
+            ``ratio`` (None without repeats), ``adequate``, ``floor_note`` (None with
+            a floor), ``whiteness`` (``ljung_box_p``, ``energy``, ``energy_p``),
+            ``signature`` (:meth:`~pmabayes.criticism.signature.Signature.describe`)
+            and ``bands`` (one :meth:`~pmabayes.criticism.bands.BandErrors.to_dict`
+            each, the last overall).
+        """
         sig = self.signature
         return {
             "name": self.name, "data": self.dataset.source,

@@ -40,31 +40,32 @@ def cholesky(q):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def solve_lower(c, b):  # pragma: no cover
-    """Solve ``c y = b`` for lower-triangular ``c``; ``b`` is ``(n, m)``."""
+def _triangular_kernel(c, b, transposed):  # pragma: no cover
+    """Solve ``c x = b`` (forward) or ``c.T x = b`` (backward) for lower-triangular ``c``."""
     n, m = b.shape
-    y = np.empty_like(b)
+    x = np.empty_like(b)
     for col in range(m):
-        for i in range(n):
+        for step in range(n):
+            i = n - 1 - step if transposed else step
             t = b[i, col]
-            for k in range(i):
-                t -= c[i, k] * y[k, col]
-            y[i, col] = t / c[i, i]
-    return y
-
-
-@numba.njit(cache=True)
-def solve_lower_transposed(c, y):  # pragma: no cover
-    """Solve ``c.T x = y`` for lower-triangular ``c``; ``y`` is ``(n, m)``."""
-    n, m = y.shape
-    x = np.empty_like(y)
-    for col in range(m):
-        for i in range(n - 1, -1, -1):
-            t = y[i, col]
-            for k in range(i + 1, n):
-                t -= c[k, i] * x[k, col]
+            if transposed:
+                for k in range(i + 1, n):
+                    t -= c[k, i] * x[k, col]
+            else:
+                for k in range(i):
+                    t -= c[i, k] * x[k, col]
             x[i, col] = t / c[i, i]
     return x
+
+
+def solve_lower(c: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``c y = b`` for lower-triangular ``c``; ``b`` is ``(n, m)``."""
+    return _triangular_kernel(c, b, False)
+
+
+def solve_lower_transposed(c: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Solve ``c.T x = y`` for lower-triangular ``c``; ``y`` is ``(n, m)``."""
+    return _triangular_kernel(c, y, True)
 
 
 @numba.njit(cache=True)
