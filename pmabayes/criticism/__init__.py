@@ -11,11 +11,11 @@ Each file owns one idea:
 ``adequacy``       the one adequacy rule and its verdict in words
 ``scores``         score tests of candidate effects, with no refit
 ``elpd``           leave-one-trial-out ELPD: Laplace PSIS-LOO, tables, paired differences
-``settings``       :class:`DiagnoseSettings`
+``settings``       :class:`~pmabayes.criticism.settings.DiagnoseSettings`
 ``refits``         the diagnosed model at its MAP, the refits and the missing effect
 ``results``        what a diagnosis finds, and its JSON
 ``prose``          the verdict and the explanations in words
-``diagnosis``      :func:`diagnose`, a short sequence of the steps above
+``diagnosis``      ``diagnose``, a short sequence of the steps above
 ``discrepancy``    the missing force estimated from the data (a package)
 ``compare``        fits of the same data side by side
 ``validation``     predictions of held-out experiments

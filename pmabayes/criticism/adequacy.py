@@ -47,7 +47,7 @@ def is_adequate(energy: float, ljung_box_p: float, *,
     energy_tolerance : float
         See :data:`ENERGY_TOLERANCE`.
     level_adequate : float
-        See :data:`LEVEL_ADEQUATE`.
+        See :data:`~pmabayes.inference.likelihood.LEVEL_ADEQUATE`.
 
     Returns
     -------
@@ -89,7 +89,8 @@ class Adequacy:
     level_adequate : float
         Ljung-Box level used for ``adequate``.
     noise_model : str
-        The noise model the residual was whitened with (:func:`judged_whiteness`).
+        The noise model the residual was whitened with
+        (:func:`~pmabayes.criticism.whiteness.judged_whiteness`).
     """
 
     adequate: bool | None
@@ -213,7 +214,8 @@ def check_adequacy(
     -------
     Adequacy
         With the default tolerance and level (:data:`ENERGY_TOLERANCE`,
-        :data:`LEVEL_ADEQUATE`), as :func:`pmabayes.criticism.diagnosis.diagnose` uses.
+        :data:`~pmabayes.inference.likelihood.LEVEL_ADEQUATE`), as
+        :func:`pmabayes.criticism.diagnosis.diagnose` uses by default.
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
     if likelihood.dataset.n_trials >= 2:

@@ -46,7 +46,7 @@ class FitComparison:
     labels : list of str
         One per fit, in the given order (``base``, ``base + regulator_lag``...).
     bands : dict
-        Label to :func:`band_errors` of the MAP model.
+        Label to :func:`~pmabayes.criticism.bands.band_errors` of the MAP model.
     whiteness : dict
         Label to ``{"ljung_box_p", "energy", "energy_p"}`` of the whitened residual.
     innovations : dict

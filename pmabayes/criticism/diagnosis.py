@@ -111,7 +111,7 @@ def diagnose(
        floor, whiteness of the residual whitened by the noise model, its
        correlation with the model's states and with the command's rate.
     3. Every candidate effect is ranked by the score test
-       (:func:`rank_effects`), which needs no refit.
+       (:func:`~pmabayes.criticism.scores.rank_effects`), which needs no refit.
     4. The significant candidates (at most ``settings.max_refits``, strongest first) are
        added one at a time and refitted; each refit is judged by the excess
        residual it removes and by its leave-one-trial-out ELPD (PSIS-LOO over

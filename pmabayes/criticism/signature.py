@@ -47,7 +47,7 @@ class Signature:
     noise_model : str
         The noise model the residual was whitened with: ``"AR(1) + white"``, or an
         AR model of the repeats when those reject AR(1) + white
-        (:func:`judged_whiteness`).
+        (:func:`~pmabayes.criticism.whiteness.judged_whiteness`).
     """
 
     bands: list

@@ -210,8 +210,9 @@ class NoiseModelCheck:
     ar_order : int
         Order of the autoregressive noise model fitted to the deviations
         (Yule-Walker, pooled over the contrasts, order by AIC up to
-        :data:`MAX_AR_ORDER`): the spectrum of the repeats, used to whiten the
-        trial mean's residual when AR(1) + white is rejected.
+        :data:`~pmabayes.inference.likelihood.MAX_AR_ORDER`): the spectrum of the
+        repeats, used to whiten the trial mean's residual when AR(1) + white is
+        rejected.
     ar_ljung_box_p : float
         Ljung-Box p-value of the contrasts whitened by that model.
     coefficients : numpy.ndarray
@@ -337,14 +338,16 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
     """Test the AR(1) + white noise model on the deviations between trials (model-free).
 
     The Helmert contrasts of the trials are series of the noise alone. Whitened
-    by the identified noise (Kalman innovations, :meth:`Likelihood.whiten`) they
-    are white when the noise model holds: a pooled Ljung-Box test says whether it
-    does. Real disturbances often have more structure (two time scales,
-    vibration, slow drift), and then the whiteness test of the trial mean's
-    residual would reject the noise model, not the physics. So an autoregressive
-    model of the repeats is also fitted (Yule-Walker on the contrasts, order by
-    AIC), which :func:`check_adequacy` and :func:`residual_signature` whiten with
-    when AR(1) + white is rejected.
+    by the identified noise (Kalman innovations,
+    :meth:`~pmabayes.inference.likelihood.Likelihood.whiten`) they are white when the
+    noise model holds: a pooled Ljung-Box test says whether it does. Real
+    disturbances often have more structure (two time scales, vibration, slow drift),
+    and then the whiteness test of the trial mean's residual would reject the noise
+    model, not the physics. So an autoregressive model of the repeats is also fitted
+    (Yule-Walker on the contrasts, order by AIC), which
+    :func:`~pmabayes.criticism.adequacy.check_adequacy` and
+    :func:`~pmabayes.criticism.signature.residual_signature` whiten with when AR(1) +
+    white is rejected.
 
     Parameters
     ----------

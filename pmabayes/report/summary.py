@@ -179,8 +179,8 @@ def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path, *,
     out_dir : str or Path
         Destination folder, created if needed; existing files are overwritten.
     adequacy : Adequacy, optional
-        The model's adequacy verdict (:func:`fit_adequacy`), written as a quote
-        above the Markdown table.
+        The model's adequacy verdict (:func:`~pmabayes.report.verdicts.fit_adequacy`),
+        written as a quote above the Markdown table.
 
     Returns
     -------

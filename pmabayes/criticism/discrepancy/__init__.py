@@ -1,7 +1,8 @@
 """A data-driven discrepancy: the missing force, estimated from the data, and a closed form.
 
-:func:`~pmabayes.criticism.diagnosis.diagnose` calls :func:`estimate_discrepancy` when its
-verdict is "above the floor, no candidate in the library accounts for it".
+:func:`~pmabayes.criticism.diagnosis.diagnose` calls
+:func:`~pmabayes.criticism.discrepancy.estimate.estimate_discrepancy` when its verdict is
+"above the floor, no candidate in the library accounts for it".
 
 Method
 ------

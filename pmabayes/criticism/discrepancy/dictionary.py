@@ -30,7 +30,8 @@ class Term:
     words : str
         What a force of this form is, physically.
     state : str
-        The state it mainly depends on (one of :data:`STATES`).
+        The state it mainly depends on (one of
+        :data:`~pmabayes.criticism.discrepancy.problem.STATES`).
     force : str or None
         Numba-compatible expression in ``x``, ``v``, ``p``, and ``z`` (the
         hysteretic force) or ``s`` (the memory state) where the term needs them;

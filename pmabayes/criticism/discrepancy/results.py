@@ -14,7 +14,7 @@ class StateEvidence:
     Parameters
     ----------
     state : str
-        One of :data:`STATES`.
+        One of :data:`~pmabayes.criticism.discrepancy.problem.STATES`.
     unit : str
         Its unit.
     elpd_loss : float
