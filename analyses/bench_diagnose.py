@@ -21,8 +21,10 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from dataclasses import replace
 
 from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.data import Dataset
 from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
 
@@ -48,19 +50,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as folder:
         warm = data(3, args.seed + 1, Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0))
-        diagnose(warm, candidates=CANDIDATES, max_refits=1, plugin_dir=folder, seed=0,
-                 discrepancy=not args.no_discrepancy)
+        settings = DiagnoseSettings(candidates=CANDIDATES, discrepancy=not args.no_discrepancy)
+        diagnose(warm, settings=replace(settings, max_refits=1), plugin_dir=folder, seed=0)
         ds = data(args.trials, args.seed)  # the paper's 15 s chirp
         start = time.perf_counter()
-        d = diagnose(ds, candidates=CANDIDATES, plugin_dir=folder, seed=args.seed,
-                     discrepancy=not args.no_discrepancy)
+        d = diagnose(ds, settings=settings, plugin_dir=folder, seed=args.seed)
         seconds = time.perf_counter() - start
         print(d.verdict)
         if d.discrepancy is not None:
             from pmabayes.criticism.discrepancy import estimate_discrepancy
 
             t0 = time.perf_counter()
-            estimate_discrepancy(_likelihood(d), d.noise, d.values, d.simulation,
+            e = d.experiments[0]
+            estimate_discrepancy(_likelihood(d), e.noise, d.values, e.simulation,
                                  plugin_dir=folder)
             print(f"discrepancy step alone (kernels compiled): "
                   f"{time.perf_counter() - t0:.1f} s")
@@ -72,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
 def _likelihood(d):
     from pmabayes.inference.likelihood import Likelihood
 
-    return Likelihood(d.model, d.dataset, substeps=d.settings["substeps"])
+    e = d.experiments[0]
+    return Likelihood(e.model, e.dataset, substeps=d.settings["substeps"])
 
 
 if __name__ == "__main__":

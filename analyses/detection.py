@@ -63,6 +63,7 @@ import numpy as np
 from scipy import stats
 
 from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.inference.batch import dask_client
 from pmabayes.parallel import Runner
 from pmabayes.synthetic import (
@@ -101,9 +102,11 @@ def _run(job: dict) -> tuple[int, dict, float]:
                                 params=job["truth"], effects=job["effects"])
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as folder:  # any proposal is written there, not in cwd
-        d = diagnose(ds, candidates=CANDIDATES, seed=job["seed"], max_refits=job["max_refits"],
-                     plugin_dir=folder)
-    found = {"missing": d.missing, "adequate": d.adequate, "ratio": d.signature.ratio,
+        d = diagnose(ds, settings=DiagnoseSettings(candidates=CANDIDATES,
+                                                   max_refits=job["max_refits"]),
+                     seed=job["seed"], plugin_dir=folder)
+    found = {"missing": d.missing, "adequate": d.adequate,
+             "ratio": d.experiments[0].signature.ratio,
              "ranking": [{"effect": f.effect, "significant": f.significant,
                           "p_value": f.p_value, "interval": dict(f.interval)}
                          for f in d.ranking]}
@@ -142,9 +145,11 @@ def _run_discrepancy(job: dict) -> tuple[int, dict, float]:
         # the user's loop: a library effect named missing is added and the data
         # diagnosed again (a hidden effect may look partly like one in the library)
         for _ in range(1 + MAX_LIBRARY_ROUNDS):
-            d = diagnose(ds, effects=added, candidates=CANDIDATES, seed=job["seed"],
-                         max_refits=job["max_refits"], plugin_dir=folder)
-            first_ratio = first_ratio if added else d.signature.ratio
+            d = diagnose(ds, effects=added,
+                         settings=DiagnoseSettings(candidates=CANDIDATES,
+                                                   max_refits=job["max_refits"]),
+                         seed=job["seed"], plugin_dir=folder)
+            first_ratio = first_ratio if added else d.experiments[0].signature.ratio
             if d.missing is None or d.adequate or len(added) == MAX_LIBRARY_ROUNDS:
                 break
             added.append(d.missing)

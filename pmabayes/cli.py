@@ -231,8 +231,8 @@ def load_plugin(spec: str) -> None:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from pmabayes.criticism.residuals import band_errors, band_label
-    from pmabayes.report.figures import plot_comparison  # matplotlib only where figures are made
+    from pmabayes.criticism.bands import band_errors, band_label
+    from pmabayes.report.figures import plot_comparison
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -312,7 +312,7 @@ def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
-    from pmabayes.report.pages import experiment_adequacy  # the model's fit, not the sampler's
+    from pmabayes.report.verdicts import experiment_adequacy
 
     for name, adequacy in experiment_adequacy(tree, datasets=datasets):
         prefix = f"[{name}] " if len(datasets) > 1 else ""
@@ -345,7 +345,8 @@ def _report_datasets(tree, paths: Sequence[str] | None) -> list[Dataset] | None:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from pmabayes.report.pages import experiment_adequacy, write_report
+    from pmabayes.report.fit_page import write_report
+    from pmabayes.report.verdicts import experiment_adequacy
 
     _out_folder(args.out)
     tree = load_fit(args.fit)
@@ -359,7 +360,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from pmabayes.report.pages import write_report
+    from pmabayes.report.fit_page import write_report
 
     start = time.perf_counter()
     out = _out_folder(args.out)
@@ -374,6 +375,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
     start = time.perf_counter()
     if args.out:
@@ -382,12 +384,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     for ds in datasets:  # the noise is learnt from their spread
         print(check_trials(ds).summary())
     model = _model_for(datasets[0], args)
+    settings = DiagnoseSettings(candidates=args.candidates or None,
+                                noise_model=args.noise_model)
     result = diagnose(datasets if len(datasets) > 1 else datasets[0], model,
-                      candidates=args.candidates or None, seed=args.seed,
-                      progress=not args.quiet, noise_model=args.noise_model,
+                      settings=settings, seed=args.seed, progress=not args.quiet,
                       plugin_dir=args.proposal_dir or args.out or Path.cwd())
     summary = result.to_dict()
-    label = " + ".join(["base", *result.model.effect_names])
+    label = " + ".join(["base", *result.effects])
     print(f"model: {label}")
     for e in result.experiments:
         prefix = f"[{e.name}] " if len(result.experiments) > 1 else ""
@@ -406,7 +409,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         _write_json(args.json, summary)
         print(f"wrote {args.json}")
     if args.out:
-        from pmabayes.report.pages import write_diagnosis
+        from pmabayes.report.diagnosis_page import write_diagnosis
 
         index = write_diagnosis(result, Path(args.out))
         print(f"wrote {index}")
@@ -415,8 +418,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from pmabayes.criticism.diagnosis import compare_fits
-    from pmabayes.report.pages import write_comparison
+    from pmabayes.criticism.compare import compare_fits
+    from pmabayes.report.comparison_page import write_comparison
 
     labels = args.labels.split(",") if args.labels else None
     if len(args.fits) < 2 or (labels is not None and len(labels) != len(args.fits)):
@@ -514,10 +517,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
     from pmabayes.control.robustness import robustness_sweep, summarise_robustness, write_robustness
-    from pmabayes.report.figures import (  # matplotlib only where figures are made
-        plot_robustness,
-        plt,
-    )
+    from pmabayes.report.figures import plot_robustness, plt
 
     _out_folder(args.out)
     ds = robustness_sweep(args.fit, samples=args.samples, frequencies_hz=args.freqs,
@@ -561,7 +561,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         _write_json(args.json, result.to_dict())
         print(f"wrote {args.json}")
     if args.out:
-        from pmabayes.report.pages import write_validation
+        from pmabayes.report.validation_page import write_validation
 
         print(f"wrote {write_validation(result, Path(args.out))}")
     print(f"({time.perf_counter() - start:.1f} s)")

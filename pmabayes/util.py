@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import math
 import os
 import sys
 import time
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["fingerprint", "source_text", "local_cores", "Progress"]
+__all__ = ["fingerprint", "source_text", "local_cores", "Progress", "finite_or_none"]
 
 
 def _feed(h, part) -> None:
@@ -30,6 +31,22 @@ def _feed(h, part) -> None:
     else:
         h.update(json.dumps(part, sort_keys=True, default=str).encode())
     h.update(b"\x00")  # parts never run into each other
+
+
+def finite_or_none(value) -> float | None:
+    """A number as a JSON value: the float, or None where it is NaN or infinite.
+
+    Parameters
+    ----------
+    value : float
+        Any real number (a numpy scalar too).
+
+    Returns
+    -------
+    float or None
+    """
+    value = float(value)
+    return value if math.isfinite(value) else None
 
 
 def fingerprint(*parts, length: int = 16) -> str:

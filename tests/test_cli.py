@@ -197,6 +197,8 @@ def test_diagnose_writes_json_and_page(offset_data, tmp_path, capsys):
     assert summary["effects"] == [] and summary["rms_m"] > 2 * summary["noise_floor_m"]
     assert {r["effect"] for r in summary["ranking"]} == {"regulator_lag", "coulomb_friction",
                                                         "position_offset"}
+    assert [e["name"] for e in summary["experiments"]] == [offset_data.stem]
+    assert summary["experiments"][0]["bands"] and summary["misfit_experiments"]
     assert "position_offset is missing" in capsys.readouterr().out
     html = (out / "index.html").read_text()
     for name in ("bands", "signature", "whiteness", "ranking", "comparison"):

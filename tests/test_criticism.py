@@ -4,14 +4,8 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.criticism.diagnosis import (
-    autocorrelation,
-    band_errors,
-    cross_correlation,
-    innovations,
-    instantaneous_frequency,
-    ljung_box,
-)
+from pmabayes.criticism.bands import band_errors, instantaneous_frequency
+from pmabayes.criticism.whiteness import autocorrelation, cross_correlation, innovations, ljung_box
 from pmabayes.data import Dataset
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.inference.noise import estimate_noise
@@ -76,7 +70,7 @@ def test_a_missing_lag_is_above_the_floor_and_not_white(lagged):
 
 
 def test_the_adequacy_rule_and_its_verdict(perfect, lagged):
-    from pmabayes.criticism.residuals import check_adequacy, is_adequate
+    from pmabayes.criticism.adequacy import check_adequacy, is_adequate
 
     for case, expected in ((perfect, True), (lagged, False)):
         ds, lik, x, _ = judge(case)
@@ -109,7 +103,8 @@ def two_time_scale(seed, effects=None, r=6):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
-    from pmabayes.criticism.residuals import check_adequacy, check_noise_model, whiteness
+    from pmabayes.criticism.adequacy import check_adequacy
+    from pmabayes.criticism.whiteness import check_noise_model, whiteness
 
     ds = two_time_scale(seed)
     lik = Likelihood(pb.Model(), ds)
@@ -133,7 +128,7 @@ def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
 @pytest.mark.slow
 def test_the_two_time_scale_verdict_is_calibrated():
     """20 data sets, a correct model: at most one called inadequate (README's numbers)."""
-    from pmabayes.criticism.residuals import check_adequacy
+    from pmabayes.criticism.adequacy import check_adequacy
 
     model, x, adequate = pb.Model(), None, 0
     for seed in range(100, 120):
@@ -146,7 +141,8 @@ def test_the_two_time_scale_verdict_is_calibrated():
 
 
 def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
-    from pmabayes.criticism.residuals import check_adequacy, check_noise_model, whiteness
+    from pmabayes.criticism.adequacy import check_adequacy
+    from pmabayes.criticism.whiteness import check_noise_model, whiteness
 
     for case in (perfect, lagged):
         ds, lik, x, e = judge(case)
@@ -230,7 +226,7 @@ def test_band_errors_add_up_to_the_total_for_any_input(kind):
 
 
 def test_the_bands_span_what_the_input_excites():
-    from pmabayes.criticism.residuals import excited_band, input_bands
+    from pmabayes.criticism.bands import excited_band, input_bands
 
     t = np.arange(20000) * 1e-3
     u = sum(np.sin(2 * np.pi * f * t) for f in (0.6, 1.2, 2.4, 5.0))
@@ -266,7 +262,7 @@ BUILTINS = ("regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiff
 
 
 def ranking(hidden):
-    from pmabayes.criticism.diagnosis import rank_effects
+    from pmabayes.criticism.scores import rank_effects
     from pmabayes.inference.density import Posterior
     from pmabayes.inference.search import find_map
 
@@ -333,7 +329,7 @@ pb.register_effect(CritQuadraticDrag)
 
 @pytest.mark.slow
 def test_a_hidden_user_effect_is_found():
-    from pmabayes.criticism.diagnosis import rank_effects
+    from pmabayes.criticism.scores import rank_effects
     from pmabayes.inference.density import Posterior
     from pmabayes.inference.search import find_map
 
@@ -363,11 +359,13 @@ HIDDEN = [
 
 def diagnosis(ds, effects=(), candidates=BUILTINS, **kw):
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
     # two refits suffice here (the hidden effect, or the lag/delay twins, rank in the
     # top two by score) and keep the tests' time down; the default is three
     kw.setdefault("max_refits", 2)
-    return diagnose(ds, effects=effects, candidates=candidates, seed=0, **kw)
+    settings = DiagnoseSettings(candidates=candidates, **kw)
+    return diagnose(ds, effects=effects, settings=settings, seed=0)
 
 
 @pytest.mark.slow
@@ -482,8 +480,29 @@ def test_diagnosis_json_has_the_documented_keys():
 
 def test_diagnose_rejects_bad_settings(perfect):
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
+    from pmabayes.model.effects import EffectError
 
-    with pytest.raises(ValueError, match="ci_prob"):
-        diagnose(perfect[0], ci_prob=1.5)
+    with pytest.raises(ValueError, match="ci_prob must be in"):
+        DiagnoseSettings(ci_prob=1.5)
+    for bad, words in (({"level": 0.0}, "level must be in"), ({"n_draws": 10}, "n_draws"),
+                       ({"max_refits": 1.5}, "max_refits must be a whole number"),
+                       ({"energy_tolerance": -0.1}, "energy_tolerance must be positive"),
+                       ({"min_explained": float("nan")}, "min_explained"),
+                       ({"candidates": "regulator_lag"}, "split a comma-separated"),
+                       ({"noise_model": "ar2"}, "noise_model")):
+        with pytest.raises(ValueError, match=words):
+            DiagnoseSettings(**bad)
+    with pytest.raises(EffectError):
+        DiagnoseSettings(candidates=("no_such_effect",))
     with pytest.raises(TypeError):
-        diagnose(perfect[0], bogus=1)
+        DiagnoseSettings(bogus=1)
+    with pytest.raises(TypeError, match="DiagnoseSettings"):
+        diagnose(perfect[0], settings={"ci_prob": 0.5})
+    with pytest.raises(TypeError):
+        diagnose(perfect[0], ci_prob=0.5)  # a setting, not an argument
+    s = DiagnoseSettings(candidates=["regulator_lag"], max_refits=2)
+    assert s.candidates == ("regulator_lag",) and s.to_dict()["candidates"] == ["regulator_lag"]
+    assert set(s.to_dict()) == {"level", "level_adequate", "energy_tolerance", "max_refits",
+                                "min_explained", "ci_prob", "n_draws", "substeps",
+                                "candidates", "noise_model", "discrepancy"}

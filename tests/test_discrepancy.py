@@ -55,7 +55,7 @@ def test_stlsq_recovers_a_sparse_combination():
 @pytest.mark.parametrize("effects", [(), ("coulomb_friction",)])
 def test_the_linear_response_to_a_force_matches_the_simulator(effects):
     """The linearised model's response to x^3 against finite differences of cubic_stiffness."""
-    from pmabayes.criticism.discrepancy import _plant, force_response
+    from pmabayes.criticism.discrepancy.response import force_response, linearised_plant
     from pmabayes.model.simulator import simulate_dataset
 
     ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
@@ -65,24 +65,27 @@ def test_the_linear_response_to_a_force_matches_the_simulator(effects):
     ext = model.with_effects("cubic_stiffness")
     fd = (simulate_dataset(ext, {**values, "K3": 1.0}, ds)[0]
           - simulate_dataset(ext, {**values, "K3": 0.0}, ds)[0])
-    g = force_response(_plant(model, values, sim, ds.dt_s), sim.true_position_m[0][None] ** 3)[0]
+    plant = linearised_plant(model, values, sim, ds.dt_s)
+    g = force_response(plant, sim.true_position_m[0][None] ** 3)[0]
     assert np.max(np.abs(g - fd)) < 0.005 * np.max(np.abs(fd))
     # and a force that the model does not hold at all changes the output: not a zero map
     assert np.max(np.abs(fd)) > 1e-8
 
 
 def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
-    from pmabayes.criticism.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+    from pmabayes.criticism.discrepancy import Term
+    from pmabayes.criticism.discrepancy.plugin import plugin_source
+    from pmabayes.model.effects import load_plugin
 
     terms = [(Term("v|v|", "N s^2/m^2", "a quadratic drag", "velocity", "v * abs(v)",
                    dv="2.0 * abs(v)", slug="vabsv"), 250.0),
              (Term("(x - 20 mm) [x<20 mm]", "N/m", "a spring in compression", "position",
                    "((x - {B}) if x < {B} else 0.0)", "(1.0 if x < {B} else 0.0)",
                    slug="xlo", breakpoint_m=0.02), -300.0)]
-    body = _plugin_source("proposed_test", terms, "a drag and a spring")
+    body = plugin_source("proposed_test", terms, "a drag and a spring")
     path = tmp_path / "proposed_test.py"
-    path.write_text(body + _REGISTER)
-    eff = _load_unregistered(path)
+    path.write_text(body)
+    eff = load_plugin(path, register=False).ProposedEffect
     assert eff.name == "proposed_test" and "proposed_test" not in pb.registered_effects()
     assert [p.name for p in eff.parameters] == ["c_vabsv", "c_xlo", "x_break"]
     p0 = eff.parameters[0]
@@ -100,15 +103,17 @@ def test_a_written_effect_loads_and_its_derivatives_are_right(tmp_path):
 
 def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
     """A z term reads z; the memory term carries the low-passed velocity as its state."""
-    from pmabayes.criticism.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+    from pmabayes.criticism.discrepancy import Term
+    from pmabayes.criticism.discrepancy.plugin import plugin_source
+    from pmabayes.model.effects import load_plugin
 
     terms = [(Term("z|z|", "1/N", "a hysteretic force growing as z|z|", "hysteresis",
                    "z * abs(z)", dz="2.0 * abs(z)", slug="zabsz"), 0.004),
              (Term("v_lp(tau=0.4 s)", "N s/m", "a force remembering the velocity", "memory",
                    "s", ds="1.0", slug="vlp", memory_tau_s=0.4), 20.0)]
     path = tmp_path / "proposed_zmem.py"
-    path.write_text(_plugin_source("proposed_zmem", terms, "z and memory") + _REGISTER)
-    eff = _load_unregistered(path)
+    path.write_text(plugin_source("proposed_zmem", terms, "z and memory"))
+    eff = load_plugin(path, register=False).ProposedEffect
     assert eff.reads_z and eff.state == "v_lp_m_s"
     q = np.array([0.004, 20.0])
     z, sv = -30.0, 0.01
@@ -133,24 +138,19 @@ def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
     """A shape in position written as a table evaluates like the spline it came from."""
     from scipy.interpolate import BSpline
 
-    from pmabayes.criticism.discrepancy import (
-        _REGISTER,
-        _Block,
-        _bspline_design,
-        _load_unregistered,
-        _plugin_source,
-        _tabulated_term,
-    )
+    from pmabayes.criticism.discrepancy.dictionary import tabulated_term
+    from pmabayes.criticism.discrepancy.plugin import plugin_source
+    from pmabayes.criticism.discrepancy.problem import Block, bspline_design
+    from pmabayes.model.effects import load_plugin
 
     s = np.linspace(0.0, 0.1, 400)
-    basis, knots = _bspline_design(s, 20, 0.0, 0.1)
+    basis, knots = bspline_design(s, 20, 0.0, 0.1)
     w = np.sin(np.linspace(0, 3 * math.pi, 20))
-    block = _Block("position", basis, np.eye(20), knots=knots, grid=(0.0, 0.1))
-    (term, values), table = _tabulated_term(block, w)
+    block = Block("position", basis, np.eye(20), knots=knots, grid=(0.0, 0.1))
+    (term, values), table = tabulated_term(block, w)
     path = tmp_path / "shape.py"
-    path.write_text(_plugin_source("proposed_shape", [(term, 1.0)], "a shape", table)
-                    + _REGISTER)
-    eff = _load_unregistered(path)
+    path.write_text(plugin_source("proposed_shape", [(term, 1.0)], "a shape", table))
+    eff = load_plugin(path, register=False).ProposedEffect
     spline = BSpline(knots, w, 3)
     mean = float(np.mean(basis @ w))
     for x in (0.013, 0.05, 0.087):
@@ -166,9 +166,10 @@ def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
 
 def diagnosis(ds, **kw):
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
-    kw.setdefault("max_refits", 2)
-    return diagnose(ds, candidates=BUILTINS, seed=0, **kw)
+    settings = DiagnoseSettings(candidates=BUILTINS, max_refits=2)
+    return diagnose(ds, settings=settings, seed=0, **kw)
 
 
 CASES = [
@@ -191,7 +192,7 @@ CASES = [
 @pytest.mark.parametrize(("effect", "values", "seed", "state", "library_first"), CASES)
 def test_an_effect_in_no_library_is_found_proposed_and_added(effect, values, seed, state,
                                                              library_first, tmp_path):
-    from pmabayes.cli import load_plugin
+    from pmabayes.model.effects import load_plugin
 
     ds = hidden(effect, values, seed)
     before = diagnosis(ds, plugin_dir=tmp_path)
@@ -219,7 +220,7 @@ def test_an_effect_in_no_library_is_found_proposed_and_added(effect, values, see
 def test_several_experiments_estimate_it_on_the_worst_and_check_it_on_all(tmp_path):
     from dataclasses import replace
 
-    from pmabayes.cli import load_plugin
+    from pmabayes.model.effects import load_plugin
 
     a = replace(hidden(HiddenDrag, {"c_hidden": 300.0}, 32), source="lab/chirp_a.csv")
     b = replace(hidden(HiddenDrag, {"c_hidden": 300.0}, 36,
@@ -251,8 +252,8 @@ def test_null_data_propose_nothing(tmp_path):
 def test_the_discrepancy_figure_and_page_section():
     """The partial-dependence figure and the diagnosis page's section, from a small result."""
     from pmabayes.criticism.discrepancy import Discrepancy, Proposal, StateEvidence
+    from pmabayes.report.diagnosis_page import _discrepancy_section
     from pmabayes.report.figures import plot_discrepancy
-    from pmabayes.report.pages import _discrepancy_section
 
     grid = np.linspace(-0.1, 0.1, 50)
     states = [StateEvidence("velocity", "m/s", 120.0, 8.0, 1.3, True),
@@ -276,14 +277,16 @@ def test_the_discrepancy_figure_and_page_section():
 
 
 def test_a_periodic_proposal_carries_its_period_as_a_parameter(tmp_path):
-    from pmabayes.criticism.discrepancy import _REGISTER, Term, _load_unregistered, _plugin_source
+    from pmabayes.criticism.discrepancy import Term
+    from pmabayes.criticism.discrepancy.plugin import plugin_source
+    from pmabayes.model.effects import load_plugin
 
     k = "6.283185307179586"
     term = Term("sin(2 pi x / 10 mm)", "N", "a detent", "position", f"math.sin({k} * x / {{L}})",
                 f"{k} / {{L}} * math.cos({k} * x / {{L}})", slug="sin", period_m=0.01)
     path = tmp_path / "periodic.py"
-    path.write_text(_plugin_source("proposed_sin", [(term, 2.0)], "a detent") + _REGISTER)
-    eff = _load_unregistered(path)
+    path.write_text(plugin_source("proposed_sin", [(term, 2.0)], "a detent"))
+    eff = load_plugin(path, register=False).ProposedEffect
     assert [p.name for p in eff.parameters] == ["c_sin", "L_period"]
     lp = eff.parameters[1]
     assert lp.unit == "m" and lp.vary and lp.bounds[0] < 0.01 < lp.bounds[1]

@@ -275,14 +275,14 @@ def test_the_null_of_each_effect_is_the_base_model():
 def _refit(effect, elpd_i, explained=0.99):
     from types import SimpleNamespace
 
-    from pmabayes.criticism.diagnosis import Refit
+    from pmabayes.criticism.results import Refit
 
     elpd_i = np.asarray(elpd_i, dtype=float)
     base_i = np.zeros_like(elpd_i)
     diff = elpd_i - base_i
     sig = SimpleNamespace(ratio=1.1, bands=[SimpleNamespace(rms_m=30e-6, floor_m=27e-6)])
     return Refit(effect=effect, values={}, interval={}, rms_m=30e-6,
-                 signature=sig, signatures=(sig,), explained=explained,
+                 signatures=(sig,), explained=explained,
                  elpd=float(elpd_i.sum()), elpd_diff=float(diff.sum()),
                  elpd_diff_se=float(math.sqrt(diff.size * np.var(diff))),
                  contribution_m=np.zeros(3), elpd_i=elpd_i)
@@ -291,10 +291,13 @@ def _refit(effect, elpd_i, explained=0.99):
 def test_the_verdict_says_when_two_refits_cannot_be_told_apart():
     from types import SimpleNamespace
 
-    from pmabayes.criticism.diagnosis import _missing, _Settings, _twins, _verdict
+    from pmabayes.criticism.prose import verdict_text
+    from pmabayes.criticism.refits import missing_effect, near_twins
+    from pmabayes.criticism.settings import DiagnoseSettings
 
-    s = _Settings(level=0.05, level_adequate=0.01, energy_tolerance=0.1, max_refits=3,
-                  min_explained=0.9, ci_prob=0.9, n_draws=400, substeps=1, candidates=None)
+    s = DiagnoseSettings(level=0.05, level_adequate=0.01, energy_tolerance=0.1, max_refits=3,
+                         min_explained=0.9, ci_prob=0.9, n_draws=400, substeps=1,
+                         candidates=None)
     signature = SimpleNamespace(bands=[SimpleNamespace(rms_m=1e-3, floor_m=25e-6)],
                                 energy=20.0, energy_p=0.0, ljung_box_p=0.0)
     rng = np.random.default_rng(0)
@@ -308,13 +311,13 @@ def test_the_verdict_says_when_two_refits_cannot_be_told_apart():
     for what, (second, tied) in cases.items():
         refits = {"regulator_lag": _refit("regulator_lag", lag),
                   "regulator_second_order": _refit("regulator_second_order", second)}
-        missing = _missing(refits, s)
-        twins = _twins(refits, missing, s)
+        missing = missing_effect(refits, s)
+        twins = near_twins(refits, missing, s)
         findings = [SimpleNamespace(effect=k, refit=r) for k, r in refits.items()]
         experiment = SimpleNamespace(name="chirp", signature=signature, adequate=False,
                                      floor_note=lambda: "")
-        text = _verdict("base", (), (experiment,), False, missing, refits, findings, 0.9,
-                        twins)
+        text = verdict_text("base", (), (experiment,), False, missing, refits, findings, 0.9,
+                            twins)
         assert missing in text
         assert ("cannot be told apart" in text) is tied, (what, text)
         if tied:
@@ -354,8 +357,11 @@ def diagnosis(ds, effects=(), **kw):
 
     # three refits: the regulators and the delay share their first-order signature,
     # so all three tie in the score test and each must be refitted
+    from pmabayes.criticism.settings import DiagnoseSettings
+
     kw.setdefault("max_refits", 3)
-    return diagnose(ds, effects=effects, candidates=LIBRARY, seed=0, **kw)
+    return diagnose(ds, effects=effects, settings=DiagnoseSettings(candidates=LIBRARY, **kw),
+                    seed=0)
 
 
 #: cases in the extended tier (run with --extended), so that CI stays under 30 minutes

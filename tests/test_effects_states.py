@@ -318,16 +318,19 @@ EXTENDED = ("maxwell_creep", "bouc_wen_exponent")
     for h in HIDDEN])
 def test_a_hidden_effect_is_found_added_and_the_error_falls_to_the_floor(name, value, param):
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
     ds = generate_chirp_dataset(n_trials=6, seed=3, chirp=RANK_CHIRP, effects={name: value})
-    before = diagnose(ds, candidates=library(), seed=0, max_refits=2, ci_prob=0.99)
+    before = diagnose(ds, settings=DiagnoseSettings(candidates=library(), max_refits=2,
+                                                    ci_prob=0.99), seed=0)
     assert not before.adequate and before.rms_m > 2 * before.noise_floor_m
     top = before.ranking[0]
     assert (top.effect, before.missing) == (name, name), before.verdict
     assert top.significant and top.refit is not None
     lo, hi = top.interval[param]  # a 99% interval from the refit
     assert lo < value < hi, (param, value, top.interval)
-    after = diagnose(ds, effects=[name], candidates=library(), seed=0, max_refits=2)
+    after = diagnose(ds, effects=[name],
+                     settings=DiagnoseSettings(candidates=library(), max_refits=2), seed=0)
     assert after.adequate and after.missing is None, after.verdict
     assert after.rms_m <= 1.25 * after.noise_floor_m
     assert after.rms_m < 0.5 * before.rms_m

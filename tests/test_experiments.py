@@ -132,7 +132,7 @@ def test_periods_of_a_record_from_rest_are_referred_to_the_model():
     periods after the first of a record from rest differ by far more than the noise:
     taken raw they give a noise 20 times too large. The residual's periods give the
     noise drawn; a record in steady state is left as it is."""
-    from pmabayes.criticism.residuals import band_errors
+    from pmabayes.criticism.bands import band_errors
     from pmabayes.inference.noise import estimate_noise
 
     noise = MeasurementNoise(disturbance_std_m=30e-6, disturbance_corr_time_s=0.05)
@@ -268,7 +268,7 @@ def test_single_periodic_record_covers_the_truth():
 def test_a_wrong_model_on_a_single_record_is_still_inadequate():
     """The guard keeps the misfit of a model that lacks an effect visible: the noise
     model cannot turn it into slow noise, so the whitened residual is not white."""
-    from pmabayes.report.pages import fit_adequacy
+    from pmabayes.report.verdicts import fit_adequacy
 
     lagged = generate_chirp_dataset(
         n_trials=1, seed=41, noise=FAST_NOISE, effects={"regulator_lag": 0.045},
@@ -280,7 +280,9 @@ def test_a_wrong_model_on_a_single_record_is_still_inadequate():
 
 @pytest.mark.slow
 def test_report_of_a_joint_fit_shows_each_experiment(joint_fit, tmp_path):
-    from pmabayes.report.pages import experiment_adequacy, fit_adequacy, summary_table, write_report
+    from pmabayes.report.fit_page import write_report
+    from pmabayes.report.summary import summary_table
+    from pmabayes.report.verdicts import experiment_adequacy, fit_adequacy
 
     tree, (a, b) = joint_fit
     verdicts = experiment_adequacy(tree, datasets=[a, b])

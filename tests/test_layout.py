@@ -180,7 +180,7 @@ def test_no_module_but_effects_names_a_builtin_effect():
 
 
 def test_import_picks_no_matplotlib_backend():
-    modules = ["pmabayes", "pmabayes.report.figures", "pmabayes.control", "pmabayes.report.pages",
+    modules = ["pmabayes", "pmabayes.report.figures", "pmabayes.control", "pmabayes.report",
                "pmabayes.cli"]
     code = (
         f"import sys; import {', '.join(modules)}; mpl = sys.modules.get('matplotlib'); "

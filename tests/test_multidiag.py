@@ -12,8 +12,11 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.criticism.diagnosis import compare_fits, diagnose, rank_effects
-from pmabayes.criticism.residuals import band_errors
+from pmabayes.criticism.bands import band_errors
+from pmabayes.criticism.compare import compare_fits
+from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.criticism.scores import rank_effects
+from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.data import DataError, Dataset, save
 from pmabayes.inference.fitfile import save_fit
 from pmabayes.inference.likelihood import Likelihood
@@ -153,7 +156,8 @@ def lagged():
 
 @pytest.fixture(scope="module")
 def lagged_diagnosis(lagged):
-    return diagnose(list(lagged), candidates=BUILTINS, max_refits=2, seed=0)
+    return diagnose(list(lagged), settings=DiagnoseSettings(candidates=BUILTINS, max_refits=2),
+                    seed=0)
 
 
 @pytest.mark.slow
@@ -214,8 +218,8 @@ def test_a_lag_hidden_in_both_experiments_is_found_and_named(lagged_diagnosis):
 
 @pytest.mark.slow
 def test_with_the_lag_added_the_model_is_adequate_in_both(lagged):
-    d = diagnose(list(lagged), effects=["regulator_lag"], candidates=BUILTINS, max_refits=2,
-                 seed=0)
+    d = diagnose(list(lagged), effects=["regulator_lag"],
+                 settings=DiagnoseSettings(candidates=BUILTINS, max_refits=2), seed=0)
     assert d.adequate and d.missing is None, d.verdict
     assert all(e.adequate for e in d.experiments) and d.misfit_experiments == []
     for e in d.experiments:
@@ -228,7 +232,8 @@ def test_with_the_lag_added_the_model_is_adequate_in_both(lagged):
 @pytest.mark.slow
 @pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_a_perfect_model_is_adequate_across_the_experiments():
-    d = diagnose([chirp(seed=21), sine(seed=22)], candidates=BUILTINS, max_refits=2, seed=0)
+    d = diagnose([chirp(seed=21), sine(seed=22)],
+                 settings=DiagnoseSettings(candidates=BUILTINS, max_refits=2), seed=0)
     assert d.adequate and d.missing is None, d.verdict
     assert not any(f.significant for f in d.ranking)
     assert "adequate" in d.verdict and "misfit shows" not in d.verdict
@@ -237,15 +242,20 @@ def test_a_perfect_model_is_adequate_across_the_experiments():
 @pytest.mark.slow
 @pytest.mark.extended  # extended tier: CI stays under 30 minutes
 def test_one_data_set_is_diagnosed_as_before():
-    """A Dataset and a list of one give the same diagnosis, to the bit, with the keys of
-    one experiment only."""
+    """A Dataset and a list of one give the same diagnosis, to the bit, and the JSON of
+    one experiment has the shape of several."""
     a = chirp(effects={"position_offset": 5e-4}, n_trials=3, seed=31)
-    one = diagnose(a, candidates=BUILTINS, max_refits=1, seed=0)
-    listed = diagnose([a], candidates=BUILTINS, max_refits=1, seed=0)
+    settings = DiagnoseSettings(candidates=BUILTINS, max_refits=1)
+    one = diagnose(a, settings=settings, seed=0)
+    listed = diagnose([a], settings=settings, seed=0)
     assert one.verdict == listed.verdict and one.elpd == listed.elpd
     assert one.missing == "position_offset"
-    assert "experiments" not in one.to_dict() and len(one.experiments) == 1
-    assert one.rms_m == one.experiments[0].rms_m
+    assert json.dumps(one.to_dict()) == json.dumps(listed.to_dict())
+    # one experiment has the JSON shape of several
+    out = json.loads(json.dumps(one.to_dict()))
+    assert len(out["experiments"]) == 1 and out["misfit_experiments"] == ["chirp_unloaded"]
+    assert out["rms_m"] == out["experiments"][0]["rms_m"] == one.experiments[0].rms_m
+    assert out["discrepancy"] is None or "experiment" in out["discrepancy"]
 
 
 @pytest.mark.slow
@@ -254,7 +264,8 @@ def test_records_without_repeats_say_they_have_no_floor():
     """A single non-periodic record beside a repeated experiment: its noise is identified
     with the model, and the diagnosis says it has no floor instead of failing."""
     rec = sine(n_trials=1, seed=41, n_periods=4, source="lab/sine_record.csv")
-    d = diagnose([chirp(seed=42), rec], candidates=BUILTINS, max_refits=1, seed=0)
+    d = diagnose([chirp(seed=42), rec],
+                 settings=DiagnoseSettings(candidates=BUILTINS, max_refits=1), seed=0)
     e = d.experiments[1]
     assert e.noise_source == "record" and np.isnan(e.noise_floor_m)
     assert "no noise floor" in d.verdict and "sine_record.csv is a single record" in d.verdict
@@ -297,7 +308,7 @@ def joint_fits(lagged):
 
 @pytest.mark.slow
 def test_compare_fits_of_several_experiments(joint_fits, lagged, tmp_path):
-    from pmabayes.report.pages import write_comparison
+    from pmabayes.report.comparison_page import write_comparison
 
     base, lag = joint_fits
     c = compare_fits([base, lag], list(lagged))

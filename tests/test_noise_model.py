@@ -286,10 +286,11 @@ def test_a_fit_with_ar1_noise_records_it_and_predicts_as_before():
 
 def test_diagnose_rejects_an_unknown_noise_model_before_fitting():
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
     ds = generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP)
     with pytest.raises(ValueError, match="noise_model"):
-        diagnose(ds, noise_model="ar2")
+        diagnose(ds, settings=DiagnoseSettings(noise_model="ar2"))
 
 
 @pytest.mark.slow
@@ -297,13 +298,14 @@ def test_diagnose_refits_with_the_repeats_noise_model():
     """On two-time-scale data a refit's interval and ELPD use the repeats' AR(p) with
     "auto" (the same as "ar", not as "ar1"), and its interval covers the hidden lag."""
     from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
 
     lag = 0.03
     ds = generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP, noise=TWO_SCALE,
                                 effects={"regulator_lag": lag})
-    kw = dict(candidates=("regulator_lag",), max_refits=1, discrepancy=False, seed=0,
-              n_draws=100)
-    runs = {m: diagnose(ds, noise_model=m, **kw) for m in ("auto", "ar", "ar1")}
+    kw = dict(candidates=("regulator_lag",), max_refits=1, discrepancy=False, n_draws=100)
+    runs = {m: diagnose(ds, settings=DiagnoseSettings(noise_model=m, **kw), seed=0)
+            for m in ("auto", "ar", "ar1")}
     refits = {m: d.ranking[0].refit for m, d in runs.items()}
     assert all(r is not None and r.effect == "regulator_lag" for r in refits.values())
     assert refits["auto"].interval == refits["ar"].interval

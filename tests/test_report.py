@@ -16,7 +16,8 @@ from conftest import _ar1, fake_fit
 from pmabayes.data import Dataset
 from pmabayes.inference.fitfile import fit_info, load_fit, save_fit
 from pmabayes.model.model import PAPER_VALUES
-from pmabayes.report.pages import SUMMARY_COLUMNS, summary_table, write_report, write_summary
+from pmabayes.report.fit_page import write_report
+from pmabayes.report.summary import SUMMARY_COLUMNS, summary_table, write_summary
 
 PARAMS = {  # name: (unit, posterior mean, posterior sd)
     "alpha": ("N/m", 24.1, 0.6),
@@ -236,7 +237,7 @@ def test_report_dataset_mismatch(bad_fit, tmp_path):
 
 
 def test_predictive_quantiles_blockwise(monkeypatch):
-    import pmabayes.report.pages as report
+    import pmabayes.report.fit_data as report
 
     rng = np.random.default_rng(3)
     da = xr.DataArray(rng.normal(size=(1, 6, 3, 101)).astype(np.float32),
@@ -350,7 +351,7 @@ def _ratio_in(text: str) -> float:
 
 
 def test_a_wrong_model_is_called_inadequate_first_with_the_next_command(hidden_lag):
-    from pmabayes.report.pages import fit_adequacy
+    from pmabayes.report.verdicts import fit_adequacy
 
     ds, base, tree, index = hidden_lag
     text = _html(index)
@@ -376,7 +377,7 @@ def test_a_wrong_model_is_called_inadequate_first_with_the_next_command(hidden_l
 
 
 def test_a_right_model_is_called_adequate(no_hidden):
-    from pmabayes.report.pages import fit_adequacy
+    from pmabayes.report.verdicts import fit_adequacy
 
     ds, base, tree, index = no_hidden
     text = _html(index)
@@ -395,7 +396,7 @@ def test_a_right_model_is_called_adequate(no_hidden):
 
 
 def test_the_report_line_says_when_the_trials_drift():
-    from pmabayes.report.pages import _trials_line
+    from pmabayes.report.fit_page import _trials_line
 
     rng = np.random.default_rng(5)
     t = np.arange(3000) * 1e-3
@@ -409,7 +410,7 @@ def test_the_report_line_says_when_the_trials_drift():
 
 
 def test_the_verdict_names_the_effects_to_diagnose_with(hidden_lag):
-    from pmabayes.report.pages import fit_adequacy
+    from pmabayes.report.verdicts import fit_adequacy
 
     ds, _, tree, _ = hidden_lag
     info = json.loads(tree.attrs["pmabayes"])

@@ -226,7 +226,7 @@ def test_the_fit_own_data_is_flagged_as_not_held_out(tmp_path):
 
 
 def test_html_page_and_figure(fit_tree, held_out_sets, tmp_path):
-    from pmabayes.report.pages import write_validation
+    from pmabayes.report.validation_page import write_validation
 
     v = validate(fit_tree, [held_out(steps_pa(3.0), source="steps.csv"),
                             held_out(sine_pa(1.0, 3.0), source="sine_1hz.csv"),

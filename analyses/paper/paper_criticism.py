@@ -5,7 +5,7 @@ Coulomb friction that the base model lacks. Three steps, each a
 ``pmabayes.criticism.diagnosis.diagnose`` of the model so far (what is missing, from the
 residual's signature, the score test and refits), then a full posterior fit of each
 model (``pmabayes.inference.sampler.fit``) compared side by side
-(``pmabayes.criticism.diagnosis.compare_fits``: error per frequency band against the noise
+(``pmabayes.criticism.compare.compare_fits``: error per frequency band against the noise
 floor, whiteness, leave-one-trial-out ELPD). The base model is not told what to
 add: each step adds the effect that the previous diagnosis named missing, and the
 script stops when a diagnosis names nothing.
@@ -43,7 +43,9 @@ from _paper import (
     tex_escape,
 )
 
-from pmabayes.criticism.diagnosis import compare_fits, diagnose
+from pmabayes.criticism.compare import compare_fits
+from pmabayes.criticism.diagnosis import diagnose
+from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.inference.fitfile import fit_info
 from pmabayes.report.figures import (
     plot_band_errors,
@@ -97,16 +99,20 @@ def main(argv: list[str] | None = None) -> int:
     for k in range(MAX_STEPS + 1):
         start = time.perf_counter()
         with tempfile.TemporaryDirectory() as folder:  # a proposal, if any, not in cwd
-            d = diagnose(ds, effects=effects, candidates=ROUND_ONE_EFFECTS, seed=args.seed,
-                         plugin_dir=folder, **QUICK_DIAGNOSE if args.quick else {})
+            settings = DiagnoseSettings(candidates=ROUND_ONE_EFFECTS,
+                                        **QUICK_DIAGNOSE if args.quick else {})
+            d = diagnose(ds, effects=effects, settings=settings, seed=args.seed,
+                         plugin_dir=folder)
         secs = time.perf_counter() - start
+        first = d.experiments[0]  # the one data set
         diagnoses.append((list(effects), d))
         print(f"step {k} ({_label(effects)}): RMS {d.rms_m * 1e6:.3g} um = "
-              f"{d.signature.ratio:.3g}x floor, missing {d.missing}, adequate {d.adequate}, "
+              f"{first.signature.ratio:.3g}x floor, missing {d.missing}, adequate {d.adequate}, "
               f"{secs:.0f} s", flush=True)
         if d.missing is None or k == MAX_STEPS:
             break
-        plt.close(plot_residual_signature(ds, d.simulation, d.frequency_hz, label=_label(effects),
+        plt.close(plot_residual_signature(ds, first.simulation, first.frequency_hz,
+                                          label=_label(effects),
                                           path=figures / f"criticism_signature_{k}.png"))
         plt.close(plot_ranking(d.ranking, threshold=d.score_threshold,
                                path=figures / f"criticism_ranking_{k}.png"))
@@ -155,10 +161,11 @@ def main(argv: list[str] | None = None) -> int:
         nums.add(f"pbCritStep{w}LB", pval(lb))
         nums.add(f"pbCritStep{w}Missing", tex_escape(d.missing or "nothing"))
         nums.add(f"pbCritStep{w}Adequate", "adequate" if d.adequate else "not adequate")
-        if abs(d.signature.ccf_peak) > d.signature.ccf_bound and d.signature.ccf_lag_s > 0:
-            nums.add(f"pbCritStep{w}LagMs", f"{d.signature.ccf_lag_s * 1e3:.0f}")
+        signature = d.experiments[0].signature
+        if abs(signature.ccf_peak) > signature.ccf_bound and signature.ccf_lag_s > 0:
+            nums.add(f"pbCritStep{w}LagMs", f"{signature.ccf_lag_s * 1e3:.0f}")
             nums.add(f"pbCritStep{w}LagBound",
-                     f"{abs(d.signature.ccf_peak) / d.signature.ccf_bound:.0f}")
+                     f"{abs(signature.ccf_peak) / signature.ccf_bound:.0f}")
         else:
             nums.add(f"pbCritStep{w}LagMs", "none")
             nums.add(f"pbCritStep{w}LagBound", "0")

@@ -11,7 +11,7 @@ The README's worked example (section "Beyond the library"), through the public A
    misfit, so the discrepancy step estimates the missing force, ranks its states and
    writes a closed form as a ``.py`` plugin;
 3. the written plugin loaded as ``--plugin`` loads it
-   (:func:`pmabayes.cli.load_plugin`), and ``diagnose`` again with the proposed
+   (:func:`pmabayes.model.effects.load_plugin`), and ``diagnose`` again with the proposed
    effect added (``pmabayes --plugin diag/proposed_vabsv.py diagnose drag.csv
    --effects proposed_vabsv``).
 
@@ -62,9 +62,9 @@ from _paper import (
 )
 from matplotlib.figure import Figure
 
-from pmabayes.cli import load_plugin
 from pmabayes.criticism.diagnosis import diagnose
-from pmabayes.model.effects import get_effect, registered_effects
+from pmabayes.criticism.settings import DiagnoseSettings
+from pmabayes.model.effects import get_effect, load_plugin, registered_effects
 from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
 
 #: the hidden drag coefficient in N s²/m² (the README's example)
@@ -115,7 +115,7 @@ def _figure(ds, before, after, proposal_effect, path: Path) -> None:
     """(a) the missing force against velocity, estimated and proposed, against the
     hidden one; (b) the evidence for each state; (c) the residual before and after."""
     d = before.discrepancy
-    sim = before.simulation
+    sim = before.experiments[0].simulation
     v_along = sim.velocity_m_s[0]
     fig = Figure(figsize=(7.0, 2.4), layout="constrained")
     ax_v, ax_e, ax_r = fig.subplots(1, 3, width_ratios=(1.0, 0.8, 1.3))
@@ -152,11 +152,11 @@ def _figure(ds, before, after, proposal_effect, path: Path) -> None:
     t = ds.time_s
     floor_um = before.noise_floor_m * 1e6
     ax_r.plot(t, (ds.mean_position_m - sim.position_m[0]) * 1e6, color="tab:gray", lw=0.6,
-              label=f"base ({before.signature.ratio:.3g}x floor)")
+              label=f"base ({before.experiments[0].signature.ratio:.3g}x floor)")
     if after is not None:
-        ax_r.plot(t, (ds.mean_position_m - after.simulation.position_m[0]) * 1e6,
+        ax_r.plot(t, (ds.mean_position_m - after.experiments[0].simulation.position_m[0]) * 1e6,
                   color="tab:blue", lw=0.6,
-                  label=f"+ proposal ({after.signature.ratio:.3g}x floor)")
+                  label=f"+ proposal ({after.experiments[0].signature.ratio:.3g}x floor)")
     ax_r.axhspan(-floor_um, floor_um, color="tab:green", alpha=0.3, lw=0,
                  label="noise floor (RMS)")
     ax_r.set_xlabel("time [s]")
@@ -234,13 +234,14 @@ def main(argv: list[str] | None = None) -> int:
                                 effects={HiddenDrag: {"c_hidden": TRUE_DRAG}},
                                 description="paper model plus a hidden quadratic drag "
                                             "(synthetic)")
-    kw = dict(candidates=library, seed=args.seed, plugin_dir=proposal_dir,
-              **(QUICK_DIAGNOSE if args.quick else {}))
+    settings = DiagnoseSettings(candidates=library, **(QUICK_DIAGNOSE if args.quick else {}))
+    kw = dict(settings=settings, seed=args.seed, plugin_dir=proposal_dir)
     load = os.getloadavg()[0]
     start = time.perf_counter()
     before = diagnose(ds, **kw)
     secs_before = time.perf_counter() - start
-    print(f"base: RMS {before.rms_m * 1e6:.1f} um = {before.signature.ratio:.3g}x floor, "
+    print(f"base: RMS {before.rms_m * 1e6:.1f} um = "
+          f"{before.experiments[0].signature.ratio:.3g}x floor, "
           f"{secs_before:.0f} s\n{before.verdict}", flush=True)
     d = before.discrepancy
     prop = None if d is None else d.proposal
@@ -253,7 +254,8 @@ def main(argv: list[str] | None = None) -> int:
         after = diagnose(ds, effects=[prop.effect], **kw)
         secs_after = time.perf_counter() - start
         print(f"base + {prop.effect}: RMS {after.rms_m * 1e6:.1f} um = "
-              f"{after.signature.ratio:.3g}x floor, {secs_after:.0f} s\n{after.verdict}",
+              f"{after.experiments[0].signature.ratio:.3g}x floor, {secs_after:.0f} s\n"
+              f"{after.verdict}",
               flush=True)
     else:
         print("warning: no plugin was written; the example stops at the base model")
@@ -265,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     nums.add("pbDiscNLibrary", len(library))
     nums.add("pbDiscFloor", sig(before.noise_floor_m * 1e6, 3))
     nums.add("pbDiscBaseRMS", sig(before.rms_m * 1e6, 3))
-    nums.add("pbDiscBaseRatio", sig(before.signature.ratio, 3))
+    nums.add("pbDiscBaseRatio", sig(before.experiments[0].signature.ratio, 3))
     nums.add("pbDiscBaseVerdict", _verdict(before))
     refitted = [f for f in before.ranking if f.refit is not None]
     nums.add("pbDiscBestRefit", tex_escape(refitted[0].effect) if refitted else NA)
@@ -321,8 +323,8 @@ def main(argv: list[str] | None = None) -> int:
             nums.add(f"pbDisc{name}", NA)
     if after is not None:
         nums.add("pbDiscAddedRMS", sig(after.rms_m * 1e6, 3))
-        nums.add("pbDiscAddedRatio", sig(after.signature.ratio, 3))
-        nums.add("pbDiscAddedLB", pval(after.signature.ljung_box_p))
+        nums.add("pbDiscAddedRatio", sig(after.experiments[0].signature.ratio, 3))
+        nums.add("pbDiscAddedLB", pval(after.experiments[0].signature.ljung_box_p))
         nums.add("pbDiscAddedVerdict", _verdict(after))
         nums.add("pbDiscSecondsAdded", f"{secs_after:.0f}")
     else:

@@ -23,7 +23,7 @@ import numpy as np
 from _paper import DATA_DIR, Numbers, cached_fit, out_dirs, paper_dataset, parser, sig
 
 from pmabayes.model.model import CARRIAGE_MASS_KG, CONTROL_LOAD_KG, PAPER_AREA_M2, PMA_MASS_KG
-from pmabayes.report.pages import predictive_band
+from pmabayes.report.fit_data import predictive_band
 
 
 def main(argv: list[str] | None = None) -> int:

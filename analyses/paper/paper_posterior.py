@@ -2,8 +2,8 @@
 
 Uses the same (cached) fit of ``data/pma_chirp_paper.csv`` as ``paper_fig2.py``:
 the table has, per parameter, the paper's point value, the posterior mean and sd,
-the 90% HDI, R-hat across ensembles and the ESS (``pmabayes.report.pages.summary_table``);
-the corner plot (``pmabayes.report.pages.pair_figure``) shows the six model parameters
+the 90% HDI, R-hat across ensembles and the ESS (``pmabayes.report.summary.summary_table``);
+the corner plot (``pmabayes.report.summary.pair_figure``) shows the six model parameters
 with the MAP and the paper's values marked.
 
 Usage::
@@ -24,7 +24,7 @@ from _paper import Numbers, cached_fit, out_dirs, paper_dataset, parser, sig, sy
 from pmabayes.inference.fitfile import fit_info
 from pmabayes.inference.sampler import FitSettings
 from pmabayes.model.model import PAPER_VALUES
-from pmabayes.report.pages import pair_figure, summary_table
+from pmabayes.report.summary import pair_figure, summary_table
 
 #: display unit and factor from SI of each posterior variable (symbols: Parameter.latex)
 UNITS = {"alpha": ("N/m", 1.0), "beta": ("1/m", 1.0), "gamma": ("1/m", 1.0),
@@ -55,7 +55,7 @@ def posterior_table(rows: list[dict]) -> str:
     Parameters
     ----------
     rows : list of dict
-        From :func:`pmabayes.report.pages.summary_table`.
+        From :func:`pmabayes.report.summary.summary_table`.
 
     Returns
     -------

@@ -1,20 +1,50 @@
 """Criticism and validation: residual statistics and the adequacy rule, the score tests
-and refits of candidate effects, the data-driven discrepancy, and predictions of held-out
-experiments.
+and refits of candidate effects, the data-driven discrepancy, comparisons of fits, and
+predictions of held-out experiments.
+
+Each file owns one idea:
+
+=================  ==================================================================
+``bands``          errors of the trial mean per frequency band, against the noise floor
+``whiteness``      whiteness and independence of the whitened residual; the noise check
+``signature``      the residual's signature: where and how a model fails
+``adequacy``       the one adequacy rule and its verdict in words
+``scores``         score tests of candidate effects, with no refit
+``elpd``           leave-one-trial-out ELPD: Laplace PSIS-LOO, tables, paired differences
+``settings``       :class:`~pmabayes.criticism.settings.DiagnoseSettings`
+``refits``         the diagnosed model at its MAP, the refits and the missing effect
+``results``        what a diagnosis finds, and its JSON
+``prose``          the verdict and the explanations in words
+``diagnosis``      ``diagnose``, a short sequence of the steps above
+``discrepancy``    the missing force estimated from the data (a package)
+``compare``        fits of the same data side by side
+``validation``     predictions of held-out experiments
+=================  ==================================================================
 """
 
-from pmabayes.criticism.diagnosis import (
-    Diagnosis,
-    EffectEvidence,
-    ExperimentDiagnosis,
-    Finding,
-    FitComparison,
-    Refit,
-    compare_fits,
-    diagnose,
-    rank_effects,
-    significance_threshold,
+from pmabayes.criticism.adequacy import (
+    ENERGY_TOLERANCE,
+    Adequacy,
+    check_adequacy,
+    is_adequate,
 )
+from pmabayes.criticism.bands import (
+    DEFAULT_BANDS_HZ,
+    EXCITED_POWER_FRACTION,
+    MIN_BINS,
+    BandError,
+    BandErrors,
+    band_errors,
+    band_label,
+    band_rms,
+    excited_band,
+    floor_ratio,
+    input_bands,
+    instantaneous_frequency,
+    power_spectrum,
+)
+from pmabayes.criticism.compare import FitComparison, compare_fits
+from pmabayes.criticism.diagnosis import diagnose
 from pmabayes.criticism.discrepancy import (
     STATES,
     Discrepancy,
@@ -25,38 +55,10 @@ from pmabayes.criticism.discrepancy import (
     force_response,
     stlsq,
 )
-from pmabayes.criticism.residuals import (
-    DEFAULT_BANDS_HZ,
-    ENERGY_TOLERANCE,
-    EXCITED_POWER_FRACTION,
-    LEVEL_ADEQUATE,
-    MAX_AR_ORDER,
-    MIN_BINS,
-    Adequacy,
-    BandError,
-    BandErrors,
-    NoiseModelCheck,
-    Signature,
-    WhitenessCurves,
-    autocorrelation,
-    band_errors,
-    band_label,
-    band_rms,
-    check_adequacy,
-    check_noise_model,
-    cross_correlation,
-    excited_band,
-    innovations,
-    input_bands,
-    instantaneous_frequency,
-    is_adequate,
-    judged_whiteness,
-    ljung_box,
-    power_spectrum,
-    residual_signature,
-    whiteness,
-    whiteness_curves,
-)
+from pmabayes.criticism.results import Diagnosis, ExperimentDiagnosis, Finding, Refit
+from pmabayes.criticism.scores import EffectEvidence, rank_effects, significance_threshold
+from pmabayes.criticism.settings import DiagnoseSettings
+from pmabayes.criticism.signature import Signature, residual_signature
 from pmabayes.criticism.validation import (
     DEFAULT_DRAWS,
     NOISE_NAMES,
@@ -65,60 +67,75 @@ from pmabayes.criticism.validation import (
     ValidationError,
     validate,
 )
+from pmabayes.criticism.whiteness import (
+    NoiseModelCheck,
+    WhitenessCurves,
+    autocorrelation,
+    check_noise_model,
+    cross_correlation,
+    innovations,
+    judged_whiteness,
+    ljung_box,
+    whiteness,
+    whiteness_curves,
+)
+from pmabayes.inference.likelihood import LEVEL_ADEQUATE, MAX_AR_ORDER
 
 __all__ = [
-    "DEFAULT_BANDS_HZ",
-    "ENERGY_TOLERANCE",
-    "LEVEL_ADEQUATE",
-    "BandErrors",
-    "BandError",
-    "EXCITED_POWER_FRACTION",
-    "MIN_BINS",
-    "band_label",
-    "instantaneous_frequency",
-    "power_spectrum",
-    "excited_band",
-    "input_bands",
-    "band_rms",
-    "band_errors",
-    "innovations",
-    "autocorrelation",
-    "cross_correlation",
-    "ljung_box",
-    "whiteness",
-    "MAX_AR_ORDER",
-    "NoiseModelCheck",
-    "check_noise_model",
-    "judged_whiteness",
-    "is_adequate",
-    "Signature",
-    "residual_signature",
-    "WhitenessCurves",
-    "whiteness_curves",
     "Adequacy",
-    "check_adequacy",
+    "BandError",
+    "BandErrors",
+    "DEFAULT_BANDS_HZ",
+    "DEFAULT_DRAWS",
+    "DiagnoseSettings",
+    "Diagnosis",
+    "Discrepancy",
+    "ENERGY_TOLERANCE",
+    "EXCITED_POWER_FRACTION",
+    "EffectEvidence",
+    "ExperimentDiagnosis",
+    "ExperimentValidation",
+    "Finding",
+    "FitComparison",
+    "LEVEL_ADEQUATE",
+    "MAX_AR_ORDER",
+    "MIN_BINS",
+    "NOISE_NAMES",
+    "NoiseModelCheck",
+    "Proposal",
+    "Refit",
+    "STATES",
+    "Signature",
     "StateEvidence",
     "Term",
-    "Proposal",
-    "Discrepancy",
-    "estimate_discrepancy",
-    "force_response",
-    "stlsq",
-    "STATES",
-    "EffectEvidence",
-    "rank_effects",
-    "Refit",
-    "Finding",
-    "Diagnosis",
-    "ExperimentDiagnosis",
-    "diagnose",
-    "significance_threshold",
-    "FitComparison",
-    "compare_fits",
-    "DEFAULT_DRAWS",
-    "NOISE_NAMES",
-    "ValidationError",
-    "ExperimentValidation",
     "Validation",
+    "ValidationError",
+    "WhitenessCurves",
+    "autocorrelation",
+    "band_errors",
+    "band_label",
+    "band_rms",
+    "check_adequacy",
+    "check_noise_model",
+    "compare_fits",
+    "cross_correlation",
+    "diagnose",
+    "estimate_discrepancy",
+    "excited_band",
+    "floor_ratio",
+    "force_response",
+    "innovations",
+    "input_bands",
+    "instantaneous_frequency",
+    "is_adequate",
+    "judged_whiteness",
+    "ljung_box",
+    "power_spectrum",
+    "rank_effects",
+    "residual_signature",
+    "significance_threshold",
+    "stlsq",
     "validate",
+    "whiteness",
+    "whiteness_curves",
 ]

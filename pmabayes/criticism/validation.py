@@ -34,7 +34,7 @@ noise-free position):
     About ``ci_prob`` when the model and the fit's noise describe the data.
 ``band_errors``
     The error of the trial mean per frequency band, from
-    :func:`pmabayes.criticism.residuals.band_errors`.
+    :func:`pmabayes.criticism.bands.band_errors`.
 
 Fits of several experiments (one noise per fitted experiment, the noise variables
 then having an ``experiment`` dimension): the noise of the fitted experiment whose
@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from pmabayes.criticism.residuals import band_errors
+from pmabayes.criticism.bands import band_errors
 from pmabayes.data import DataError, Dataset, DataWarning, load
 from pmabayes.inference.fitfile import (
     check_dataset,
@@ -136,9 +136,9 @@ class ExperimentValidation:
         the band of the parameters alone: the telling number for noiseless held-out
         data (a benchmark's test set), where the predictive band's noise makes
         ``band_coverage`` trivially high.
-    band_errors : list of pmabayes.criticism.residuals.BandErrors or None
+    band_errors : list of pmabayes.criticism.bands.BandErrors or None
         Error of the trial mean per frequency band and overall
-        (:func:`pmabayes.criticism.residuals.band_errors`), None when they cannot be computed
+        (:func:`pmabayes.criticism.bands.band_errors`), None when they cannot be computed
         (see ``notes``).
     noise : dict
         Where the predictive noise came from, and its median values.

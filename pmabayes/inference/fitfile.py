@@ -8,7 +8,6 @@ one experiment and for several.
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 from pathlib import Path
@@ -23,6 +22,7 @@ from pmabayes.inference.density import Posterior
 from pmabayes.inference.likelihood import NOISE_PARAMETERS, ArNoise, Likelihood, measurement_noise
 from pmabayes.model.model import PAPER_VALUES, Model, Rig
 from pmabayes.model.parameters import parse_prior
+from pmabayes.util import finite_or_none
 
 __all__ = [
     "fit_tree",
@@ -268,7 +268,7 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         data = {"source": ds.source, "n_trials": ds.n_trials, "n_samples": ds.n_samples,
                 "dt_s": ds.dt_s, "input_name": ds.input_name,
                 "synthetic": bool(ds.metadata.get("synthetic", False)),
-                "noise_floor_m": _finite_or_none(ds.noise_floor_m)}
+                "noise_floor_m": finite_or_none(ds.noise_floor_m)}
     else:
         dss = [lik.dataset for lik in posterior.likelihoods]
         noise["tied"] = len(set(posterior.groups)) == 1
@@ -297,11 +297,6 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
     }
     tree.attrs["pmabayes"] = json.dumps(info)
     return info
-
-
-def _finite_or_none(value) -> float | None:
-    value = float(value)
-    return value if math.isfinite(value) else None
 
 
 def experiment_records(posterior: Posterior, noise_map: dict | None = None,
@@ -363,9 +358,9 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
             "periods_referred_to_model": lik.periods_referred, "noise_estimate": est,
             "noise_model": posterior.noise_choices[e].to_dict(),
-            "noise_floor_m": _finite_or_none(ds.noise_floor_m),
+            "noise_floor_m": finite_or_none(ds.noise_floor_m),
             "rms_cost_m": (None if theta is None
-                           else _finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
+                           else finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
             "metadata": ds.metadata,
         })

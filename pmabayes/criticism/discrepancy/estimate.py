@@ -1,0 +1,395 @@
+"""The estimate: the flexible force with its evidence per state, then a closed form over
+the dictionary (or the flexible shape, tabulated) written as a user effect and checked by
+a nonlinear refit."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from pmabayes.criticism.bands import band_errors
+from pmabayes.criticism.discrepancy.dictionary import (
+    best_hinges,
+    best_period,
+    dictionary_terms,
+    tabulated_term,
+)
+from pmabayes.criticism.discrepancy.linalg import a_b
+from pmabayes.criticism.discrepancy.plugin import describe_terms, effect_name, write_plugin
+from pmabayes.criticism.discrepancy.problem import (
+    MEMORY_TAUS_S,
+    STATES,
+    WRITABLE,
+    Block,
+    LinearProblem,
+    bspline_design,
+)
+from pmabayes.criticism.discrepancy.regression import (
+    PenalisedFit,
+    correction,
+    fit_blocks,
+    forward_path,
+    loo_scores,
+    stlsq,
+    stlsq_path,
+)
+from pmabayes.criticism.discrepancy.results import Discrepancy, Proposal, StateEvidence
+from pmabayes.criticism.discrepancy.verify import verify_proposal
+from pmabayes.criticism.elpd import paired_difference
+from pmabayes.criticism.signature import residual_signature
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.model.simulator import Simulation
+
+__all__ = ["estimate_discrepancy"]
+
+
+def estimate_discrepancy(
+    likelihood: Likelihood,
+    noise,
+    values: dict,
+    simulation: Simulation,
+    *,
+    plugin_dir: str | Path | None = None,
+    verify: bool = True,
+    command: str | None = None,
+    effects=(),
+) -> Discrepancy:
+    """Estimate the missing force from the data and propose a closed form for it.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        Data and the diagnosed model.
+    noise : object
+        Identified noise (``sigma``, ``rho``, ``white``).
+    values : dict
+        The model's MAP.
+    simulation : Simulation
+        The model at its MAP, with its states.
+    plugin_dir : str or Path, optional
+        Where to write the proposal's ``.py`` file (the current folder by default).
+        An existing file of the same name is never overwritten: a numbered name is
+        chosen instead.
+    verify : bool
+        Refit the model with the written effect (nonlinear, through the simulator)
+        and report what it achieves.
+    command : str, optional
+        The data's path for the suggested command line.
+    effects : iterable of str
+        The diagnosed model's effects, for the suggested command line.
+
+    Returns
+    -------
+    Discrepancy
+    """
+    problem = LinearProblem(likelihood, noise, values, simulation)
+    n = problem.n
+    e0 = float(problem.r_w @ problem.r_w)
+    # the memory state's time constant, by the evidence
+    fits = {}
+    for tau in MEMORY_TAUS_S:
+        fits[tau] = fit_blocks(problem, problem.blocks(tau))
+    tau = max(fits, key=lambda t: fits[t].log_evidence)
+    full = fits[tau]
+    blocks = full.blocks
+    only_j = fit_blocks(problem, [], [])
+    loo_full = loo_scores(problem, blocks, full.log_lambda)
+    loo_none = loo_scores(problem, [], [])
+    gain, gain_se = paired_difference(loo_full, loo_none)
+    excess = max(e0 - n, 1e-12)
+    explained = float(np.clip((only_j.energy - full.energy) / excess, 0.0, 1.0)) \
+        if e0 > n else 0.0
+    corr = correction(problem, blocks, full.coef)
+    ratio_after = band_errors(problem.dataset, problem.x0 + corr)[-1].ratio
+    states, pdep = _state_evidence(problem, full, loo_full)
+    near = bool(ratio_after <= 1.5)
+    st = problem.states(tau)
+    proposal = None
+    if gain > max(2.0 * gain_se, 2.0):
+        proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                            plugin_dir, verify, command)
+    other = None if near and explained >= 0.5 else _other_cause(
+        likelihood, noise, simulation, explained, ratio_after)
+    text = _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
+                 tuple(effects))
+    return Discrepancy(states=states, explained=explained, ratio_after=float(ratio_after),
+                       elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
+                       partial_dependence=pdep, proposal=proposal, near_floor=near,
+                       other_cause=other, text=text)
+
+
+def _block_slice(problem: LinearProblem, blocks: list, i: int) -> slice:
+    """Where block ``i``'s coefficients are among a fit's (after the parameters')."""
+    start = problem.j.shape[1] + sum(c.white.shape[1] for c in blocks[:i])
+    return slice(start, start + blocks[i].white.shape[1])
+
+
+def _state_evidence(problem: LinearProblem, full: PenalisedFit, loo_full: np.ndarray
+                    ) -> tuple[list, dict]:
+    """Each state's evidence (the ELPD lost by dropping its terms), most first, and the
+    flexible force's partial dependence on it."""
+    blocks = full.blocks
+    states, pdep = [], {}
+    units = {s: u for s, u, _ in STATES}
+    for i, b in enumerate(blocks):
+        rest = [c for c in blocks if c is not b]
+        ll = np.delete(full.log_lambda, i)
+        loss, se = paired_difference(loo_full, loo_scores(problem, rest, ll))
+        sl = _block_slice(problem, blocks, i)
+        w = full.coef[sl] / b.scale
+        along = a_b(b.basis, w)
+        amp = float(np.std(along))
+        states.append(StateEvidence(b.state, units[b.state], loss, se, amp,
+                                    bool(loss > max(2.0 * se, 2.0))))
+        pdep[b.state] = _partial(b, w, full.cov[sl, sl] / b.scale**2, float(np.mean(along)))
+    states.sort(key=lambda s: -s.elpd_loss)
+    return states, pdep
+
+
+def _partial(b: Block, w: np.ndarray, cov: np.ndarray, mean: float) -> dict:
+    lo, hi = b.grid
+    if b.state == "direction":
+        grid = np.array([-1.0, 1.0])
+        basis = grid[:, None]
+    else:
+        grid = np.linspace(lo, hi, 120)
+        basis, _ = bspline_design(grid, b.basis.shape[1], lo, hi)
+    f = basis @ w - mean
+    sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", basis, cov, basis), 0.0))
+    return {"grid": grid, "force_n": f, "sd_n": sd,
+            "unit": {s: u for s, u, _ in STATES}[b.state]}
+
+
+@dataclass(frozen=True)
+class _Dictionary:
+    """The dictionary's terms along the trajectory, and their responses scaled to unit
+    whitened norm."""
+
+    terms: list
+    raw: np.ndarray
+    white: np.ndarray
+    scale: np.ndarray
+
+    def fit(self, problem: LinearProblem, support) -> list:
+        """The terms of a support with their coefficients (least squares, with the
+        model's parameters)."""
+        idx = list(support)
+        sub = np.concatenate([problem.j_w, self.white[:, idx]], axis=1)
+        w = stlsq(sub, problem.r_w, 0.0, keep=range(sub.shape[1]))
+        k0 = problem.j_w.shape[1]
+        return [(self.terms[j][0], float(w[k0 + i] / self.scale[j])) for i, j in enumerate(idx)]
+
+
+def _dictionary(problem: LinearProblem, st: dict, tau: float) -> _Dictionary:
+    period = best_period(problem, st["position"])
+    terms = dictionary_terms(st, tau, period, best_hinges(problem, st["position"]))
+    raw, white = problem.responses(np.stack([t[1] for t in terms], axis=1))
+    scale = np.linalg.norm(white, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    return _Dictionary(terms, raw / scale, white / scale, scale)
+
+
+def _scored_supports(problem: LinearProblem, dic: _Dictionary, loo_full: np.ndarray) -> list:
+    """``(ELPD against the flexible estimate, its se, support)`` of every support on
+    STLSQ's threshold path and on the greedy forward path, sparsest first."""
+    a = np.concatenate([problem.j_w, dic.white], axis=1)
+    k0 = problem.j_w.shape[1]
+    supports = stlsq_path(a, problem.r_w, k0) | forward_path(problem.j_w, dic.white, problem.r_w)
+    scored = []
+    for support in sorted(supports, key=lambda t: (len(t), t)):
+        loo = loo_scores(problem, [], [], extra=(dic.white, dic.raw, list(support)))
+        scored.append((*paired_difference(loo, loo_full), support))
+    return scored
+
+
+def _sparsest(scored: list):
+    """The sparsest support within two standard errors (or 2) of the best, if any."""
+    if not scored:
+        return None
+    top_d = max(c[0] for c in scored)
+    return min((c for c in scored if c[0] >= top_d - max(2.0 * c[1], 2.0)),
+               key=lambda c: (len(c[2]), -c[0]))
+
+
+def _discard(proposal: Proposal, existing: set) -> None:
+    """Remove a proposal's file if this run wrote it and it is not kept."""
+    if proposal.plugin is not None and proposal.plugin not in existing:
+        Path(proposal.plugin).unlink(missing_ok=True)
+
+
+def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir, verify,
+             command):
+    """STLSQ over the dictionary, the threshold by LOO ELPD; else the tabulated shape."""
+    dic = _dictionary(problem, st, tau)
+    scored = _scored_supports(problem, dic, loo_full)
+    best = _sparsest(scored)
+    closed = None
+    if best is not None:
+        d, se, support = best
+        # near the flexible estimate: within its noise, or a small share of its gain
+        closed = (dic.fit(problem, support), d, se, d > -max(2.0 * se, 4.0, 0.02 * gain))
+    series = {t.slug: v for t, v in dic.terms}
+    folder = Path(plugin_dir) if plugin_dir is not None else Path.cwd()
+    existing = {str(f) for f in folder.glob("*.py")} if folder.is_dir() else set()
+
+    def write(chosen, kind, d, se, **kw) -> Proposal:
+        return _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, **kw)
+
+    if closed is not None and closed[3]:
+        return _closed_form(problem, dic, closed, scored, series, existing, write)
+    if closed is not None and verify and all(t.writable for t, _ in closed[0]):
+        # the linearisation may be what keeps it from the flexible estimate (a steep
+        # force, a period slightly off): the nonlinear refit decides
+        prop = write(closed[0], "closed form", closed[1], closed[2], series=series)
+        v = prop.verified
+        if v is not None and v["adequate"] and v["ratio"] <= 1.5:
+            return prop
+        _discard(prop, existing)
+    # no closed form near the flexible estimate: the flexible shape itself, tabulated
+    top = states[0].state if states else None
+    if top in WRITABLE:
+        return _tabulated(problem, blocks, full, top, loo_full, write)
+    if closed is not None:
+        return write(closed[0], "closed form", closed[1], closed[2], series=series)
+    return None
+
+
+def _closed_form(problem, dic: _Dictionary, closed: tuple, scored: list, series: dict,
+                 existing: set, write) -> Proposal:
+    """The closed form near the flexible estimate, written and refitted; when it has terms
+    in z or memory and its refit fails, the better of it and the best support in
+    (x, v, p) alone."""
+    chosen, d, se, _ = closed
+    prop = write(chosen, "closed form", d, se, series=series)
+    plain = [c for c in scored if all(dic.terms[j][0].state in WRITABLE for j in c[2])]
+    v = prop.verified
+    if (v is None or (v["adequate"] and v["ratio"] <= 1.5) or not plain
+            or all(t.state in WRITABLE for t, _ in chosen)):
+        return prop
+    # terms in z or memory trade against the base model's own parameters in the
+    # nonlinear refit: the best support in (x, v, p) alone is refitted too
+    d2, se2, support2 = max(plain, key=lambda c: c[0])
+    prop2 = write(dic.fit(problem, support2), "closed form", d2, se2, series=series)
+    v2 = prop2.verified
+    better = v2 is not None and (v2["adequate"], -v2["ratio"]) > (v["adequate"], -v["ratio"])
+    keep, drop = (prop2, prop) if better else (prop, prop2)
+    _discard(drop, existing)
+    return keep
+
+
+def _tabulated(problem: LinearProblem, blocks: list, full: PenalisedFit, top: str,
+               loo_full: np.ndarray, write) -> Proposal:
+    """The flexible force's shape in its strongest state, tabulated with one amplitude."""
+    i = next(k for k, b in enumerate(blocks) if b.state == top)
+    b = blocks[i]
+    w = full.coef[_block_slice(problem, blocks, i)] / b.scale
+    term, shape_w = tabulated_term(b, w)
+    r, wh = problem.responses(term[1][:, None])
+    loo = loo_scores(problem, [], [], extra=(wh, r, [0]))
+    d, se = paired_difference(loo, loo_full)
+    return write([(term[0], 1.0)], "tabulated", d, se, tables=shape_w)
+
+
+def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, tables=None,
+                    series=None):
+    """Write the proposal as an effect, refit it, and drop terms the refit finds negligible."""
+    taken = set(problem.model.parameter_names) | {f"c_{n}" for n in problem.model.effect_names}
+    renamed = []
+    for t, c in chosen:  # a model that already holds an earlier proposal keeps its names
+        slug, k = t.slug, 2
+        while f"c_{slug}" in taken:
+            slug, k = f"{t.slug}{k}", k + 1
+        taken.add(f"c_{slug}")
+        if series is not None:
+            series = {**series, slug: series[t.slug]}
+        renamed.append((replace(t, slug=slug), c))
+    chosen = renamed
+    plugin = verified = None
+    told = chosen
+    if all(t.writable for t, _ in chosen):
+        path, created = write_plugin(chosen, kind, tables, plugin_dir)
+        if verify:
+            verified = verify_proposal(problem, path, chosen)
+            told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+            if kind == "closed form" and series is not None and len(chosen) > 1:
+                # a term that only compensated the linearisation shrinks in the refit
+                amps = [float(np.std(c * series[t.slug])) for t, c in told]
+                keep = [tc for tc, a in zip(told, amps, strict=True) if a >= 0.1 * max(amps)]
+                if len(keep) < len(told):
+                    if created:
+                        path.unlink()  # written by this run, and superseded
+                    chosen = keep
+                    path, created = write_plugin(chosen, kind, tables, plugin_dir)
+                    verified = verify_proposal(problem, path, chosen)
+                    told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+        plugin = str(path)
+    if verified is not None and "L_period" in verified["values"]:
+        mm = verified["values"]["L_period"] * 1e3  # the refitted period, in the words too
+        told = [(replace(t, name=re.sub(r"/ [0-9.e+-]+ mm\)", f"/ {mm:.4g} mm)", t.name),
+                         words=re.sub(r"period of [0-9.e+-]+ mm", f"period of {mm:.4g} mm",
+                                      t.words)), c) for t, c in told]
+    if verified is not None and "x_break" in verified["values"]:
+        mm = verified["values"]["x_break"] * 1e3  # the refitted breakpoint, in the words too
+        told = [(replace(t, name=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.name),
+                         words=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.words))
+                 if t.breakpoint_m is not None else t, c) for t, c in told]
+    expression, description = describe_terms(told, kind)
+    terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
+              "words": t.words, "writable": t.writable} for t, c in told]
+    return Proposal(effect=effect_name(chosen), expression=expression,
+                    description=description, terms=terms, kind=kind, elpd_diff=float(d),
+                    elpd_diff_se=float(se), plugin=plugin, verified=verified)
+
+
+def _other_cause(lik, noise, sim, explained: float, ratio_after: float) -> str:
+    """What the flexible force leaves, and which non-force cause the signature suggests."""
+    sig = residual_signature(lik, noise, sim)
+    corr = sig.correlations
+    name, value = max(corr.items(), key=lambda kv: abs(kv[1])) if corr else ("", 0.0)
+    text = (f"Even a flexible force in the states leaves the model at {ratio_after:.3g}x the "
+            f"floor (it explains {explained:.0%} of the excess residual): the missing piece "
+            "may not be a force.")
+    timing = abs(sig.ccf_peak) > sig.ccf_bound and sig.ccf_lag_s > 0
+    if "position" in name and abs(value) > 0.5:
+        text += (f" The residual follows the position (r = {value:+.2f}): an error "
+                 "proportional to the position suggests the sensor (its scale or zero).")
+    elif timing or "rate" in name or "command" in name:
+        text += (f" The whitened residual correlates with the command's rate "
+                 f"{sig.ccf_lag_s * 1e3:.0f} ms earlier (correlation {sig.ccf_peak:+.2f}): a "
+                 "timing problem (a delay or a clock between command and measurement).")
+    else:
+        text += (" The residual follows no state or rate clearly: suspect the input (the "
+                 "pressure acting differs from the command recorded) or the noise model.")
+    return text
+
+
+def _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
+          effects) -> str:
+    needed = [s for s in states if s.needed]
+    if not needed and not gain > max(2.0 * gain_se, 2.0):
+        return ("A flexible force in the states does not predict left-out trials better "
+                f"(ΔELPD {gain:+.1f} ± {gain_se:.1f}): no discrepancy in the force is found.")
+    dep = ", ".join(f"{s.state} (ΔELPD {s.elpd_loss:+.1f} ± {s.se:.1f})" for s in needed) or \
+        "no single state"
+    text = (f"A flexible force estimated from the data removes {explained:.0%} of the excess "
+            f"residual (to {ratio_after:.3g}x the floor, linearised; ΔELPD {gain:+.1f} ± "
+            f"{gain_se:.1f}). It depends on {dep}.")
+    if proposal is not None:
+        text += f" Proposed: {proposal.description} ({proposal.expression})."
+        if proposal.plugin:
+            v = proposal.verified
+            if v is not None:
+                text += (f" Refitted with it, the model reaches {v['ratio']:.3g}x the floor"
+                         f" ({'adequate' if v['adequate'] else 'not adequate'}).")
+            data = command or "DATA"
+            names = ",".join([*effects, proposal.effect])
+            text += (f" To add it: pmabayes --plugin {proposal.plugin} diagnose {data} "
+                     f"--effects {names}")
+        else:
+            text += " It could not be written as an effect."
+    if other:
+        text += " " + other
+    return text

@@ -1,0 +1,144 @@
+"""What the discrepancy step finds: the evidence per state, the proposal, and the whole."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["StateEvidence", "Proposal", "Discrepancy"]
+
+
+@dataclass(frozen=True)
+class StateEvidence:
+    """The evidence that the missing force depends on one state.
+
+    Parameters
+    ----------
+    state : str
+        One of :data:`~pmabayes.criticism.discrepancy.problem.STATES`.
+    unit : str
+        Its unit.
+    elpd_loss : float
+        Leave-one-trial-out ELPD lost when the state's terms are dropped from the
+        flexible force (positive: the state is needed).
+    se : float
+        Standard error of ``elpd_loss`` from the per-trial differences.
+    amplitude_n : float
+        RMS along the trajectory of the force's partial dependence on the state.
+    needed : bool
+        ``elpd_loss`` above two standard errors (and above 2).
+    """
+
+    state: str
+    unit: str
+    elpd_loss: float
+    se: float
+    amplitude_n: float
+    needed: bool
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary."""
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A closed form for the missing force, ready as a user effect.
+
+    Parameters
+    ----------
+    effect : str
+        The proposed effect's registry name.
+    expression : str
+        The force as a formula, with the estimated coefficients and units.
+    description : str
+        The force in physical words.
+    terms : list of dict
+        ``{"term", "unit", "coefficient", "parameter", "words", "writable"}`` per term.
+    kind : str
+        ``"closed form"`` (a sparse sum of dictionary terms) or ``"tabulated"`` (the
+        flexible shape in one state, with one amplitude).
+    elpd_diff : float
+        Leave-one-trial-out ELPD of the proposal minus the flexible estimate's.
+    elpd_diff_se : float
+        Its standard error.
+    plugin : str or None
+        Path of the written ``.py`` file; None when a term cannot be written as a
+        force effect today (it needs ``z`` or memory), or nothing was written.
+    verified : dict or None
+        The nonlinear refit with the written effect: ``{"rms_m", "ratio", "energy",
+        "ljung_box_p", "adequate", "values"}``.
+    """
+
+    effect: str
+    expression: str
+    description: str
+    terms: list
+    kind: str
+    elpd_diff: float
+    elpd_diff_se: float
+    plugin: str | None
+    verified: dict | None
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (``effect``, ``expression``, ``plugin`` and the details)."""
+        return {"effect": self.effect, "expression": self.expression,
+                "plugin": self.plugin, "description": self.description,
+                "kind": self.kind, "terms": list(self.terms), "elpd_diff": self.elpd_diff,
+                "elpd_diff_se": self.elpd_diff_se, "verified": self.verified}
+
+
+@dataclass(frozen=True)
+class Discrepancy:
+    """The missing force estimated from the data, its states and a proposed closed form.
+
+    Parameters
+    ----------
+    states : list of StateEvidence
+        Every state, most evidence first.
+    explained : float
+        Share of the whitened residual's excess energy (above the noise) that the
+        flexible force, with the parameters readjusted, removes (linearised).
+    ratio_after : float
+        RMS error over the floor with the flexible force (linearised).
+    elpd_gain : float
+        Leave-one-trial-out ELPD of the flexible force minus that of the model with
+        its parameters readjusted alone.
+    elpd_gain_se : float
+        Its standard error.
+    memory_tau_s : float
+        Time constant of the memory state (low-passed velocity), by the evidence.
+    partial_dependence : dict
+        State to ``{"grid", "force_n", "sd_n", "unit"}``: the flexible force's
+        shape against that state (centred along the trajectory) and its posterior sd.
+    proposal : Proposal or None
+        The closed form (or tabulated shape), None when none could be formed.
+    near_floor : bool
+        Whether the flexible force brings the model near the floor (ratio within
+        1.5x).
+    other_cause : str or None
+        When the flexible force cannot: what is left and which non-force cause the
+        residual's signature suggests.
+    text : str
+        The conclusion in words.
+    """
+
+    states: list
+    explained: float
+    ratio_after: float
+    elpd_gain: float
+    elpd_gain_se: float
+    memory_tau_s: float
+    partial_dependence: dict
+    proposal: Proposal | None
+    near_floor: bool
+    other_cause: str | None
+    text: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
+        return {"states": [s.to_dict() for s in self.states], "explained": self.explained,
+                "ratio_after": self.ratio_after, "elpd_gain": self.elpd_gain,
+                "elpd_gain_se": self.elpd_gain_se, "memory_tau_s": self.memory_tau_s,
+                "near_floor": self.near_floor, "other_cause": self.other_cause,
+                "proposal": None if self.proposal is None else self.proposal.to_dict(),
+                "text": self.text}

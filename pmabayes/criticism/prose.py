@@ -1,0 +1,167 @@
+"""The diagnosis in words: the verdict, and each candidate's explanation, from the
+numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from pmabayes.criticism.bands import band_label, band_rms
+from pmabayes.criticism.results import Refit
+from pmabayes.criticism.signature import Signature
+
+
+def contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
+                      dt_s: float, bands_hz) -> str:
+    """How a refitted effect's contribution to the output matches the base residual, in
+    one sentence (empty for a contribution that is zero)."""
+    if not np.std(contribution_m) > 0:
+        return ""
+    corr = float(np.corrcoef(contribution_m, base_residual_m)[0, 1])
+    rms = band_rms(contribution_m, dt_s, bands_hz)
+    k = int(np.argmax(rms))
+    return (f" Its contribution to the output correlates {corr:+.2f} with the base model's "
+            f"residual and is largest at {band_label(bands_hz[k])} ({rms[k] * 1e6:.4g} µm RMS).")
+
+
+def _after_text(signatures: Sequence[Signature], names: Sequence[str]) -> str:
+    """The refit's RMS error against the floor: ``X µm (Yx the floor)``, per experiment."""
+    def one(sig: Signature) -> str:
+        floor = (f"{sig.ratio:.3g}x the floor" if math.isfinite(sig.bands[-1].floor_m)
+                 else "no floor")
+        return f"{sig.bands[-1].rms_m * 1e6:.4g} µm ({floor})"
+
+    if len(signatures) == 1:
+        return one(signatures[0])
+    return ", ".join(f"{one(sig)} in {n}" for sig, n in zip(signatures, names, strict=True))
+
+
+def describe_signatures(signatures: Sequence[Signature], names: Sequence[str]) -> str:
+    """Each experiment's residual signature in words (named when there are several)."""
+    if len(signatures) == 1:
+        return signatures[0].describe()
+    return " ".join(f"In {n}: {sig.describe()}" for sig, n in zip(signatures, names, strict=True))
+
+
+def explanation_text(eff, evidence: float, p_value: float, significant: bool,
+                     describe: str, refit: Refit | None, contribution: str,
+                     ci_prob: float, names: Sequence[str]) -> str:
+    """A candidate's paragraph: what the effect is, the residual's signature, its score
+    test and, when refitted, its size and what adding it does."""
+    text = f"{eff.name} ({eff.stage} stage): {' '.join(eff.description.split())} "
+    text += describe
+    text += (f" Score test that {eff.name} is missing: statistic {evidence:.3g}, "
+             f"p = {p_value:.2g}, {'significant' if significant else 'not significant'}.")
+    if refit is None:
+        return text
+    parts = []
+    for p in eff.parameters:
+        if p.name in refit.interval:
+            lo, hi = refit.interval[p.name]
+            parts.append(f"{p.name} = {refit.values[p.name]:.4g} {p.unit} "
+                         f"({ci_prob:.0%} interval {lo:.4g} to {hi:.4g})")
+    text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
+             f"{_after_text(refit.signatures, names)}, "
+             f"{refit.explained:.0%} of the excess residual is removed, and the "
+             f"leave-one-trial-out {_elpd_text(refit, 'changes by')}.")
+    return text + contribution
+
+
+def _elpd_text(refit, verb: str = "") -> str:
+    """``ΔELPD +d ± se`` of a refit, or that it could not be estimated (PSIS-LOO over
+    the refit's Laplace draws gave no finite value, e.g. when its draws do not
+    simulate)."""
+    if not (math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)):
+        return "ΔELPD not estimable: PSIS-LOO over the refit's Laplace draws gave no finite value"
+    head = f"ELPD {verb} " if verb else "ΔELPD "
+    return f"{head}{refit.elpd_diff:+.1f} ± {refit.elpd_diff_se:.1f}"
+
+
+def _sig_text(signature: Signature) -> str:
+    overall = signature.bands[-1]
+    floor = (f"against a floor of {overall.floor_m * 1e6:.4g} µm"
+             if math.isfinite(overall.floor_m) else "with no noise floor (no repeats)")
+    return (f"RMS error {overall.rms_m * 1e6:.4g} µm {floor}; whitened residual energy "
+            f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
+            f"p = {signature.ljung_box_p:.2g}")
+
+
+def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
+                 missing: str | None, refits: dict, findings: list, min_explained: float,
+                 twins: list | None = None) -> str:
+    """The diagnosis' conclusion in words: what is missing (or that nothing is, or that
+    nothing in the library explains the misfit), where the misfit shows, and the next
+    command."""
+    names = [e.name for e in experiments]
+    if len(experiments) == 1:
+        sig = _sig_text(experiments[0].signature)
+    else:
+        sig = "; ".join(f"{e.name}: {_sig_text(e.signature)}" for e in experiments)
+    notes = " ".join(f"({e.floor_note()}.)" for e in experiments if e.floor_note())
+    where = ""
+    if len(experiments) > 1 and not adequate:
+        bad = [e.name for e in experiments if not e.adequate]
+        good = [e.name for e in experiments if e.adequate]
+        where = (f" The misfit shows in {', '.join(bad)}"
+                 + (f"; {', '.join(good)} {'is' if len(good) == 1 else 'are'} consistent with "
+                    "the noise." if good else "."))
+    text = _verdict_core(name, effects, sig, adequate, missing, refits, findings,
+                         min_explained, names, twins)
+    return text + where + (f" {notes}" if notes else "")
+
+
+def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,
+                  refits: dict, findings: list, min_explained: float, names: list,
+                  twins: list | None = None) -> str:
+    if missing is not None:
+        r = refits[missing]
+        tied = [t[0] for t in twins or ()]
+        others = [f.effect for f in findings
+                  if f.refit is not None and f.effect != missing and f.effect not in tied]
+        text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
+                f"{_after_text(r.signatures, names)} and removes "
+                f"{r.explained:.0%} of the excess residual.")
+        for twin, diff, se in twins or ():
+            text += (f" But {missing} and {twin} cannot be told apart by these data: both "
+                     f"account for the misfit and their leave-one-trial-out ELPDs differ by "
+                     f"only {diff:+.1f} ± {se:.1f} (less than two standard errors), so "
+                     f"{missing} is named for its slightly better ELPD, not proven; data "
+                     "that excite where they differ would separate them.")
+        if others:
+            text += (f" It predicts left-out trials better than the other refitted "
+                     f"candidate(s) ({', '.join(others)}).")
+        return text + (f" Next: add it (--effects {','.join([*effects, missing])}) and "
+                       "diagnose again.")
+    significant = [f for f in findings if f.significant]
+    if adequate and not significant:
+        return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}) "
+                "and no candidate effect is significantly missing.")
+    if not significant:
+        return (f"{name}: the residual is above the noise floor ({sig}), but no effect in "
+                "the library is significantly missing; something outside the library is. "
+                "See the residual signature figures, and register an effect that describes "
+                "it.")
+    if adequate:
+        named = ", ".join(f"{f.effect} (p = {f.p_value:.2g}" + (
+            f", refit {_elpd_text(f.refit)})"
+            if f.refit else ")") for f in significant)
+        return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}). "
+                f"The score test flags {named}, but no refit predicts left-out trials "
+                "clearly better, so nothing is named; with a family-wise level of 5%, this "
+                "is what a false alarm looks like.")
+    best = (max(refits.values(), key=lambda r: max(r.explained, r.explained_with_next))
+            if refits else None)
+    detail = ""
+    if best is not None:
+        detail = (f" the best refit ({best.effect}) removes only {best.explained:.0%} of the "
+                  "excess residual")
+        if best.next_effect:
+            detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
+        detail += (f", and at least {min_explained:.0%} is required "
+                   f"({_elpd_text(best)})")
+    return (f"{name}: the residual is above the noise "
+            f"floor ({sig}); candidates are significant but none explains the misfit:"
+            f"{detail}. Something outside the library is missing; no candidate is named.")

@@ -1,0 +1,306 @@
+"""The diagnosed model and its refits: the shared MAP over the experiments, each
+candidate added and refitted, judged by the residual it removes and by its
+leave-one-trial-out ELPD (PSIS-LOO over Laplace draws), and the choice of the missing
+one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmabayes.criticism.elpd import laplace_loo, paired_difference
+from pmabayes.criticism.results import Refit, pooled_rms
+from pmabayes.criticism.scores import rank_effects
+from pmabayes.criticism.settings import DiagnoseSettings
+from pmabayes.criticism.signature import residual_signature
+from pmabayes.inference.density import Posterior
+from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.noise import NoiseEstimate, group_noise
+from pmabayes.inference.search import find_map
+from pmabayes.model.model import Model
+from pmabayes.model.simulator import Simulation, simulate_dataset
+from pmabayes.util import Progress
+
+__all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "near_twins",
+           "physical_values"]
+
+
+def physical_values(model: Model, values: dict) -> dict:
+    """The model's own parameters of a MAP's values (without the noise's).
+
+    Parameters
+    ----------
+    model : Model
+        The model.
+    values : dict
+        Values of its parameters and perhaps others (the noise's).
+
+    Returns
+    -------
+    dict
+        Those of ``values`` that are the model's parameters.
+    """
+    return {k: v for k, v in values.items() if k in model.parameter_names}
+
+
+def _fit_map(likelihoods: list, repeat_noise: list, names: list, rng: np.random.Generator,
+             choices: list, *, refer: bool):
+    """The MAP of the experiments together: physical parameters shared, each experiment's
+    noise from its repeats (fixed) or, for a record without repeats (None), with the model
+    (``choices``: each one's noise model). ``refer``: learn a record from rest's noise
+    from its periods' residual at the MAP, as the fit does (the base model); the refits
+    keep the base's, so that their likelihoods compare."""
+    posterior = Posterior(likelihoods, repeat_noise, names=names, noise_choices=choices)
+    return posterior, find_map(posterior, rng=rng, refer=refer)
+
+
+def _experiment_noises(posterior: Posterior, best) -> list[NoiseEstimate]:
+    """Each experiment's noise at the MAP: its estimate from repeats, or the MAP's values
+    where it was identified with the model (no Laplace part: ``mean_u``, ``cov_u`` None)."""
+    theta = posterior.to_natural(np.asarray(best.z)[None])
+    out = []
+    for e in range(posterior.n_experiments):
+        if not posterior.noise_sampled(e):
+            out.append(posterior.group_noise[posterior.groups[e]])
+            continue
+        sigma, rho, white = (float(np.asarray(v).reshape(-1)[0])
+                             for v in posterior.noise_of(e, theta))
+        out.append(NoiseEstimate(sigma, rho, white, None, None))
+    return out
+
+
+@dataclass(frozen=True)
+class BaseFit:
+    """The diagnosed model at its MAP over the experiments: what each refit is measured
+    against.
+
+    Parameters
+    ----------
+    likelihoods : list of Likelihood
+        One per experiment, each with the model on its rig.
+    names : list of str
+        The experiments' names.
+    repeat_noise : list
+        Each experiment's noise learnt from its repeats (None where it was identified
+        with the model), as the refits keep it.
+    noise_choices : list
+        Each experiment's noise model.
+    noises : list of NoiseEstimate
+        Each experiment's noise at the MAP.
+    values : dict
+        The MAP.
+    simulations : list of Simulation
+        The model at the MAP in each experiment, with its states.
+    signatures : list of Signature
+        Each experiment's residual signature.
+    elpd : float
+        Leave-one-trial-out ELPD over every trial of every experiment.
+    elpd_i : numpy.ndarray
+        Its per-trial terms.
+    """
+
+    likelihoods: list
+    names: list
+    repeat_noise: list
+    noise_choices: list
+    noises: list
+    values: dict
+    simulations: list
+    signatures: list
+    elpd: float
+    elpd_i: np.ndarray
+
+    @property
+    def excess(self) -> float:
+        """The whitened residual's energy above pure noise, summed over the samples (and
+        the experiments)."""
+        total = sum(sig.energy * lik.n_samples - lik.n_samples
+                    for sig, lik in zip(self.signatures, self.likelihoods, strict=True))
+        return max(total, 1e-12)
+
+    @property
+    def residuals(self) -> list[np.ndarray]:
+        """Each experiment's trial mean minus the model."""
+        return [lik.y_mean - sim.position_m[0]
+                for lik, sim in zip(self.likelihoods, self.simulations, strict=True)]
+
+
+def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int) -> Simulation:
+    return simulate_dataset(model, physical_values(model, values), likelihood.dataset,
+                            substeps=substeps, states=True)
+
+
+def fit_base(models: list, datasets: list, names: list, s: DiagnoseSettings,
+             rng: np.random.Generator) -> BaseFit:
+    """Noise from the spread between repeats, the shared MAP, the signatures and the ELPD.
+
+    Parameters
+    ----------
+    models : list of Model
+        The diagnosed model on each experiment's rig.
+    datasets : list of Dataset
+        The experiments.
+    names : list of str
+        Their names.
+    s : DiagnoseSettings
+        The settings (substeps, noise model, draws, ``ci_prob``).
+    rng : numpy.random.Generator
+        Seeds the global search and the Laplace draws.
+
+    Returns
+    -------
+    BaseFit
+    """
+    liks = [Likelihood(m, ds, substeps=s.substeps) for m, ds in zip(models, datasets, strict=True)]
+    noise_and_choice = [group_noise([lik], s.noise_model) for lik in liks]
+    posterior, best = _fit_map(liks, [n for n, _ in noise_and_choice], names, rng,
+                               [c for _, c in noise_and_choice], refer=True)
+    # as the fit: a record from rest's noise from its periods' residual at the MAP
+    repeat_noise = list(posterior.group_noise)
+    values = dict(best.values)
+    noises = _experiment_noises(posterior, best)
+    sims = [_simulate(lik.model, values, lik, s.substeps) for lik in liks]
+    signatures = [residual_signature(lik, noise, sim)
+                  for lik, noise, sim in zip(liks, noises, sims, strict=True)]
+    elpd, elpd_i, _ = laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
+    return BaseFit(liks, names, repeat_noise, list(posterior.noise_choices), noises, values,
+                   sims, signatures, elpd, elpd_i)
+
+
+def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Generator) -> Refit:
+    """Add one effect, refit over every experiment, and measure what it explains and how
+    it predicts."""
+    ext_liks = [Likelihood(lik.model.with_effects(effect), lik.dataset, substeps=s.substeps)
+                for lik in base.likelihoods]
+    for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
+        ext.use_ar_noise(lik.ar_noise)
+    ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng,
+                                 base.noise_choices, refer=False)
+    ext = ext_liks[0].model
+    eff = ext.effects[-1]
+    tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
+    e_elpd, e_elpd_i, interval = laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob,
+                                             tested)
+    ext_noises = _experiment_noises(ext_post, ext_map)
+    off = dict(ext_map.values)
+    off.update({p.name: p.null for p in eff.parameters if p.vary and p.null is not None})
+    sigs, contributions = [], []
+    for lik, ext_lik, noise in zip(base.likelihoods, ext_liks, ext_noises, strict=True):
+        ext_sim = _simulate(ext_lik.model, ext_map.values, lik, s.substeps)
+        contributions.append(ext_sim.position_m[0]
+                             - _simulate(ext_lik.model, off, lik, s.substeps).position_m[0])
+        sigs.append(residual_signature(ext_lik, noise, ext_sim))
+    # with no excess over pure noise there is nothing to explain
+    gain = sum((b.energy - x.energy) * lik.n_samples
+               for b, x, lik in zip(base.signatures, sigs, base.likelihoods, strict=True))
+    over = sum((b.energy - 1.0) * lik.n_samples
+               for b, lik in zip(base.signatures, base.likelihoods, strict=True))
+    explained = float(np.clip(gain / base.excess, 0.0, 1.0)) if over > 0 else 0.0
+    nxt = None
+    if explained < s.min_explained and not s.all_adequate(sigs):
+        # one step of look-ahead: does another candidate account for what is left?
+        following = [e for e in rank_effects(ext_liks, ext_noises, ext_map.values,
+                                             candidates=s.candidates, level=s.level)
+                     if e.significant]
+        nxt = max(following, key=lambda e: e.explained) if following else None
+    diff, diff_se = paired_difference(e_elpd_i, base.elpd_i)
+    rms = pooled_rms([sig.bands[-1].rms_m for sig in sigs],
+                     [lik.n_samples for lik in base.likelihoods])
+    return Refit(
+        effect=effect, values=dict(ext_map.values), interval=interval,
+        rms_m=rms, explained=explained,
+        elpd=e_elpd, elpd_diff=diff, elpd_diff_se=diff_se,
+        contribution_m=np.concatenate(contributions), next_effect=nxt.effect if nxt else None,
+        explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
+        signatures=tuple(sigs),
+        elpd_i=e_elpd_i,
+    )
+
+
+def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
+                      rng: np.random.Generator, progress: Progress) -> dict[str, Refit]:
+    """Refit the strongest significant candidates, at most ``max_refits`` of them.
+
+    Parameters
+    ----------
+    base : BaseFit
+        The diagnosed model.
+    ranked : list of EffectEvidence
+        The candidates' score tests, most evidence first.
+    s : DiagnoseSettings
+        The settings.
+    rng : numpy.random.Generator
+        Seeds the refits' searches and draws.
+    progress : Progress
+        Says which refit is running.
+
+    Returns
+    -------
+    dict
+        Effect name to its :class:`~pmabayes.criticism.results.Refit`.
+    """
+    refits: dict[str, Refit] = {}
+    for ev in [e for e in ranked if e.significant][: int(s.max_refits)]:
+        progress.say(f"refitting with {ev.effect} ({len(refits) + 1} of at most "
+                     f"{s.max_refits})")
+        refits[ev.effect] = _refit(base, ev.effect, s, rng)
+    return refits
+
+
+def _explaining(refits: dict, s: DiagnoseSettings) -> list[Refit]:
+    """The refits that account for the misfit and predict left-out trials better."""
+    return [r for r in refits.values()
+            if (max(r.explained, r.explained_with_next) >= s.min_explained
+                or s.all_adequate(r.signatures))
+            and r.elpd_diff > 2.0 * r.elpd_diff_se]
+
+
+def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:
+    """The refit that accounts for the misfit and predicts left-out trials best, if any.
+
+    Parameters
+    ----------
+    refits : dict
+        Effect name to refit.
+    s : DiagnoseSettings
+        The settings (``min_explained``, adequacy).
+
+    Returns
+    -------
+    str or None
+    """
+    explaining = _explaining(refits, s)
+    return max(explaining, key=lambda r: r.elpd).effect if explaining else None
+
+
+def near_twins(refits: dict, missing: str | None, s: DiagnoseSettings
+               ) -> list[tuple[str, float, float]]:
+    """The other explaining refits whose ELPD is within two standard errors of the
+    missing one's (paired over trials).
+
+    Parameters
+    ----------
+    refits : dict
+        Effect name to refit.
+    missing : str or None
+        The effect found missing.
+    s : DiagnoseSettings
+        The settings.
+
+    Returns
+    -------
+    list of tuple
+        ``(effect, ELPD difference, its standard error)`` of each near twin.
+    """
+    if missing is None or refits[missing].elpd_i is None:
+        return []
+    best, out = refits[missing], []
+    for r in _explaining(refits, s):
+        if r.effect == missing or r.elpd_i is None:
+            continue
+        diff, se = paired_difference(best.elpd_i, r.elpd_i)
+        if diff <= 2.0 * se:
+            out.append((r.effect, diff, se))
+    return out
