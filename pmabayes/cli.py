@@ -193,8 +193,9 @@ def _load_all(args: argparse.Namespace) -> list[Dataset]:
     """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
     if args.exclude_trials and len(args.data) > 1:
         raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
-                       "were given; leave the trials out of that file first (pmabayes.inference.trials."
-                       "exclude_trials, then pmabayes.data.save), or fit it alone")
+                       "were given; leave the trials out of that file first "
+                       "(pmabayes.inference.trials.exclude_trials, then pmabayes.data.save), or "
+                       "fit it alone")
     return [_load_data(args, p) for p in args.data]
 
 

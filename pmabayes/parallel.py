@@ -1,7 +1,8 @@
 """One parallel runner: local worker processes, this process, or a Dask cluster.
 
-Fit ensembles (:mod:`pmabayes.inference.sampler`), robustness sweeps (:mod:`pmabayes.control.robustness`)
-and the studies in ``analyses/`` all run their tasks through :class:`Runner`.
+Fit ensembles (:mod:`pmabayes.inference.sampler`), robustness sweeps
+(:mod:`pmabayes.control.robustness`) and the studies in ``analyses/`` all run their
+tasks through :class:`Runner`.
 
 Local workers are forked where the platform can (spawned elsewhere): they inherit
 the loaded numba kernels, where spawn re-imports numba and xarray in each (seconds

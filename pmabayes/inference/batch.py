@@ -372,9 +372,10 @@ def fit_batch(
     out_dir : str or Path
         Folder of the fit files; created if missing.
     settings : FitSettings, optional
-        Settings of every fit (sampler, substeps, noise model). Its ``progress`` is ignored (the batch
-        draws one bar); its ``processes`` is used only when the batch runs in this
-        process, otherwise each fit samples its ensembles one after another.
+        Settings of every fit (sampler, substeps, noise model). Its ``progress`` is
+        ignored (the batch draws one bar); its ``processes`` is used only when the
+        batch runs in this process, otherwise each fit samples its ensembles one
+        after another.
     seed : int
         The batch's seed; each data set's is :func:`dataset_seed` of it and the
         data set's name.

@@ -877,7 +877,7 @@ class JointLikelihood:
 NOISE_MODELS: tuple[str, ...] = ("auto", "ar1", "ar")
 
 #: Level of the Ljung-Box tests of whiteness: of an adequate model's whitened residual
-#: (:mod:`pmabayes.criticism.residuals`), and of the repeats whitened by AR(1) + white
+#: (:mod:`pmabayes.criticism.whiteness`), and of the repeats whitened by AR(1) + white
 #: (:func:`choose_noise_model`).
 LEVEL_ADEQUATE = 0.01
 
@@ -893,7 +893,7 @@ def ljung_box_statistic(e: np.ndarray, *, max_lag: int = LJUNG_BOX_LAGS) -> floa
     """The Ljung-Box statistic ``n (n + 2) sum_k acf_k^2 / (n - k)``, ``k = 1..max_lag``.
 
     Chi-squared with ``max_lag`` degrees of freedom for a white series
-    (:func:`pmabayes.criticism.residuals.ljung_box` adds its p-value).
+    (:func:`pmabayes.criticism.whiteness.ljung_box` adds its p-value).
 
     Parameters
     ----------

@@ -62,7 +62,7 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
     liks = [lik for lik in liks if lik.n_repeats >= 2]
     if not liks:
         raise FitError(f"{where}: a single record without repeats (no second trial, no declared "
-                       "periods): its noise cannot be learnt from repeats; pmabayes.inference.sampler.fit "
+                       "periods): its noise cannot be learnt from repeats; pmabayes.fit "
                        "identifies it with the model instead")
     sig_p, rho_p, white_p = NOISE_PARAMETERS
 
