@@ -271,9 +271,54 @@ def _escape_bars(app, what, name, obj, options, lines):
         lines[i] = _BARS.sub(lambda m: m.group(1) or rf"\|{m.group(2)}\|", line)
 
 
+def _cli_help(args: list[str]) -> str:
+    """What ``pmabayes ARGS --help`` prints, 88 columns wide."""
+    import contextlib
+    import io
+    import os
+
+    from pmabayes.cli import main
+
+    out = io.StringIO()
+    old = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "88"
+    try:
+        with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
+            main([*args, "--help"])
+    finally:
+        if old is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = old
+    return out.getvalue().rstrip()
+
+
+class CliHelp(SphinxDirective):
+    """``cli-help``: ``pmabayes --help`` and every subcommand's, generated at build
+    time from the command line's own parser, so the page cannot drift from it."""
+
+    has_content = False
+
+    def run(self) -> list[nodes.Node]:
+        self.env.note_dependency(str(PACKAGE_DIR / "cli.py"))
+        top = _cli_help([])
+        found = re.search(r"\{([a-z,_-]+)\}", top)
+        if found is None:
+            raise self.error("pmabayes --help lists no subcommands")
+        out = [nodes.literal_block(top, top, language="text")]
+        for command in found.group(1).split(","):
+            section = nodes.section(ids=[f"pmabayes-{command}"])
+            section += nodes.title(text=f"pmabayes {command}")
+            text = _cli_help([command])
+            section += nodes.literal_block(text, text, language="text")
+            out.append(section)
+        return out
+
+
 def setup(app):
     """Register the directive and the reference handler."""
     app.add_directive("layers-table", LayersTable)
+    app.add_directive("cli-help", CliHelp)
     app.connect("missing-reference", _resolve)
     app.connect("autodoc-process-docstring", _escape_bars)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
