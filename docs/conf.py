@@ -18,8 +18,9 @@ matplotlib.use("Agg")  # the gallery draws without a display
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE / "_ext"))
 
-import pmabayes  # noqa: E402
 from pmabayes_docs import reexports  # noqa: E402
+
+import pmabayes  # noqa: E402
 
 project = "pmabayes"
 author = "the pmabayes developers"
@@ -78,6 +79,7 @@ sphinx_gallery_conf = {
     "abort_on_example_error": True,
     "image_scrapers": ("matplotlib",),
     "min_reported_time": 0,
+    "write_computation_times": False,
     "capture_repr": (),
     "matplotlib_animations": False,
     "plot_gallery": os.environ.get("PMABAYES_DOCS_GALLERY", "True"),
