@@ -90,4 +90,3 @@ html_title = f"pmabayes {release}"
 html_static_path = ["_static"]
 html_show_sourcelink = False
 html_theme_options = {"navigation_with_keys": True}
-pygments_style = "sphinx"

@@ -65,8 +65,10 @@ def reexports(root: str) -> dict[str, dict[str, list[str]]]:
     """Each package's public names (``__all__``) by where they are documented.
 
     ``own``: names the package's page documents although its module's own filter
-    would not list them (objects of its private modules); ``imported``: names it
-    imports from its public modules, which document them. Names that a package
+    would not list them (objects of its private modules); ``imported``: classes and
+    functions it imports from its public modules, which document them;
+    ``imported_data``: the other names it imports (constants, tables), listed by name
+    only, since an object such as a float carries no docstring of its own. Names that a package
     computes on first use (a module ``__getattr__``) are left out: looking them up
     would run them.
 
@@ -78,7 +80,8 @@ def reexports(root: str) -> dict[str, dict[str, list[str]]]:
     Returns
     -------
     dict
-        Package name to ``{"own": [...], "imported": [...]}``, in ``__all__`` order.
+        Package name to ``{"own": [...], "imported": [...], "imported_data": [...]}``,
+        in ``__all__`` order.
     """
     out = {}
     top = importlib.import_module(root)
@@ -90,8 +93,11 @@ def reexports(root: str) -> dict[str, dict[str, list[str]]]:
         private_origin = [
             n for n in public if _own(module, n)
             and getattr(vars(module)[n], "__module__", name) != name]
-        out[name] = {"own": private_origin,
-                     "imported": [n for n in public if not _own(module, n)]}
+        imported = [n for n in public if not _own(module, n)]
+        callable_ = [n for n in imported if inspect.isclass(vars(module)[n])
+                     or inspect.isfunction(vars(module)[n]) or hasattr(vars(module)[n], "py_func")]
+        out[name] = {"own": private_origin, "imported": callable_,
+                     "imported_data": [n for n in imported if n not in callable_]}
     return out
 
 
@@ -272,7 +278,7 @@ def _escape_bars(app, what, name, obj, options, lines):
 
 
 def _cli_help(args: list[str]) -> str:
-    """What ``pmabayes ARGS --help`` prints, 88 columns wide."""
+    """What ``pmabayes ARGS --help`` prints, 80 columns wide."""
     import contextlib
     import io
     import os
@@ -281,7 +287,7 @@ def _cli_help(args: list[str]) -> str:
 
     out = io.StringIO()
     old = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "88"
+    os.environ["COLUMNS"] = "80"
     try:
         with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
             main([*args, "--help"])
