@@ -16,6 +16,8 @@ of the first library; ``pmabayes diagnose`` on the command line tests every
 registered effect, and finds the same two.
 """
 
+# sphinx_gallery_thumbnail_number = 3
+
 # %%
 # The data
 # --------
@@ -95,7 +97,7 @@ ax.scatter(x, [b.floor_m * 1e6 for b in first], marker="_", s=600, color="k",
 ax.set_yscale("log")
 ax.set_xticks(x, names)
 ax.set(ylabel="RMS error of the trial mean [um]", title="the error falls as effects are added")
-ax.legend(fontsize=8)
+ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4)
 plt.show()
 
 for label, d in steps.items():
