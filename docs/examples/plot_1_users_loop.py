@@ -16,8 +16,6 @@ of the first library; ``pmabayes diagnose`` on the command line tests every
 registered effect, and finds the same two.
 """
 
-# sphinx_gallery_thumbnail_number = 3
-
 # %%
 # The data
 # --------
@@ -31,6 +29,8 @@ import numpy as np
 
 import pmabayes as pb
 from pmabayes.data import load
+
+# sphinx_gallery_thumbnail_number = 3
 
 root = Path(pb.__file__).resolve().parents[1]
 lab = load(root / "data" / "pma_chirp_lab.csv")
