@@ -75,7 +75,6 @@ ax.fill_between(e.time_s, (e.low_m - e.prediction_m) * 1e6, (e.high_m - e.predic
                 color="tab:blue", alpha=0.3, label="90% predictive band")
 ax.plot(e.time_s, (e.position_m - e.prediction_m).T * 1e6, "k.", ms=0.5)
 ax.set(xlim=(2, 4), xlabel="time [s]", ylabel="measured - predicted [um]",
-       title="held-out sine on the loaded rig (synthetic): the five trials and the band, "
-             "about the prediction")
+       title="held-out sine, loaded rig: trials and band about the prediction")
 ax.legend(loc="upper right")
 plt.show()
