@@ -157,17 +157,7 @@ def pages(root: Path = ROOT) -> list[Path]:
 
 
 def all_commands(root: Path = ROOT) -> list[Command]:
-    """Every command of every page, README first.
-
-    Parameters
-    ----------
-    root : Path
-        The repository root.
-
-    Returns
-    -------
-    list of Command
-    """
+    """Every command of every page of :func:`pages` under ``root``, README first."""
     out = []
     for path in pages(root):
         out += extract(path.read_text(), str(path.relative_to(root)))
