@@ -53,8 +53,8 @@ def test_new_effects_are_documented_builtins(name):
     for p in eff.parameters:
         assert p.unit and p.description and p.latex and p.prior is not None
     assert len(eff.null_values()) == 1  # one tested parameter, the others fixed
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
-    assert f"`{name}`" in readme
+    guide = (Path(__file__).parents[1] / "docs" / "guide" / "model.md").read_text()
+    assert f"`{name}`" in guide
 
 
 def test_polynomial_helpers_match_libm():

@@ -1,107 +1,13 @@
 """The likelihood of an experiment's trials under a model and a noise model.
 
-Noise model
------------
-Every trial ``r`` of a data set is driven by the same commanded input, so the
-model predicts the same position ``x_k(theta)`` for all of them. What differs
-from trial to trial is a disturbance that is autocorrelated in time (supply
-pressure, temperature, the braid settling), seen through a sensor that adds
-white noise of its own (encoder quantisation, electronics)::
-
-    y_rk = x_k(theta) + e_rk + w_rk
-    e_rk = rho e_r,k-1 + sqrt(1 - rho^2) sigma eps_rk,    w_rk ~ N(0, sigma_w^2)
-
-with ``eps`` standard normal. Everything is independent between trials, and each
-trial's disturbance is stationary from its first sample. The three noise
-parameters are estimated, never fixed: ``sigma_noise_m`` (the disturbance's
-standard deviation), ``rho_noise`` (its lag-one autocorrelation) and
-``sigma_white_m`` (the sensor's white noise). The exact likelihood comes from a
-scalar Kalman filter.
-
-Why not i.i.d. Gaussian: with 10^5 strongly correlated samples an i.i.d.
-likelihood counts each sample as new information and yields intervals far too
-narrow (90% intervals that miss every true value). Why not AR(1) alone: white
-sensor noise makes an AR(1) fit lower its correlation, which understates the
-low-frequency noise where a slow chirp carries its information. The intervals
-are then too narrow too. The assumptions that remain: the disturbance is the
-same stationary process in every trial, independent between trials, with
-exponentially decaying correlation. ``analyses/calibration.py`` measures how well
-the resulting intervals cover the truth.
-
-Computation, and what the noise is learnt from
-----------------------------------------------
-Write each trial as the trial mean plus a deviation, ``y_rk = ybar_k + d_rk``
-(``sum_r d_rk = 0``), and let ``g_k = ybar_k - x_k(theta)``. The likelihood of
-the ``R`` trials factorises exactly into two parts:
-
-* the deviations, which do not depend on the model at all: rotated by Helmert
-  contrasts they are ``R - 1`` independent series of the same noise process
-  (:meth:`Likelihood.deviation_log_likelihood`); and
-* the trial mean's residual, ``sqrt(R) g``, one more series of that process
-  (:meth:`Likelihood.mean_log_likelihood`).
-
-An evaluation for the model costs one simulation and one filter pass over ``g``
-(O(n_samples)), whatever the number of trials.
-
-:mod:`pmabayes.inference.sampler` learns the noise from the deviations alone, i.e. from the
-spread between repeated trials, and the model given that noise. If the noise were
-fitted to the mean residual too, a model that cannot describe the data would
-have its error explained away as slow noise (``rho -> 1``, ``sigma`` inflated):
-the AR(1) likelihood barely penalises a slowly varying residual. With the noise
-fixed by repeatability, model error stays visible. When the model is right, this
-and the joint posterior agree to O(1/R).
-
-Single records
---------------
-A record without repeated trials (:attr:`Likelihood.noise_source`):
-
-* **periodic** (``period_samples`` declared): its periods are the repeats. All of
-  them when the record starts in steady state; from the second on when it starts
-  from rest, since the first holds the transient. The noise is learnt from the
-  periods' deviations from their mean, model-free as for trials; the model's
-  likelihood is that of the whole record. From rest, hysteresis does not settle
-  in one period: it shakes down over tens (at the paper's values by about 0.84 a
-  period), and the raw periods' deviations hold that drift too (on the
-  calibration's multisines, noise estimates 1.9 to 240,000 times the drawn power
-  at low frequency). :func:`pmabayes.inference.search.find_map` therefore learns the noise again
-  from the periods of the residual at its MAP (:meth:`Likelihood.refer_periods_to`),
-  which removes the model's own change from period to period, while a misfit that
-  repeats every period still cancels.
-* **not periodic**: nothing but the record identifies the noise, so it is fitted
-  with the model, and the guard above is replaced by one on the noise model
-  itself (:meth:`Likelihood.noise_parameters`): the disturbance's correlation
-  time is bounded by ``1 / (2 pi GUARD_FACTOR f_in)``, ``f_in`` the frequency
-  below which 99% of the input's variance lies. Its spectrum is then flat up to
-  ten times the input's band, where a model's misfit lives (the input's band and
-  the harmonics hysteresis makes of it). To absorb a misfit there the noise would
-  have to rise at all frequencies, against the record's own high-frequency
-  residual; what it cannot absorb stays in the innovations, whose whiteness test
-  then judges the model. The price: a disturbance that really is slow cannot be
-  told from model error in one record, and is not modelled; repeat the record, or
-  make it periodic.
-
-When the repeats reject AR(1) + white: AR(p)
---------------------------------------------
-Real disturbances often have more structure (two time scales, vibration). The
-repeats show it without any model: their Helmert contrasts, whitened by the AR(1) +
-white noise, must be white (a pooled Ljung-Box test at :data:`LEVEL_ADEQUATE`,
-:func:`ar1_whiteness_of_repeats`). Where they are not, :func:`choose_noise_model`
-(``noise_model="auto"``, :func:`pmabayes.inference.sampler.fit`'s default) takes an AR(p) of the
-repeats instead (:func:`ar_noise_from_repeats`: Yule-Walker on the contrasts'
-pooled autocovariance, order by AIC up to :data:`MAX_AR_ORDER`), fixed like the
-AR(1) noise from repeats; :meth:`Likelihood.use_ar_noise` makes the trial mean's
-likelihood its exact Gaussian density (:class:`ArNoise`: innovations from the
-Durbin-Levinson predictors of orders 0..p, so not conditional on the first ``p``
-samples). The AR(p) is one trial's whole noise, disturbance and sensor together.
-Records without repeats keep AR(1) + white under the guard below.
-
-Several experiments
--------------------
-Each experiment (a data set with its own input, rig and trials) has its own
-:class:`Likelihood`; :class:`pmabayes.inference.density.Posterior` sums their log
-likelihoods, each given its experiment's noise. :class:`JointLikelihood` presents
-them as one output for the global search (a cost that weighs every experiment the
-same) and the quality check.
+Each trial is the model's position plus an AR(1) disturbance and white sensor noise
+(or, where the repeats reject that, the repeats' AR(p)), independent between trials;
+the exact likelihood comes from a Kalman filter. It factorises into the trials'
+deviations from their mean, which do not depend on the model and give the noise, and
+the trial mean's residual, which gives the model. A record without repeats learns its
+noise from its periods, or with the model under a guard on the noise's correlation
+time. The documentation's page "The likelihood" (``docs/theory/likelihood.rst``)
+gives the model, the factorisation and why.
 """
 
 from __future__ import annotations

@@ -1,47 +1,13 @@
 """Batched, compiled simulation of a composed :class:`~pmabayes.model.model.Model`.
 
-Integration scheme
-------------------
-The muscle is stiff: with the paper's masses the linear part has poles near -4 and
--2300 rad/s, so explicit Euler diverges at 1 kHz. Each sample interval is
-integrated as follows.
-
-* The linear mass-spring-damper is discretised *exactly* (matrix exponential)
-  for a force that varies linearly over the interval (first-order hold). This
-  part is unconditionally stable at any step.
-* The force is the actuator force ``A max(p - p_dz, 0)`` minus gravity, the
-  hysteretic force ``z`` and any effect forces. Its values at the interval's
-  start and end are used; the end values depend on the unknown end state, which
-  is found by a Newton iteration on one scalar (the force increment), using the
-  derivatives ``dz/dx`` and each force effect's ``df/dx``, ``df/dv``.
-* ``z`` is advanced by the exact solution of ``dz/dx = alpha - c|z|`` for the
-  step's displacement (``c`` fixed by the signs of ``dx`` and ``z``), so the
-  hysteresis is integrated without a step-size limit of its own. A hysteresis
-  effect's factor ``g(|z|)`` (``dz/dx = alpha - c|z| g``) is frozen at the step's
-  mean ``|z|``.
-* Force effects may read ``z`` (their ``z`` derivative joins the implicit step
-  through ``dz/dx``) and carry a state, advanced exactly over the step with ``x``
-  linear in time; its slope in the end position joins the implicit step too.
-
-The scheme is second order. Against a Radau solution at rtol 1e-10 the error over
-the 15 s chirp of the paper is about 3e-7 m at 1 kHz (see ``tests/test_simulator.py``).
-
-Conventions
------------
-By default ``input[k]`` (pressure in Pa, or force in N) is held from ``time_s[k]``
-to ``time_s[k+1]``; ``between_samples`` chooses a straight line between samples, or
-a band-limited reconstruction (FFT interpolation of a periodic record, else a
-degree-9 interpolating spline) that each substep follows as a straight line between
-its reconstructed end values. ``position_m[k]`` is the position at ``time_s[k]``.
-Each trial starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium
-under the first input sample; or, with ``initial_state="zero"``, at ``x = x' = z = 0``
-whatever the first input (a simulation switched on at t = 0, as the Bouc-Wen
-benchmark's); or, with ``steady_state``, in the periodic steady state reached from that
-initial state through repeated periods of the input.
-
-Kernels are generated per composition of effects, compiled with numba and cached
-on disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``), so the first
-call of a new composition compiles for a few seconds and later processes load it.
+Each sample interval is integrated by a second-order scheme that is stable at any
+step: the linear mass-spring-damper discretised exactly for a force linear over the
+interval, the remaining force found by one linearly implicit step, and the Bouc-Wen
+force ``z`` advanced by the exact solution of its law over the step's displacement.
+Kernels are generated per composition of effects, compiled with numba and cached on
+disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``). The documentation's
+page "The simulator" (``docs/theory/simulator.rst``) gives the scheme and the input
+conventions.
 """
 
 from __future__ import annotations
