@@ -104,7 +104,7 @@ def two_time_scale(seed, effects=None, r=6):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
     from pmabayes.criticism.adequacy import check_adequacy
-    from pmabayes.criticism.whiteness import check_noise_model, whiteness
+    from pmabayes.criticism.whiteness import check_noise_model, whiteness_statistics
 
     ds = two_time_scale(seed)
     lik = Likelihood(pb.Model(), ds)
@@ -115,7 +115,7 @@ def test_a_two_time_scale_disturbance_does_not_fail_a_correct_model(seed):
     assert check.ar_ljung_box_p > 0.01 and check.ar_order >= 2
     assert "REJECTED" in check.summary()
     # with AR(1) + white the whiteness test would blame the physics
-    assert whiteness(innovations(lik, x, noise))["ljung_box_p"] < 0.01
+    assert whiteness_statistics(innovations(lik, x, noise))["ljung_box_p"] < 0.01
     a = check_adequacy(lik, x, noise)
     assert a.adequate is True, a.evidence()
     assert a.noise_model.startswith("AR(") and "reject AR(1) + white" in a.evidence()
@@ -142,7 +142,7 @@ def test_the_two_time_scale_verdict_is_calibrated():
 
 def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
     from pmabayes.criticism.adequacy import check_adequacy
-    from pmabayes.criticism.whiteness import check_noise_model, whiteness
+    from pmabayes.criticism.whiteness import check_noise_model, whiteness_statistics
 
     for case in (perfect, lagged):
         ds, lik, x, e = judge(case)
@@ -150,7 +150,7 @@ def test_the_usual_ar1_noise_keeps_the_ar1_verdict(perfect, lagged):
         assert check_noise_model(lik, noise).adequate
         a = check_adequacy(lik, x, noise)
         assert a.noise_model == "AR(1) + white"
-        assert a.energy == pytest.approx(whiteness(e)["energy"], rel=1e-12)
+        assert a.energy == pytest.approx(whiteness_statistics(e)["energy"], rel=1e-12)
 
 
 def test_autocorrelation_bound_and_ljung_box_on_white_noise():

@@ -189,3 +189,25 @@ def test_import_picks_no_matplotlib_backend():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.split() == ["False"], "importing pmabayes chose a matplotlib backend"
+
+
+def _submodules(package):
+    import importlib
+    import pkgutil
+
+    for info in pkgutil.iter_modules(package.__path__):
+        if info.name == "__main__":
+            continue
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
+        yield package, info.name, module
+        if info.ispkg:
+            yield from _submodules(module)
+
+
+def test_no_name_of_a_package_hides_one_of_its_modules():
+    """``from pmabayes.criticism.whiteness import whiteness`` in a package's
+    ``__init__`` would make ``pmabayes.criticism.whiteness`` the function, not the
+    module (``import a.b as m`` then gives the function)."""
+    hidden = [f"{pkg.__name__}.{name}" for pkg, name, module in _submodules(pmabayes)
+              if getattr(pkg, name) is not module]
+    assert hidden == []

@@ -28,6 +28,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import pmabayes as pb
+from pmabayes.criticism import DiagnoseSettings
 from pmabayes.data import load
 
 # sphinx_gallery_thumbnail_number = 3
@@ -51,7 +52,8 @@ plt.show()
 candidates = ["regulator_lag", "transport_delay", "coulomb_friction", "cubic_stiffness",
               "pressure_stiffness", "position_offset"]
 steps = {}
-steps["base"] = pb.diagnose(lab, candidates=candidates, max_refits=2)
+settings = DiagnoseSettings(candidates=candidates, max_refits=2)
+steps["base"] = pb.diagnose(lab, settings=settings)
 print(steps["base"].verdict)
 
 # %%
@@ -59,7 +61,7 @@ print(steps["base"].verdict)
 # signature of a lag. The residual of the trial mean, against the floor:
 base = steps["base"]
 fig, ax = plt.subplots(figsize=(8, 3.5), layout="constrained")
-ax.plot(lab.time_s, base.residual_m * 1e3, lw=0.6, label="trial mean - model")
+ax.plot(lab.time_s, base.experiments[0].residual_m * 1e3, lw=0.6, label="trial mean - model")
 ax.axhspan(-lab.noise_floor_m * 1e3, lab.noise_floor_m * 1e3, color="k", alpha=0.3,
            label="noise floor")
 ax.set(xlabel="time [s]", ylabel="residual [mm]", title="base model")
@@ -75,7 +77,7 @@ effects = []
 while steps[list(steps)[-1]].missing is not None:
     effects.append(steps[list(steps)[-1]].missing)
     label = "base + " + " + ".join(effects)
-    steps[label] = pb.diagnose(lab, effects=effects, candidates=candidates, max_refits=2)
+    steps[label] = pb.diagnose(lab, effects=effects, settings=settings)
     print(steps[label].verdict, end="\n\n")
 
 # %%
@@ -83,7 +85,7 @@ while steps[list(steps)[-1]].missing is not None:
 # --------------------
 # The RMS error of the trial mean per frequency band, for each step, beside the
 # noise floor (the black ticks).
-bands = {label: d.signature.bands for label, d in steps.items()}
+bands = {label: d.experiments[0].signature.bands for label, d in steps.items()}
 first = next(iter(bands.values()))
 names = [f"{lo:g}-{hi:g} Hz" for lo, hi in (b.band_hz for b in first[:-1])] + ["all"]
 x = np.arange(len(names))

@@ -23,6 +23,7 @@ harder), hidden in **synthetic** data, then found.
 import matplotlib.pyplot as plt
 
 import pmabayes as pb
+from pmabayes.criticism import DiagnoseSettings
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
 
@@ -75,8 +76,9 @@ plt.show()
 # -------
 # The diagnosis does not know what was hidden: the new effect is one candidate
 # among others, ranked by the same score test and refitted the same way.
-d = pb.diagnose(data, candidates=["pressure_damping", "coulomb_friction", "regulator_lag",
-                                  "cubic_stiffness"], max_refits=2)
+d = pb.diagnose(data, settings=DiagnoseSettings(
+    candidates=["pressure_damping", "coulomb_friction", "regulator_lag", "cubic_stiffness"],
+    max_refits=2))
 print(d.verdict)
 for finding in d.ranking:
     print(f"{finding.effect:20s} evidence {finding.evidence:10.3g}  "

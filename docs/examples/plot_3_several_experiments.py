@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import pmabayes as pb
+from pmabayes.criticism import DiagnoseSettings
 from pmabayes.inference import FitSettings
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
@@ -47,8 +48,8 @@ plt.show()
 # ----------------------
 # One MAP of the shared parameters, a verdict per experiment, one score test
 # with both experiments' scores added, and refits over both.
-d = pb.diagnose(experiments, candidates=["regulator_lag", "transport_delay",
-                                         "coulomb_friction"], max_refits=2)
+d = pb.diagnose(experiments, settings=DiagnoseSettings(
+    candidates=["regulator_lag", "transport_delay", "coulomb_friction"], max_refits=2))
 print(d.verdict)
 for e in d.experiments:
     print(f"  {e.name}: RMS {e.rms_m * 1e6:.0f} um against a floor of "

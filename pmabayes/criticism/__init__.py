@@ -76,8 +76,8 @@ from pmabayes.criticism.whiteness import (
     innovations,
     judged_whiteness,
     ljung_box,
-    whiteness,
     whiteness_curves,
+    whiteness_statistics,
 )
 from pmabayes.inference.likelihood import LEVEL_ADEQUATE, MAX_AR_ORDER
 
@@ -136,6 +136,6 @@ __all__ = [
     "significance_threshold",
     "stlsq",
     "validate",
-    "whiteness",
+    "whiteness_statistics",
     "whiteness_curves",
 ]

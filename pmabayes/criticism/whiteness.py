@@ -38,7 +38,7 @@ __all__ = [
     "judged_whiteness",
     "NoiseModelCheck",
     "check_noise_model",
-    "whiteness",
+    "whiteness_statistics",
     "WhitenessCurves",
     "whiteness_curves",
 ]
@@ -184,7 +184,7 @@ def judged_whiteness(likelihood: Likelihood, model_position_m: np.ndarray, noise
     check = check_noise_model(likelihood, noise)
     if check.adequate:
         e = innovations(likelihood, x, noise)
-        return e, whiteness(e), check
+        return e, whiteness_statistics(e), check
     r = likelihood.y_mean - x
     return check.whiten_residual(r), check.residual_whiteness(r), check
 
@@ -389,7 +389,7 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
                               "reference_energy": float(np.mean(np.square(white)))})
 
 
-def whiteness(e: np.ndarray) -> dict:
+def whiteness_statistics(e: np.ndarray) -> dict:
     """Whiteness statistics of a whitened residual.
 
     Parameters
