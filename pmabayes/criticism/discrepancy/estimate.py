@@ -5,6 +5,7 @@ a nonlinear refit."""
 from __future__ import annotations
 
 import re
+import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -52,7 +53,7 @@ def estimate_discrepancy(
     values: dict,
     simulation: Simulation,
     *,
-    plugin_dir: str | Path | None = None,
+    plugin_dir: str | Path | None | bool = None,
     verify: bool = True,
     command: str | None = None,
     effects=(),
@@ -69,10 +70,12 @@ def estimate_discrepancy(
         The model's MAP.
     simulation : Simulation
         The model at its MAP, with its states.
-    plugin_dir : str or Path, optional
+    plugin_dir : str or Path or False, optional
         Where to write the proposal's ``.py`` file (the current folder by default).
         An existing file of the same name is never overwritten: a numbered name is
-        chosen instead.
+        chosen instead. False: the file is written to a temporary folder for the
+        refit and not kept (the proposal's ``plugin`` is then None, and its text says
+        how to keep it).
     verify : bool
         Refit the model with the written effect (nonlinear, through the simulator)
         and report what it achieves.
@@ -109,8 +112,15 @@ def estimate_discrepancy(
     st = problem.states(tau)
     proposal = None
     if gain > max(2.0 * gain_se, 2.0):
-        proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
-                            plugin_dir, verify, command)
+        if plugin_dir is False:  # checked, not kept
+            with tempfile.TemporaryDirectory(prefix="pmabayes-proposal-") as tmp:
+                proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                                    tmp, verify, command)
+            if proposal is not None:
+                proposal = replace(proposal, plugin=None)
+        else:
+            proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                                plugin_dir, verify, command)
     other = None if near and explained >= 0.5 else _other_cause(
         likelihood, noise, simulation, explained, ratio_after)
     text = _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
@@ -379,15 +389,18 @@ def _text(states, explained, ratio_after, gain, gain_se, proposal, other, comman
             f"{gain_se:.1f}). It depends on {dep}.")
     if proposal is not None:
         text += f" Proposed: {proposal.description} ({proposal.expression})."
+        v = proposal.verified
+        if v is not None:
+            text += (f" Refitted with it, the model reaches {v['ratio']:.3g}x the floor"
+                     f" ({'adequate' if v['adequate'] else 'not adequate'}).")
         if proposal.plugin:
-            v = proposal.verified
-            if v is not None:
-                text += (f" Refitted with it, the model reaches {v['ratio']:.3g}x the floor"
-                         f" ({'adequate' if v['adequate'] else 'not adequate'}).")
             data = command or "DATA"
             names = ",".join([*effects, proposal.effect])
             text += (f" To add it: pmabayes --plugin {proposal.plugin} diagnose {data} "
                      f"--effects {names}")
+        elif v is not None:
+            text += (" Its effect file was not kept: diagnose again with --proposal-dir DIR "
+                     "(plugin_dir in Python) to write it there as a --plugin effect.")
         else:
             text += " It could not be written as an effect."
     if other:
