@@ -374,6 +374,9 @@ def _staged(out: Path, kind: str, written: list[str]) -> Iterator[Path]:
     to ``written``. On failure or Ctrl-C it is removed and ``out`` is as it was."""
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    tmp.chmod(0o777 & ~umask)  # mkdtemp's is private; the folder it becomes is not
     try:
         yield tmp
         _mark_folder(tmp, kind)
@@ -571,6 +574,7 @@ def _fit_out(args: argparse.Namespace, out: Path) -> None:
 def _cmd_fit(args: argparse.Namespace) -> int:
     out = _out_file(args.out, "fit", "--out", inputs=args.data)
     _fit_out(args, out)
+    _check_effects(args.effects, "--effects")
     datasets = _load_all(args)
     model = _model_for(datasets[0], args)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -617,6 +621,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = _out_folder(args.out, "run", inputs=args.data)
     _fit_out(args, out / "fit.nc")
+    _check_effects(args.effects, "--effects")
     datasets = _load_all(args)  # read and checked before anything is made
     model = _model_for(datasets[0], args)
     with _created(out, "run"):

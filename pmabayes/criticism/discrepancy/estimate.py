@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pmabayes.criticism.bands import band_errors
+from pmabayes.criticism.bands import band_errors, excess_removed
 from pmabayes.criticism.discrepancy.dictionary import (
     best_hinges,
     best_period,
@@ -40,6 +40,7 @@ from pmabayes.criticism.discrepancy.regression import (
 from pmabayes.criticism.discrepancy.results import Discrepancy, Proposal, StateEvidence
 from pmabayes.criticism.discrepancy.verify import verify_proposal
 from pmabayes.criticism.elpd import paired_difference
+from pmabayes.criticism.prose import removed_text
 from pmabayes.criticism.signature import residual_signature
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.simulator import Simulation
@@ -106,7 +107,10 @@ def estimate_discrepancy(
     explained = float(np.clip((only_j.energy - full.energy) / excess, 0.0, 1.0)) \
         if e0 > n else 0.0
     corr = correction(problem, blocks, full.coef)
-    ratio_after = band_errors(problem.dataset, problem.x0 + corr)[-1].ratio
+    before = band_errors(problem.dataset, problem.x0)[-1]
+    after = band_errors(problem.dataset, problem.x0 + corr)[-1]
+    ratio_after = after.ratio
+    removed = excess_removed([before.rms_m], [after.rms_m], [before.floor_m], [n])
     states, pdep = _state_evidence(problem, full, loo_full)
     near = bool(ratio_after <= 1.5)
     st = problem.states(tau)
@@ -123,9 +127,10 @@ def estimate_discrepancy(
                                 plugin_dir, verify, command)
     other = None if near and explained >= 0.5 else _other_cause(
         likelihood, noise, simulation, explained, ratio_after)
-    text = _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
-                 tuple(effects))
-    return Discrepancy(states=states, explained=explained, ratio_after=float(ratio_after),
+    text = _text(states, explained, removed, ratio_after, gain, gain_se, proposal, other,
+                 command, tuple(effects))
+    return Discrepancy(states=states, explained=explained, explained_rms=removed,
+                       ratio_after=float(ratio_after),
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
                        partial_dependence=pdep, proposal=proposal, near_floor=near,
                        other_cause=other, text=text)
@@ -376,7 +381,7 @@ def _other_cause(lik, noise, sim, explained: float, ratio_after: float) -> str:
     return text
 
 
-def _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
+def _text(states, explained, removed, ratio_after, gain, gain_se, proposal, other, command,
           effects) -> str:
     needed = [s for s in states if s.needed]
     if not needed and not gain > max(2.0 * gain_se, 2.0):
@@ -384,9 +389,11 @@ def _text(states, explained, ratio_after, gain, gain_se, proposal, other, comman
                 f"(ΔELPD {gain:+.1f} ± {gain_se:.1f}): no discrepancy in the force is found.")
     dep = ", ".join(f"{s.state} (ΔELPD {s.elpd_loss:+.1f} ± {s.se:.1f})" for s in needed) or \
         "no single state"
-    text = (f"A flexible force estimated from the data removes {explained:.0%} of the excess "
-            f"residual (to {ratio_after:.3g}x the floor, linearised; ΔELPD {gain:+.1f} ± "
-            f"{gain_se:.1f}). It depends on {dep}.")
+    # linearised: never called adequate, so never "100%" while above the floor
+    text = (f"A flexible force estimated from the data "
+            f"{removed_text(removed, explained, ratio_after, False)} (linearised, to "
+            f"{ratio_after:.3g}x the floor; ΔELPD {gain:+.1f} ± {gain_se:.1f}). It depends on "
+            f"{dep}.")
     if proposal is not None:
         text += f" Proposed: {proposal.description} ({proposal.expression})."
         v = proposal.verified
