@@ -399,6 +399,20 @@ def _write_json(path: str | Path, obj: dict, kind: str) -> None:
     path.write_text(json.dumps({"pmabayes": _stamp(kind), **obj}, indent=2) + "\n")
 
 
+def _summary_and_page(summary: dict, js: Path | None, out: Path | None, kind: str,
+                      write_page: Callable[[Path], object]) -> None:
+    """A command's JSON summary and its page (written by ``write_page`` into a folder),
+    each where an option asks for it, each named."""
+    if js is not None:
+        _write_json(js, summary, kind)
+        print(f"wrote {js}")
+    if out is not None:
+        written: list[str] = []
+        with _staged(out, kind, written) as tmp:
+            write_page(tmp)
+        _wrote(out, written)
+
+
 def _wrote(out: Path, names: Sequence[str], what: str = "") -> None:
     """Name every file written into a folder."""
     print(f"wrote {what + ' ' if what else ''}{out}{os.sep}: {', '.join(names)}")
@@ -697,16 +711,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     proposal = result.discrepancy.proposal if result.discrepancy is not None else None
     if proposal is not None and proposal.plugin:
         print(f"wrote {proposal.plugin} (the proposed effect)")
-    if js is not None:
-        _write_json(js, result.to_dict(), "diagnose")
-        print(f"wrote {js}")
-    if out is not None:
-        from pmabayes.report.diagnosis_page import write_diagnosis
+    from pmabayes.report.diagnosis_page import write_diagnosis
 
-        written: list[str] = []
-        with _staged(out, "diagnose", written) as tmp:
-            write_diagnosis(result, tmp)
-        _wrote(out, written)
+    _summary_and_page(result.to_dict(), js, out, "diagnose",
+                      lambda folder: write_diagnosis(result, folder))
     print(f"({time.perf_counter() - start:.1f} s)")
     return 0
 
@@ -917,16 +925,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
           "each:")
     for line in result.lines():
         print(f"  {line}")
-    if js is not None:
-        _write_json(js, result.to_dict(), "validate")
-        print(f"wrote {js}")
-    if out is not None:
-        from pmabayes.report.validation_page import write_validation
+    from pmabayes.report.validation_page import write_validation
 
-        written: list[str] = []
-        with _staged(out, "validate", written) as tmp:
-            write_validation(result, tmp)
-        _wrote(out, written)
+    _summary_and_page(result.to_dict(), js, out, "validate",
+                      lambda folder: write_validation(result, folder))
     print(f"({time.perf_counter() - start:.1f} s)")
     return 0
 

@@ -447,26 +447,27 @@ def test_the_words_never_say_all_while_the_error_is_above_the_floor():
 # ----------------------------------------------------------------------------- 9. startup
 
 
+def _python(code: str) -> str:
+    """What a fresh interpreter prints for ``code``."""
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True).stdout
+
+
 def test_the_command_line_and_its_parser_import_no_numerics():
-    code = ("import sys; import pmabayes.cli as c; c._parser().parse_args(['fit', 'd.csv', "
-            "'--out', 'f.nc']); print(sorted(m for m in ('numpy', 'numba', 'scipy', 'xarray', "
-            "'arviz', 'matplotlib', 'h5py') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True)
-    assert out.stdout.strip() == "[]"
+    assert _python("import sys; import pmabayes.cli as c; c._parser().parse_args(['fit', "
+                   "'d.csv', '--out', 'f.nc']); print(sorted(m for m in ('numpy', 'numba', "
+                   "'scipy', 'xarray', 'arviz', 'matplotlib', 'h5py') if m in sys.modules))"
+                   ).strip() == "[]"
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "pmabayes", "--help"], capture_output=True, check=True)
     assert time.perf_counter() - t0 < 3.0  # 0.14 s measured; generous on a busy machine
 
 
 def test_import_pmabayes_is_lazy_and_complete():
-    code = ("import sys, pmabayes as pb; lazy = 'numpy' not in sys.modules; "
-            "print(lazy, pb.Model.__name__, pb.fit.__module__, all(hasattr(pb, n) for n in "
-            "pb.__all__), pb.__version__)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True)
-    assert out.stdout.split() == ["True", "Model", "pmabayes.inference.sampler", "True",
-                                  "0.1.0"]
+    out = _python("import sys, pmabayes as pb; lazy = 'numpy' not in sys.modules; "
+                  "print(lazy, pb.Model.__name__, pb.fit.__module__, all(hasattr(pb, n) for n "
+                  "in pb.__all__), pb.__version__)")
+    assert out.split() == ["True", "Model", "pmabayes.inference.sampler", "True", "0.1.0"]
 
 
 def test_the_parsers_literals_are_the_package_constants():
@@ -519,28 +520,17 @@ def test_simulate_takes_effects_and_params_like_predict(tmp_path, capsys):
     assert "hidden effects: regulator_lag (tau_reg=0.03)" in capsys.readouterr().out
 
 
-PLUGIN = '''
-import pmabayes as pb
-
-class EdgeDrag(pb.Effect):
-    name = "edge_drag"
-    stage = "force"
-    parameters = (pb.Parameter("c_edge", "N s/m", 1.0, pb.HalfNormal(2.0), bounds=(0.0, 50.0),
-                               null=0.0, description="linear drag"),)
-    description = "A linear drag."
-    physics = staticmethod(lambda q, x, v, p: (q[0] * v, 0.0, q[0]))
-
-pb.register_effect(EdgeDrag)
-'''
 
 
 def test_plugin_on_either_side_and_a_broken_one_in_one_line(tmp_path, capsys):
+    from test_cli import PLUGIN
+
     import pmabayes.cli as cli
 
     plugin = tmp_path / "edge.py"
     plugin.write_text(PLUGIN)
     assert main(["effects", "--plugin", str(plugin), "--quiet"]) == 0
-    assert "edge_drag [force]" in capsys.readouterr().out
+    assert "cli_stiction [force]" in capsys.readouterr().out
     broken = tmp_path / "broken.py"
     broken.write_text("import pmabayes\n\ndef oops(:\n")
     _one_line_error(capsys, main(["--plugin", str(broken), "effects"]),
