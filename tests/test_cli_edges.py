@@ -275,7 +275,9 @@ def test_a_proposal_goes_into_out_and_is_named(tmp_path, capsys, monkeypatch):
     written = [p for p in tmp_path.iterdir() if p.suffix == ".py"]
     assert written == []  # nothing into the current folder
     plugins = list((tmp_path / "DIR").glob("proposed_*.py"))
-    assert len(plugins) == 1 and f"wrote {plugins[0]} (the proposed effect)" in captured.out
+    assert len(plugins) == 1
+    assert f"wrote {Path('DIR') / plugins[0].name} (the proposed effect)" in captured.out
+    print(captured.out, captured.err)
     assert "score tests" in captured.err  # the score tests' bar
     assert "100%" not in captured.out  # the linearised estimate is never "all"
     # without --out or --proposal-dir it is checked, and not kept

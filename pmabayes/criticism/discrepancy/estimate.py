@@ -391,9 +391,8 @@ def _text(states, explained, removed, ratio_after, gain, gain_se, proposal, othe
         "no single state"
     # linearised: never called adequate, so never "100%" while above the floor
     text = (f"A flexible force estimated from the data "
-            f"{removed_text(removed, explained, ratio_after, False)} (linearised, to "
-            f"{ratio_after:.3g}x the floor; ΔELPD {gain:+.1f} ± {gain_se:.1f}). It depends on "
-            f"{dep}.")
+            f"{removed_text(removed, explained, ratio_after, False)} (linearised; ΔELPD "
+            f"{gain:+.1f} ± {gain_se:.1f}). It depends on {dep}.")
     if proposal is not None:
         text += f" Proposed: {proposal.description} ({proposal.expression})."
         v = proposal.verified
