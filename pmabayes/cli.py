@@ -964,7 +964,7 @@ _NOT_IN_BATCH = {
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     for name, why in _NOT_IN_BATCH.items():
-        if getattr(args, name) is not None:
+        if getattr(args, f"refused_{name}") is not None:
             raise CliError(why)
     if args.processes is not None and args.dask is not None:
         raise CliError("give --processes or --dask, not both")
@@ -1166,7 +1166,7 @@ def _batch_commands(sub, common) -> None:
     bat.add_argument("--json", help="write the batch's summary here")
     for name in _NOT_IN_BATCH:  # refused with the reason, and not offered
         bat.add_argument(f"--{name.replace('_', '-')}", nargs="?", const=True, default=None,
-                         help=argparse.SUPPRESS)
+                         dest=f"refused_{name}", help=argparse.SUPPRESS)
     bat.set_defaults(func=_cmd_batch)
 
 
