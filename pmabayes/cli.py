@@ -426,11 +426,15 @@ def _say() -> Progress:
     return Progress()
 
 
-def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1):
-    """A data file, without the trials ``--exclude-trials`` names (said, not silent)."""
+def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1,
+               first: Callable[[], None] | None = None):
+    """A data file, without the trials ``--exclude-trials`` names (said, not silent);
+    ``first`` runs after the line that says so, before the reading."""
+    _say().say(f"reading {path}")  # first: importing the data layer takes a moment
+    if first is not None:
+        first()
     from pmabayes.data import load
 
-    _say().say(f"reading {path}")
     dataset = load(path)
     exclude = getattr(args, "exclude_trials", None)
     if exclude:
@@ -442,14 +446,21 @@ def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1):
     return dataset
 
 
-def _load_all(args: argparse.Namespace) -> list:
-    """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
+def _load_all(args: argparse.Namespace, *effect_options: str) -> list:
+    """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file).
+    The effects the named options give are checked first (a typo costs no reading)."""
     if getattr(args, "exclude_trials", None) and len(args.data) > 1:
         raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
                        "were given; leave the trials out of that file first "
                        "(pmabayes.inference.trials.exclude_trials, then pmabayes.data.save), or "
                        "fit it alone")
-    return [_load_data(args, p) for p in args.data]
+    paths = [args.data] if isinstance(args.data, str) else list(args.data)
+
+    def check() -> None:
+        for option in effect_options:
+            _check_effects(getattr(args, option[2:].replace("-", "_")), option)
+
+    return [_load_data(args, p, first=check if k == 0 else None) for k, p in enumerate(paths)]
 
 
 def _model_for(dataset, args: argparse.Namespace):
@@ -489,8 +500,7 @@ def _print_adequacy(tree, datasets) -> None:
 def _cmd_predict(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = _out_folder(args.out, "predict", inputs=[args.data])
-    _check_effects(args.effects, "--effects")
-    dataset = _load_data(args, args.data)
+    dataset = _load_all(args, "--effects")[0]
     import numpy as np
 
     from pmabayes.criticism.bands import band_errors, band_label
@@ -588,8 +598,7 @@ def _fit_out(args: argparse.Namespace, out: Path) -> None:
 def _cmd_fit(args: argparse.Namespace) -> int:
     out = _out_file(args.out, "fit", "--out", inputs=args.data)
     _fit_out(args, out)
-    _check_effects(args.effects, "--effects")
-    datasets = _load_all(args)
+    datasets = _load_all(args, "--effects")
     model = _model_for(datasets[0], args)
     out.parent.mkdir(parents=True, exist_ok=True)
     _do_fit(args, datasets, model, out)
@@ -635,8 +644,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = _out_folder(args.out, "run", inputs=args.data)
     _fit_out(args, out / "fit.nc")
-    _check_effects(args.effects, "--effects")
-    datasets = _load_all(args)  # read and checked before anything is made
+    datasets = _load_all(args, "--effects")  # read and checked before anything is made
     model = _model_for(datasets[0], args)
     with _created(out, "run"):
         tree = _do_fit(args, datasets, model, out / "fit.nc")
@@ -675,9 +683,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if Path(args.proposal_dir).is_file():
             raise CliError(f"--proposal-dir {args.proposal_dir}: this is a file, not a folder")
         _writable(Path(args.proposal_dir), "--proposal-dir", Path(args.proposal_dir))
-    _check_effects(args.effects, "--effects")
-    _check_effects(args.candidates, "--candidates")
-    datasets = _load_all(args)
+    datasets = _load_all(args, "--effects", "--candidates")
     from pmabayes.criticism.diagnosis import diagnose
     from pmabayes.criticism.settings import DiagnoseSettings
     from pmabayes.inference.trials import check_trials
@@ -804,6 +810,7 @@ def _simulate_effects(args: argparse.Namespace) -> tuple[dict, dict]:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     out = _out_file(args.out, "data", "OUT")
+    _say().say(f"simulating {args.trials} trials of a {args.duration:g} s chirp")
     params, effects = _simulate_effects(args)
     from pmabayes.data import save
     from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
@@ -970,6 +977,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         raise CliError("give --processes or --dask, not both")
     out = _batch_out(args)
     js = _out_file(args.json, "batch", "--json", args.data) if args.json else None
+    _say().say(f"a batch of {len(args.data)} data set(s), each fitted into {out}")
     _check_effects(args.effects, "--effects")
     from pmabayes.inference.batch import BatchError, BatchJob, fit_batch
 
