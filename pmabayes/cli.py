@@ -304,6 +304,7 @@ def _out_file(path: str | Path, kind: str, option: str, inputs: Sequence[str] = 
                        "write")
     _not_an_input(path, option, inputs)
     if path.exists():
+        _say().say(f"{path} exists: checking that it is pmabayes' own {kind} output")
         if kind == "fit":
             from pmabayes.inference.fitfile import is_fit_file
 
@@ -628,11 +629,17 @@ def _write_report(tree, out: Path, datasets, kind: str) -> list[str]:
     return written
 
 
-def _cmd_report(args: argparse.Namespace) -> int:
+def _read_fit(path: str):
+    """A fit file, said first (reading it imports the inference layer)."""
+    _say().say(f"reading the fit {path}")
     from pmabayes.inference.fitfile import load_fit
 
+    return load_fit(path)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
     out = _out_folder(args.out, "report", inputs=[args.fit, *(args.data or [])])
-    tree = load_fit(args.fit)
+    tree = _read_fit(args.fit)
     datasets = _report_datasets(tree, args.data, args)
     written = _write_report(tree, out, datasets, "report")
     _print_adequacy(tree, datasets)
@@ -726,19 +733,17 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    import numpy as np
-
     labels = args.labels.split(",") if args.labels else None
     if len(args.fits) < 2 or (labels is not None and len(labels) != len(args.fits)):
         raise CliError(f"compare got {len(args.fits)} fit(s) and "
                        f"{'no' if labels is None else len(labels)} --labels; give two or more "
                        "fits of the same data, and one label per fit if any")
     out = _out_folder(args.out, "compare", inputs=[*args.fits, *args.data])
+    fits = [_read_fit(f) for f in args.fits]
     from pmabayes.criticism.compare import compare_fits
-    from pmabayes.inference.fitfile import fit_info, load_fit
+    from pmabayes.inference.fitfile import fit_info
     from pmabayes.report.comparison_page import write_comparison
 
-    fits = [load_fit(f) for f in args.fits]
     n_exp = [len(fit_info(t).get("experiments") or [None]) for t in fits]
     for path, n in zip(args.fits, n_exp, strict=True):
         if n != len(args.data):
@@ -753,7 +758,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     for name, c in parts.items():
         for k in c.labels:
             b = c.bands[k][-1]
-            ratio = f"{b.ratio:7.3g}x floor" if np.isfinite(b.floor_m) else "(no floor)"
+            ratio = f"{b.ratio:7.3g}x floor" if math.isfinite(b.floor_m) else "(no floor)"
             print(f"{f'[{name}] ' if name else ''}{k:<40s} RMS {b.rms_m * 1e6:9.1f} um = "
                   f"{ratio}  Ljung-Box p {c.whiteness[k]['ljung_box_p']:.2g}")
     for k in result.labels:
@@ -841,6 +846,7 @@ def _effect_parameters(name: str) -> list[str]:
 
 
 def _cmd_effects(args: argparse.Namespace) -> int:
+    _say().say("reading the registry of effects")
     from pmabayes.model.effects import registered_effects
     from pmabayes.model.model import BASE_PARAMETERS
 
@@ -859,13 +865,13 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 def _cmd_track(args: argparse.Namespace) -> int:
     js = _out_file(args.json, "track", "--json", [args.fit] if args.fit else []) \
         if args.json else None
+    tree = _read_fit(args.fit) if args.fit else None
+    _say().say(f"tracking {args.freq:g} Hz by {args.controller or 'PID and computed torque'}")
     from pmabayes.control import track
     from pmabayes.control.robustness import control_model_from_fit, posterior_mean
-    from pmabayes.inference.fitfile import load_fit
 
     model, params, source = None, None, "the paper's values"
-    if args.fit:
-        tree = load_fit(args.fit)
+    if tree is not None:
         model = control_model_from_fit(tree)
         params = posterior_mean(tree, model)
         source = f"the posterior mean of {args.fit} (gains tuned on it by the rule)"
@@ -890,6 +896,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
     out = _out_folder(args.out, "robustness", inputs=[args.fit])
+    _say().say(f"robustness of PID and computed torque over {args.samples} posterior samples of "
+               f"{args.fit}")
     from pmabayes.control.robustness import robustness_sweep, summarise_robustness, write_robustness
     from pmabayes.report.figures import plot_robustness, plt
 
@@ -921,6 +929,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     inputs = [args.fit, *args.data]
     out = _out_folder(args.out, "validate", inputs=inputs) if args.out else None
     js = _out_file(args.json, "validate", "--json", inputs) if args.json else None
+    _say().say(f"validating {args.fit} on {', '.join(args.data)}")
     from pmabayes.criticism.validation import validate
 
     # paths: the fit is read first (a bad fit file is refused before the data), and
@@ -942,13 +951,14 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _batch_out(args: argparse.Namespace) -> Path:
     """The batch's folder and every fit it will write, checked before any work."""
-    from pmabayes.inference.batch import BatchJob
-    from pmabayes.inference.fitfile import is_fit_file
-
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise CliError(f"--out {out}: this is a file, not a folder; give the name of a "
                        "folder (it is created if missing)")
+    _say().say(f"a batch of {len(args.data)} data set(s), each fitted into {out}")
+    from pmabayes.inference.batch import BatchJob
+    from pmabayes.inference.fitfile import is_fit_file
+
     for d in args.data:
         path = out / f"{BatchJob(d).resolved_name()}.nc"
         if path.is_dir() or (path.exists() and not is_fit_file(path)):
@@ -977,7 +987,6 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         raise CliError("give --processes or --dask, not both")
     out = _batch_out(args)
     js = _out_file(args.json, "batch", "--json", args.data) if args.json else None
-    _say().say(f"a batch of {len(args.data)} data set(s), each fitted into {out}")
     _check_effects(args.effects, "--effects")
     from pmabayes.inference.batch import BatchError, BatchJob, fit_batch
 
@@ -1314,10 +1323,10 @@ def _one_line_warnings(command: str):
 
 
 def _load_plugins(specs: Sequence[str]) -> None:
-    from pmabayes.model.effects import load_plugin
-
     for spec in specs:
         _say().say(f"loading the plugin {spec}")
+        from pmabayes.model.effects import load_plugin
+
         load_plugin(spec)
 
 
