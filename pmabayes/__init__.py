@@ -7,28 +7,25 @@ Data flow one way through the layers, each a folder: :mod:`pmabayes.data`,
 and :mod:`pmabayes.report`; a lower layer never imports a higher one
 (:data:`pmabayes._layers.LAYERS`).
 
-The model layer is imported with the package. The workflow's verbs, :func:`fit`,
-:func:`diagnose`, :func:`validate` and :func:`load_fit`, are here too, imported when
-first used, so that ``import pmabayes`` stays quick.
+Every name here (the model layer's and the workflow's verbs, :func:`fit`,
+:func:`diagnose`, :func:`validate` and :func:`load_fit`) is imported from its layer
+when first used (PEP 562), so that ``import pmabayes`` and the command line's
+``--help`` stay quick: numpy, numba and scipy load only when something needs them.
 """
 
 import importlib
 
-from pmabayes.model.effects import (
-    Effect,
-    EffectError,
-    get_effect,
-    register_effect,
-    registered_effects,
-)
-from pmabayes.model.model import PAPER_AREA_M2, PAPER_VALUES, Model, ModelError, Rig, derive_area
-from pmabayes.model.parameters import HalfNormal, LogNormal, Normal, Parameter, Prior, Uniform
-from pmabayes.model.simulator import Simulation, SimulationError, simulate
-
 __version__ = "0.1.0"
 
-#: the workflow's verbs, each imported from its layer when first used
-_VERBS = {
+#: each public name and the module it is imported from when first used
+_LAZY = {
+    **dict.fromkeys(("Effect", "EffectError", "get_effect", "register_effect",
+                     "registered_effects"), "pmabayes.model.effects"),
+    **dict.fromkeys(("PAPER_AREA_M2", "PAPER_VALUES", "Model", "ModelError", "Rig",
+                     "derive_area"), "pmabayes.model.model"),
+    **dict.fromkeys(("HalfNormal", "LogNormal", "Normal", "Parameter", "Prior", "Uniform"),
+                    "pmabayes.model.parameters"),
+    **dict.fromkeys(("Simulation", "SimulationError", "simulate"), "pmabayes.model.simulator"),
     "fit": "pmabayes.inference.sampler",
     "load_fit": "pmabayes.inference.fitfile",
     "diagnose": "pmabayes.criticism.diagnosis",
@@ -37,40 +34,15 @@ _VERBS = {
 
 
 def __getattr__(name: str):
-    if name in _VERBS:
-        value = getattr(importlib.import_module(_VERBS[name]), name)
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module 'pmabayes' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted([*globals(), *_VERBS])
+    return sorted({*globals(), *_LAZY})
 
 
-__all__ = [
-    "Effect",
-    "EffectError",
-    "HalfNormal",
-    "LogNormal",
-    "Model",
-    "ModelError",
-    "Normal",
-    "PAPER_AREA_M2",
-    "PAPER_VALUES",
-    "Parameter",
-    "Prior",
-    "Rig",
-    "Simulation",
-    "SimulationError",
-    "Uniform",
-    "derive_area",
-    "diagnose",
-    "fit",
-    "load_fit",
-    "validate",
-    "get_effect",
-    "register_effect",
-    "registered_effects",
-    "simulate",
-]
+__all__ = sorted(_LAZY)

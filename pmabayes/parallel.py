@@ -15,6 +15,13 @@ the worker once its parent has gone (its parent process id changes). Without thi
 the workers of a ``kill -9``'d fit would finish their round, write chain files
 after the parent is dead, and then block forever on the pool's pipe.
 
+Ctrl-C is the parent's to handle: local workers ignore SIGINT (which the terminal
+sends to the whole process group), and a runner left by an interrupt cancels the
+tasks not started and ends its workers at once, so that the user sees one line
+from the command, not a traceback from every worker. A task cut short this way
+writes nothing half-done: the fit's chain rounds are written to a copy and renamed.
+Workers show no progress (:func:`pmabayes.util.show_progress` is off in them).
+
 This module sits at the bottom of the house with :mod:`pmabayes.util`: it imports
 nothing else from pmabayes.
 """
@@ -32,7 +39,7 @@ import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-from pmabayes.util import local_cores
+from pmabayes.util import _SHOWN, local_cores
 
 __all__ = ["Runner"]
 
@@ -57,6 +64,8 @@ def _start_worker(parent_pid: int, initializer: Callable | None, initargs: tuple
             pass
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    _SHOWN[0] = None  # a forked worker inherits the switch: workers are silent
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True,
                      name="pmabayes-parent-watch").start()
     if initializer is not None:
@@ -184,5 +193,17 @@ class Runner:
     def __enter__(self) -> Runner:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if (exc_type is not None and issubclass(exc_type, KeyboardInterrupt)
+                and self._pool is not None):
+            # interrupted: drop the tasks not started and end the workers now, not
+            # after they finish theirs (they ignore SIGINT themselves)
+            pool, self._pool = self._pool, None
+            workers = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for w in workers:
+                w.terminate()
+            for w in workers:
+                w.join(timeout=5)
+            return
         self.close()

@@ -2,10 +2,16 @@
 
 This module is at the bottom of the house: it imports nothing from pmabayes, so any
 stage may use it. Each piece exists once here; do not write another.
+
+Progress has one switch, :func:`show_progress`: inside it, every stage's
+:class:`Progress` prints (the command line turns it on unless ``--quiet``; an API
+call's ``progress=True`` turns it on for that call). Outside it the library is
+silent, as a library should be.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import inspect
 import json
@@ -13,14 +19,16 @@ import math
 import os
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
-
-__all__ = ["fingerprint", "source_text", "local_cores", "Progress", "finite_or_none"]
+__all__ = ["fingerprint", "source_text", "local_cores", "Progress", "show_progress",
+           "progress_shown", "finite_or_none"]
 
 
 def _feed(h, part) -> None:
+    import numpy as np  # here, so that importing this module stays quick
+
     if isinstance(part, np.ndarray):
         h.update(str((part.dtype.str, part.shape)).encode())
         h.update(np.ascontiguousarray(part).tobytes())
@@ -109,29 +117,80 @@ def local_cores() -> int:
         return os.cpu_count() or 1
 
 
-class Progress:
-    """Progress lines and bars on stderr, all with one prefix: ``[pmabayes TASK]``.
+#: the progress switch: the task whose progress is shown, or None for silence
+_SHOWN: list[str | None] = [None]
+#: a status line (:meth:`Progress.status`) is redrawn at most this often
+_STATUS_EVERY_S = 0.5
+#: whether a bar is drawn on the current line (a line said meanwhile starts a new one)
+_BAR_OPEN: list[bool] = [False]
+
+
+@contextlib.contextmanager
+def show_progress(task: str = "", enabled: bool = True) -> Iterator[None]:
+    """Show the progress of every stage inside the block, the one switch of progress.
 
     Parameters
     ----------
     task : str
-        What runs (``"fit"``, ``"diagnose"``, ``"robustness"``...).
+        Shown in the prefix of the stages that do not name their own
+        (``[pmabayes TASK]``); the command's name on the command line.
     enabled : bool
-        Print nothing when False.
+        With False the block changes nothing (whatever is on stays on).
+
+    Examples
+    --------
+    >>> with show_progress("fit"):
+    ...     Progress().say("global search")  # doctest: +SKIP
+    [pmabayes fit] global search
+    """
+    if not enabled:
+        yield
+        return
+    before = _SHOWN[0]
+    _SHOWN[0] = task
+    try:
+        yield
+    finally:
+        _SHOWN[0] = before
+
+
+def progress_shown() -> bool:
+    """Whether the progress switch is on (:func:`show_progress`).
+
+    Returns
+    -------
+    bool
+    """
+    return _SHOWN[0] is not None
+
+
+class Progress:
+    """Progress lines and bars on stderr, all with one prefix: ``[pmabayes TASK]``.
+
+    A stage makes one where it starts; it prints when the switch is on
+    (:func:`show_progress`) or when ``enabled`` is True, and nothing otherwise.
+
+    Parameters
+    ----------
+    task : str, optional
+        What runs (``"fit"``, ``"diagnose"``, ``"robustness"``...); by default the
+        task the switch was turned on for.
+    enabled : bool
+        Print even with the switch off.
     stream : file-like, optional
         Where to write; standard error by default.
 
     Examples
     --------
-    >>> p = Progress("fit", enabled=False)
+    >>> p = Progress("fit")
     >>> p.say("global search and MAP ...")
     >>> p.start(10, "runs")
     >>> p.advance(10)
     """
 
-    def __init__(self, task: str, enabled: bool = True, *, stream=None) -> None:
-        self.task = task
-        self.enabled = bool(enabled)
+    def __init__(self, task: str | None = None, enabled: bool = False, *, stream=None) -> None:
+        self.task = task if task is not None else (_SHOWN[0] or "")
+        self.enabled = bool(enabled) or _SHOWN[0] is not None
         self.stream = stream
         self.total = 0
         self.done = 0
@@ -142,7 +201,7 @@ class Progress:
     @property
     def prefix(self) -> str:
         """The prefix of every line, ``[pmabayes TASK]``."""
-        return f"[pmabayes {self.task}]"
+        return f"[pmabayes {self.task}]" if self.task else "[pmabayes]"
 
     def _out(self):
         return self.stream if self.stream is not None else sys.stderr
@@ -156,7 +215,33 @@ class Progress:
             The message, without the prefix.
         """
         if self.enabled:
-            print(f"{self.prefix} {text}", file=self._out(), flush=True)
+            head = "\n" if _BAR_OPEN[0] else ""
+            _BAR_OPEN[0] = False
+            print(f"{head}{self.prefix} {text}", file=self._out(), flush=True)
+
+    def status(self, text: str) -> None:
+        """Rewrite the current line with ``text``: the state of a stage whose length
+        is not known in advance (the next line said, or :meth:`end`, ends it).
+
+        Parameters
+        ----------
+        text : str
+            The state, without the prefix.
+        """
+        now = time.perf_counter()
+        if self.enabled and now - getattr(self, "_shown", -math.inf) >= _STATUS_EVERY_S:
+            self._shown = now
+            line = f"{self.prefix} {text}"
+            pad = " " * max(getattr(self, "_width", 0) - len(line), 0)
+            self._width = len(line)
+            _BAR_OPEN[0] = True
+            print(f"\r{line}{pad}", end="", file=self._out(), flush=True)
+
+    def end(self) -> None:
+        """End a line left open by :meth:`status` or an unfinished bar."""
+        if self.enabled and _BAR_OPEN[0]:
+            _BAR_OPEN[0] = False
+            print(file=self._out(), flush=True)
 
     def start(self, total: int, unit: str = "steps", label: str = "") -> None:
         """Begin a bar of ``total`` units.
@@ -190,7 +275,12 @@ class Progress:
             return
         frac = self.done / max(self.total, 1)
         bar = "#" * int(round(30 * frac))
-        end = "\n" if self.done >= self.total else ""
+        elapsed = time.perf_counter() - self.t0
+        finished = self.done >= self.total
+        left = ""
+        if 0 < self.done < self.total:  # the pace so far, for what remains
+            left = f", about {elapsed / self.done * (self.total - self.done):.0f} s left"
+        _BAR_OPEN[0] = not finished
         print(f"\r{self.prefix} [{bar:-<30}] {self.done}/{self.total} {self.unit} "
-              f"({time.perf_counter() - self.t0:.0f} s) {self.label}".rstrip(), end=end,
+              f"({elapsed:.0f} s{left}) {self.label}".rstrip(), end="\n" if finished else "",
               file=self._out(), flush=True)

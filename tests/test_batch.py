@@ -268,7 +268,7 @@ def test_resume_skips_fits_that_are_up_to_date_and_redoes_changed_data(batch_run
     shutil.copytree(batch_run["root"] / "fits", fits)
     files = batch_run["files"]
     before = {p.name: p.stat().st_mtime_ns for p in fits.iterdir()}
-    again = fit_batch(files, out_dir=fits, settings=TINY, seed=7, processes=2)
+    again = fit_batch(files, out_dir=fits, settings=TINY, seed=7, processes=2, progress=True)
     assert [r["status"] for r in again.records] == ["skipped"] * 3 + ["failed"]
     assert {p.name: p.stat().st_mtime_ns for p in fits.iterdir()} == before
     assert [r["map_rms_cost_m"] for r in again.records[:3]] == [

@@ -25,7 +25,8 @@ def test_simulate_noise_none_is_exact(tmp_path):
 @pytest.mark.slow
 def test_simulate_with_effects_and_seed(tmp_path):
     args = ["--trials", "2", "--duration", "2", "--seed", "3",
-            "--effect", "regulator_lag=0.03", "--effect", "coulomb_friction.F_c=0.5"]
+            "--effects", "regulator_lag,coulomb_friction", "--param", "tau_reg=0.03",
+            "--param", "F_c=0.5"]
     assert main(["simulate", str(tmp_path / "a.csv"), *args]) == 0
     assert main(["simulate", str(tmp_path / "b.csv"), *args]) == 0
     a, b = read_csv(tmp_path / "a.csv"), read_csv(tmp_path / "b.csv")
@@ -49,8 +50,8 @@ def test_predict_writes_figure_and_summary(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["simulate", "x.csv", "--effect", "nonsense=1"], "unknown effect 'nonsense'"),
-        (["simulate", "x.csv", "--effect", "regulator_lag"], "must look like NAME=VALUE"),
+        (["simulate", "x.csv", "--effects", "nonsense"], "unknown effect 'nonsense'"),
+        (["simulate", "x.csv", "--param", "tau_reg"], "must look like NAME=VALUE"),
         (["simulate", "x.csv", "--param", "d=abc"], "is not a number"),
         (["predict", "missing.csv", "--out", "o"], "missing.csv"),
         (["compare", "a.nc", "--data", "d.csv", "--out", "o"], "give two or more fits"),
@@ -103,7 +104,8 @@ def test_plugin_effect_works_like_a_builtin(tmp_path):
     plugin.write_text(PLUGIN)
     out = tmp_path / "plug.csv"
     assert main(["--plugin", str(plugin), "simulate", str(out), "--trials", "1",
-                 "--duration", "2", "--noise", "none", "--effect", "cli_stiction=2.0"]) == 0
+                 "--duration", "2", "--noise", "none", "--effects", "cli_stiction",
+                 "--param", "F_st=2.0"]) == 0
     ds = read_csv(out)
     assert ds.metadata["generator"]["effects"] == {"cli_stiction": {"F_st": 2.0}}
     base = pb.simulate(pb.Model(), None, ds.input[0], time_s=ds.time_s)[0]
@@ -182,7 +184,7 @@ def offset_data(tmp_path_factory):
     """Short data with a hidden 0.5 mm sensor offset."""
     data = tmp_path_factory.mktemp("offset") / "d.csv"
     main(["simulate", str(data), "--trials", "4", "--duration", "4", "--seed", "6",
-          "--effect", "position_offset=5e-4"])
+          "--effects", "position_offset", "--param", "x_offset=5e-4"])
     return data
 
 
@@ -240,21 +242,23 @@ def test_compare_two_fits(offset_data, tmp_path, capsys):
 
 
 def test_a_bug_keeps_its_traceback_and_bad_input_is_one_line(tmp_path, monkeypatch, capsys):
-    import pmabayes.cli as cli
+    import pmabayes.data as data
     from pmabayes.data import DataError
 
     def bug(*args, **kwargs):
         raise ValueError("an internal bug")
 
-    monkeypatch.setattr(cli, "load", bug)
+    monkeypatch.setattr(data, "load", bug)
     with pytest.raises(ValueError, match="an internal bug"):
         main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")])
 
     def bad_input(*args, **kwargs):
         raise DataError("d.csv: line 3: bad; fix it")
 
-    monkeypatch.setattr(cli, "load", bad_input)
-    assert main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")]) == 2
+    monkeypatch.setattr(data, "load", bad_input)
+    capsys.readouterr()
+    assert main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o"),
+                 "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err == "pmabayes predict: error: d.csv: line 3: bad; fix it\n"
     assert not (tmp_path / "o").exists()
@@ -374,7 +378,7 @@ def test_warnings_print_one_line_without_source(small_data, tmp_path, monkeypatc
     ds = load(small_data)
     path = tmp_path / "abs.csv"
     save(dataclasses.replace(ds, input=ds.input + 101325.0), path)
-    assert main(["predict", str(path), "--out", str(tmp_path / "o")]) == 0
+    assert main(["predict", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert err.startswith(f"pmabayes predict: warning: {path}: the lowest commanded pressure")
     assert "looks like absolute pressure" in err and err.count("\n") == 1

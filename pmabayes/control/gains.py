@@ -38,7 +38,7 @@ from pmabayes.model import simulator as _simulator
 from pmabayes.model.effects import delay_effect
 from pmabayes.model.model import Model, Rig
 from pmabayes.model.simulator import cache_dir
-from pmabayes.util import fingerprint, source_text
+from pmabayes.util import Progress, fingerprint, source_text
 
 
 class GainGridWarning(UserWarning):
@@ -145,6 +145,9 @@ def _grid_runs(controller: str, model: Model, theta: np.ndarray, cases: list,
     """
     names = _GAIN_NAMES[controller]
     rms, diff = [], []
+    bar = Progress()
+    bar.start(sum(len(g) for _, _, g in cases), "runs",
+              f"{controller} gains: nominal and margin runs of the grid")
     for plant, theta_p, gains in cases:
         n_cand = len(gains)
         r, d = np.empty(n_cand), np.empty(n_cand)
@@ -160,6 +163,7 @@ def _grid_runs(controller: str, model: Model, theta: np.ndarray, cases: list,
             r[sl] = tracking_metrics(run.time_s, run.reference_m, run.position_m,
                                      frequency_hz)["rms_error_m"]
             d[sl] = period_difference_m(run.time_s, run.position_m, frequency_hz)
+            bar.advance(b)
         rms.append(np.where(np.isfinite(r), r, np.inf))
         diff.append(d)
     return rms, diff
@@ -408,6 +412,8 @@ def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | N
     path = _gains_cache_path(model, theta, timing, reference_mean_m)
     if cache and path.is_file():
         return json.loads(path.read_text())
+    Progress().say("tuning the PID and computed-torque gains on the nominal model by the "
+                   "rule (a grid search; cached after)")
     gains = {c: tune_gains(c, model=model, params=theta, timing=timing,
                            reference_mean_m=reference_mean_m) for c in CONTROLLERS}
     if cache:

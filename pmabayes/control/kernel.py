@@ -413,7 +413,8 @@ def _kernel(plant_model: Model, ctrl_model: Model, record: bool):
     if kernel is not None:
         return kernel
     text, inject = _generate(plant_model, ctrl_model, record)
-    return compile_kernel(key, text, inject, name="closed_loop")
+    return compile_kernel(key, text, inject, name="closed_loop",
+                          what="the closed loop for this model")
 
 
 # ---------------------------------------------------------------------------------

@@ -60,7 +60,7 @@ from pmabayes.control import (
 from pmabayes.inference.fitfile import fit_info, load_fit
 from pmabayes.model.model import Model, Rig
 from pmabayes.parallel import Runner
-from pmabayes.util import Progress
+from pmabayes.util import Progress, show_progress
 
 __all__ = [
     "DEFAULT_FREQUENCIES_HZ",
@@ -185,7 +185,7 @@ def robustness_sweep(
     chunk_size: int = 400,
     processes: int | None = None,
     client=None,
-    progress: bool = True,
+    progress: bool = False,
     timing: Timing | None = None,
 ) -> xr.Dataset:
     """Push posterior samples through both controllers across tracking frequencies.
@@ -222,7 +222,8 @@ def robustness_sweep(
     client : dask.distributed.Client, optional
         Run the chunks on this Dask cluster instead.
     progress : bool
-        Show a progress bar on stderr.
+        Show what is being done on stderr, with a bar for the sweep (every stage's
+        progress: :func:`pmabayes.util.show_progress`).
     timing : Timing, optional
         Rates, limits and sensor of the loop.
 
@@ -239,6 +240,14 @@ def robustness_sweep(
     ControlError
         On a bad mode, frequency, duration, sample count, chunk size or process count.
     """
+    with show_progress("robustness", progress):
+        return _sweep(fit, samples, frequencies_hz, mode, seed, duration_s, gains,
+                      reference_mean_m, chunk_size, processes, client, timing)
+
+
+def _sweep(fit, samples, frequencies_hz, mode, seed, duration_s, gains, reference_mean_m,
+           chunk_size, processes, client, timing) -> xr.Dataset:
+    """:func:`robustness_sweep`, its progress switched."""
     freqs = _check_sweep(mode, frequencies_hz, duration_s, chunk_size, processes)
     source = str(fit) if isinstance(fit, str | Path) else "(in memory)"
     tree = load_fit(fit) if isinstance(fit, str | Path) else fit
@@ -265,7 +274,7 @@ def robustness_sweep(
              "controllers)")
     t0 = time.perf_counter()
     flat, runner = _run_sweep(jobs, theta.shape[0] * freqs.size * len(CONTROLLERS), processes,
-                              client, Progress("robustness", progress), label)
+                              client, Progress("robustness"), label)
     ds = _sweep_dataset(flat, theta, mean, where, freqs, model)
     all_given = all(set(given.get(c, {})) >= set(gains_used[c]) for c in CONTROLLERS)
     seed_attr = (int(seed) if isinstance(seed, int | np.integer)

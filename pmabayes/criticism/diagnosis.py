@@ -41,7 +41,7 @@ from pmabayes.data import Dataset
 from pmabayes.inference.posterior import experiments as checked_experiments
 from pmabayes.model.effects import get_effect
 from pmabayes.model.model import Model
-from pmabayes.util import Progress
+from pmabayes.util import Progress, show_progress
 
 __all__ = ["diagnose"]
 
@@ -101,7 +101,7 @@ def diagnose(
     settings: DiagnoseSettings | None = None,
     seed: int | np.random.Generator = 0,
     progress: bool = False,
-    plugin_dir: str | Path | None = None,
+    plugin_dir: str | Path | None | bool = None,
 ) -> Diagnosis:
     """Fit a model, criticise it and find which effect in the library is missing.
 
@@ -169,10 +169,12 @@ def diagnose(
     seed : int or numpy.random.Generator
         Seeds the global searches and the draws.
     progress : bool
-        Print what is being done to stderr.
-    plugin_dir : str or Path, optional
+        Print what is being done to stderr, every stage's progress included
+        (:func:`pmabayes.util.show_progress`).
+    plugin_dir : str or Path or False, optional
         Where the proposed effect's ``.py`` file is written (the current folder by
-        default; an existing file is never overwritten).
+        default; an existing file is never overwritten). False: it is checked in a
+        temporary folder and not kept.
 
     Returns
     -------
@@ -186,8 +188,14 @@ def diagnose(
         On no data, or experiments of different input kinds
         (:class:`pmabayes.data.DataError`, naming the files).
     """
-    s = _checked(settings)
-    say = Progress("diagnose", progress)
+    with show_progress("diagnose", progress):
+        return _diagnose(datasets, model, effects, _checked(settings), seed, plugin_dir)
+
+
+def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: DiagnoseSettings,
+              seed, plugin_dir) -> Diagnosis:
+    """:func:`diagnose`, its arguments checked and its progress switched."""
+    say = Progress("diagnose")
     rng = np.random.default_rng(seed)
     datasets, models, names = _experiments(datasets, model, effects)
     label = " + ".join(["base", *models[0].effect_names])
@@ -208,7 +216,8 @@ def diagnose(
     if s.discrepancy and not adequate and missing is None:
         found, found_in, words = _discrepancy_step(base, experiments, plugin_dir, say)
     verdict += words
-    say.say(verdict)
+    say.say("diagnosis done: " + ("adequate" if adequate else f"{missing} is missing"
+                                  if missing else "not adequate"))
     return Diagnosis(
         experiments=experiments, values=base.values, adequate=adequate, missing=missing,
         ranking=findings, elpd=base.elpd, verdict=verdict,

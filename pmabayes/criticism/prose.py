@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pmabayes.criticism.bands import band_label, band_rms
-from pmabayes.criticism.results import Refit
 from pmabayes.criticism.signature import Signature
+
+if TYPE_CHECKING:  # for annotations: results imports the discrepancy, which uses this
+    from pmabayes.criticism.results import Refit
 
 
 def contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
@@ -25,6 +28,51 @@ def contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
     k = int(np.argmax(rms))
     return (f" Its contribution to the output correlates {corr:+.2f} with the base model's "
             f"residual and is largest at {band_label(bands_hz[k])} ({rms[k] * 1e6:.4g} µm RMS).")
+
+
+def _share(fraction: float, adequate: bool) -> str:
+    """A fraction in percent; never 100% for a model that is not adequate (what is left
+    is not nothing)."""
+    percent = 100.0 * fraction
+    return f"{min(percent, 99.0) if not adequate else percent:.0f}%"
+
+
+def removed_text(explained_rms: float | None, explained: float, ratio: float,
+                 adequate: bool) -> str:
+    """How much of the misfit a change removes, in words that agree with the RMS errors
+    said beside them: the share of the mean-square error above the noise floor where
+    there is a floor (:func:`pmabayes.criticism.bands.excess_removed`), else of the
+    whitened residual's excess energy; and, while the model is not adequate, how far
+    above the floor the error still is.
+
+    Parameters
+    ----------
+    explained_rms : float or None
+        Share of the mean-square error above the floor removed; None without a floor.
+    explained : float
+        Share of the whitened residual's excess energy removed.
+    ratio : float
+        The error over the floor afterwards (the worst experiment's); NaN without one.
+    adequate : bool
+        Whether the model is adequate afterwards.
+
+    Returns
+    -------
+    str
+        ``"removes X% of ..."``, without a full stop.
+    """
+    if explained_rms is None:
+        return f"removes {_share(explained, adequate)} of the whitened residual's excess energy"
+    text = f"removes {_share(explained_rms, adequate)} of the mean-square error above the floor"
+    if not adequate and math.isfinite(ratio):
+        text += f", yet the error is still {ratio:.3g}x the floor"
+    return text
+
+
+def _refit_removed(refit: Refit) -> str:
+    ratios = [sig.ratio for sig in refit.signatures if math.isfinite(sig.ratio)]
+    return removed_text(refit.explained_rms, refit.explained,
+                        max(ratios) if ratios else math.nan, refit.adequate)
 
 
 def _after_text(signatures: Sequence[Signature], names: Sequence[str]) -> str:
@@ -64,8 +112,7 @@ def explanation_text(eff, evidence: float, p_value: float, significant: bool,
             parts.append(f"{p.name} = {refit.values[p.name]:.4g} {p.unit} "
                          f"({ci_prob:.0%} interval {lo:.4g} to {hi:.4g})")
     text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
-             f"{_after_text(refit.signatures, names)}, "
-             f"{refit.explained:.0%} of the excess residual is removed, and the "
+             f"{_after_text(refit.signatures, names)}: it {_refit_removed(refit)}; and the "
              f"leave-one-trial-out {_elpd_text(refit, 'changes by')}.")
     return text + contribution
 
@@ -122,8 +169,7 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
         others = [f.effect for f in findings
                   if f.refit is not None and f.effect != missing and f.effect not in tied]
         text = (f"{name}: {missing} is missing ({sig}). Adding it lowers the RMS error to "
-                f"{_after_text(r.signatures, names)} and removes "
-                f"{r.explained:.0%} of the excess residual.")
+                f"{_after_text(r.signatures, names)} and {_refit_removed(r)}.")
         for twin, diff, se in twins or ():
             text += (f" But {missing} and {twin} cannot be told apart by these data: both "
                      f"account for the misfit and their leave-one-trial-out ELPDs differ by "
@@ -156,8 +202,9 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
             if refits else None)
     detail = ""
     if best is not None:
+        # the rule is on the whitened residual's energy: its number, named as such
         detail = (f" the best refit ({best.effect}) removes only {best.explained:.0%} of the "
-                  "excess residual")
+                  "whitened residual's excess energy")
         if best.next_effect:
             detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
         detail += (f", and at least {min_explained:.0%} is required "

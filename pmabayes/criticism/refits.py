@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pmabayes.criticism.bands import excess_removed
 from pmabayes.criticism.elpd import laplace_loo, paired_difference
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
@@ -208,9 +209,14 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
     diff, diff_se = paired_difference(e_elpd_i, base.elpd_i)
     rms = pooled_rms([sig.bands[-1].rms_m for sig in sigs],
                      [lik.n_samples for lik in base.likelihoods])
+    removed = excess_removed([b.bands[-1].rms_m for b in base.signatures],
+                             [x.bands[-1].rms_m for x in sigs],
+                             [b.bands[-1].floor_m for b in base.signatures],
+                             [lik.n_samples for lik in base.likelihoods])
     return Refit(
         effect=effect, values=dict(ext_map.values), interval=interval,
-        rms_m=rms, explained=explained,
+        rms_m=rms, explained=explained, explained_rms=removed,
+        adequate=s.all_adequate(sigs),
         elpd=e_elpd, elpd_diff=diff, elpd_diff_se=diff_se,
         contribution_m=np.concatenate(contributions), next_effect=nxt.effect if nxt else None,
         explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),

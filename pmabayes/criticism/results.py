@@ -73,6 +73,12 @@ class Refit:
         diagnosis' order.
     elpd_i : numpy.ndarray or None
         Per-trial leave-one-out ELPD, for paired comparisons of refits.
+    explained_rms : float or None
+        Fraction of the base model's mean-square error above the noise floor that
+        the refit removes (:func:`pmabayes.criticism.bands.excess_removed`), the
+        share the words report beside the RMS errors; None without a floor.
+    adequate : bool
+        Whether the refitted model is adequate in every experiment.
 
     Notes
     -----
@@ -94,17 +100,22 @@ class Refit:
     explained_with_next: float = 0.0
     signatures: tuple = ()
     elpd_i: np.ndarray | None = None
+    explained_rms: float | None = None
+    adequate: bool = False
 
     def to_dict(self) -> dict:
-        """JSON-ready summary: ``rms_m`` (pooled), ``elpd_diff``, ``elpd_diff_se`` and
-        ``experiments``, one ``{"rms_m", "noise_ratio", "ljung_box_p", "energy"}`` each.
+        """JSON-ready summary: ``rms_m`` (pooled), ``explained`` (whitened energy),
+        ``explained_rms`` (mean square above the floor), ``adequate``, ``elpd_diff``,
+        ``elpd_diff_se`` and ``experiments``, one ``{"rms_m", "noise_ratio",
+        "ljung_box_p", "energy"}`` each.
 
         Returns
         -------
         dict
         """
-        return {"rms_m": self.rms_m, "elpd_diff": self.elpd_diff,
-                "elpd_diff_se": self.elpd_diff_se,
+        return {"rms_m": self.rms_m, "explained": self.explained,
+                "explained_rms": self.explained_rms, "adequate": self.adequate,
+                "elpd_diff": self.elpd_diff, "elpd_diff_se": self.elpd_diff_se,
                 "experiments": [{"rms_m": sig.bands[-1].rms_m,
                                  "noise_ratio": finite_or_none(sig.ratio),
                                  "ljung_box_p": sig.ljung_box_p, "energy": sig.energy}
@@ -157,14 +168,17 @@ class Finding:
         -------
         dict
             ``effect``, ``evidence``, ``p_value``, ``significant``, ``estimate``,
-            ``interval``, ``explained``, ``explanation`` and ``refit``
-            (:meth:`Refit.to_dict`, or None).
+            ``interval``, ``explained`` (whitened residual energy), ``explained_rms``
+            (mean square above the floor, for a refit with one; else None),
+            ``explanation`` and ``refit`` (:meth:`Refit.to_dict`, or None).
         """
         return {
             "effect": self.effect, "evidence": self.evidence, "p_value": self.p_value,
             "significant": self.significant, "estimate": dict(self.estimate),
             "interval": {k: [float(a), float(b)] for k, (a, b) in self.interval.items()},
-            "explained": self.explained, "explanation": self.explanation,
+            "explained": self.explained,
+            "explained_rms": None if self.refit is None else self.refit.explained_rms,
+            "explanation": self.explanation,
             "refit": None if self.refit is None else self.refit.to_dict(),
         }
 

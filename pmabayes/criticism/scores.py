@@ -13,6 +13,7 @@ from scipy import stats
 
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.effects import registered_effects
+from pmabayes.util import Progress
 
 __all__ = ["EffectEvidence", "rank_effects", "significance_threshold"]
 
@@ -119,7 +120,13 @@ def rank_effects(
         raise ValueError(f"{len(liks)} experiment(s) need one noise each, got {len(noises)}")
     present = set(liks[0].model.effect_names)
     names = [n for n in (candidates or registered_effects()) if n not in present]
-    out = [_score_test(liks, noises, values, name) for name in names]
+    bar = Progress()
+    bar.start(len(names), "candidates", "score tests (a new effect compiles its simulator "
+              "once)")
+    out = []
+    for name in names:
+        out.append(_score_test(liks, noises, values, name))
+        bar.advance()
     threshold = level / max(len(out), 1)
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
     return sorted(out, key=lambda e: -e.statistic)

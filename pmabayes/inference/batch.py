@@ -360,7 +360,7 @@ def fit_batch(
     dask: str | None = None,
     runner: Runner | None = None,
     restart: bool = False,
-    progress: bool = True,
+    progress: bool = False,
 ) -> BatchResult:
     """Fit independent data sets in parallel, each to ``out_dir/<name>.nc``.
 
@@ -394,7 +394,8 @@ def fit_batch(
         Fit every data set again, even those whose fit file is up to date.
     progress : bool
         One progress line on stderr: data sets done of those to fit, elapsed
-        time and an estimate of the time left.
+        time and an estimate of the time left (also shown whenever
+        :func:`pmabayes.util.show_progress` is on).
     Returns
     -------
     BatchResult

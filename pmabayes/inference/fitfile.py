@@ -33,6 +33,7 @@ __all__ = [
     "experiment_models",
     "noise_models",
     "FitFileError",
+    "is_fit_file",
     "save_fit",
     "load_fit",
     "fit_info",
@@ -514,6 +515,29 @@ def save_fit(tree: xr.DataTree, path: str | Path) -> Path:
     tree.to_netcdf(tmp, engine="h5netcdf")
     os.replace(tmp, path)
     return path
+
+
+def is_fit_file(path: str | Path) -> bool:
+    """Whether ``path`` is a fit that :func:`save_fit` wrote: an HDF5 file whose root
+    carries the ``pmabayes`` attribute. Only the attributes are read.
+
+    Parameters
+    ----------
+    path : str or Path
+        Any path.
+
+    Returns
+    -------
+    bool
+        False for a missing, unreadable or other file.
+    """
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return "pmabayes" in f.attrs
+    except (OSError, ValueError):  # not HDF5, or not readable
+        return False
 
 
 def load_fit(path: str | Path) -> xr.DataTree:

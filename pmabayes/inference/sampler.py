@@ -40,7 +40,7 @@ from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import MapResult, find_map
 from pmabayes.model.model import Model
 from pmabayes.parallel import Runner
-from pmabayes.util import Progress, fingerprint, local_cores
+from pmabayes.util import Progress, fingerprint, local_cores, show_progress
 
 __all__ = ["FitSettings", "fit"]
 
@@ -93,7 +93,7 @@ class FitSettings:
         shorter autocorrelation times on these near-Gaussian posteriors) or
         ``"stretch"`` (emcee's default).
     progress : bool
-        Print progress to stderr.
+        Print progress to stderr, every stage's (:func:`pmabayes.util.show_progress`).
     substeps : int
         Simulator substeps per sample interval (more for a lightly damped
         oscillator near the sample rate).
@@ -527,15 +527,22 @@ def fit(
     ConvergenceWarning
         Once, when the budget ran out before the sampler converged.
     """
-    start = time.perf_counter()
     settings = FitSettings() if settings is None else settings
-    model = Model() if model is None else model
+    with show_progress("fit", settings.progress):
+        return _fit(datasets, Model() if model is None else model, seed, settings,
+                    chains_dir, restart)
+
+
+def _fit(datasets, model: Model, seed, settings: FitSettings, chains_dir, restart: bool
+         ) -> xr.DataTree:
+    """:func:`fit`, its progress switched."""
+    start = time.perf_counter()
     posterior = build_posterior(model, datasets, substeps=settings.substeps,
                                 tie_noise=settings.tie_noise, noise_model=settings.noise_model)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
-    say = Progress("fit", settings.progress)
+    say = Progress("fit")
     for name, lik, choice in zip(posterior.experiment_names, posterior.likelihoods,
                                  posterior.noise_choices, strict=True):
         if lik.n_repeats >= 2:

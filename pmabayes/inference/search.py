@@ -19,6 +19,7 @@ from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import _laplace_covariance, _scaled_hessian
 from pmabayes.inference.likelihood import JointLikelihood, Likelihood
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
+from pmabayes.util import Progress
 
 __all__ = ["MapResult", "find_map"]
 
@@ -155,12 +156,16 @@ def find_map(
     # the search's cost does not depend on a sampled noise: searched over the model's
     # parameters, it then starts the noise from the optimum's residual
     n_model = posterior.n_model
-    z_model, global_cost = _global_search(posterior, box[:n_model], rng, popsize, maxiter)
+    say = Progress()
+    z_model, global_cost = _global_search(posterior, box[:n_model], rng, popsize, maxiter,
+                                          say, "1 of 2")
     # a second search on its own stream (spawning leaves rng's draws as they were): a
     # short record can hold a second basin of the hysteresis loop's shape (beta and
     # gamma traded at a near-constant beta + gamma), where one search may end
     z_other, other_cost = _global_search(posterior, box[:n_model], rng.spawn(1)[0], popsize,
-                                         maxiter)
+                                         maxiter, say, "2 of 2")
+    say.end()
+    say.say("polishing the MAP (L-BFGS-B, then Newton steps for the Laplace covariance)")
     if other_cost < (1.0 - _OTHER_BASIN) * global_cost:
         z_model, global_cost = z_other, other_cost
     z_global = _noise_start(posterior, np.concatenate([z_model, _default_noise_z(posterior)]))
@@ -223,8 +228,10 @@ _OTHER_BASIN = 0.01
 
 
 def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generator,
-                   popsize: int, maxiter: int) -> tuple[np.ndarray, float]:
-    """Differential evolution on the paper's RMS cost; the optimum and its cost."""
+                   popsize: int, maxiter: int, say: Progress, which: str
+                   ) -> tuple[np.ndarray, float]:
+    """Differential evolution on the paper's RMS cost; the optimum and its cost. Its
+    state is shown on one line: the length of a search is not known in advance."""
     lik = posterior.likelihood
     rest = _default_noise_z(posterior)  # the cost does not depend on a sampled noise
 
@@ -240,10 +247,19 @@ def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generat
             out[ok] = np.where(np.isfinite(cost), cost, 1.0)
         return out
 
+    def show(intermediate_result) -> None:  # reads the state; changes nothing
+        r = intermediate_result
+        # scipy's convergence: tol over the spread of the costs; the search ends at 1
+        say.status(f"global search {which}: generation {r.nit} (at most {maxiter}), best "
+                   f"RMS cost {r.fun * 1e6:.4g} um, the population "
+                   f"{min(100 * r.convergence, 100):.0f}% of the way to agreeing (done at "
+                   "100%)")
+
     best = differential_evolution(
         lambda zt: rms(np.atleast_2d(zt.T)), bounds=list(map(tuple, box)),
         popsize=popsize, maxiter=maxiter, tol=_DE_TOL, seed=rng, polish=False,
         vectorized=True, updating="deferred", init="latinhypercube", strategy=_DE_STRATEGY,
+        callback=show if say.enabled else None,
     )
     global_cost = float(best.fun)
     if global_cost >= 1.0:

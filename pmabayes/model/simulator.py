@@ -26,7 +26,7 @@ import numpy as np
 
 from pmabayes.data import BETWEEN_SAMPLES, INITIAL_STATES, check_time_grid
 from pmabayes.model.model import Model
-from pmabayes.util import fingerprint, source_text
+from pmabayes.util import Progress, fingerprint, source_text
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
            "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "INITIAL_STATES",
@@ -615,12 +615,25 @@ def cached_kernel(key: tuple):
         return _KERNELS.get(key)
 
 
-def compile_kernel(key: tuple, text: str, inject: dict, name: str = "kernel"):
+def _disk_cached(folder: Path, modname: str) -> bool:
+    """Whether numba's disk cache holds compiled code of the generated module ``modname``
+    (its index file, beside the source or under ``NUMBA_CACHE_DIR``)."""
+    places = [folder / "__pycache__"]
+    if numba.config.CACHE_DIR:
+        places.append(Path(numba.config.CACHE_DIR))
+    return any(next(p.rglob(f"{modname}.*.nbi"), None) is not None
+               for p in places if p.is_dir())
+
+
+def compile_kernel(key: tuple, text: str, inject: dict, name: str = "kernel",
+                   what: str = "the simulator for this model"):
     """Compile generated source (module-level function ``name``), cached on disk and in memory.
 
     Shared by every generated kernel (here and in :mod:`pmabayes.control`); the file
     name hashes the source, the helpers it calls and the library versions, so a
-    change to any of them compiles afresh.
+    change to any of them compiles afresh. numba compiles at the first call; where
+    its disk cache holds nothing for this source yet, that is said first
+    (``compiling WHAT (cached after)``), since it takes seconds.
     """
     with _LOCK:
         if key in _KERNELS:
@@ -642,6 +655,8 @@ def compile_kernel(key: tuple, text: str, inject: dict, name: str = "kernel"):
             folder = Path(tempfile.mkdtemp(prefix="pmabayes-kernels-"))
             path = folder / f"{modname}.py"
             path.write_text(text)
+        if not _disk_cached(folder, modname):
+            Progress().say(f"compiling {what} (cached after)")
         spec = importlib.util.spec_from_file_location(modname, path)
         module = importlib.util.module_from_spec(spec)
         sys.modules[modname] = module  # numba's cache re-imports the module by name

@@ -121,15 +121,20 @@ def _ranking_section(d, several: bool) -> list[str]:
         + (", over every trial of every experiment" if several else "")
         + "), then the others by score statistic"
         + (" (the experiments' scores and informations summed)" if several else "")
-        + ". Estimates and intervals of refitted candidates come from the "
+        + ". The excess removed is that of the whitened residual's energy over pure noise "
+        "(the rule's measure; first order for candidates not refitted) and that of the "
+        "mean-square error over the noise floor (refits, with a floor). Estimates and "
+        "intervals of refitted candidates come from the "
         f"refit's MAP and Laplace draws ({d.settings['ci_prob']:.0%} intervals); the others "
         "are the score test's one-step values.</p>",
         html_table(["effect", "evidence", "p", "significant", "estimate", "interval",
-                    "explained", "ΔELPD ± se"],
+                    "excess energy removed", "excess mean square removed", "ΔELPD ± se"],
                    [[f.effect, f.evidence, f.p_value, "yes" if f.significant else "no",
                      ", ".join(f"{k} = {fmt(v)}" for k, v in f.estimate.items()),
                      ", ".join(f"{fmt(a)} to {fmt(b)}" for a, b in f.interval.values()),
                      f"{f.explained:.0%}",
+                     "—" if f.refit is None or f.refit.explained_rms is None
+                     else f"{f.refit.explained_rms:.0%}",
                      f"{f.refit.elpd_diff:+.1f} ± {f.refit.elpd_diff_se:.1f}" if f.refit
                      else "—"]
                     for f in d.ranking], num_from=1),
@@ -149,8 +154,9 @@ def _discrepancy_section(disc) -> list[str]:
         pr = disc.proposal
         out.append(f"<p>Proposed ({html.escape(pr.kind)}): <code>{html.escape(pr.expression)}"
                    f"</code>; ΔELPD against the flexible estimate {pr.elpd_diff:+.1f} ± "
-                   f"{pr.elpd_diff_se:.1f}. Plugin: <code>{html.escape(str(pr.plugin))}</code>"
-                   "</p>")
+                   f"{pr.elpd_diff_se:.1f}. Plugin: "
+                   + (f"<code>{html.escape(str(pr.plugin))}</code>" if pr.plugin else
+                      "not kept (diagnose with --proposal-dir DIR to keep it)") + "</p>")
     return out
 
 

@@ -42,6 +42,7 @@ from pmabayes.report.markup import (
 )
 from pmabayes.report.summary import DISPLAY_COLUMNS, display_headers, summary_table, write_summary
 from pmabayes.report.verdicts import experiment_adequacy, judge_fit
+from pmabayes.util import Progress
 
 __all__ = ["write_report"]
 
@@ -161,9 +162,14 @@ def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
     verdicts = experiment_adequacy(tree, datasets=datasets, ci_prob=ci_prob)
     worst = next((a for _, a in verdicts if a.adequate is False), verdicts[0][1])
     write_summary(rows, out_dir, adequacy=worst)
+    bar = Progress()
+    bar.start(3 + 2 * len(verdicts), "figures", "the report's figures")
     plots.plot_trace(flat, out_dir / "trace.png", units={r["name"]: r["unit"] for r in rows})
+    bar.advance()
     plots.plot_rank(flat, out_dir / "rank.png")
+    bar.advance()
     n_pair = plots.plot_pair(flat, out_dir / "pair.png", rows)
+    bar.advance()
     pct = f"{100 * ci_prob:.4g}%"
     sections = []
     for exp, (name, adequacy) in zip(info["experiments"], verdicts, strict=True):
@@ -172,7 +178,9 @@ def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
         rms = float(np.sqrt(np.mean(residual**2)))
         floor = exp.get("noise_floor_m")
         plots.plot_predictive(pred, out_dir / f"ppc_{name}.png", ci_prob=ci_prob)
+        bar.advance()
         plots.plot_residual(pred["time"], residual, rms, floor, out_dir / f"residual_{name}.png")
+        bar.advance()
         est = exp.get("noise_estimate") or {}
         table = html_table(["quantity", "value"], [
             ["data", str(exp.get("source") or name)],
@@ -221,13 +229,20 @@ def _report_figures(tree: xr.DataTree, rows: list, pred: Mapping, residual_m: np
                     quality: Mapping, out_dir: Path, ci_prob: float) -> dict[str, str]:
     """Draw the five figures of a fit report; returns each one's caption."""
     from pmabayes.report import figures as plots
+    bar = Progress()
+    bar.start(5, "figures", "the report's figures")
     trace_note = plots.plot_trace(tree, out_dir / "trace.png",
                                   units={r["name"]: r["unit"] for r in rows})
+    bar.advance()
     rank_thin, rank_note = plots.plot_rank(tree, out_dir / "rank.png")
+    bar.advance()
     n_pair = plots.plot_pair(tree, out_dir / "pair.png", rows)
+    bar.advance()
     plots.plot_predictive(pred, out_dir / "ppc.png", ci_prob=ci_prob)
+    bar.advance()
     plots.plot_residual(pred["time"], residual_m, quality["rms_median_m"], quality["floor_m"],
                         out_dir / "residual.png")
+    bar.advance()
     post = tree["posterior"]
     n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
     pct = f"{100 * ci_prob:.4g}%"

@@ -5,12 +5,13 @@ a nonlinear refit."""
 from __future__ import annotations
 
 import re
+import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from pmabayes.criticism.bands import band_errors
+from pmabayes.criticism.bands import band_errors, excess_removed
 from pmabayes.criticism.discrepancy.dictionary import (
     best_hinges,
     best_period,
@@ -39,6 +40,7 @@ from pmabayes.criticism.discrepancy.regression import (
 from pmabayes.criticism.discrepancy.results import Discrepancy, Proposal, StateEvidence
 from pmabayes.criticism.discrepancy.verify import verify_proposal
 from pmabayes.criticism.elpd import paired_difference
+from pmabayes.criticism.prose import removed_text
 from pmabayes.criticism.signature import residual_signature
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.simulator import Simulation
@@ -52,7 +54,7 @@ def estimate_discrepancy(
     values: dict,
     simulation: Simulation,
     *,
-    plugin_dir: str | Path | None = None,
+    plugin_dir: str | Path | None | bool = None,
     verify: bool = True,
     command: str | None = None,
     effects=(),
@@ -69,10 +71,12 @@ def estimate_discrepancy(
         The model's MAP.
     simulation : Simulation
         The model at its MAP, with its states.
-    plugin_dir : str or Path, optional
+    plugin_dir : str or Path or False, optional
         Where to write the proposal's ``.py`` file (the current folder by default).
         An existing file of the same name is never overwritten: a numbered name is
-        chosen instead.
+        chosen instead. False: the file is written to a temporary folder for the
+        refit and not kept (the proposal's ``plugin`` is then None, and its text says
+        how to keep it).
     verify : bool
         Refit the model with the written effect (nonlinear, through the simulator)
         and report what it achieves.
@@ -103,19 +107,30 @@ def estimate_discrepancy(
     explained = float(np.clip((only_j.energy - full.energy) / excess, 0.0, 1.0)) \
         if e0 > n else 0.0
     corr = correction(problem, blocks, full.coef)
-    ratio_after = band_errors(problem.dataset, problem.x0 + corr)[-1].ratio
+    before = band_errors(problem.dataset, problem.x0)[-1]
+    after = band_errors(problem.dataset, problem.x0 + corr)[-1]
+    ratio_after = after.ratio
+    removed = excess_removed([before.rms_m], [after.rms_m], [before.floor_m], [n])
     states, pdep = _state_evidence(problem, full, loo_full)
     near = bool(ratio_after <= 1.5)
     st = problem.states(tau)
     proposal = None
     if gain > max(2.0 * gain_se, 2.0):
-        proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
-                            plugin_dir, verify, command)
+        if plugin_dir is False:  # checked, not kept
+            with tempfile.TemporaryDirectory(prefix="pmabayes-proposal-") as tmp:
+                proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                                    tmp, verify, command)
+            if proposal is not None:
+                proposal = replace(proposal, plugin=None)
+        else:
+            proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                                plugin_dir, verify, command)
     other = None if near and explained >= 0.5 else _other_cause(
         likelihood, noise, simulation, explained, ratio_after)
-    text = _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
-                 tuple(effects))
-    return Discrepancy(states=states, explained=explained, ratio_after=float(ratio_after),
+    text = _text(states, explained, removed, ratio_after, gain, gain_se, proposal, other,
+                 command, tuple(effects))
+    return Discrepancy(states=states, explained=explained, explained_rms=removed,
+                       ratio_after=float(ratio_after),
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
                        partial_dependence=pdep, proposal=proposal, near_floor=near,
                        other_cause=other, text=text)
@@ -366,7 +381,7 @@ def _other_cause(lik, noise, sim, explained: float, ratio_after: float) -> str:
     return text
 
 
-def _text(states, explained, ratio_after, gain, gain_se, proposal, other, command,
+def _text(states, explained, removed, ratio_after, gain, gain_se, proposal, other, command,
           effects) -> str:
     needed = [s for s in states if s.needed]
     if not needed and not gain > max(2.0 * gain_se, 2.0):
@@ -374,20 +389,24 @@ def _text(states, explained, ratio_after, gain, gain_se, proposal, other, comman
                 f"(ΔELPD {gain:+.1f} ± {gain_se:.1f}): no discrepancy in the force is found.")
     dep = ", ".join(f"{s.state} (ΔELPD {s.elpd_loss:+.1f} ± {s.se:.1f})" for s in needed) or \
         "no single state"
-    text = (f"A flexible force estimated from the data removes {explained:.0%} of the excess "
-            f"residual (to {ratio_after:.3g}x the floor, linearised; ΔELPD {gain:+.1f} ± "
-            f"{gain_se:.1f}). It depends on {dep}.")
+    # linearised: never called adequate, so never "100%" while above the floor
+    text = (f"A flexible force estimated from the data "
+            f"{removed_text(removed, explained, ratio_after, False)} (linearised; ΔELPD "
+            f"{gain:+.1f} ± {gain_se:.1f}). It depends on {dep}.")
     if proposal is not None:
         text += f" Proposed: {proposal.description} ({proposal.expression})."
+        v = proposal.verified
+        if v is not None:
+            text += (f" Refitted with it, the model reaches {v['ratio']:.3g}x the floor"
+                     f" ({'adequate' if v['adequate'] else 'not adequate'}).")
         if proposal.plugin:
-            v = proposal.verified
-            if v is not None:
-                text += (f" Refitted with it, the model reaches {v['ratio']:.3g}x the floor"
-                         f" ({'adequate' if v['adequate'] else 'not adequate'}).")
             data = command or "DATA"
             names = ",".join([*effects, proposal.effect])
             text += (f" To add it: pmabayes --plugin {proposal.plugin} diagnose {data} "
                      f"--effects {names}")
+        elif v is not None:
+            text += (" Its effect file was not kept: diagnose again with --proposal-dir DIR "
+                     "(plugin_dir in Python) to write it there as a --plugin effect.")
         else:
             text += " It could not be written as an effect."
     if other:

@@ -120,6 +120,10 @@ class Discrepancy:
         residual's signature suggests.
     text : str
         The conclusion in words.
+    explained_rms : float or None
+        Share of the mean-square error above the floor that the flexible force
+        removes (linearised; :func:`pmabayes.criticism.bands.excess_removed`), the
+        share the words report; None without a floor.
     """
 
     states: list
@@ -133,10 +137,12 @@ class Discrepancy:
     near_floor: bool
     other_cause: str | None
     text: str
+    explained_rms: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
         return {"states": [s.to_dict() for s in self.states], "explained": self.explained,
+                "explained_rms": self.explained_rms,
                 "ratio_after": self.ratio_after, "elpd_gain": self.elpd_gain,
                 "elpd_gain_se": self.elpd_gain_se, "memory_tau_s": self.memory_tau_s,
                 "near_floor": self.near_floor, "other_cause": self.other_cause,
