@@ -127,7 +127,7 @@ __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "J
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
-        "sigma_noise_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(1e-9, 1e-2),
+        "sigma_noise_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(0.0, math.inf),
         description="standard deviation of each trial's disturbance (stationary AR(1))",
         latex=r"\sigma",
     ),
@@ -137,7 +137,7 @@ NOISE_PARAMETERS: tuple[Parameter, ...] = (
         latex=r"\rho",
     ),
     Parameter(
-        "sigma_white_m", "m", 5e-6, LogNormal(5e-6, 2.0), bounds=(1e-12, 1e-2),
+        "sigma_white_m", "m", 5e-6, LogNormal(5e-6, 2.0), bounds=(0.0, math.inf),
         description="standard deviation of the sensor's white noise (quantisation)",
         latex=r"\sigma_w",
     ),
