@@ -237,7 +237,17 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
     """
     model = posterior.model
     rows = model.describe()
+    ident = dict(zip(posterior.names, zip(posterior.parameters, posterior.priors,
+                                          strict=True), strict=True))
+    for name in posterior.names[: posterior.n_model]:  # another experiment's own ones
+        if name not in model.parameter_names:
+            p, prior = ident[name]
+            rows.append({"name": name, "unit": p.unit, "default": p.default,
+                         "prior": str(prior), "bounds": p.bounds, "fixed": False,
+                         "description": p.description, "source": "experiment"})
+    sampled = {p.name: p for p in posterior.parameters[posterior.n_model:]}
     for p in NOISE_PARAMETERS:
+        p = sampled.get(p.name, p)  # a sampled noise's prior (guarded, on the data's scale)
         rows.append({"name": p.name, "unit": p.unit, "default": p.default,
                      "prior": str(p.prior), "bounds": p.bounds, "fixed": False,
                      "description": p.description, "source": "noise"})
@@ -295,6 +305,11 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         "substeps": int(posterior.likelihoods[0].substeps),
         "timings_s": timings,
     }
+    record = posterior.settings_record or {}
+    if record.get("substeps"):
+        info["substeps_choice"] = record["substeps"]
+    if record.get("data_scaled_priors"):
+        info["data_scaled_priors"] = record["data_scaled_priors"]
     tree.attrs["pmabayes"] = json.dumps(info)
     return info
 
@@ -366,6 +381,7 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "noise_floor_m": _finite_or_none(ds.noise_floor_m),
             "rms_cost_m": (None if theta is None
                            else _finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
+            "parameters": dict(posterior.identified[e]),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
             "metadata": ds.metadata,
         })

@@ -94,9 +94,12 @@ class FitSettings:
         ``"stretch"`` (emcee's default).
     progress : bool
         Print progress to stderr.
-    substeps : int
+    substeps : int or "auto"
         Simulator substeps per sample interval (more for a lightly damped
-        oscillator near the sample rate).
+        oscillator near the sample rate). ``"auto"`` (the default) chooses them
+        from the simulator's accuracy check at the prior's median
+        (:func:`pmabayes.inference.posterior.choose_substeps`); the fit file records
+        the choice (``substeps`` and ``substeps_choice``).
     tie_noise : bool
         One noise for all experiments (same sensor, same disturbance) instead of
         one per experiment.
@@ -107,6 +110,12 @@ class FitSettings:
         AR(p) model), ``"ar1"`` always keeps it, ``"ar"`` always uses the AR(p).
         Records without repeats keep the sampled AR(1) + white under its guard. The
         fit file records each experiment's (``experiments[i]["noise_model"]``).
+    steady_state_tol_m : float or None
+        Tolerance of the periodic steady state of data that start in it; None takes
+        each sidecar's ``steady_state_tol_m`` (or 1e-9 m).
+    max_warmup_periods : int or None
+        Most periods simulated to find that steady state; None takes each sidecar's
+        ``max_warmup_periods`` (or 256).
 
     Raises
     ------
@@ -127,9 +136,11 @@ class FitSettings:
     ppc_draws: int = 40
     moves: str = "de"
     progress: bool = False
-    substeps: int = 1
+    substeps: int | str = "auto"
     tie_noise: bool = False
     noise_model: str = "auto"
+    steady_state_tol_m: float | None = None
+    max_warmup_periods: int | None = None
 
     def __post_init__(self) -> None:
         if self.max_steps < 20:
@@ -138,8 +149,18 @@ class FitSettings:
         if self.n_ensembles < 1:
             raise FitError(f"n_ensembles must be at least 1 (2 or more for R-hat across "
                            f"ensembles), got {self.n_ensembles}")
-        if self.substeps < 1:
-            raise FitError(f"substeps must be at least 1, got {self.substeps}")
+        if self.substeps != "auto" and not (isinstance(self.substeps, int | np.integer)
+                                            and not isinstance(self.substeps, bool)
+                                            and self.substeps >= 1):
+            raise FitError(f"substeps must be a whole number >= 1 or 'auto', got "
+                           f"{self.substeps!r}")
+        if self.steady_state_tol_m is not None and not self.steady_state_tol_m > 0:
+            raise FitError(f"steady_state_tol_m must be > 0 m, got {self.steady_state_tol_m!r}")
+        if self.max_warmup_periods is not None and not (
+                isinstance(self.max_warmup_periods, int | np.integer)
+                and self.max_warmup_periods >= 3):
+            raise FitError(f"max_warmup_periods must be a whole number >= 3, got "
+                           f"{self.max_warmup_periods!r}")
         if self.moves not in ("de", "stretch"):
             raise FitError(f"unknown moves {self.moves!r}; use 'de' or 'stretch'")
         try:
@@ -531,7 +552,9 @@ def fit(
     settings = FitSettings() if settings is None else settings
     model = Model() if model is None else model
     posterior = build_posterior(model, datasets, substeps=settings.substeps,
-                                tie_noise=settings.tie_noise, noise_model=settings.noise_model)
+                                tie_noise=settings.tie_noise, noise_model=settings.noise_model,
+                                steady_state_tol_m=settings.steady_state_tol_m,
+                                max_warmup_periods=settings.max_warmup_periods)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]

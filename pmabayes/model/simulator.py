@@ -46,6 +46,7 @@ call of a new composition compiles for a few seconds and later processes load it
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import sys
@@ -64,7 +65,8 @@ from pmabayes.util import fingerprint, source_text
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
            "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "INITIAL_STATES",
-           "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS"]
+           "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS", "POSITION_REFERENCES",
+           "warmup_settings", "position_reference"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -1172,16 +1174,90 @@ class SteadyStateWarning(RuntimeWarning):
     """The periodic steady state was not reached within the warm-up allowed."""
 
 
+#: How a data set's positions are referred, as a sidecar's ``position_reference``
+#: declares it: ``"absolute"`` (the default: positions from the model's zero, the
+#: unloaded length, up to any ``position_offset``) or ``"start"`` (the sensor was
+#: zeroed with the actuator at rest at the record's start: the model's position at
+#: the first sample is subtracted from its trajectory).
+POSITION_REFERENCES = ("absolute", "start")
+
+
+def warmup_settings(dataset, steady_state_tol_m: float | None = None,
+                    max_warmup_periods: int | None = None) -> tuple[float, int]:
+    """The periodic steady state's tolerance and warm-up budget for a data set.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Its sidecar may declare ``steady_state_tol_m`` and ``max_warmup_periods``.
+    steady_state_tol_m, max_warmup_periods : optional
+        Settings that win over the sidecar's (the command line's).
+
+    Returns
+    -------
+    tuple
+        ``(steady_state_tol_m, max_warmup_periods)``; :data:`STEADY_STATE_TOL_M` and
+        :data:`MAX_WARMUP_PERIODS` where neither gives one.
+
+    Raises
+    ------
+    SimulationError
+        For a value that is not a positive number (a whole number >= 3 for the
+        budget), naming the file.
+    """
+    meta = dataset.metadata or {}
+    tol = meta.get("steady_state_tol_m", STEADY_STATE_TOL_M) if steady_state_tol_m is None \
+        else steady_state_tol_m
+    budget = meta.get("max_warmup_periods", MAX_WARMUP_PERIODS) if max_warmup_periods is None \
+        else max_warmup_periods
+    where = dataset.source or "the data set"
+    if isinstance(tol, bool) or not isinstance(tol, int | float) or not tol > 0:
+        raise SimulationError(f"{where}: steady_state_tol_m is {tol!r}; it must be a positive "
+                              "number of metres (e.g. 1e-9)")
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 3:
+        raise SimulationError(f"{where}: max_warmup_periods is {budget!r}; it must be a whole "
+                              "number of periods, at least 3 (e.g. 256)")
+    return float(tol), int(budget)
+
+
+def position_reference(dataset) -> str:
+    """The data set's ``position_reference`` (:data:`POSITION_REFERENCES`), checked.
+
+    Parameters
+    ----------
+    dataset : Dataset
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    SimulationError
+        For another value, naming the file and the fix.
+    """
+    ref = (dataset.metadata or {}).get("position_reference", "absolute")
+    if ref not in POSITION_REFERENCES:
+        raise SimulationError(
+            f"{dataset.source or 'the data set'}: metadata 'position_reference' is {ref!r}; it "
+            f"must be one of {', '.join(map(repr, POSITION_REFERENCES))} ('start' where the "
+            "sensor was zeroed with the actuator at rest at the record's start)")
+    return ref
+
+
 def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
-                     states: bool = False):
+                     states: bool = False, steady_state_tol_m: float | None = None,
+                     max_warmup_periods: int | None = None):
     """Simulate ``model`` on a data set's input, as the data set declares it.
 
     The one place where a data set's declarations become simulator options: what
     its input does between samples (:attr:`pmabayes.data.Dataset.input_between_samples`),
     its period (:attr:`~pmabayes.data.Dataset.period_samples`), whether each trial
     starts in periodic steady state
-    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`) and from which state
-    (:attr:`~pmabayes.data.Dataset.initial_state`). The likelihood,
+    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`, with the sidecar's
+    ``steady_state_tol_m`` and ``max_warmup_periods``), from which state
+    (:attr:`~pmabayes.data.Dataset.initial_state`) and to what its positions are
+    referred (``position_reference``, :data:`POSITION_REFERENCES`). The likelihood,
     diagnostics and validation all simulate through it.
 
     Parameters
@@ -1197,20 +1273,30 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
         Integration steps per sample interval.
     states : bool
         Return a :class:`Simulation` instead of positions.
+    steady_state_tol_m, max_warmup_periods : optional
+        The steady state's settings, over the sidecar's (:func:`warmup_settings`).
 
     Returns
     -------
     numpy.ndarray or Simulation
-        As :func:`simulate`.
+        As :func:`simulate`; with ``position_reference`` ``"start"`` the measured
+        positions are relative to the model's at the first sample.
     """
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
-    return _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
-                             dataset.grid_dt_s, substeps=int(substeps), states=states,
-                             between_samples=dataset.input_between_samples,
-                             period=(None if dataset.period_samples is None
-                                     else int(dataset.period_samples)),
-                             steady_state=dataset.starts_in_steady_state,
-                             steady_state_tol_m=STEADY_STATE_TOL_M,
-                             max_warmup_periods=MAX_WARMUP_PERIODS,
-                             initial_state=dataset.initial_state)
+    steady = dataset.starts_in_steady_state
+    tol, budget = (warmup_settings(dataset, steady_state_tol_m, max_warmup_periods) if steady
+                   else (STEADY_STATE_TOL_M, MAX_WARMUP_PERIODS))
+    relative = position_reference(dataset) == "start"
+    out = _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
+                            dataset.grid_dt_s, substeps=int(substeps), states=states,
+                            between_samples=dataset.input_between_samples,
+                            period=(None if dataset.period_samples is None
+                                    else int(dataset.period_samples)),
+                            steady_state=steady, steady_state_tol_m=tol,
+                            max_warmup_periods=budget, initial_state=dataset.initial_state)
+    if not relative:
+        return out
+    if states:
+        return dataclasses.replace(out, position_m=out.position_m - out.position_m[:, :1])
+    return out - out[:, :1]
