@@ -133,9 +133,10 @@ def choose_substeps(models: Sequence[Model], datasets: Sequence[Dataset]) -> dic
 def data_scaled_priors(model: Model, datasets: Sequence[Dataset]) -> tuple[Model, dict | None]:
     """A force-input rig's default priors on the scale of its data.
 
-    The static compliance comes from a linear fit of position on force over all
-    experiments (each about its own mean; the ratio of the ranges where the fit's
-    slope is not positive), the amplitude from the positions' largest range
+    The static compliance comes from a linear fit of the force less the rig's
+    inertia, ``u - m x''``, on position, velocity and a constant over all experiments
+    (the ratio of the ranges where the fitted stiffness is not positive), the
+    amplitude from the positions' largest range
     (:func:`pmabayes.model.model.force_rig_priors`). Priors the user chose win. A
     pressure rig's defaults are the muscle's and stay as they are.
 
@@ -154,13 +155,17 @@ def data_scaled_priors(model: Model, datasets: Sequence[Dataset]) -> tuple[Model
     """
     if model.rig.input_kind != "force":
         return model, None
-    us = [ds.input[0] - ds.input[0].mean() for ds in datasets]
-    ys = [ds.mean_position_m - ds.mean_position_m.mean() for ds in datasets]
-    slope = sum(float(u @ y) for u, y in zip(us, ys, strict=True)) / max(
-        sum(float(u @ u) for u in us), 1e-300)
-    ranges = max(float(np.ptp(y)) for y in ys), max(float(np.ptp(u)) for u in us)
-    compliance = slope if slope > 0 and np.isfinite(slope) else ranges[0] / max(ranges[1],
-                                                                                1e-300)
+    rows, rhs = [], []
+    for ds in datasets:  # u - m y'' = k y + d y' + c: the spring's share of the force
+        y, dt = ds.mean_position_m, ds.grid_dt_s
+        v = np.gradient(y, dt)
+        rows.append(np.column_stack([y, v, np.ones_like(y)]))
+        rhs.append(ds.input[0] - model.rig.moving_mass_kg * np.gradient(v, dt))
+    stiffness = float(np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0][0])
+    ranges = (max(float(np.ptp(ds.mean_position_m)) for ds in datasets),
+              max(float(np.ptp(ds.input[0])) for ds in datasets))
+    compliance = (1.0 / stiffness if stiffness > 0 and np.isfinite(stiffness)
+                  else ranges[0] / max(ranges[1], 1e-300))
     amplitude = 0.5 * ranges[0]
     if not (compliance > 0 and amplitude > 0 and np.isfinite(compliance)):
         raise FitError(f"{datasets[0].source or 'the data'}: the force or the position never "
