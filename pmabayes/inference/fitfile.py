@@ -477,13 +477,11 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
         In the fit's experiment order; see :func:`model_from_fit`.
     """
     base = model_from_fit(tree)
-    priors = {n: p for n, p in base.priors.items() if p is not base.parameter(n).prior}
     out = []
     for exp in _experiments_of(tree):
-        rig = exp.get("rig")
-        out.append(Model(list(base.effect_names),
-                         rig=Rig.from_dict(rig) if isinstance(rig, dict) else base.rig,
-                         priors=priors or None, fixed=dict(base.fixed) or None))
+        rig = Rig.from_dict(exp["rig"]) if isinstance(exp.get("rig"), dict) else base.rig
+        out.append(Model(list(base.effect_names), rig=rig,
+                         priors=base.chosen_priors(rig) or None, fixed=dict(base.fixed) or None))
     return out
 
 

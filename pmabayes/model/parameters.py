@@ -271,8 +271,8 @@ class Parameter:
             raise ValueError(f"parameter {self.name!r}: bounds {self.bounds} need lower < upper")
         if not lo <= self.default <= hi:
             raise ValueError(
-                f"parameter {self.name!r}: default {self.default} lies outside its domain "
-                f"{self.bounds}"
+                f"parameter {self.name!r}: default {self.default} lies outside its bounds "
+                f"(physical domain) {self.bounds}"
             )
 
     def in_bounds(self, value: np.ndarray | float) -> np.ndarray:
