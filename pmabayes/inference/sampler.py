@@ -217,7 +217,11 @@ def _advance(job: tuple) -> int:
         return done
     sampler = emcee.EnsembleSampler(state.coords.shape[0], posterior.ndim,
                                     posterior.log_prob_z, vectorize=True, moves=_moves(moves))
-    final = sampler.run_mcmc(state, n_steps, progress=False)
+    # the walkers are drawn from the Laplace approximation, full rank by construction;
+    # emcee's moves are affine invariant, so a posterior that is narrow across a ridge
+    # (a scale shared by stiffness, damping and a rig's area) does not hinder them, but
+    # its condition-number check of the start would refuse such an ensemble
+    final = sampler.run_mcmc(state, n_steps, progress=False, skip_initial_state_check=True)
     store.grow(n_steps, None)
     with store.open("a") as f:
         g = f[store.name]
