@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.data import Dataset
 from pmabayes.criticism.validation import ValidationError
+from pmabayes.data import Dataset
 from pmabayes.inference import FitSettings, build_posterior, find_map
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.likelihood import Likelihood

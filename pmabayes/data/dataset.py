@@ -46,7 +46,8 @@ INITIAL_STATES = ("rest", "zero")
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
                  "pressure_reference", "ambient_pressure_pa", "check_units",
                  "converted_from_absolute", "input_between_samples", "period_samples",
-                 "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials")
+                 "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
+                 "position_reference", "steady_state_tol_m", "max_warmup_periods")
 
 
 class DataError(ValueError):

@@ -78,7 +78,17 @@ SUBSTEP_TOLERANCE = 1e-4
 
 
 def prior_median(model: Model) -> dict[str, float]:
-    """Every parameter at its prior's median (fixed ones at their value)."""
+    """Every parameter at its prior's median (fixed ones at their value).
+
+    Parameters
+    ----------
+    model : Model
+
+    Returns
+    -------
+    dict
+        By parameter name.
+    """
     values = dict(model.defaults)
     values.update({n: model.priors[n].quantile(0.5) for n in model.free_names})
     return values

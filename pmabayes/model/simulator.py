@@ -36,8 +36,9 @@ its reconstructed end values. ``position_m[k]`` is the position at ``time_s[k]``
 Each trial starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium
 under the first input sample; or, with ``initial_state="zero"``, at ``x = x' = z = 0``
 whatever the first input (a simulation switched on at t = 0, as the Bouc-Wen
-benchmark's); or, with ``steady_state``, in the periodic steady state reached from that
-initial state through repeated periods of the input.
+benchmark's); or, with ``steady_state``, in the periodic steady state of repeated periods
+of the input, reached from that initial state (found by Newton's method on the period
+map, :func:`_steady_state`).
 
 Kernels are generated per composition of effects, compiled with numba and cached
 on disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``), so the first
@@ -790,11 +791,11 @@ def _time_axis(n: int, dt_s: float | None, time_s: np.ndarray | None) -> tuple[n
     return np.arange(n) * float(dt_s), float(dt_s)
 
 
-#: Default tolerance of the periodic steady state in m: the warm-up stops when the
-#: record's estimated offset from the steady state (from the last two warm-up periods'
-#: changes of position, extrapolated geometrically) is at most this.
+#: Default tolerance of the periodic steady state in m: the position over a period
+#: from the state found differs from that over the next period by at most this.
 STEADY_STATE_TOL_M = 1e-9
-#: Default most periods simulated from rest before a record that starts in steady state.
+#: Default most periods simulated to find the state of a record that starts in
+#: periodic steady state.
 MAX_WARMUP_PERIODS = 256
 #: Degree of the interpolating spline that reconstructs a band-limited input that is
 #: not declared periodic (odd, so its knots sit on the samples).
@@ -953,22 +954,23 @@ def simulate(
         (it must divide ``n_samples``). Used by ``"bandlimited"`` and
         ``steady_state``.
     steady_state : bool
-        The record starts in periodic steady state: the model is first driven from
-        rest by the record's first period, repeated, and the record continues from
-        the state so reached. False (default): the record starts from rest.
+        The record starts in periodic steady state of its first period, repeated
+        (reached from ``initial_state``): the record starts from that state, after
+        one period that settles the pressure effects. False (default): the record
+        starts from ``initial_state``.
     steady_state_tol_m : float
-        Tolerance of the steady state in m (default :data:`STEADY_STATE_TOL_M`):
-        enough warm-up periods that the position's change over the last one, ``d``,
-        and the record's estimated remaining offset ``d r / (1 - r)`` (``r`` the
-        ratio of the last two changes: the transient's decay per period) are both
-        at most this.
+        Tolerance of the steady state in m (default :data:`STEADY_STATE_TOL_M`): the
+        position over a period from the state found differs from that over the next
+        period by at most this.
     max_warmup_periods : int
-        Most warm-up periods (default :data:`MAX_WARMUP_PERIODS`). The first try
-        has 3; the next as many as the decay ``r`` says are needed (or twice as
-        many). If the tolerance is not reached, a :class:`SteadyStateWarning` says
-        by how much, and the record follows the last warm-up. The muscle at the
-        paper's values creeps towards its steady state by about ``r = 0.84`` a
-        period (the hysteresis' slow shakedown), so it can take a hundred.
+        Most periods simulated to find the steady state (default
+        :data:`MAX_WARMUP_PERIODS`). It is found by Newton's method on the period map
+        (the state after one period from a state at the period's start), a few
+        steps of ``rows + 2`` periods each, where simulating period after period
+        from rest needs as many periods as the transient is slow (the muscle's
+        hysteresis shakes down by about 0.84 a period, slower on short periods). If
+        the tolerance is not reached, a :class:`SteadyStateWarning` says by how much,
+        and the record starts from the last state.
     initial_state : str
         The state each trial (or its warm-up, with ``steady_state``) starts from (see
         :data:`INITIAL_STATES`): ``"rest"`` (the default: ``x' = 0``, ``z = 0`` and
