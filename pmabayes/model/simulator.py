@@ -215,6 +215,13 @@ def _inlined(dispatcher):
     return numba.njit(inline="always", error_model="numpy")(fn)
 
 
+def state_rows(model: Model) -> int:
+    """Rows of a kernel's state: ``x``, ``v``, ``z``, one per force effect with a state,
+    and the hysteresis effect's last factor ``g`` (:class:`PlantCode`)."""
+    return (3 + sum(1 for e in model.effects if e.stage == "force" and e.state is not None)
+            + (1 if any(e.stage == "hysteresis" for e in model.effects) else 0))
+
+
 class PlantCode:
     """Generated source lines of one model's physics, for kernels built from them (internal).
 
@@ -263,7 +270,7 @@ class PlantCode:
     @property
     def n_rows(self) -> int:
         """Rows of the state array ``st``: ``x``, ``v``, ``z``, the effects' states, ``g``."""
-        return 3 + len(self.state_row) + (1 if self.law else 0)
+        return state_rows(self.model)
 
     def q(self, e) -> str:
         """Name of the contiguous parameter rows of force effect ``e``."""
@@ -1081,9 +1088,9 @@ def _steady_state(run: dict, tol: float, budget: int) -> np.ndarray:
         state[:, left] = np.where(going, s0, s2)  # a settled member starts at P(P(s))
         left, s0, s1, s2, delta = (left[going], s0[:, going], s1[:, going], s2[:, going],
                                    delta[going])
-        if not left.size or used + rows + 2 > budget:
+        if used + rows + 2 > budget:  # no budget for a Newton step: one plain one
             state[:, left] = s2
-            break
+            continue
         residual = s1 - s0  # P(s) - s
         h = 1e-7 * (np.abs(s0) + np.abs(residual)) + 1e-15
         perturbed = np.repeat(s0[:, None, :], rows, axis=1)  # (rows, rows, members)
@@ -1107,7 +1114,8 @@ def _steady_state(run: dict, tol: float, budget: int) -> np.ndarray:
     if np.any(change > tol):
         worst = int(np.argmax(np.where(np.isnan(change), np.inf, change)))
         warnings.warn(
-            f"simulate: no periodic steady state within {tol:g} m after {used} periods of "
+            f"simulate: no periodic steady state within {tol:g} m after {used} warm-up "
+            f"periods of "
             f"{period} samples: the position over the last period still changed by "
             f"{change[worst]:.3g} m (member {worst}). The record starts from that state; "
             "raise max_warmup_periods or steady_state_tol_m (the data's sidecar, or "
@@ -1158,7 +1166,7 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
             rig.area_m2, out_x)
     kernel = dict(shared_input=shared, between_samples=between_samples,
                   initial_state=initial_state, resume=bool(lead))
-    rows = PlantCode(model).n_rows if lead else 0
+    rows = state_rows(model) if lead else 0
     io = (np.array(state, dtype=float, order="C") if state is not None
           else np.zeros((rows, batch)))
     extra = (io, ahead, state is None) if lead else ()
