@@ -16,7 +16,7 @@ from scipy.optimize import differential_evolution, minimize
 
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
-from pmabayes.inference.laplace import _laplace_covariance, _scaled_hessian
+from pmabayes.inference.laplace import _fd_hessian, _laplace_covariance, _scaled_hessian
 from pmabayes.inference.likelihood import JointLikelihood, Likelihood
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
 
@@ -204,7 +204,7 @@ def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray
     covariance, both unconstrained."""
     neg_logpost = _scaled_neg_log_posterior(posterior, z0, scale)
     u, hess = _polish(neg_logpost, posterior.ndim)
-    hess, edges = _open_edges(hess)
+    hess, edges = _open_edges(hess, neg_logpost, u)
     cov = _laplace_covariance(hess, None if edges else neg_logpost, u)
     return z0 + u * scale, cov * np.outer(scale, scale)
 
@@ -217,9 +217,10 @@ _EDGE_CURVATURE = 1e100
 _EDGE_SD = 0.1
 
 
-def _open_edges(hess: np.ndarray) -> tuple[np.ndarray, bool]:
+def _open_edges(hess: np.ndarray, neg_logpost, u: np.ndarray) -> tuple[np.ndarray, bool]:
     """The Hessian with the directions whose finite differences left the support
-    given a spread of :data:`_EDGE_SD` of the plausible box, uncorrelated.
+    given their curvature from steps of 1e-6 of the plausible box (which stay inside),
+    or where that fails a spread of :data:`_EDGE_SD` of the box, uncorrelated.
 
     A MAP at the edge of a prior's support (a noise correlation at its guard), or in
     a direction the data do not see (a dead-zone pressure below every pressure of a
@@ -231,10 +232,12 @@ def _open_edges(hess: np.ndarray) -> tuple[np.ndarray, bool]:
     edge = ~np.isfinite(d) | (d > _EDGE_CURVATURE) | ~np.all(np.isfinite(hess), axis=1)
     if not edge.any():
         return hess, False
+    near = np.diag(_fd_hessian(neg_logpost, u, np.full(u.size, 1e-6)))
+    ok = np.isfinite(near) & (near > 0) & (near < _EDGE_CURVATURE)
     out = hess.copy()
     out[edge, :] = 0.0
     out[:, edge] = 0.0
-    out[edge, edge] = 1.0 / _EDGE_SD**2
+    out[edge, edge] = np.where(ok, near, 1.0 / _EDGE_SD**2)[edge]
     return out, True
 
 
