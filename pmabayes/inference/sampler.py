@@ -349,8 +349,11 @@ class _Diagnostics:
                 "resumed": resumed}
 
 
-def _convergence(chains: list[np.ndarray], names, settings: FitSettings) -> _Diagnostics:
-    """Convergence of ensembles' chains ``(steps, walkers, ndim)`` (unconstrained)."""
+def _convergence(chains: list[np.ndarray], names, settings: FitSettings,
+                 rhat_always: bool = True) -> _Diagnostics:
+    """Convergence of ensembles' chains ``(steps, walkers, ndim)`` (unconstrained);
+    without ``rhat_always``, R-hat across ensembles only where the other checks pass
+    (a round's check: the stop is the same, the round's line may lack R-hat)."""
     n = min(c.shape[0] for c in chains)
     ndim = chains[0].shape[2]
     names = np.array(names)
@@ -375,11 +378,6 @@ def _convergence(chains: list[np.ndarray], names, settings: FitSettings) -> _Dia
         tau_max = float(tau[~undefined].max()) if not undefined.all() else float(n)
     ess = np.sum([c.shape[1] * kept / t for c, t in zip(chains, taus, strict=True)], axis=0)
     kept_chains = [c[burn:n] for c in chains]
-    rhat_ens = None
-    if len(chains) > 1:
-        per_ens = np.stack([k.reshape(-1, ndim) for k in kept_chains])  # step-major
-        rhat_ens = np.array([float(az.rhat(per_ens[:, :, j], method="rank"))
-                             for j in range(ndim)])
     messages = []
     if undefined.any():
         messages.append(
@@ -401,7 +399,14 @@ def _convergence(chains: list[np.ndarray], names, settings: FitSettings) -> _Dia
             + ", ".join(f"{nm} ({e:.0f})" for nm, e in zip(names[low], ess[low], strict=True))
         )
     # R-hat is defined across independent ensembles; emcee's walkers are coupled
-    # by the moves, so their R-hat is reported as indicative only
+    # by the moves, so their R-hat is reported as indicative only. Its rank
+    # normalisation of every kept draw is the dearest check: in a round it is needed
+    # only when the others pass (it cannot make a failing round pass)
+    rhat_ens = None
+    if len(chains) > 1 and (rhat_always or not messages):
+        per_ens = np.stack([k.reshape(-1, ndim) for k in kept_chains])  # step-major
+        rhat_ens = np.array([float(az.rhat(per_ens[:, :, j], method="rank"))
+                             for j in range(ndim)])
     if rhat_ens is not None and (rhat_ens >= settings.max_rhat).any():
         bad = rhat_ens >= settings.max_rhat
         messages.append(
@@ -489,7 +494,7 @@ def _sample_rounds(posterior: Posterior, chains: _Chains, initials: list[np.ndar
         current = chains.read()
         if min(c.shape[0] for c in current) < 20:
             continue
-        diag = _convergence(current, posterior.names, settings)
+        diag = _convergence(current, posterior.names, settings, rhat_always=False)
         say.say(_round_line(diag, settings, time.perf_counter() - t_sample))
         if step == 0:
             break
