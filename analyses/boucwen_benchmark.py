@@ -30,10 +30,13 @@ script does what a user would:
 Usage::
 
     python analyses/boucwen_benchmark.py [--source ../shared/external/boucwen]
-        [--out results/boucwen] [--seed 0] [--substeps N] [--quick]
+        [--out results/boucwen] [--seed 0] [--substeps N] [--quick] [--no-tuning]
     python analyses/boucwen_benchmark.py --tables-from results/boucwen
 
-``--quick`` fits with a small sampler budget (a smoke run, not the result); a full
+``--quick`` fits with a small sampler budget (a smoke run, not the result);
+``--no-tuning`` fits as ``pmabayes fit estimation.csv`` alone (no priors, no substeps
+given: the force rig's priors on the data's scale and the substeps the simulator's
+accuracy check chooses); a full
 run also writes the paper's table (``paper/tables/boucwen.tex`` and its numbers),
 which ``--tables-from`` rewrites from a finished run. The last line printed is the
 path of the figure.
@@ -52,6 +55,7 @@ import numpy as np
 
 from pmabayes import Model, Rig
 from pmabayes.data import Dataset, load, save
+from pmabayes.inference import fit_info, load_fit
 from pmabayes.model.simulator import simulate_dataset
 
 FS_HZ = 750.0
@@ -278,6 +282,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--substeps", type=int, default=DEFAULT_SUBSTEPS)
     ap.add_argument("--quick", action="store_true", help="a small sampler budget (smoke run)")
+    ap.add_argument("--no-tuning", action="store_true",
+                    help="fit as `pmabayes fit estimation.csv` alone: no --prior, no --substeps "
+                    "(the force rig's priors on the data's scale, substeps chosen by the "
+                    "simulator's accuracy check); the paper's table is not written")
     ap.add_argument("--tables", type=Path, default=HERE.parent / "paper" / "tables",
                     help="where the paper's table goes (paper/tables)")
     ap.add_argument("--tables-from", type=Path, metavar="RESULTS",
@@ -291,10 +299,13 @@ def main(argv: list[str] | None = None) -> int:
     fit_path = args.out / "fit.nc"
     budget = ["--walkers", "16", "--ensembles", "1", "--steps", "200"] if args.quick else []
     priors = [a for name, spec in PRIORS.items() for a in ("--prior", f"{name}={spec}")]
+    tuning = [] if args.no_tuning else ["--substeps", str(args.substeps), *priors]
     t_fit = time.perf_counter()
     _pmabayes("fit", str(paths["estimation"]), "--out", str(fit_path), "--seed",
-              str(args.seed), "--substeps", str(args.substeps), *priors, *budget)
+              str(args.seed), *tuning, *budget)
     t_fit = time.perf_counter() - t_fit
+    if args.no_tuning:  # what the fit chose, for the validation and the exact errors
+        args.substeps = int(fit_info(load_fit(fit_path))["substeps"])
     val_json = args.out / "validation.json"
     _pmabayes("validate", str(fit_path), str(paths["test_multisine"]),
               str(paths["test_sinesweep"]), "--json", str(val_json), "--out",
@@ -333,10 +344,11 @@ def main(argv: list[str] | None = None) -> int:
                "estimation_rms_per_period_at_truth_m": start_up,
                "estimation_rms_per_period_at_truth_from_rest_m": from_rest,
                "posterior": posterior,
-               "validation": str(val_json), "substeps": args.substeps, "priors": PRIORS,
-               "published": PUBLISHED}
+               "validation": str(val_json), "substeps": args.substeps,
+               "priors": "data-scaled defaults" if args.no_tuning else PRIORS,
+               "tuning": not args.no_tuning, "published": PUBLISHED}
     (args.out / "benchmark.json").write_text(json.dumps(summary, indent=2))
-    if not args.quick:
+    if not args.quick and not args.no_tuning:
         print(f"paper table: {write_paper_table(args.out, args.tables)}")
     figure = args.out / "validation" / "index.html"
     print(figure)

@@ -162,6 +162,11 @@ def _seed(text: str) -> int:
     return value
 
 
+def _substeps(text: str) -> int | str:
+    """argparse type of ``--substeps``: a count >= 1 or ``auto``."""
+    return "auto" if text.strip().lower() == "auto" else _positive(text)
+
+
 def _positive(text: str) -> int:
     """argparse type of a count that must be at least 1."""
     try:
@@ -477,7 +482,9 @@ def _fit_settings(args: argparse.Namespace):
     return FitSettings(n_walkers=args.walkers, n_ensembles=args.ensembles,
                        max_steps=args.steps, substeps=args.substeps,
                        tie_noise=getattr(args, "tie_noise", False),
-                       noise_model=getattr(args, "noise_model", "auto"))
+                       noise_model=getattr(args, "noise_model", "auto"),
+                       steady_state_tol_m=getattr(args, "steady_state_tol", None),
+                       max_warmup_periods=getattr(args, "max_warmup_periods", None))
 
 
 def _floor_text(floor_m) -> str:
@@ -572,6 +579,14 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
              else f"(combined over {len(datasets)} experiments); ")
           + f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
           f"{conv['n_walkers']} walkers in {info['timings_s']['total']:.1f} s")
+    choice = info.get("substeps_choice") or {}
+    if choice.get("requested") == "auto":
+        print(f"substeps: {choice['chosen']} (auto: {choice['rule']})")
+    scaled = info.get("data_scaled_priors")
+    if scaled:
+        print(f"priors on the data's scale (static compliance "
+              f"{scaled['compliance_m_per_n']:.3g} m/N, amplitude {scaled['amplitude_m']:.3g} m): "
+              + ", ".join(f"{n} ~ {p}" for n, p in scaled["priors"].items()))
     if len(datasets) > 1:
         for exp in info["experiments"]:
             print(f"  experiment {exp['name']} ({exp['source']}): {exp['n_trials']} trial(s) x "
@@ -859,6 +874,10 @@ def _cmd_effects(args: argparse.Namespace) -> int:
             fixed = " (fixed by default)" if not p.vary else ""
             print(f"    {p.name} [{p.unit}] default {p.default:g}, prior {p.prior}{fixed}: "
                   f"{p.description}")
+    print("A force-input rig's alpha, beta, gamma, d, K_e and noise take priors on its data's "
+          "scale instead (the fit file's data_scaled_priors; e.g. alpha, K_e ~ LogNormal(half "
+          "the inverse static compliance, 2)). A sidecar's rig may give moving_mass_kg or "
+          "area_m2 as a prior (identified as rig_moving_mass_kg, rig_area_m2).")
     return 0
 
 
@@ -1099,9 +1118,16 @@ def _sampler_options(p: argparse.ArgumentParser) -> None:
                    "earlier when converged")
     p.add_argument("--restart", action="store_true",
                    help="discard saved chains instead of resuming them")
-    p.add_argument("--substeps", type=_positive, default=1,
-                   help="simulator steps per sample interval (1; more for a lightly damped "
-                   "oscillator near the sample rate, e.g. 16 for the Bouc-Wen benchmark)")
+    p.add_argument("--substeps", type=_substeps, default="auto",
+                   help="simulator steps per sample interval, or 'auto' (the default: the "
+                   "fewest whose output changes by under 1e-4 of the data's motion when "
+                   "doubled, at the prior's median; 1 for the muscle)")
+    p.add_argument("--max-warmup-periods", type=_positive, default=None, metavar="N",
+                   help="most periods simulated to find the periodic steady state of data "
+                   "that start in it (the sidecar's max_warmup_periods, else 256)")
+    p.add_argument("--steady-state-tol", type=float, default=None, metavar="M",
+                   help="tolerance of that steady state in m (the sidecar's "
+                   "steady_state_tol_m, else 1e-9)")
 
 
 def _fit_options(p: argparse.ArgumentParser) -> None:

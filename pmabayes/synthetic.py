@@ -358,9 +358,9 @@ class HiddenDetent(Effect):
     name = "hidden_detent"
     stage = "force"
     parameters = (
-        Parameter("F_det", "N", 1.0, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+        Parameter("F_det", "N", 1.0, HalfNormal(5.0), bounds=(0.0, math.inf), null=0.0,
                   description="detent amplitude"),
-        Parameter("L_det", "m", 0.01, HalfNormal(0.05), bounds=(1e-4, 1.0), null=0.01,
+        Parameter("L_det", "m", 0.01, HalfNormal(0.05), bounds=(0.0, math.inf), null=0.01,
                   vary=False, description="detent period"),
     )
     description = "Detent force of a rail, periodic in position (hidden; synthetic data)."
@@ -378,7 +378,7 @@ class HiddenDrag(Effect):
     name = "hidden_drag"
     stage = "force"
     parameters = (
-        Parameter("c_hidden", "N s^2/m^2", 0.0, HalfNormal(500.0), bounds=(0.0, 1e5),
+        Parameter("c_hidden", "N s^2/m^2", 0.0, HalfNormal(500.0), bounds=(0.0, math.inf),
                   null=0.0, description="drag force per squared velocity"),
     )
     description = "Drag growing with the square of the velocity (hidden; synthetic data)."
@@ -398,9 +398,9 @@ class HiddenCompressionSpring(Effect):
     name = "hidden_compression_spring"
     stage = "force"
     parameters = (
-        Parameter("k_cs", "N/m", 0.0, HalfNormal(1e3), bounds=(0.0, 1e5), null=0.0,
+        Parameter("k_cs", "N/m", 0.0, HalfNormal(1e3), bounds=(0.0, math.inf), null=0.0,
                   description="stiffness in compression"),
-        Parameter("x_cs", "m", 0.005, HalfNormal(0.05), bounds=(-1.0, 1.0), null=0.005,
+        Parameter("x_cs", "m", 0.005, HalfNormal(0.05), bounds=(0.0, math.inf), null=0.005,
                   vary=False, description="where it engages"),
     )
     description = "A spring stiffening the muscle in compression only (hidden; synthetic data)."
@@ -418,7 +418,7 @@ class HiddenZForce(Effect):
     name = "hidden_z_force"
     stage = "force"
     reads_z = True
-    parameters = (Parameter("c_hz", "1/N", 0.0, HalfNormal(0.01), bounds=(0.0, 1.0),
+    parameters = (Parameter("c_hz", "1/N", 0.0, HalfNormal(0.01), bounds=(0.0, math.inf),
                             null=0.0, description="z|z| coefficient"),)
     description = "A force in z|z| (hidden; synthetic data)."
     physics = staticmethod(_z_force)

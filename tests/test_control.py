@@ -209,7 +209,7 @@ class PlainLag(Effect):
 
     name = "user_lag_plain"
     stage = "pressure"
-    parameters = (Parameter("tau_user", "s", 0.045, HalfNormal(0.1), bounds=(1e-6, 1.0)),)
+    parameters = (Parameter("tau_user", "s", 0.045, HalfNormal(0.1), bounds=(0.0, np.inf)),)
     description = "A first-order lag of the pressure."
     physics = staticmethod(first_order_lag)
 
@@ -248,7 +248,7 @@ class RawSensor(Effect):
 
     name = "user_sensor_raw"
     stage = "measurement"
-    parameters = (Parameter("k_user", "1", 1.05, Normal(1.0, 0.1), bounds=(0.5, 2.0)),
+    parameters = (Parameter("k_user", "1", 1.05, Normal(1.0, 0.1)),
                   Parameter("b_user", "m", 2e-3, Normal(0.0, 1e-3), bounds=(-0.01, 0.01)))
     description = "Sensor gain and offset."
     physics = staticmethod(gain_offset)

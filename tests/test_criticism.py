@@ -427,7 +427,7 @@ class TestRailRipple(pb.Effect):
     parameters = (
         pb.Parameter("F_r", "N", 1.0, pb.HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
                      description="ripple amplitude"),
-        pb.Parameter("L_r", "m", 0.004, pb.HalfNormal(0.01), bounds=(1e-4, 1.0), null=0.004,
+        pb.Parameter("L_r", "m", 0.004, pb.HalfNormal(0.01), bounds=(0.0, np.inf), null=0.004,
                      vary=False, description="ripple period"),
     )
     description = "Periodic force of the guide rail."

@@ -187,7 +187,7 @@ class UserCreep(pb.Effect):
     parameters = (
         pb.Parameter("k_user", "N/m", 200.0, pb.HalfNormal(500.0), bounds=(0.0, 1e5),
                      null=0.0),
-        pb.Parameter("tau_user", "s", 0.2, pb.HalfNormal(1.0), bounds=(1e-3, 100.0),
+        pb.Parameter("tau_user", "s", 0.2, pb.HalfNormal(1.0), bounds=(0.0, np.inf),
                      vary=False),
     )
     description = "Spring and dashpot in series."
@@ -204,7 +204,7 @@ class UnitLaw(pb.Effect):
 
     name = "test_states_unit_law"
     stage = "hysteresis"
-    parameters = (pb.Parameter("g_unit", "1", 1.0, pb.HalfNormal(1.0), bounds=(0.0, 2.0)),)
+    parameters = (pb.Parameter("g_unit", "1", 1.0, pb.HalfNormal(1.0), bounds=(0.0, np.inf)),)
     description = "The paper's law."
     physics = staticmethod(_unit_law)
 

@@ -69,7 +69,7 @@ def test_theta_from_mapping_and_array():
     [
         ({"K": 1.0}, "'K' is not a parameter"),
         ({"d": -1.0}, "parameter d = -1.0 .* outside its bounds"),
-        ({"p_dz": 4e5}, "p_dz .* outside its bounds"),
+        ({"p_dz": -1.0}, "p_dz .* outside its bounds"),
         ({"K_e": [1.0, 2.0], "d": [1.0, 2.0, 3.0]}, "different lengths"),
         (np.zeros(5), "does not match the model's 6 parameters"),
     ],

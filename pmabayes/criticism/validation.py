@@ -69,7 +69,7 @@ from pmabayes.inference.fitfile import (
 )
 from pmabayes.inference.likelihood import measurement_noise
 from pmabayes.model.effects import EffectError
-from pmabayes.model.model import Model, ModelError, Rig
+from pmabayes.model.model import RIG_PREFIX, Model, ModelError, Rig
 from pmabayes.model.simulator import simulate_dataset
 
 __all__ = ["DEFAULT_DRAWS", "NOISE_NAMES", "ValidationError", "ExperimentValidation",
@@ -347,6 +347,9 @@ class _FitDraws:
     n_total: int
     # the noise model of each fitted experiment: the repeats' AR(p), or None (AR(1) + white)
     noise_models: list = field(default_factory=list)
+    # (rig key, prior text) -> the posterior variable of that rig value, for every rig
+    # value a fitted experiment gave as a prior
+    rig_priors: dict = field(default_factory=dict)
 
 
 def _flat(da: xr.DataArray, name: str, where: str) -> np.ndarray:
@@ -427,10 +430,37 @@ def _read_fit(tree: xr.DataTree, where: str) -> _FitDraws:
     if dt_s is None and len(recorded) == 1:
         dt_s = recorded[0].get("dt_s")
     n_total = next(iter(noise.values())).shape[0]
+    rig_priors = {}
+    for e in recorded:
+        rig, names = e.get("rig"), e.get("parameters") or {}
+        for key, value in (rig.items() if isinstance(rig, Mapping) else ()):
+            if isinstance(value, str) and f"{RIG_PREFIX}{key}" in names:
+                rig_priors.setdefault((key, value), names[f"{RIG_PREFIX}{key}"])
     return _FitDraws(
         effects=fitted.effects, fixed=dict(fitted.fixed),
         input_kind=input_kind, draws=draws, noise=noise, experiments=experiments,
-        dt_s=dt_s, source=data.get("source"), n_total=n_total, noise_models=noise_models(tree))
+        dt_s=dt_s, source=data.get("source"), n_total=n_total, noise_models=noise_models(tree),
+        rig_priors=rig_priors)
+
+
+def _draw_names(fit: _FitDraws, model: Model, where: str) -> dict[str, str]:
+    """The posterior variable of each free parameter of a held-out data set's model: its
+    own name, or for a rig value its sidecar gives as a prior, the fit's variable of a
+    fitted experiment that gave the same value the same prior."""
+    out = {}
+    for n in model.free_names:
+        if not model.is_rig_parameter(n):
+            out[n] = n
+            continue
+        key = n[len(RIG_PREFIX):]
+        text = model.rig.to_dict()[key]
+        if (key, text) not in fit.rig_priors:
+            raise ValidationError(
+                f"{where}: its sidecar gives the rig's {key} as the prior {text}, but no "
+                "fitted experiment gave that prior, so the fit has no posterior for it: give "
+                f"the same prior as a fitted experiment of the same rig, or {key} as a number")
+        out[n] = fit.rig_priors[(key, text)]
+    return out
 
 
 # ----------------------------------------------------------------------------- checks
@@ -454,14 +484,19 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
             f"{where}: the sidecar's rig ({model.rig.name}) is {model.rig.input_kind}-driven "
             f"but the input column is {ds.input_name!r}; correct the sidecar's 'rig' or the "
             "input column")
+    names = _draw_names(fit, model, where)
     per_experiment = [n for n in model.free_names
-                      if n in fit.draws and set(fit.draws[n].dims) - {"chain", "draw"}]
+                      if (names[n] in fit.draws
+                          and set(fit.draws[names[n]].dims) - {"chain", "draw"})
+                      or (names[n] not in fit.draws
+                          and any(v.startswith(f"{n}__") for v in fit.draws))]
     if per_experiment:
         raise ValidationError(
             f"{where}: the fit's {', '.join(per_experiment)} differ between its experiments, "
             "so there is no one value to predict a new experiment with; validation needs "
-            "physical parameters shared by the fitted experiments")
-    lacking = [n for n in model.free_names if n not in fit.draws]
+            "physical parameters shared by the fitted experiments (a sensor zeroed at the "
+            "record's start: declare \"position_reference\": \"start\" instead of an offset)")
+    lacking = [n for n in model.free_names if names[n] not in fit.draws]
     if lacking:
         raise ValidationError(
             f"{where}: the fit has no posterior for {', '.join(lacking)}, which the model "
@@ -567,7 +602,9 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                       DataWarning, stacklevel=3)
     columns, noise_text = _noise_columns(fit, model.rig, noise_from)
     pick = rng.choice(fit.n_total, size=min(n_draws, fit.n_total), replace=False)
-    theta = model.theta({n: _flat(fit.draws[n], n, where)[pick] for n in model.free_names})
+    names = _draw_names(fit, model, where)
+    theta = model.theta({n: _flat(fit.draws[names[n]], names[n], where)[pick]
+                         for n in model.free_names})
     x = simulate_dataset(model, theta, ds, substeps=substeps)
     sigma, rho, white, fit_dt, col = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []

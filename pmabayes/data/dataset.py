@@ -49,7 +49,8 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "converted_from_absolute", "input_between_samples", "period_samples",
                  "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
-                 "time_origin_s")
+                 "time_origin_s", "position_reference", "steady_state_tol_m",
+                 "max_warmup_periods")
 
 
 class DataError(ValueError):

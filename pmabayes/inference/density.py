@@ -21,9 +21,33 @@ __all__ = ["Posterior"]
 def _transform_kind(p: Parameter, prior: Prior) -> str:
     if p.name == "rho_noise":
         return "atanh"
-    if p.bounds[0] >= 0.0 and isinstance(prior, LogNormal | HalfNormal):
+    if isinstance(prior, LogNormal | HalfNormal):  # their support is (0, inf)
         return "log"
     return "identity"
+
+
+def _identified(models: list, names: list[str]) -> list[dict[str, str]]:
+    """Each experiment's free parameters mapped to the identified parameters' names.
+
+    Shared by name, except a per-experiment parameter in a fit of several experiments
+    (``NAME__EXPERIMENT``), and a name whose prior differs between experiments (a rig
+    value each gives its own prior for): one parameter per prior, named after its
+    first experiment (``NAME__EXPERIMENT``).
+    """
+    multi = len(models) > 1
+    ident = [{n: (f"{n}__{names[e]}" if multi and m.parameter(n).per_experiment else n)
+              for n in m.free_names} for e, m in enumerate(models)]
+    groups: dict[str, dict[str, list[int]]] = {}
+    for e, m in enumerate(models):
+        for n, i in ident[e].items():
+            groups.setdefault(i, {}).setdefault(str(m.priors[n]), []).append(e)
+    for i, by_prior in groups.items():
+        if len(by_prior) > 1:
+            for members in by_prior.values():
+                for e in members:
+                    ident[e] = {n: (f"{i}__{names[members[0]]}" if v == i else v)
+                                for n, v in ident[e].items()}
+    return ident
 
 
 class Posterior:
@@ -87,12 +111,21 @@ class Posterior:
             for c, lik in zip(noise_choices or [None] * len(liks), liks, strict=True)]
         self.noise = self.group_noise[0]
         self.model = liks[0].model
-        model = self.model
-        model_params = tuple(model.parameter(n) for n in model.free_names)
-        self.n_model = len(model_params)
-        params: list[Parameter] = list(model_params)
-        priors: list[Prior] = [model.priors[n] for n in model.free_names]
-        names_out = [p.name for p in model_params]
+        #: how the simulator's substeps and any data-scaled priors were chosen (set by
+        #: :func:`pmabayes.inference.posterior.build_posterior`, for the fit file)
+        self.settings_record: dict = {}
+        params: list[Parameter] = []
+        priors: list[Prior] = []
+        names_out: list[str] = []
+        self.identified = _identified([lik.model for lik in liks], self.experiment_names)
+        for lik, ident in zip(liks, self.identified, strict=True):
+            for n in lik.model.free_names:
+                if ident[n] not in names_out:
+                    names_out.append(ident[n])
+                    params.append(lik.model.parameter(n))
+                    priors.append(lik.model.priors[n])
+        self.n_model = len(names_out)
+        self._layout(liks, names_out)
         # sampled noise: the columns of each group without repeats
         self._noise_cols: dict[int, list[int]] = {}
         for g in range(n_groups):
@@ -116,10 +149,31 @@ class Posterior:
         self.kinds = tuple(
             _transform_kind(p, pr) for p, pr in zip(self.parameters, self.priors, strict=True)
         )
-        self._free_cols = np.array([model.index(n) for n in model.free_names], dtype=int)
-        self._template = model.theta(model.defaults)[0]
         self.lower = np.array([p.bounds[0] for p in self.parameters])
         self.upper = np.array([p.bounds[1] for p in self.parameters])
+
+    def _layout(self, liks: list[Likelihood], names: list[str]) -> None:
+        """The full parameter array: the first experiment's model's, then a column for
+        each parameter of another experiment's model that it does not share (its own
+        offset, its own rig value); each other experiment's :attr:`Likelihood.columns`."""
+        first = liks[0].model
+        template = list(first.theta(first.defaults)[0])
+        slot = {self.identified[0].get(n, ("fixed", n, first.defaults[n])): j
+                for j, n in enumerate(first.parameter_names)}
+        columns = []
+        for lik, ident in zip(liks, self.identified, strict=True):
+            cols = []
+            for n in lik.model.parameter_names:
+                key = ident.get(n, ("fixed", n, lik.model.defaults[n]))
+                if key not in slot:
+                    slot[key] = len(template)
+                    template.append(lik.model.defaults[n])
+                cols.append(slot[key])
+            columns.append(cols)
+        for lik, cols in zip(liks, columns, strict=True):
+            lik.columns = None if cols == list(range(len(template))) else np.array(cols)
+        self._template = np.array(template, dtype=float)
+        self._free_cols = np.array([slot[n] for n in names], dtype=int)
 
     def noise_of(self, experiment: int, theta: np.ndarray | None = None) -> tuple:
         """The noise ``(sigma, rho, white)`` of an experiment.
@@ -223,7 +277,13 @@ class Posterior:
         return total
 
     def full_theta(self, theta: np.ndarray) -> np.ndarray:
-        """The model's full parameter array for identified values ``(batch, ndim)``."""
+        """The full parameter array for identified values ``(batch, ndim)``.
+
+        The model's, for one experiment or experiments that share every parameter;
+        otherwise the first experiment's model's followed by the columns of the
+        others' own parameters, of which each :class:`Likelihood` takes its own
+        (:attr:`Likelihood.columns`).
+        """
         theta = np.atleast_2d(theta)
         full = np.repeat(self._template[None, :], theta.shape[0], axis=0)
         full[:, self._free_cols] = theta[:, : self.n_model]
@@ -303,7 +363,8 @@ class Posterior:
         for row, j in enumerate(idx):
             draws = self.priors[j].sample(rng, 20000)
             lo, hi = np.quantile(draws, [0.005, 0.995])
-            lo = max(lo, self.lower[j] + 1e-12 * max(1.0, abs(self.lower[j])))
+            if np.isfinite(self.lower[j]):  # a physical domain, e.g. a positive value
+                lo = max(lo, self.lower[j] + 1e-12 * max(1.0, abs(self.lower[j])))
             hi = min(hi, self.upper[j])
             ends = np.ones((2, self.ndim))
             ends[:, j] = lo, hi

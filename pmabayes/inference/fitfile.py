@@ -238,7 +238,17 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
     """
     model = posterior.model
     rows = model.describe()
+    ident = dict(zip(posterior.names, zip(posterior.parameters, posterior.priors,
+                                          strict=True), strict=True))
+    for name in posterior.names[: posterior.n_model]:  # another experiment's own ones
+        if name not in model.parameter_names:
+            p, prior = ident[name]
+            rows.append({"name": name, "unit": p.unit, "default": p.default,
+                         "prior": str(prior), "bounds": p.bounds, "fixed": False,
+                         "description": p.description, "source": "experiment"})
+    sampled = {p.name: p for p in posterior.parameters[posterior.n_model:]}
     for p in NOISE_PARAMETERS:
+        p = sampled.get(p.name, p)  # a sampled noise's prior (guarded, on the data's scale)
         rows.append({"name": p.name, "unit": p.unit, "default": p.default,
                      "prior": str(p.prior), "bounds": p.bounds, "fixed": False,
                      "description": p.description, "source": "noise"})
@@ -296,6 +306,11 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         "substeps": int(posterior.likelihoods[0].substeps),
         "timings_s": timings,
     }
+    record = posterior.settings_record or {}
+    if record.get("substeps"):
+        info["substeps_choice"] = record["substeps"]
+    if record.get("data_scaled_priors"):
+        info["data_scaled_priors"] = record["data_scaled_priors"]
     tree.attrs["pmabayes"] = json.dumps(info)
     return info
 
@@ -362,6 +377,7 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "noise_floor_m": finite_or_none(ds.noise_floor_m),
             "rms_cost_m": (None if theta is None
                            else finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
+            "parameters": dict(posterior.identified[e]),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
             "metadata": ds.metadata,
         })
@@ -457,13 +473,11 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
         In the fit's experiment order; see :func:`model_from_fit`.
     """
     base = model_from_fit(tree)
-    priors = {n: p for n, p in base.priors.items() if p is not base.parameter(n).prior}
     out = []
     for exp in _experiments_of(tree):
-        rig = exp.get("rig")
-        out.append(Model(list(base.effect_names),
-                         rig=Rig.from_dict(rig) if isinstance(rig, dict) else base.rig,
-                         priors=priors or None, fixed=dict(base.fixed) or None))
+        rig = Rig.from_dict(exp["rig"]) if isinstance(exp.get("rig"), dict) else base.rig
+        out.append(Model(list(base.effect_names), rig=rig,
+                         priors=base.chosen_priors(rig) or None, fixed=dict(base.fixed) or None))
     return out
 
 

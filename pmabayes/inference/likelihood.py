@@ -12,6 +12,7 @@ gives the model, the factorisation and why.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -22,18 +23,18 @@ from scipy import signal
 from pmabayes.data import Dataset
 from pmabayes.model.model import Model
 from pmabayes.model.parameters import LogNormal, Parameter, Uniform
-from pmabayes.model.simulator import simulate_dataset
+from pmabayes.model.simulator import position_reference, simulate_dataset, warmup_settings
 
 __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
            "LikelihoodError", "ar1_noise", "measurement_noise", "NOISE_MODELS", "LEVEL_ADEQUATE",
            "MAX_AR_ORDER", "LJUNG_BOX_LAGS", "ljung_box_statistic", "levinson", "ArNoise",
            "ar_noise_from_repeats", "NoiseChoice", "check_noise_model_name",
-           "ar1_whiteness_of_repeats", "choose_noise_model"]
+           "ar1_whiteness_of_repeats", "choose_noise_model", "NOISE_PER_AMPLITUDE"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
-        "sigma_noise_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(1e-9, 1e-2),
+        "sigma_noise_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(0.0, math.inf),
         description="standard deviation of each trial's disturbance (stationary AR(1))",
         latex=r"\sigma",
     ),
@@ -43,11 +44,17 @@ NOISE_PARAMETERS: tuple[Parameter, ...] = (
         latex=r"\rho",
     ),
     Parameter(
-        "sigma_white_m", "m", 5e-6, LogNormal(5e-6, 2.0), bounds=(1e-12, 1e-2),
+        "sigma_white_m", "m", 5e-6, LogNormal(5e-6, 2.0), bounds=(0.0, math.inf),
         description="standard deviation of the sensor's white noise (quantisation)",
         latex=r"\sigma_w",
     ),
 )
+
+
+#: A force-input rig's noise priors follow its data: the disturbance's median is this
+#: fraction of the positions' amplitude (half their range), the sensor's a tenth of
+#: it; the muscle's defaults (50 um on a 40 mm amplitude) give the fraction.
+NOISE_PER_AMPLITUDE = 5e-5 / 0.04
 
 
 def ar1_noise(
@@ -315,6 +322,9 @@ class Likelihood:
         pressure or force).
     substeps : int
         Simulator substeps per sample (see :func:`pmabayes.simulate`).
+    steady_state_tol_m, max_warmup_periods : optional
+        The periodic steady state's settings where the data start in it, over the
+        sidecar's (:func:`pmabayes.model.simulator.warmup_settings`).
 
     Attributes
     ----------
@@ -330,6 +340,12 @@ class Likelihood:
     periods_referred : bool
         Whether the periods are those of the residual at a model's positions
         (:meth:`refer_periods_to`) rather than of the record itself.
+    columns : numpy.ndarray or None
+        Where a posterior of several experiments gives this one's model parameters
+        their own columns (per-experiment parameters, rig values of its own): the
+        columns of the posterior's full parameter array that :meth:`simulate` takes
+        (:meth:`pmabayes.inference.density.Posterior.full_theta`); None takes the
+        array as this model's.
 
     Raises
     ------
@@ -338,7 +354,9 @@ class Likelihood:
         positions that never change, or samples not observed (gaps in a lab's clock).
     """
 
-    def __init__(self, model: Model, dataset: Dataset, *, substeps: int = 1) -> None:
+    def __init__(self, model: Model, dataset: Dataset, *, substeps: int = 1,
+                 steady_state_tol_m: float | None = None,
+                 max_warmup_periods: int | None = None) -> None:
         where = dataset.source or "the data set"
         if dataset.n_missing:
             raise LikelihoodError(
@@ -367,6 +385,10 @@ class Likelihood:
         self.model = model
         self.dataset = dataset
         self.substeps = int(substeps)
+        self.warmup = (warmup_settings(dataset, steady_state_tol_m, max_warmup_periods)
+                       if dataset.starts_in_steady_state else (None, None))
+        position_reference(dataset)  # a bad declaration fails here, not in the search
+        self.columns: np.ndarray | None = None
         self.n_trials, self.n_samples = dataset.position_m.shape
         self.input = np.ascontiguousarray(dataset.input[0])
         self.y_mean = dataset.mean_position_m
@@ -503,8 +525,9 @@ class Likelihood:
     def noise_parameters(self) -> tuple[Parameter, ...]:
         """The noise parameters with their priors for this experiment.
 
-        :data:`NOISE_PARAMETERS`, except for a record without repeats
-        (``noise_source == "record"``): there ``rho_noise`` is bounded by
+        :data:`NOISE_PARAMETERS`, with the noise's scale on the data's for a
+        force-input rig (:data:`NOISE_PER_AMPLITUDE`), except for a record without
+        repeats (``noise_source == "record"``): there ``rho_noise`` is bounded by
         :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), so that the
         disturbance cannot become the slow process that would explain a model's
         misfit away.
@@ -513,9 +536,15 @@ class Likelihood:
         -------
         tuple of Parameter
         """
-        if self.noise_source != "record":
-            return NOISE_PARAMETERS
         sig, rho, white = NOISE_PARAMETERS
+        if self.model.rig.input_kind == "force":  # an oscillator's scale is the data's
+            amplitude = 0.5 * self.motion_m
+            sig, white = (dataclasses.replace(p, default=f * amplitude,
+                                              prior=LogNormal(f * amplitude, p.prior.sigma))
+                          for p, f in ((sig, NOISE_PER_AMPLITUDE), (white,
+                                                                    0.1 * NOISE_PER_AMPLITUDE)))
+        if self.noise_source != "record":
+            return (sig, rho, white) if self.model.rig.input_kind == "force" else NOISE_PARAMETERS
         r = self.rho_max
         guarded = Parameter(
             "rho_noise", "1", 0.0, Uniform(-r, r), bounds=(-r, r),
@@ -527,8 +556,13 @@ class Likelihood:
 
     # -- model output ---------------------------------------------------------
     def simulate(self, theta: np.ndarray) -> np.ndarray:
-        """Model positions ``(batch, n_samples)`` for a full parameter array."""
-        return simulate_dataset(self.model, theta, self.dataset, substeps=self.substeps)
+        """Model positions ``(batch, n_samples)`` for a full parameter array (the
+        posterior's, of which :attr:`columns` are this model's, where set)."""
+        if self.columns is not None:
+            theta = np.ascontiguousarray(np.atleast_2d(theta)[:, self.columns])
+        return simulate_dataset(self.model, theta, self.dataset, substeps=self.substeps,
+                                steady_state_tol_m=self.warmup[0],
+                                max_warmup_periods=self.warmup[1])
 
     def rms_cost(self, x: np.ndarray) -> np.ndarray:
         """The paper's cost: RMS of the trial mean minus the model, per batch member."""
@@ -712,13 +746,16 @@ class JointLikelihood:
         self.likelihoods = list(likelihoods)
         self.names = list(names)
         first = self.likelihoods[0].model
+
+        def physics(model: Model) -> list[str]:  # a rig's own values may differ
+            return [p.name for p in model.parameters if not model.is_rig_parameter(p.name)]
+
         for lik in self.likelihoods[1:]:
-            if [p.name for p in lik.model.parameters] != [p.name for p in first.parameters]:
+            if physics(lik.model) != physics(first):
                 raise LikelihoodError(
                     f"{lik.dataset.source or 'an experiment'}: its model has parameters "
-                    f"{[p.name for p in lik.model.parameters]}, the first experiment's "
-                    f"{[p.name for p in first.parameters]}; experiments of one fit share the "
-                    "model's effects")
+                    f"{physics(lik.model)}, the first experiment's {physics(first)}; "
+                    "experiments of one fit share the model's effects")
         self.model = first
         self.dataset = self.likelihoods[0].dataset
         self.substeps = self.likelihoods[0].substeps

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from pmabayes.data import Dataset, check_same_input_kind
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
@@ -18,9 +20,11 @@ from pmabayes.inference.likelihood import (
 )
 from pmabayes.inference.noise import group_noise
 from pmabayes.inference.trials import check_trials
-from pmabayes.model.model import Model, ModelError
+from pmabayes.model.model import Model, ModelError, force_rig_priors
+from pmabayes.model.simulator import SimulationError, simulate_dataset
 
-__all__ = ["experiments", "build_posterior"]
+__all__ = ["experiments", "build_posterior", "choose_substeps", "data_scaled_priors",
+           "prior_median", "SUBSTEP_CHOICES", "SUBSTEP_TOLERANCE"]
 
 
 def experiments(datasets: Dataset | Sequence[Dataset], model: Model
@@ -65,52 +69,198 @@ def experiments(datasets: Dataset | Sequence[Dataset], model: Model
     return datasets, models, experiment_names([ds.source for ds in datasets])
 
 
-def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, substeps: int = 1,
-                    tie_noise: bool = False, noise_model: str = "auto") -> Posterior:
+#: The substeps an automatic choice tries, in order (:func:`choose_substeps`).
+SUBSTEP_CHOICES = (1, 2, 4, 8, 16, 32, 64)
+#: An automatic choice takes the fewest substeps whose output changes, when they are
+#: doubled, by at most this fraction of the data's motion (the RMS of the trial mean
+#: about its mean), at the prior's median (:func:`choose_substeps`).
+SUBSTEP_TOLERANCE = 1e-4
+
+
+def prior_median(model: Model) -> dict[str, float]:
+    """Every parameter at its prior's median (fixed ones at their value).
+
+    Parameters
+    ----------
+    model : Model
+
+    Returns
+    -------
+    dict
+        By parameter name.
+    """
+    values = dict(model.defaults)
+    values.update({n: model.priors[n].quantile(0.5) for n in model.free_names})
+    return values
+
+
+def choose_substeps(models: Sequence[Model], datasets: Sequence[Dataset]) -> dict:
+    """The simulator's substeps per sample, from its own accuracy check.
+
+    At the prior's median, each experiment is simulated with 1, 2, 4, ... substeps;
+    the choice is the fewest whose output changes by at most
+    :data:`SUBSTEP_TOLERANCE` of the data's motion when they are doubled, in every
+    experiment (at most 64). The integration error falls as ``substeps**-2``, so the
+    change on doubling is three quarters of the error.
+
+    Parameters
+    ----------
+    models : sequence of Model
+        Each experiment's model.
+    datasets : sequence of Dataset
+        The experiments.
+
+    Returns
+    -------
+    dict
+        ``chosen`` (int), ``requested`` (``"auto"``), ``tolerance_m`` per experiment
+        and ``changes_m``: the largest RMS change on doubling, by substeps tried.
+    """
+    tolerance = [SUBSTEP_TOLERANCE * float(np.std(ds.mean_position_m)) for ds in datasets]
+    runs = [(m, m.theta(prior_median(m)), ds) for m, ds in zip(models, datasets, strict=True)]
+
+    def outputs(k: int) -> list[np.ndarray]:
+        with np.errstate(all="ignore"):
+            return [simulate_dataset(m, th, ds, substeps=k)[0] for m, th, ds in runs]
+
+    changes: dict[str, float] = {}
+    chosen = SUBSTEP_CHOICES[-1]
+    last = outputs(SUBSTEP_CHOICES[0])
+    for k, k2 in zip(SUBSTEP_CHOICES[:-1], SUBSTEP_CHOICES[1:], strict=True):
+        finer = outputs(k2)
+        rms = [float(np.sqrt(np.mean((a - b) ** 2))) for a, b in zip(last, finer, strict=True)]
+        changes[str(k)] = max(rms)
+        if all(r <= t for r, t in zip(rms, tolerance, strict=True)):  # NaN: not accurate
+            chosen = k
+            break
+        last = finer
+    return {"requested": "auto", "chosen": int(chosen), "tolerance_m": tolerance,
+            "changes_m": changes,
+            "rule": f"fewest substeps whose output changes by at most {SUBSTEP_TOLERANCE:g} of "
+                    "the data's motion (RMS) when doubled, at the prior's median"}
+
+
+def data_scaled_priors(model: Model, datasets: Sequence[Dataset]) -> tuple[Model, dict | None]:
+    """A force-input rig's default priors on the scale of its data.
+
+    The static compliance comes from a linear fit of the force less the rig's
+    inertia, ``u - m x''``, on position, velocity and a constant over all experiments
+    (the ratio of the ranges where the fitted stiffness is not positive), the
+    amplitude from the positions' largest range
+    (:func:`pmabayes.model.model.force_rig_priors`). Priors the user chose win. A
+    pressure rig's defaults are the muscle's and stay as they are.
+
+    Parameters
+    ----------
+    model : Model
+    datasets : sequence of Dataset
+
+    Returns
+    -------
+    model : Model
+        With the scaled defaults (the same model for a pressure rig).
+    record : dict or None
+        ``compliance_m_per_n``, ``amplitude_m`` and the ``priors`` chosen (text), for
+        the fit file; None for a pressure rig.
+    """
+    if model.rig.input_kind != "force":
+        return model, None
+    rows, rhs = [], []
+    for ds in datasets:  # u - m y'' = k y + d y' + c: the spring's share of the force
+        y, dt = ds.mean_position_m, ds.grid_dt_s
+        v = np.gradient(y, dt)
+        rows.append(np.column_stack([y, v, np.ones_like(y)]))
+        rhs.append(ds.input[0] - model.rig.moving_mass_kg * np.gradient(v, dt))
+    stiffness = float(np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0][0])
+    ranges = (max(float(np.ptp(ds.mean_position_m)) for ds in datasets),
+              max(float(np.ptp(ds.input[0])) for ds in datasets))
+    compliance = (1.0 / stiffness if stiffness > 0 and np.isfinite(stiffness)
+                  else ranges[0] / max(ranges[1], 1e-300))
+    amplitude = 0.5 * ranges[0]
+    if not (compliance > 0 and amplitude > 0 and np.isfinite(compliance)):
+        raise FitError(f"{datasets[0].source or 'the data'}: the force or the position never "
+                       "changes, so the data give no scale for the oscillator's priors; "
+                       "check the input and position columns")
+    scaled = force_rig_priors(compliance, amplitude, model.rig.moving_mass_kg)
+    out = model.with_default_priors(scaled)
+    chosen = model.chosen_priors()
+    return out, {"compliance_m_per_n": compliance, "amplitude_m": amplitude,
+                 "priors": {n: str(p) for n, p in scaled.items() if n not in chosen},
+                 "rule": "force-input rig: alpha and K_e around half the inverse static "
+                         "compliance, beta and gamma from the motion's amplitude, d around "
+                         "sqrt(mass / compliance); the noise's scale from the amplitude"}
+
+
+def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *,
+                    substeps: int | str = 1, tie_noise: bool = False,
+                    noise_model: str = "auto", steady_state_tol_m: float | None = None,
+                    max_warmup_periods: int | None = None) -> Posterior:
     """The posterior to sample.
 
     Parameters
     ----------
     model : Model
-        The model (see :func:`experiments` for several experiments).
+        The model (see :func:`experiments` for several experiments). On a
+        force-input rig its default priors are first put on the data's scale
+        (:func:`data_scaled_priors`).
     datasets : Dataset or sequence of Dataset
         The experiments.
-    substeps : int
-        Simulator substeps per sample.
+    substeps : int or "auto"
+        Simulator substeps per sample; ``"auto"`` chooses them from the simulator's
+        accuracy check (:func:`choose_substeps`).
     tie_noise : bool
         One noise group for all experiments instead of one each.
     noise_model : {"auto", "ar1", "ar"}
         The noise model each group's repeats choose
         (:func:`pmabayes.inference.likelihood.choose_noise_model`).
+    steady_state_tol_m, max_warmup_periods : optional
+        The periodic steady state's settings where the data start in it, over each
+        sidecar's (:func:`pmabayes.model.simulator.warmup_settings`).
 
     Returns
     -------
     Posterior
         A likelihood per experiment, each noise group's estimate from its repeats
-        (None where it has none: sampled with the model) and its noise model.
+        (None where it has none: sampled with the model) and its noise model; its
+        ``settings_record`` holds the substeps' choice and any data-scaled priors.
 
     Raises
     ------
     FitError
-        For an unknown noise model, or experiments the model cannot describe.
+        For an unknown noise model, bad substeps, or experiments the model cannot
+        describe.
     """
     try:
         check_noise_model_name(noise_model)
         datasets, models, names = experiments(datasets, model)
-        liks = [Likelihood(m, ds, substeps=substeps)
+        scaled = data_scaled_priors(models[0], datasets)[1]
+        models = [data_scaled_priors(m, datasets)[0] for m in models]
+        if substeps == "auto":
+            choice = choose_substeps(models, datasets)
+        elif isinstance(substeps, int | np.integer) and not isinstance(substeps, bool) \
+                and substeps >= 1:
+            choice = {"requested": int(substeps), "chosen": int(substeps)}
+        else:
+            raise FitError(f"substeps must be a whole number >= 1 or 'auto', got {substeps!r}")
+        liks = [Likelihood(m, ds, substeps=choice["chosen"],
+                           steady_state_tol_m=steady_state_tol_m,
+                           max_warmup_periods=max_warmup_periods)
                 for m, ds in zip(models, datasets, strict=True)]
-    except (ValueError, LikelihoodError, ModelError) as exc:  # DataError is a ValueError
-        raise FitError(str(exc)) from None
+    except (ValueError, LikelihoodError, ModelError, SimulationError) as exc:
+        raise FitError(str(exc)) from None  # DataError is a ValueError
     for ds in datasets:  # before their spread is taken for noise
         check_trials(ds, warn=True)
     groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
     noises = []
     choices: list[NoiseChoice | None] = [None] * len(liks)
     for g in range(max(groups) + 1):
-        est, choice = group_noise([lik for lik, gg in zip(liks, groups, strict=True)
-                                   if gg == g], noise_model)
+        est, choice_g = group_noise([lik for lik, gg in zip(liks, groups, strict=True)
+                                     if gg == g], noise_model)
         noises.append(est)
         for e, gg in enumerate(groups):
             if gg == g:
-                choices[e] = choice
-    return Posterior(liks, noises, names=names, noise_groups=groups, noise_choices=choices)
+                choices[e] = choice_g
+    posterior = Posterior(liks, noises, names=names, noise_groups=groups,
+                          noise_choices=choices)
+    posterior.settings_record = {"substeps": choice, "data_scaled_priors": scaled}
+    return posterior

@@ -16,7 +16,7 @@ from scipy.optimize import differential_evolution, minimize
 
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
-from pmabayes.inference.laplace import _laplace_covariance, _scaled_hessian
+from pmabayes.inference.laplace import _fd_hessian, _laplace_covariance, _scaled_hessian
 from pmabayes.inference.likelihood import JointLikelihood, Likelihood
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
 from pmabayes.util import Progress
@@ -184,6 +184,7 @@ def find_map(
         moved = np.max(np.abs(z_map - reference) / np.sqrt(np.diag(cov_z)))
         if k > 0 and moved < _REFER_SETTLED:
             break
+    z_map, cov_z = _climb(posterior, z_map, cov_z, scale, rng.spawn(1)[0])
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
     cost = _check_fit_quality(posterior.likelihood, x[0])
@@ -208,7 +209,73 @@ def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray
     covariance, both unconstrained."""
     neg_logpost = _scaled_neg_log_posterior(posterior, z0, scale)
     u, hess = _polish(neg_logpost, posterior.ndim)
-    return z0 + u * scale, _laplace_covariance(hess, neg_logpost, u) * np.outer(scale, scale)
+    hess, edges = _open_edges(hess, neg_logpost, u)
+    cov = _laplace_covariance(hess, None if edges else neg_logpost, u)
+    return z0 + u * scale, cov * np.outer(scale, scale)
+
+
+#: A curvature (in units of the plausible box) above which a finite difference has
+#: left the posterior's support (its 1e300 stand-in over a small step squared).
+_EDGE_CURVATURE = 1e100
+#: The Laplace sd, as a fraction of the plausible box, of a direction whose curvature
+#: cannot be measured there (:func:`_open_edges`).
+_EDGE_SD = 0.1
+
+
+def _open_edges(hess: np.ndarray, neg_logpost, u: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The Hessian with the directions whose finite differences left the support
+    given their curvature from steps of 1e-6 of the plausible box (which stay inside),
+    or where that fails a spread of :data:`_EDGE_SD` of the box, uncorrelated.
+
+    A MAP at the edge of a prior's support (a noise correlation at its guard), or in
+    a direction the data do not see (a dead-zone pressure below every pressure of a
+    record referred to its start) whose difference steps reach past the support,
+    would otherwise get a curvature of 1e300 and a Laplace variance of 1e-300: the
+    sampler's walkers would all start at one value there and never move in it.
+    """
+    d = np.abs(np.diag(hess))
+    edge = ~np.isfinite(d) | (d > _EDGE_CURVATURE) | ~np.all(np.isfinite(hess), axis=1)
+    if not edge.any():
+        return hess, False
+    near = np.diag(_fd_hessian(neg_logpost, u, np.full(u.size, 1e-6)))
+    ok = np.isfinite(near) & (near > 0) & (near < _EDGE_CURVATURE)
+    out = hess.copy()
+    out[edge, :] = 0.0
+    out[:, edge] = 0.0
+    out[edge, edge] = np.where(ok, near, 1.0 / _EDGE_SD**2)[edge]
+    return out, True
+
+
+#: Draws of the Laplace approximation that check the polished MAP is the mode
+#: (:func:`_climb`), the log density one of them must gain to be climbed from, and
+#: the most climbs.
+_CLIMB_DRAWS, _CLIMB_GAIN, _CLIMB_ROUNDS = 64, 1.0, 5
+
+
+def _climb(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: np.ndarray,
+           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The MAP polished again from a draw of its Laplace approximation that lies higher.
+
+    On a rough posterior (a real record the model does not describe: creep, ringing)
+    the local polish can stop short of the mode; the sampler's walkers, drawn from
+    the Laplace approximation, then start above the MAP, and one that starts far
+    above the others never moves, so the run never converges. Where a draw is
+    :data:`_CLIMB_GAIN` higher than the MAP, the MAP is polished again from the
+    highest draw (at most :data:`_CLIMB_ROUNDS` times). At a mode no draw is higher,
+    and nothing changes.
+    """
+    best = float(posterior.log_prob_z(z_map[None])[0])
+    for _ in range(_CLIMB_ROUNDS):
+        draws = rng.multivariate_normal(z_map, cov_z, size=_CLIMB_DRAWS, method="eigh")
+        lp = posterior.log_prob_z(draws)
+        k = int(np.argmax(lp))
+        if not lp[k] > best + _CLIMB_GAIN:
+            break
+        z_new, cov_new = _polish_from(posterior, draws[k], scale)
+        lp_new = float(posterior.log_prob_z(z_new[None])[0])
+        z_map, cov_z, best = ((z_new, cov_new, lp_new) if lp_new >= lp[k]
+                              else (draws[k], cov_z, float(lp[k])))
+    return z_map, cov_z
 
 
 #: Most passes of learning a record from rest's noise from its periods' residual at

@@ -38,10 +38,13 @@ from pmabayes.model.model import (
     PAPER_EXTENSION_PRESSURE_PA,
     PAPER_VALUES,
     PMA_MASS_KG,
+    RIG_PREFIX,
+    RIG_PRIOR_KEYS,
     Model,
     ModelError,
     Rig,
     derive_area,
+    force_rig_priors,
 )
 from pmabayes.model.parameters import (
     HalfNormal,
@@ -56,14 +59,17 @@ from pmabayes.model.simulator import (
     BETWEEN_SAMPLES,
     INITIAL_STATES,
     MAX_WARMUP_PERIODS,
+    POSITION_REFERENCES,
     STEADY_STATE_TOL_M,
     Simulation,
     SimulationError,
     SteadyStateWarning,
     cache_dir,
     kernel_for,
+    position_reference,
     simulate,
     simulate_dataset,
+    warmup_settings,
 )
 
 __all__ = [
@@ -122,4 +128,10 @@ __all__ = [
     "INITIAL_STATES",
     "STEADY_STATE_TOL_M",
     "MAX_WARMUP_PERIODS",
+    "POSITION_REFERENCES",
+    "warmup_settings",
+    "position_reference",
+    "RIG_PRIOR_KEYS",
+    "RIG_PREFIX",
+    "force_rig_priors",
 ]

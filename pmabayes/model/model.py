@@ -20,12 +20,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from pmabayes.model.effects import Effect, resolve_effects
-from pmabayes.model.parameters import HalfNormal, LogNormal, Normal, Parameter, Prior, Uniform
+from pmabayes.model.parameters import (
+    HalfNormal,
+    LogNormal,
+    Normal,
+    Parameter,
+    Prior,
+    Uniform,
+    parse_prior,
+)
 
 __all__ = [
     "G_M_S2",
@@ -39,6 +47,9 @@ __all__ = [
     "derive_area",
     "PAPER_AREA_M2",
     "BASE_PARAMETERS",
+    "RIG_PRIOR_KEYS",
+    "RIG_PREFIX",
+    "force_rig_priors",
     "Rig",
     "Model",
     "ModelError",
@@ -132,36 +143,47 @@ PAPER_AREA_M2 = derive_area()
 #: Base parameters in kernel order; the order is part of the simulator's contract.
 BASE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
-        "alpha", "N/m", PAPER_VALUES["alpha"], LogNormal(25.0, 1.5), bounds=(0.0, 1e5),
+        "alpha", "N/m", PAPER_VALUES["alpha"], LogNormal(25.0, 1.5), bounds=(0.0, math.inf),
         description="Bouc-Wen initial stiffness of the hysteretic force z",
         latex=r"\alpha",
     ),
     Parameter(
-        "beta", "1/m", PAPER_VALUES["beta"], HalfNormal(50.0), bounds=(0.0, 1e4),
+        "beta", "1/m", PAPER_VALUES["beta"], HalfNormal(50.0), bounds=(0.0, math.inf),
         description="Bouc-Wen loop-width coefficient (beta > 0 opens the loop)",
         latex=r"\beta",
     ),
     Parameter(
-        "gamma", "1/m", PAPER_VALUES["gamma"], Normal(0.0, 50.0), bounds=(-1e4, 1e4),
+        "gamma", "1/m", PAPER_VALUES["gamma"], Normal(0.0, 50.0),
         description="Bouc-Wen shape coefficient (beta + gamma < 0 stiffens with extension)",
         latex=r"\gamma",
     ),
     Parameter(
-        "d", "N s/m", PAPER_VALUES["d"], LogNormal(150.0, 1.0), bounds=(0.0, 1e5),
+        "d", "N s/m", PAPER_VALUES["d"], LogNormal(150.0, 1.0), bounds=(0.0, math.inf),
         description="viscous damping of the muscle and carriage",
         latex="d",
     ),
     Parameter(
-        "K_e", "N/m", PAPER_VALUES["K_e"], LogNormal(600.0, 1.0), bounds=(0.0, 1e6),
+        "K_e", "N/m", PAPER_VALUES["K_e"], LogNormal(600.0, 1.0), bounds=(0.0, math.inf),
         description="linear elastic stiffness of the bladder",
         latex=r"K_e",
     ),
     Parameter(
-        "p_dz", "Pa", PAPER_VALUES["p_dz"], Uniform(0.0, 3e5), bounds=(0.0, 3e5),
+        "p_dz", "Pa", PAPER_VALUES["p_dz"], Uniform(0.0, 3e5), bounds=(0.0, math.inf),
         description="dead-zone pressure below which the muscle does not extend",
         latex=r"p_\mathrm{dz}",
     ),
 )
+
+
+#: Rig values a sidecar may give as a prior instead of a number (``"area_m2":
+#: "LogNormal(1e-5, 1.5)"``): each is then identified with the physics as the model
+#: parameter ``rig_KEY`` (unit, meaning).
+RIG_PRIOR_KEYS: dict[str, tuple[str, str]] = {
+    "moving_mass_kg": ("kg", "moving mass M + m"),
+    "area_m2": ("m^2", "effective area A on which the pressure acts"),
+}
+#: Prefix of the model parameter of a rig value given as a prior.
+RIG_PREFIX = "rig_"
 
 
 @dataclass(frozen=True)
@@ -183,6 +205,10 @@ class Rig:
         Gravitational acceleration.
     name : str
         A label for reports.
+    priors : tuple of (str, Prior)
+        Rig values that are not known but identified (:data:`RIG_PRIOR_KEYS`), each
+        with its prior; the value's field then holds the prior's median. A model on
+        this rig has the parameter ``rig_KEY`` for each.
     """
 
     moving_mass_kg: float
@@ -191,6 +217,7 @@ class Rig:
     input_kind: str = "pressure"
     g_m_s2: float = G_M_S2
     name: str = "custom"
+    priors: tuple[tuple[str, Prior], ...] = field(default=())
 
     def __post_init__(self) -> None:
         if not self.moving_mass_kg > 0:
@@ -202,6 +229,14 @@ class Rig:
                              f"pressure; 1 for a force input), got {self.area_m2}; fix it")
         if self.input_kind not in ("pressure", "force"):
             raise ModelError(f"input_kind must be 'pressure' or 'force', got {self.input_kind!r}")
+        for key, prior in self.priors:
+            if key not in RIG_PRIOR_KEYS or not isinstance(prior, Prior):
+                raise ModelError(f"rig prior {key!r}: only {', '.join(RIG_PRIOR_KEYS)} may be "
+                                 "given as a pmabayes Prior")
+            try:
+                _rig_parameter(key, prior).check_prior()
+            except ValueError as err:
+                raise ModelError(f"{key!r}: {err}") from None
 
     @classmethod
     def characterisation(cls) -> Rig:
@@ -229,18 +264,89 @@ class Rig:
         return self.moving_mass_kg * self.g_m_s2 * self.gravity_sign
 
     def to_dict(self) -> dict:
-        """JSON-serialisable form (for data sidecars and fit files)."""
-        return asdict(self)
+        """JSON-serialisable form (for data sidecars and fit files); a value given as a
+        prior is written as the prior's text."""
+        out = asdict(self)
+        del out["priors"]
+        out.update({key: str(prior) for key, prior in self.priors})
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping) -> Rig:
-        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        """Inverse of :meth:`to_dict`; unknown keys are an error.
+
+        A value of :data:`RIG_PRIOR_KEYS` may be a prior's text
+        (:func:`~pmabayes.model.parameters.parse_prior`), e.g. ``"LogNormal(1e-5, 1.5)"``.
+        """
         known = {"moving_mass_kg", "gravity_sign", "area_m2", "input_kind", "g_m_s2", "name"}
         unknown = set(d) - known
         if unknown:
             raise ModelError(f"unknown rig keys {sorted(unknown)}; expected {sorted(known)}: "
                              "rename or remove them")
-        return cls(**d)
+        values, priors = dict(d), []
+        for key, value in d.items():
+            if not isinstance(value, str) or key in ("input_kind", "name"):
+                continue
+            if key not in RIG_PRIOR_KEYS:
+                raise ModelError(f"{key!r} is {value!r}; it must be a number (only "
+                                 f"{', '.join(RIG_PRIOR_KEYS)} may be given as a prior)")
+            try:
+                prior = parse_prior(value)
+            except ValueError as err:
+                raise ModelError(f"{key!r}: {err}; or give a number") from None
+            priors.append((key, prior))
+            values[key] = prior.quantile(0.5)
+        return cls(**values, priors=tuple(priors))
+
+    def prior_of(self, key: str) -> Prior | None:
+        """The prior of rig value ``key``, or None where the value is a number."""
+        return dict(self.priors).get(key)
+
+
+def _rig_parameter(key: str, prior: Prior) -> Parameter:
+    """The model parameter of a rig value given as a prior."""
+    unit, meaning = RIG_PRIOR_KEYS[key]
+    return Parameter(f"{RIG_PREFIX}{key}", unit, prior.quantile(0.5), prior,
+                     bounds=(0.0, math.inf),
+                     description=f"the rig's {meaning}, identified (the data's sidecar gives "
+                                 "it as a prior)")
+
+
+def force_rig_priors(compliance_m_per_n: float, amplitude_m: float,
+                     moving_mass_kg: float) -> dict[str, Prior]:
+    """Default priors of a force-input rig, on the scale of its data.
+
+    A force-driven oscillator can be anything from a 2 kg benchmark to a concrete
+    wall, so its priors follow the data: stiffnesses from the static compliance
+    ``c`` (a linear fit of position on force), each of ``alpha`` and ``K_e`` around
+    half of ``1 / c``; ``beta`` and ``gamma`` (1/m) from the motion's amplitude, so
+    that the hysteretic force saturates within the motion; the damping around
+    ``sqrt(m / c)`` (a damping ratio of 1/2). The same data with the force in other
+    units then give the same fit.
+
+    Parameters
+    ----------
+    compliance_m_per_n : float
+        Static compliance, > 0.
+    amplitude_m : float
+        Half the position's range, > 0.
+    moving_mass_kg : float
+        The rig's moving mass.
+
+    Returns
+    -------
+    dict
+        Priors of ``alpha``, ``beta``, ``gamma``, ``d`` and ``K_e``.
+    """
+    stiffness = 1.0 / compliance_m_per_n
+    per_m = 1.0 / amplitude_m
+    return {
+        "alpha": LogNormal(0.5 * stiffness, 2.0),
+        "beta": HalfNormal(5.0 * per_m),
+        "gamma": Normal(0.0, 5.0 * per_m),
+        "d": LogNormal(math.sqrt(moving_mass_kg * stiffness), 2.5),
+        "K_e": LogNormal(0.5 * stiffness, 2.0),
+    }
 
 
 class Model:
@@ -305,6 +411,9 @@ class Model:
                 owner[p.name] = f"effect {eff.name!r}"
                 params.append(p)
         self._base_count = len(base)
+        self._effect_end = len(params)
+        for key, prior in self.rig.priors:  # rig values identified with the physics
+            params.append(_rig_parameter(key, prior))
         self.parameters: tuple[Parameter, ...] = tuple(params)
         self.parameter_names: tuple[str, ...] = tuple(p.name for p in params)
         self._index = {n: i for i, n in enumerate(self.parameter_names)}
@@ -324,6 +433,11 @@ class Model:
         self.free_names: tuple[str, ...] = tuple(
             n for n in self.parameter_names if n not in self.fixed
         )
+        for name in self.free_names:  # the prior owns the support: it must be physical
+            try:
+                self.parameter(name).check_prior(self.priors[name])
+            except ValueError as err:
+                raise ModelError(str(err)) from None
 
     # -- naming -----------------------------------------------------------------
     def _check_name(self, name: str, what: str) -> None:
@@ -351,19 +465,45 @@ class Model:
         return out
 
     @property
+    def rig_columns(self) -> dict[str, int]:
+        """Column of each rig value identified as a parameter (``rig_KEY``), by key."""
+        return {key: self._effect_end + j for j, (key, _) in enumerate(self.rig.priors)}
+
+    def is_rig_parameter(self, name: str) -> bool:
+        """Whether ``name`` is the parameter of a rig value given as a prior."""
+        return self._index.get(name, -1) >= self._effect_end
+
+    @property
     def effect_names(self) -> tuple[str, ...]:
         """Names of the composed effects."""
         return tuple(e.name for e in self.effects)
 
     def with_effects(self, *effects: str | type[Effect] | Effect) -> Model:
         """A new model with ``effects`` appended (priors and fixings kept)."""
-        kept_priors = {n: p for n, p in self.priors.items() if p is not self.parameter(n).prior}
         return Model(
             self.effects + resolve_effects(effects),
             rig=self.rig,
-            priors=kept_priors,
+            priors=self.chosen_priors(),
             fixed={n: v for n, v in self.fixed.items() if self.parameter(n).vary},
         )
+
+    def chosen_priors(self, rig: Rig | None = None) -> dict[str, Prior]:
+        """The priors that replace the parameters' own, for a model on ``rig``.
+
+        Parameters
+        ----------
+        rig : Rig, optional
+            Where the priors go; this model's rig by default. A rig value's prior
+            (``rig_KEY``) is kept only where ``rig`` identifies that value too.
+
+        Returns
+        -------
+        dict
+        """
+        rig = self.rig if rig is None else rig
+        keys = {f"{RIG_PREFIX}{k}" for k, _ in rig.priors}
+        return {n: p for n, p in self.priors.items() if p is not self.parameter(n).prior
+                and (not self.is_rig_parameter(n) or n in keys)}
 
     @classmethod
     def for_dataset(cls, dataset, effects: Iterable[str | type[Effect] | Effect] | str = (),
@@ -413,9 +553,31 @@ class Model:
         rig = _rig_of(dataset)
         if rig is None:
             return self
-        kept_priors = {n: p for n, p in self.priors.items() if p is not self.parameter(n).prior}
-        return Model(self.effects, rig=rig, priors=kept_priors, fixed=dict(self.fixed),
-                     free=self.free_names)
+        return Model(self.effects, rig=rig, priors=self.chosen_priors(rig),
+                     fixed=dict(self.fixed),
+                     free=[n for n in self.free_names if not self.is_rig_parameter(n)])
+
+    def with_default_priors(self, priors: Mapping[str, Prior]) -> Model:
+        """This model with other default priors where its priors are still the defaults.
+
+        A prior the user chose (one that replaced the parameter's own) wins.
+
+        Parameters
+        ----------
+        priors : mapping of str to Prior
+            New defaults, by parameter name (names the model lacks are skipped).
+
+        Returns
+        -------
+        Model
+        """
+        chosen = self.chosen_priors()
+        new = {n: p for n, p in priors.items() if n in self._index and n not in chosen}
+        if not new:
+            return self
+        return Model(self.effects, rig=self.rig, priors={**new, **chosen},
+                     fixed=dict(self.fixed),
+                     free=[n for n in self.free_names if not self.is_rig_parameter(n)])
 
     # -- parameter arrays -------------------------------------------------------
     @property
@@ -492,7 +654,7 @@ class Model:
         rows = []
         owners = ["base"] * self._base_count + [
             e.name for e in self.effects for _ in e.parameters
-        ]
+        ] + ["rig"] * len(self.rig.priors)
         for p, owner in zip(self.parameters, owners, strict=True):
             rows.append(
                 {

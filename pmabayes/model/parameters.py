@@ -1,9 +1,10 @@
 """Model parameters and their priors.
 
 A :class:`Parameter` keeps together everything pmabayes knows about one physical
-quantity: its name, SI unit, a default value, a weakly informative prior, hard
-bounds that exclude nonsense, the value at which an optional effect vanishes, and a
-one-line physical meaning.
+quantity: its name, SI unit, a default value, a weakly informative prior, its
+physical domain (a sign, a correlation's range; the prior must lie within it and
+owns the support), the value at which an optional effect vanishes, and a one-line
+physical meaning.
 """
 
 from __future__ import annotations
@@ -12,10 +13,15 @@ import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import numpy as np
 
-__all__ = ["Prior", "Uniform", "Normal", "LogNormal", "HalfNormal", "Parameter", "parse_prior"]
+__all__ = ["Prior", "Uniform", "Normal", "LogNormal", "HalfNormal", "Parameter", "parse_prior",
+           "OUTSIDE_DOMAIN_MAX"]
+
+
+_STD = NormalDist()
 
 
 class Prior:
@@ -36,6 +42,14 @@ class Prior:
     def support(self) -> tuple[float, float]:
         """The interval outside which the density is zero."""
         return (-math.inf, math.inf)
+
+    def cdf(self, value: float) -> float:
+        """The probability below ``value``."""
+        raise NotImplementedError
+
+    def quantile(self, q: float) -> float:
+        """The value below which the prior puts probability ``q`` (``0 < q < 1``)."""
+        raise NotImplementedError
 
 
 @dataclass(frozen=True)
@@ -66,6 +80,12 @@ class Uniform(Prior):
     def support(self):
         return (self.low, self.high)
 
+    def cdf(self, value):
+        return min(max((value - self.low) / (self.high - self.low), 0.0), 1.0)
+
+    def quantile(self, q):
+        return self.low + q * (self.high - self.low)
+
     def __str__(self) -> str:
         return f"Uniform({self.low:.12g}, {self.high:.12g})"
 
@@ -95,6 +115,12 @@ class Normal(Prior):
 
     def sample(self, rng, size=None):
         return rng.normal(self.mu, self.sigma, size)
+
+    def cdf(self, value):
+        return _STD.cdf((value - self.mu) / self.sigma)
+
+    def quantile(self, q):
+        return self.mu + self.sigma * _STD.inv_cdf(q)
 
     def __str__(self) -> str:
         return f"Normal({self.mu:.12g}, {self.sigma:.12g})"
@@ -134,6 +160,14 @@ class LogNormal(Prior):
     def support(self):
         return (0.0, math.inf)
 
+    def cdf(self, value):
+        if value <= 0:
+            return 0.0
+        return _STD.cdf((math.log(value) - math.log(self.median)) / self.sigma)
+
+    def quantile(self, q):
+        return self.median * math.exp(self.sigma * _STD.inv_cdf(q))
+
     def __str__(self) -> str:
         return f"LogNormal(median={self.median:.12g}, sigma={self.sigma:.12g})"
 
@@ -166,8 +200,19 @@ class HalfNormal(Prior):
     def support(self):
         return (0.0, math.inf)
 
+    def cdf(self, value):
+        return 0.0 if value <= 0 else 2.0 * _STD.cdf(value / self.sigma) - 1.0
+
+    def quantile(self, q):
+        return self.sigma * _STD.inv_cdf(0.5 + 0.5 * q)
+
     def __str__(self) -> str:
         return f"HalfNormal({self.sigma:.12g})"
+
+
+#: The most prior probability that may lie outside a parameter's physical domain: a
+#: prior that puts more there is refused (:meth:`Parameter.check_prior`), never cut.
+OUTSIDE_DOMAIN_MAX = 1e-9
 
 
 @dataclass(frozen=True)
@@ -184,10 +229,13 @@ class Parameter:
         Nominal value: the paper's estimate for the base model, a typical
         laboratory size for an effect.
     prior : Prior
-        Default prior; users override it per model.
+        Default prior; users override it per model. The prior owns the support:
+        no bound of the parameter narrows it.
     bounds : tuple of float
-        Hard bounds ``(lower, upper)`` that exclude unphysical values; the prior
-        is truncated to them.
+        The physical domain ``(lower, upper)``, e.g. ``(0, inf)`` for a stiffness or
+        ``(-1, 1)`` for a correlation; unbounded by default. A prior that puts
+        more than :data:`OUTSIDE_DOMAIN_MAX` of its probability outside it is
+        refused (:meth:`check_prior`), never silently cut.
     description : str
         One-line physical meaning.
     null : float or None
@@ -198,6 +246,10 @@ class Parameter:
         (for example the smoothing velocity of the Coulomb friction).
     latex : str
         Symbol for reports and the paper, e.g. ``r"\alpha"``.
+    per_experiment : bool
+        True for a property of one recording rather than of the physics (a sensor's
+        zero): in a fit of several experiments each has its own value, identified
+        as ``NAME__EXPERIMENT``.
     """
 
     name: str
@@ -209,6 +261,7 @@ class Parameter:
     null: float | None = None
     vary: bool = True
     latex: str = field(default="", compare=False)
+    per_experiment: bool = False
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
@@ -219,16 +272,45 @@ class Parameter:
         if not lo <= self.default <= hi:
             raise ValueError(
                 f"parameter {self.name!r}: default {self.default} lies outside its bounds "
-                f"{self.bounds}"
+                f"(physical domain) {self.bounds}"
             )
 
     def in_bounds(self, value: np.ndarray | float) -> np.ndarray:
-        """Whether ``value`` lies within the hard bounds (elementwise)."""
+        """Whether ``value`` lies within the physical domain (elementwise)."""
         value = np.asarray(value, dtype=float)
         return (value >= self.bounds[0]) & (value <= self.bounds[1])
 
+    def check_prior(self, prior: Prior | None = None) -> None:
+        """Refuse a prior that leaves the parameter's physical domain.
+
+        Parameters
+        ----------
+        prior : Prior, optional
+            The prior to check; the parameter's own by default.
+
+        Raises
+        ------
+        ValueError
+            If more than :data:`OUTSIDE_DOMAIN_MAX` of the prior's probability lies
+            outside :attr:`bounds`; the message names the parameter and the fix.
+        """
+        prior = self.prior if prior is None else prior
+        lo, hi = self.bounds
+        try:
+            outside = prior.cdf(lo) + (1.0 - prior.cdf(hi))
+        except NotImplementedError:  # a user's Prior without a cdf: judged by its support
+            s_lo, s_hi = prior.support()
+            outside = 0.0 if lo <= s_lo and s_hi <= hi else 1.0
+        if outside > OUTSIDE_DOMAIN_MAX:
+            hint = (" (a positive quantity takes LogNormal(median, sigma) or HalfNormal(sigma))"
+                    if lo == 0.0 and hi == math.inf else "")
+            raise ValueError(
+                f"prior {prior} of parameter {self.name!r} puts {outside:.3g} of its "
+                f"probability outside the parameter's physical domain [{lo:g}, {hi:g}] "
+                f"{self.unit}; choose a prior within it{hint}")
+
     def log_prior(self, value: np.ndarray | float, prior: Prior | None = None) -> np.ndarray:
-        """Prior log density truncated to the bounds (unnormalised truncation).
+        """Prior log density, ``-inf`` outside the physical domain.
 
         Parameters
         ----------
@@ -240,7 +322,8 @@ class Parameter:
         Returns
         -------
         numpy.ndarray
-            The log density, ``-inf`` outside the bounds.
+            The log density, ``-inf`` outside the domain (where an accepted prior
+            has no mass).
         """
         prior = self.prior if prior is None else prior
         return np.where(self.in_bounds(value), prior.logpdf(value), -np.inf)

@@ -5,13 +5,14 @@ step: the linear mass-spring-damper discretised exactly for a force linear over 
 interval, the remaining force found by one linearly implicit step, and the Bouc-Wen
 force ``z`` advanced by the exact solution of its law over the step's displacement.
 Kernels are generated per composition of effects, compiled with numba and cached on
-disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``). The documentation's
-page "The simulator" (``docs/theory/simulator.rst``) gives the scheme and the input
-conventions.
+disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``). A periodic steady
+state is found by Newton's method on the period map. The documentation's page "The
+simulator" (``docs/theory/simulator.rst``) gives the scheme and the input conventions.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import sys
@@ -30,7 +31,8 @@ from pmabayes.util import Progress, fingerprint, source_text
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
            "SimulationError", "SteadyStateWarning", "BETWEEN_SAMPLES", "INITIAL_STATES",
-           "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS"]
+           "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS", "POSITION_REFERENCES",
+           "warmup_settings", "position_reference"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
@@ -178,6 +180,13 @@ def _inlined(dispatcher):
     return numba.njit(inline="always", error_model="numpy")(fn)
 
 
+def state_rows(model: Model) -> int:
+    """Rows of a kernel's state: ``x``, ``v``, ``z``, one per force effect with a state,
+    and the hysteresis effect's last factor ``g`` (:class:`PlantCode`)."""
+    return (3 + sum(1 for e in model.effects if e.stage == "force" and e.state is not None)
+            + (1 if any(e.stage == "hysteresis" for e in model.effects) else 0))
+
+
 class PlantCode:
     """Generated source lines of one model's physics, for kernels built from them (internal).
 
@@ -219,11 +228,14 @@ class PlantCode:
         self.reads_z = any(e.reads_z for e, _ in self.force)
         #: row of ``st`` holding the hysteresis effect's last factor ``g``
         self.law_row = 3 + len(self.state_row) if self.law else None
+        #: columns of the rig values identified as parameters: they enter per member,
+        #: through rows 12 (area) and 13 (gravity force) of ``cst``
+        self.rig_cols = model.rig_columns
 
     @property
     def n_rows(self) -> int:
         """Rows of the state array ``st``: ``x``, ``v``, ``z``, the effects' states, ``g``."""
-        return 3 + len(self.state_row) + (1 if self.law else 0)
+        return state_rows(self.model)
 
     def q(self, e) -> str:
         """Name of the contiguous parameter rows of force effect ``e``."""
@@ -232,19 +244,24 @@ class PlantCode:
     def setup(self) -> list[str]:
         """Lines filling ``cst`` and the force effects' parameter rows."""
         t, c = self.theta, self.cst
+        rig = self.rig_cols
+        mass = f"{t}[i, {rig['moving_mass_kg']}]" if "moving_mass_kg" in rig else "mass"
         lines = [
-            f"{c} = np.empty((12, {t}.shape[0]))",
+            f"{c} = np.empty(({14 if rig else 12}, {t}.shape[0]))",
             "col = np.empty(8)",
             f"for i in range({t}.shape[0]):",
             # alpha (the hysteresis' initial stiffness) joins the exact linear part; only
             # the remainder r = z - alpha x is taken as linear in time over a step
-            f"    _discretise(mass, {t}[i, 3], {t}[i, 4] + {t}[i, 0], dt / substeps, col)",
+            f"    _discretise({mass}, {t}[i, 3], {t}[i, 4] + {t}[i, 0], dt / substeps, col)",
             f"    {c}[:8, i] = col",
             f"    {c}[8, i] = {t}[i, 0]",
             f"    {c}[9, i] = {t}[i, 1]",
             f"    {c}[10, i] = {t}[i, 2]",
             f"    {c}[11, i] = {t + '[i, 5]' if self.dead_zone else '0.0'}",
         ]
+        if rig:  # the kernel's mass, f_grav and area are the rig's nominal values
+            area = f"{t}[i, {rig['area_m2']}]" if "area_m2" in rig else "area"
+            lines += [f"    {c}[12, i] = {area}", f"    {c}[13, i] = f_grav * ({mass} / mass)"]
         # contiguous per-effect parameter rows: a strided slice defeats vectorisation
         lines += [f"{self.q(e)} = {t}[:, {s.start}:{s.stop}].copy()"
                   for e, s in self.force + self.law]
@@ -252,9 +269,11 @@ class PlantCode:
 
     def actuator(self, p: str) -> str:
         """Expression of the actuator force minus gravity at pressure ``p``."""
+        area, f_grav = ((f"{self.cst}[12, i]", f"{self.cst}[13, i]") if self.rig_cols
+                        else ("area", "f_grav"))
         if self.dead_zone:
-            return f"area * max({p} - {self.cst}[11, i], 0.0) - f_grav"
-        return f"area * {p} - f_grav"
+            return f"{area} * max({p} - {self.cst}[11, i], 0.0) - {f_grav}"
+        return f"{area} * {p} - {f_grav}"
 
     def forces(self, x: str, v: str, p: str, out: str, derivs: bool, z: str = "0.0",
                states: dict | None = None, slopes: dict | None = None) -> list[str]:
@@ -393,7 +412,8 @@ class PlantCode:
 
 
 def _generate(model: Model, record: bool, shared_input: bool,
-              between_samples: str = "hold", initial_state: str = "rest") -> tuple[str, dict]:
+              between_samples: str = "hold", initial_state: str = "rest",
+              resume: bool = False) -> tuple[str, dict]:
     """Source of the kernel for ``model`` and the globals it needs injected."""
     plant = PlantCode(model)
     zero = initial_state == "zero"
@@ -403,9 +423,15 @@ def _generate(model: Model, record: bool, shared_input: bool,
     args = "theta, p_in, time_s, dt, substeps, mass, f_grav, area, out_x"
     if record:
         args += ", out_v, out_z, out_p, out_f, out_true"
+    if resume:
+        args += ", st_io, start, from_rest"
     # Few distinct arrays keep the vectoriser's runtime alias checks cheap: all
     # per-member constants live in rows of `cst`, the state in rows of `st`.
     body = ["n = out_x.shape[0]", "batch = theta.shape[0]"] + plant.setup()
+    if resume:  # the plant starts at sample `start`, from st_io unless from_rest
+        body += ["k0 = start * substeps" if between_samples == "bandlimited" else "k0 = start"]
+    first = "k0" if resume else "0"
+    loops = dict(zero=zero, resume=resume)
     # within a sample interval the pressure is linear from pp[0] to pp[1]
     linear = between_samples == "linear"
     body += [f"st = np.zeros(({plant.n_rows}, batch))"]
@@ -415,28 +441,29 @@ def _generate(model: Model, record: bool, shared_input: bool,
         fine = "k * substeps + j"
         if shared_input and not pressure:
             body += _sample_loops(plant, record, "pa", "pb", "p_in[(k + 1) * substeps, 0]",
-                                  "p_in[0, 0]",
+                                  f"p_in[{first}, 0]",
                                   substep_lines=[f"pa = p_in[{fine}, 0]",
-                                                 f"pb = p_in[{fine} + 1, 0]"], zero=zero)
+                                                 f"pb = p_in[{fine} + 1, 0]"], **loops)
         else:
             body += (_pressure_fill(plant, shared_input, True, fine=True)
                      + _sample_loops(plant, record, f"pp[0, {fine}, i]", f"pp[1, {fine}, i]",
-                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]", zero=zero))
+                                     "pp[0, (k + 1) * substeps, i]", f"pp[0, {first}, i]",
+                                     **loops))
     else:
         ramps = bool(pressure) or linear
         via_pp = (
             "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fa)" if ramps else "pp[0, k, i]",
             "(pp[0, k, i] + (pp[1, k, i] - pp[0, k, i]) * fb)" if ramps else "pp[0, k, i]",
             "pp[0, k + 1, i]",
-            "pp[0, 0, i]",
+            f"pp[0, {first}, i]",
         )
-        shared = ("pk", "pk", "p_in[k + 1, 0]", "p_in[0, 0]")
+        shared = ("pk", "pk", "p_in[k + 1, 0]", f"p_in[{first}, 0]")
         # one loop per kernel: a second copy in the same function does not vectorise
         if ramps or not shared_input:
             body += (_pressure_fill(plant, shared_input, linear)
-                     + _sample_loops(plant, record, *via_pp, zero=zero))
+                     + _sample_loops(plant, record, *via_pp, **loops))
         else:
-            body += _sample_loops(plant, record, *shared, zero=zero)
+            body += _sample_loops(plant, record, *shared, **loops)
     if record:
         body += ["out_true[:, :] = out_x"]
     body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
@@ -446,6 +473,8 @@ def _generate(model: Model, record: bool, shared_input: bool,
     text += f"# input between samples: {between_samples}\n"
     if zero:  # only then, so that the rest kernels' text (and disk cache) is unchanged
         text += "# initial state: zero\n"
+    if resume:
+        text += "# resumes from a given state\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in plant.inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -493,18 +522,33 @@ def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False,
 
 def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
                   p_first: str, substep_lines: tuple[str, ...] | list[str] = (),
-                  zero: bool = False) -> list[str]:
+                  zero: bool = False, resume: bool = False) -> list[str]:
     """Lines of the initial state and the time loop, given how the pressure at the
     start and end of a substep, at the next sample and at the first is read
     (``substep_lines`` run once per substep, before the batch loop). The state starts
-    at rest under the first input, or with ``zero`` at ``x = x' = z = 0``."""
+    at rest under the first input, or with ``zero`` at ``x = x' = z = 0``. With
+    ``resume`` the plant starts at sample ``start`` from the state rows ``st_io`` (or as
+    above where ``from_rest``), and leaves its final state there."""
+    rest = ["xi = 0.0"] if zero else plant.rest("p0", "xi")
     out = ["for i in range(batch):", f"    p0 = {p_first}"]
-    out += ["    xi = 0.0"] if zero else ["    " + ln for ln in plant.rest("p0", "xi")]
-    out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
+    if resume:
+        out += ["    if from_rest:"] + ["        " + ln for ln in rest]
+        out += ["        st[0, i] = xi", "    else:",
+                f"        for r in range({plant.n_rows}):", "            st[r, i] = st_io[r, i]",
+                "    xi = st[0, i]", "    out_x[start, i] = xi"]
+    else:
+        out += ["    " + ln for ln in rest]
+        out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
+    k0 = "start" if resume else "0"
     if record:
-        out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
-        out += ["    " + ln for ln in plant.forces("xi", "0.0", "p0", "f0", False)]
-        out += ["    out_f[0, i] = f0"]
+        states = {e: f"st[{row}, i]" for e, row in plant.state_row.items()}
+        out += [f"    out_v[{k0}, i] = st[1, i]", f"    out_z[{k0}, i] = st[2, i]",
+                f"    out_p[{k0}, i] = p0"] if resume else [
+            "    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
+        out += ["    " + ln for ln in (plant.forces("xi", "st[1, i]", "p0", "f0", False,
+                                                    "st[2, i]", states) if resume
+                                       else plant.forces("xi", "0.0", "p0", "f0", False))]
+        out += [f"    out_f[{k0}, i] = f0"]
     step = ["x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]"]
     step += plant.step(p_start, p_end, "x0", "v0", "z0", "x1", "v1", "z1")
     step += ["st[0, i] = x1; st[1, i] = v1; st[2, i] = z1"]
@@ -518,7 +562,7 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
         sample += plant.forces("st[0, i]", "st[1, i]", p_next, "fn", False, "st[2, i]",
                                {e: f"st[{row}, i]" for e, row in plant.state_row.items()})
         sample += ["out_f[k + 1, i] = fn"]
-    out += ["for k in range(n - 1):"]
+    out += ["for k in range(start, n - 1):" if resume else "for k in range(n - 1):"]
     if p_start == "pk":
         out += ["    pk = p_in[k, 0]"]
     out += [
@@ -533,6 +577,9 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
     out += ["            " + ln for ln in step]
     out += ["    for i in range(batch):"]
     out += ["        " + ln for ln in sample]
+    if resume:
+        out += [f"for r in range({plant.n_rows}):", "    for i in range(batch):",
+                "        st_io[r, i] = st[r, i]"]
     return out
 
 
@@ -557,9 +604,11 @@ _LOCK = threading.Lock()
 
 
 def structure_key(model: Model, record: bool, shared_input: bool,
-                  between_samples: str = "hold", initial_state: str = "rest") -> tuple:
-    """Key of a kernel's composition: the effects (by identity), the input kind and
-    the conventions of the input between samples and of the initial state."""
+                  between_samples: str = "hold", initial_state: str = "rest",
+                  resume: bool = False) -> tuple:
+    """Key of a kernel's composition: the effects (by identity), the input kind, the
+    rig values identified as parameters, and the conventions of the input between
+    samples and of the initial state."""
     key = (
         tuple((e.__module__, e.__qualname__, id(e)) for e in model.effects),
         model.rig.input_kind,
@@ -567,11 +616,16 @@ def structure_key(model: Model, record: bool, shared_input: bool,
         shared_input,
     )
     key = key if between_samples == "hold" else (*key, between_samples)
+    if model.rig_columns:
+        key = (*key, "rig", tuple(sorted(model.rig_columns.items())))
+    if resume:
+        key = (*key, "resume")
     return key if initial_state == "rest" else (*key, "initial_state", initial_state)
 
 
 def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
-               between_samples: str = "hold", initial_state: str = "rest"):
+               between_samples: str = "hold", initial_state: str = "rest",
+               resume: bool = False):
     """The compiled kernel for ``model``'s composition (generated and cached once).
 
     Parameters
@@ -591,6 +645,11 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
     initial_state : str
         ``"rest"`` (static equilibrium under the first input, ``x' = z = 0``) or
         ``"zero"`` (``x = x' = z = 0``); see :data:`INITIAL_STATES`.
+    resume : bool
+        The kernel takes three more arguments, ``st_io, start, from_rest``: the plant
+        starts at sample ``start`` from the state rows ``st_io`` (``(rows, batch)``;
+        or from ``initial_state`` where ``from_rest``) and writes its final state
+        back there. The input before ``start`` only drives the pressure effects.
 
     Returns
     -------
@@ -601,11 +660,12 @@ def kernel_for(model: Model, *, record: bool = False, shared_input: bool = True,
         raise SimulationError(
             f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
             f"{initial_state!r}")
-    key = structure_key(model, record, shared_input, between_samples, initial_state)
+    key = structure_key(model, record, shared_input, between_samples, initial_state, resume)
     kernel = cached_kernel(key)
     if kernel is not None:
         return kernel
-    text, inject = _generate(model, record, shared_input, between_samples, initial_state)
+    text, inject = _generate(model, record, shared_input, between_samples, initial_state,
+                             resume)
     return compile_kernel(key, text, inject)
 
 
@@ -718,11 +778,11 @@ def _time_axis(n: int, dt_s: float | None, time_s: np.ndarray | None) -> tuple[n
     return np.arange(n) * float(dt_s), float(dt_s)
 
 
-#: Default tolerance of the periodic steady state in m: the warm-up stops when the
-#: record's estimated offset from the steady state (from the last two warm-up periods'
-#: changes of position, extrapolated geometrically) is at most this.
+#: Default tolerance of the periodic steady state in m: the position over a period
+#: from the state found differs from that over the next period by at most this.
 STEADY_STATE_TOL_M = 1e-9
-#: Default most periods simulated from rest before a record that starts in steady state.
+#: Default most periods simulated to find the state of a record that starts in
+#: periodic steady state.
 MAX_WARMUP_PERIODS = 256
 #: Degree of the interpolating spline that reconstructs a band-limited input that is
 #: not declared periodic (odd, so its knots sit on the samples).
@@ -789,12 +849,15 @@ def _kernel_input(u: np.ndarray, substeps: int, between_samples: str, period: in
         if warmup:
             u = np.concatenate([np.tile(u[..., :period], warmup), u], axis=-1)
         return u
-    fine = _fine_input(u, substeps, period is not None)
-    if warmup:
-        one = (_fine_periodic(u[..., :period], substeps) if substeps > 1
-               else u[..., :period])
-        fine = np.concatenate([np.tile(one, warmup), fine], axis=-1)
-    return fine
+    if not warmup:
+        return _fine_input(u, substeps, period is not None)
+    one = _fine_periodic(u[..., :period], substeps) if substeps > 1 else u[..., :period]
+    # the record is the same periodic signal (whole periods, or one period and its next
+    # sample): the period's reconstruction, repeated
+    m = (u.shape[-1] - 1) * substeps + 1
+    fine = np.tile(one, (1,) * (u.ndim - 1) + (-(-m // one.shape[-1]),))[..., :m]
+    fine[..., ::substeps] = u
+    return np.concatenate([np.tile(one, warmup), fine], axis=-1)
 
 
 def _check_period(period_samples, steady_state, n: int) -> int | None:
@@ -878,22 +941,23 @@ def simulate(
         (it must divide ``n_samples``). Used by ``"bandlimited"`` and
         ``steady_state``.
     steady_state : bool
-        The record starts in periodic steady state: the model is first driven from
-        rest by the record's first period, repeated, and the record continues from
-        the state so reached. False (default): the record starts from rest.
+        The record starts in periodic steady state of its first period, repeated
+        (reached from ``initial_state``): the record starts from that state, after
+        one period that settles the pressure effects. False (default): the record
+        starts from ``initial_state``.
     steady_state_tol_m : float
-        Tolerance of the steady state in m (default :data:`STEADY_STATE_TOL_M`):
-        enough warm-up periods that the position's change over the last one, ``d``,
-        and the record's estimated remaining offset ``d r / (1 - r)`` (``r`` the
-        ratio of the last two changes: the transient's decay per period) are both
-        at most this.
+        Tolerance of the steady state in m (default :data:`STEADY_STATE_TOL_M`): the
+        position over a period from the state found differs from that over the next
+        period by at most this.
     max_warmup_periods : int
-        Most warm-up periods (default :data:`MAX_WARMUP_PERIODS`). The first try
-        has 3; the next as many as the decay ``r`` says are needed (or twice as
-        many). If the tolerance is not reached, a :class:`SteadyStateWarning` says
-        by how much, and the record follows the last warm-up. The muscle at the
-        paper's values creeps towards its steady state by about ``r = 0.84`` a
-        period (the hysteresis' slow shakedown), so it can take a hundred.
+        Most periods simulated to find the steady state (default
+        :data:`MAX_WARMUP_PERIODS`). It is found by Newton's method on the period map
+        (the state after one period from a state at the period's start), a few
+        steps of ``rows + 2`` periods each, where simulating period after period
+        from rest needs as many periods as the transient is slow (the muscle's
+        hysteresis shakes down by about 0.84 a period, slower on short periods). If
+        the tolerance is not reached, a :class:`SteadyStateWarning` says by how much,
+        and the record starts from the last state.
     initial_state : str
         The state each trial (or its warm-up, with ``steady_state``) starts from (see
         :data:`INITIAL_STATES`): ``"rest"`` (the default: ``x' = 0``, ``z = 0`` and
@@ -961,106 +1025,229 @@ def _simulate_on_grid(model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndar
     """:func:`simulate` on a checked input and time grid (the data set's own, checked
     when it was made: the sampler calls this thousands of times)."""
     run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=substeps,
-               states=states, between_samples=between_samples, period=period,
-               initial_state=initial_state)
+               between_samples=between_samples, period=period, initial_state=initial_state)
     if not steady_state:
-        return _run(**run, warmup=0)
-    tol = float(steady_state_tol_m)
-    warmup = min(3, int(max_warmup_periods))
-    while True:
-        record, warm = _run(**run, warmup=warmup)
-        x = warm.true_position_m if states else warm
-        change, offset, ratio = _transient(x, period)
-        if offset <= tol:
-            return record
-        if warmup >= max_warmup_periods or not np.isfinite(change):
-            warnings.warn(
-                f"simulate: no periodic steady state within {tol:g} m after {warmup} "
-                f"warm-up periods of {period} samples: the last period still changed by "
-                f"{change:.3g} m (by {ratio:.3g} times the change before). The record starts "
-                "from that state; pass a larger max_warmup_periods or steady_state_tol_m.",
-                SteadyStateWarning, stacklevel=2)
-            return record
-        if 0.0 < ratio < 1.0:  # geometric decay: periods until the offset is below tol
-            target = tol * min(1.0, (1.0 - ratio) / ratio)
-            more = int(np.ceil(np.log(target / change) / np.log(ratio))) + 1
-            warmup = min(max(warmup + more, warmup + 1), 4 * warmup)
-        else:
-            warmup *= 2
-        warmup = min(warmup, int(max_warmup_periods))
+        return _run(**run, states=states)
+    start = _steady_state(run, float(steady_state_tol_m), int(max_warmup_periods))
+    # the record from the periodic state, after one period that settles the pressure path
+    return _run(**run, states=states, lead=1, state=start)
 
 
-def _transient(x: np.ndarray, period: int) -> tuple[float, float, float]:
-    """How far warm-up positions ``x`` (``(B, k * period)``, ``k >= 3``) are from
-    periodic: the largest change over the last period, the record's estimated
-    remaining offset (``change r / (1 - r)``, ``r`` the ratio of the last two changes;
-    infinite if they do not shrink) and ``r``."""
-    last = x[:, -period:] - x[:, -2 * period:-period]
-    before = x[:, -2 * period:-period] - x[:, -3 * period:-2 * period]
-    change = float(np.max(np.abs(last)))
-    prior = float(np.max(np.abs(before)))
-    ratio = change / prior if prior > 0.0 else 0.0
-    if not np.isfinite(change):
-        return change, np.inf, ratio
-    if change <= 1e-15 * max(float(np.max(np.abs(x[:, -period:]))), 1e-300):
-        return change, change, ratio  # changes at rounding level: periodic
-    offset = change * ratio / (1.0 - ratio) if ratio < 1.0 else np.inf
-    return change, max(change, offset), ratio
+def _steady_state(run: dict, tol: float, budget: int) -> np.ndarray:
+    """The state at the start of a period in periodic steady state, ``(rows, B)``.
+
+    Newton's method on the period map ``P`` (the state after one period from a state
+    at the period's start): from the state after one period from rest, each step
+    solves ``(I - J) ds = P(s) - s`` with ``J`` the map's Jacobian by finite
+    differences (one period per state row, the batch side by side). A member is
+    done when its position over a period differs from that over the period before
+    by at most ``tol``. This finds the state in a few steps where simulating period
+    after period needs as many as the transient is slow (the muscle's hysteresis
+    shakes down by a factor of about 0.84 a period, slower on short periods). A
+    member whose step does not shrink its change is advanced period by period
+    instead. ``budget`` bounds the periods simulated per member (Newton's steps
+    count ``rows + 2`` each); where it runs out, a :class:`SteadyStateWarning` says
+    by how much, and the record starts from the last state.
+    """
+    period = run["period"]
+    batch = run["theta"].shape[0]
+    state = _periods(run, None, np.arange(batch))[1]
+    rows = state.shape[0]
+    change = np.full(batch, np.inf)
+    previous = np.full(batch, np.inf)
+    left = np.arange(batch)
+    used = 1
+    while left.size and used + 2 <= budget:
+        s0 = state[:, left]
+        x1, s1 = _periods(run, s0, left)
+        x2, s2 = _periods(run, s1, left)
+        used += 2
+        delta = np.max(np.abs(x2 - x1), axis=1)
+        change[left] = delta
+        going = (delta > tol) & np.isfinite(delta)  # a failed simulation stops too
+        state[:, left] = np.where(going, s0, s2)  # a settled member starts at P(P(s))
+        left, s0, s1, s2, delta = (left[going], s0[:, going], s1[:, going], s2[:, going],
+                                   delta[going])
+        if used + rows + 2 > budget:  # no budget for a Newton step: one plain one
+            state[:, left] = s2
+            continue
+        residual = s1 - s0  # P(s) - s
+        h = 1e-7 * (np.abs(s0) + np.abs(residual)) + 1e-15
+        perturbed = np.repeat(s0[:, None, :], rows, axis=1)  # (rows, rows, members)
+        for j in range(rows):
+            perturbed[j, j] += h[j]
+        pj = _periods(run, perturbed.reshape(rows, -1), np.tile(left, rows))[1]
+        used += rows
+        jac = (pj.reshape(rows, rows, -1) - s1[:, None, :]) / h[None, :, :]
+        step = residual.copy()
+        for m in range(left.size):  # Newton: (I - J) ds = P(s) - s
+            try:
+                step[:, m] = np.linalg.solve(np.eye(rows) - jac[:, :, m], residual[:, m])
+            except np.linalg.LinAlgError:
+                pass
+        step[:, ~np.all(np.isfinite(step), axis=0)] = 0.0
+        # a member whose last Newton step did not halve its change goes on from
+        # P(P(s)) instead (plain iteration), then tries Newton again
+        stalled = delta > 0.5 * previous[left]
+        previous[left] = delta
+        state[:, left] = np.where(stalled, s2, s0 + step)
+    if np.any(change > tol):
+        worst = int(np.argmax(np.where(np.isnan(change), np.inf, change)))
+        warnings.warn(
+            f"simulate: no periodic steady state within {tol:g} m after {used} warm-up "
+            f"periods of "
+            f"{period} samples: the position over the last period still changed by "
+            f"{change[worst]:.3g} m (member {worst}). The record starts from that state; "
+            "raise max_warmup_periods or steady_state_tol_m (the data's sidecar, or "
+            "pmabayes fit --max-warmup-periods / --steady-state-tol).",
+            SteadyStateWarning, stacklevel=4)
+    return state
+
+
+def _periods(run: dict, state: np.ndarray | None, members: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Positions over the first period of the input from ``state`` (rest where None),
+    after a lead period for the pressure path, and the state after it, for the batch
+    members ``members``."""
+    period = run["period"]
+    u = run["u"]
+    u = u[:period] if u.ndim == 1 else u[members, :period]
+    # the period and the next one's first sample: the state at the next period's start
+    u = np.ascontiguousarray(np.concatenate([u, u[..., :1]], axis=-1))
+    sub = dict(run, theta=np.ascontiguousarray(run["theta"][members]), u=u,
+               t=run["t"][0] + run["dt"] * np.arange(period + 1))
+    x, final = _run(**sub, states=False, lead=1, state=state, periodic_input=True)
+    return x[:, :period], final
+
+
+def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
+         substeps: int, states: bool, between_samples: str, period: int | None,
+         initial_state: str = "rest", lead: int = 0, state: np.ndarray | None = None,
+         periodic_input: bool = False):
+    """One kernel call over the record, after ``lead`` periods of its first period that
+    only drive the pressure path.
+
+    Returns the positions ``(B, n)`` (or the :class:`Simulation`) of the record; with a
+    lead, the plant starts after it from ``state`` (``(rows, B)``; rest where None),
+    and for ``periodic_input`` (the input is whole periods) ``(positions, final
+    state)``.
+    """
+    n = u.shape[-1]
+    p_in = _kernel_input(u, substeps, between_samples, period, lead)
+    shared = u.ndim == 1
+    p_in = np.ascontiguousarray(p_in[:, None] if shared else p_in)
+    ahead = lead * (period or 0)
+    if ahead:
+        t = np.concatenate([t[0] + dt * np.arange(-ahead, 0), t])
+    rig = model.rig
+    batch = theta.shape[0]
+    out_x = np.zeros((n + ahead, batch)) if lead else np.empty((n + ahead, batch))
+    args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
+            rig.area_m2, out_x)
+    kernel = dict(shared_input=shared, between_samples=between_samples,
+                  initial_state=initial_state, resume=bool(lead))
+    rows = state_rows(model) if lead else 0
+    io = (np.array(state, dtype=float, order="C") if state is not None
+          else np.zeros((rows, batch)))
+    extra = (io, ahead, state is None) if lead else ()
+    if not states:
+        kernel_for(model, **kernel)(*args, *extra)
+        x = out_x.T[:, ahead:]
+        return (x, io) if periodic_input else x
+    rec = [np.zeros((n + ahead, batch)) for _ in range(5)]
+    kernel_for(model, record=True, **kernel)(*args, *rec, *extra)
+    v, z, p, f, true_x = (a.T[:, ahead:] for a in rec)
+    return Simulation(t[ahead:], out_x.T[:, ahead:], true_x, v, z, p, f)
 
 
 class SteadyStateWarning(RuntimeWarning):
     """The periodic steady state was not reached within the warm-up allowed."""
 
 
-def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
-         substeps: int, states: bool, between_samples: str, period: int | None,
-         warmup: int, initial_state: str = "rest"):
-    """One kernel call over ``warmup`` periods and the record.
+#: How a data set's positions are referred, as a sidecar's ``position_reference``
+#: declares it: ``"absolute"`` (the default: positions from the model's zero, the
+#: unloaded length, up to any ``position_offset``) or ``"start"`` (the sensor was
+#: zeroed with the actuator at rest at the record's start: the model's position at
+#: the first sample is subtracted from its trajectory).
+POSITION_REFERENCES = ("absolute", "start")
 
-    Returns the positions ``(B, n)`` (or the :class:`Simulation`) of the record; with
-    a warm-up, ``(record, warm-up positions ((B, warmup * period)))``, the latter the
-    true positions when ``states``.
+
+def warmup_settings(dataset, steady_state_tol_m: float | None = None,
+                    max_warmup_periods: int | None = None) -> tuple[float, int]:
+    """The periodic steady state's tolerance and warm-up budget for a data set.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Its sidecar may declare ``steady_state_tol_m`` and ``max_warmup_periods``.
+    steady_state_tol_m, max_warmup_periods : optional
+        Settings that win over the sidecar's (the command line's).
+
+    Returns
+    -------
+    tuple
+        ``(steady_state_tol_m, max_warmup_periods)``; :data:`STEADY_STATE_TOL_M` and
+        :data:`MAX_WARMUP_PERIODS` where neither gives one.
+
+    Raises
+    ------
+    SimulationError
+        For a value that is not a positive number (a whole number >= 3 for the
+        budget), naming the file.
     """
-    n = u.shape[-1]
-    p_in = _kernel_input(u, substeps, between_samples, period, warmup)
-    shared = u.ndim == 1
-    p_in = np.ascontiguousarray(p_in[:, None] if shared else p_in)
-    lead = warmup * (period or 0)
-    if lead:
-        t = np.concatenate([t[0] + dt * np.arange(-lead, 0), t])
-    rig = model.rig
-    batch = theta.shape[0]
-    out_x = np.empty((n + lead, batch))
-    args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
-            rig.area_m2, out_x)
-    if not states:
-        kernel_for(model, shared_input=shared, between_samples=between_samples,
-                   initial_state=initial_state)(*args)
-        x = out_x.T
-        return (x[:, lead:], x[:, :lead]) if lead else x
-    rec = [np.empty((n + lead, batch)) for _ in range(5)]
-    kernel_for(model, record=True, shared_input=shared, between_samples=between_samples,
-               initial_state=initial_state)(*args, *rec)
-    v, z, p, f, true_x = (a.T for a in rec)
-    x = out_x.T
-    sim = Simulation(t[lead:], x[:, lead:], true_x[:, lead:], v[:, lead:], z[:, lead:],
-                     p[:, lead:], f[:, lead:])
-    if not lead:
-        return sim
-    return sim, Simulation(t[:lead], x[:, :lead], true_x[:, :lead], v[:, :lead],
-                           z[:, :lead], p[:, :lead], f[:, :lead])
+    meta = dataset.metadata or {}
+    tol = meta.get("steady_state_tol_m", STEADY_STATE_TOL_M) if steady_state_tol_m is None \
+        else steady_state_tol_m
+    budget = meta.get("max_warmup_periods", MAX_WARMUP_PERIODS) if max_warmup_periods is None \
+        else max_warmup_periods
+    where = dataset.source or "the data set"
+    if isinstance(tol, bool) or not isinstance(tol, int | float) or not tol > 0:
+        raise SimulationError(f"{where}: steady_state_tol_m is {tol!r}; it must be a positive "
+                              "number of metres (e.g. 1e-9)")
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 3:
+        raise SimulationError(f"{where}: max_warmup_periods is {budget!r}; it must be a whole "
+                              "number of periods, at least 3 (e.g. 256)")
+    return float(tol), int(budget)
+
+
+def position_reference(dataset) -> str:
+    """The data set's ``position_reference`` (:data:`POSITION_REFERENCES`), checked.
+
+    Parameters
+    ----------
+    dataset : Dataset
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    SimulationError
+        For another value, naming the file and the fix.
+    """
+    ref = (dataset.metadata or {}).get("position_reference", "absolute")
+    if ref not in POSITION_REFERENCES:
+        raise SimulationError(
+            f"{dataset.source or 'the data set'}: metadata 'position_reference' is {ref!r}; it "
+            f"must be one of {', '.join(map(repr, POSITION_REFERENCES))} ('start' where the "
+            "sensor was zeroed with the actuator at rest at the record's start)")
+    return ref
 
 
 def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
-                     states: bool = False):
+                     states: bool = False, steady_state_tol_m: float | None = None,
+                     max_warmup_periods: int | None = None):
     """Simulate ``model`` on a data set's input, as the data set declares it.
 
     The one place where a data set's declarations become simulator options: what
     its input does between samples (:attr:`pmabayes.data.Dataset.input_between_samples`),
     its period (:attr:`~pmabayes.data.Dataset.period_samples`), whether each trial
     starts in periodic steady state
-    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`) and from which state
-    (:attr:`~pmabayes.data.Dataset.initial_state`). The likelihood,
+    (:attr:`~pmabayes.data.Dataset.starts_in_steady_state`, with the sidecar's
+    ``steady_state_tol_m`` and ``max_warmup_periods``), from which state
+    (:attr:`~pmabayes.data.Dataset.initial_state`) and to what its positions are
+    referred (``position_reference``, :data:`POSITION_REFERENCES`). The likelihood,
     diagnostics and validation all simulate through it.
 
     Parameters
@@ -1076,20 +1263,30 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
         Integration steps per sample interval.
     states : bool
         Return a :class:`Simulation` instead of positions.
+    steady_state_tol_m, max_warmup_periods : optional
+        The steady state's settings, over the sidecar's (:func:`warmup_settings`).
 
     Returns
     -------
     numpy.ndarray or Simulation
-        As :func:`simulate`.
+        As :func:`simulate`; with ``position_reference`` ``"start"`` the measured
+        positions are relative to the model's at the first sample.
     """
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
-    return _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
-                             dataset.grid_dt_s, substeps=int(substeps), states=states,
-                             between_samples=dataset.input_between_samples,
-                             period=(None if dataset.period_samples is None
-                                     else int(dataset.period_samples)),
-                             steady_state=dataset.starts_in_steady_state,
-                             steady_state_tol_m=STEADY_STATE_TOL_M,
-                             max_warmup_periods=MAX_WARMUP_PERIODS,
-                             initial_state=dataset.initial_state)
+    steady = dataset.starts_in_steady_state
+    tol, budget = (warmup_settings(dataset, steady_state_tol_m, max_warmup_periods) if steady
+                   else (STEADY_STATE_TOL_M, MAX_WARMUP_PERIODS))
+    relative = position_reference(dataset) == "start"
+    out = _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
+                            dataset.grid_dt_s, substeps=int(substeps), states=states,
+                            between_samples=dataset.input_between_samples,
+                            period=(None if dataset.period_samples is None
+                                    else int(dataset.period_samples)),
+                            steady_state=steady, steady_state_tol_m=tol,
+                            max_warmup_periods=budget, initial_state=dataset.initial_state)
+    if not relative:
+        return out
+    if states:
+        return dataclasses.replace(out, position_m=out.position_m - out.position_m[:, :1])
+    return out - out[:, :1]

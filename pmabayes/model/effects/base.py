@@ -101,7 +101,7 @@ class Effect:
     ...     name = "slow_valve"
     ...     stage = "pressure"
     ...     parameters = (Parameter("tau_valve", "s", 0.03, HalfNormal(0.1),
-    ...                             bounds=(1e-6, 1.0)),)
+    ...                             bounds=(0.0, np.inf)),)
     ...     description = "First-order lag of the valve."
     ...     physics = staticmethod(lag)
     ...     @classmethod
@@ -123,7 +123,7 @@ class Effect:
     ...     name = "scaled_sensor"
     ...     stage = "measurement"
     ...     parameters = (
-    ...         Parameter("k_sensor", "1", 1.0, Normal(1.0, 0.1), bounds=(0.5, 2.0)),
+    ...         Parameter("k_sensor", "1", 1.0, Normal(1.0, 0.1)),
     ...         Parameter("b_sensor", "m", 0.0, Normal(0.0, 1e-3), bounds=(-0.01, 0.01)))
     ...     description = "Sensor gain and offset."
     ...     physics = staticmethod(gain_offset)
@@ -146,7 +146,7 @@ class Effect:
     ...     parameters = (
     ...         Parameter("k_slow", "N/m", 100.0, HalfNormal(500.0), bounds=(0.0, 1e5),
     ...                   null=0.0),
-    ...         Parameter("tau_slow", "s", 2.0, HalfNormal(5.0), bounds=(1e-3, 100.0),
+    ...         Parameter("tau_slow", "s", 2.0, HalfNormal(5.0), bounds=(0.0, np.inf),
     ...                   vary=False))
     ...     description = "Spring and dashpot in series, beside the muscle."
     ...     physics = staticmethod(creep)
@@ -161,7 +161,7 @@ class Effect:
     ...     name = "soft_saturation"
     ...     stage = "hysteresis"
     ...     parameters = (Parameter("z_soft", "N", 50.0, HalfNormal(100.0),
-    ...                             bounds=(1e-3, 1e4)),)
+    ...                             bounds=(0.0, np.inf)),)
     ...     description = "Saturation of z that weakens at large z."
     ...     physics = staticmethod(soft)
     """

@@ -4,6 +4,8 @@ force, and forces that read the hysteretic force or carry a state of their own.
 
 from __future__ import annotations
 
+import math
+
 import numba
 
 from pmabayes.model.effects._numerics import _exp_neg, decay, smooth_sign
@@ -44,12 +46,12 @@ class CoulombFriction(Effect):
     stage = "force"
     parameters = (
         Parameter(
-            "F_c", "N", 1.0, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+            "F_c", "N", 1.0, HalfNormal(5.0), bounds=(0.0, math.inf), null=0.0,
             description="Coulomb friction force opposing motion (carriage, rail, braid)",
             latex=r"F_\mathrm{c}",
         ),
         Parameter(
-            "v_c", "m/s", 2e-3, LogNormal(2e-3, 1.0), bounds=(1e-6, 1.0), vary=False,
+            "v_c", "m/s", 2e-3, LogNormal(2e-3, 1.0), bounds=(0.0, math.inf), vary=False,
             description="velocity below which friction is smoothed, F_c tanh(v/v_c); "
             "2 mm/s resolves the switch at 1 kHz",
             latex=r"v_\mathrm{c}",
@@ -72,7 +74,7 @@ class CubicStiffness(Effect):
     stage = "force"
     parameters = (
         Parameter(
-            "K3", "N/m^3", 2e4, Normal(0.0, 5e4), bounds=(-1e7, 1e7), null=0.0,
+            "K3", "N/m^3", 2e4, Normal(0.0, 5e4), null=0.0,
             description="cubic spring coefficient: elastic force K_e x + K3 x^3",
             latex=r"K_3",
         ),
@@ -93,7 +95,7 @@ class PressureStiffness(Effect):
     stage = "force"
     parameters = (
         Parameter(
-            "K_p", "N/(m Pa)", 3e-4, HalfNormal(1e-3), bounds=(0.0, 1e-2), null=0.0,
+            "K_p", "N/(m Pa)", 3e-4, HalfNormal(1e-3), bounds=(0.0, math.inf), null=0.0,
             description="growth of the stiffness with pressure: K = K_e + K_p p",
             latex=r"K_p",
         ),
@@ -135,25 +137,25 @@ class StribeckFriction(Effect):
     stage = "force"
     parameters = (
         Parameter(
-            "F_k", "N", 0.5, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+            "F_k", "N", 0.5, HalfNormal(5.0), bounds=(0.0, math.inf), null=0.0,
             description="kinetic (sliding) friction force, reached well above the "
             "Stribeck velocity",
             latex=r"F_\mathrm{k}",
         ),
         Parameter(
-            "F_s", "N", 0.5, HalfNormal(5.0), bounds=(0.0, 100.0), null=0.0,
+            "F_s", "N", 0.5, HalfNormal(5.0), bounds=(0.0, math.inf), null=0.0,
             description="static friction in excess of the kinetic: breakaway force "
             "F_k + F_s",
             latex=r"F_\mathrm{s}",
         ),
         Parameter(
-            "v_s", "m/s", 0.01, LogNormal(0.01, 1.0), bounds=(1e-4, 1.0),
+            "v_s", "m/s", 0.01, LogNormal(0.01, 1.0), bounds=(0.0, math.inf),
             description="Stribeck velocity over which the static excess decays, "
             "exp(-(v/v_s)^2); not tested when the friction is absent",
             latex=r"v_\mathrm{s}",
         ),
         Parameter(
-            "v_st", "m/s", 2e-3, LogNormal(2e-3, 1.0), bounds=(1e-6, 1.0), vary=False,
+            "v_st", "m/s", 2e-3, LogNormal(2e-3, 1.0), bounds=(0.0, math.inf), vary=False,
             description="velocity below which the friction's switch is smoothed, "
             "tanh(v/v_st); 2 mm/s resolves it at 1 kHz",
             latex=r"v_\mathrm{st}",
@@ -180,18 +182,18 @@ class McKibbenForce(Effect):
     stage = "force"
     parameters = (
         Parameter(
-            "a_mck", "m^2", 2e-5, HalfNormal(1e-4), bounds=(0.0, 1e-3), null=0.0,
+            "a_mck", "m^2", 2e-5, HalfNormal(1e-4), bounds=(0.0, math.inf), null=0.0,
             description="area lost per ((1 + x/l_0)^2 - 1) of extension: Chou-Hannaford's "
             "3 l_0^2 / (4 pi n^2) for a braid of n turns",
             latex=r"a_\mathrm{mck}",
         ),
         Parameter(
-            "l_0", "m", 0.17, LogNormal(0.17, 0.5), bounds=(1e-3, 10.0), vary=False,
+            "l_0", "m", 0.17, LogNormal(0.17, 0.5), bounds=(0.0, math.inf), vary=False,
             description="unactuated muscle length (the paper's 170 mm)",
             latex=r"l_0",
         ),
         Parameter(
-            "p_mck", "Pa", 66922.0, Normal(66922.0, 2e4), bounds=(0.0, 3e5), vary=False,
+            "p_mck", "Pa", 66922.0, Normal(66922.0, 2e4), vary=False,
             description="pressure at which the bladder engages the braid; set it to the "
             "model's p_dz (the paper's 66 922 Pa by default)",
             latex=r"p_\mathrm{mck}",
@@ -238,13 +240,13 @@ class PressureHysteresis(Effect):
     reads_z = True
     parameters = (
         Parameter(
-            "kappa_ph", "1", 0.3, HalfNormal(1.0), bounds=(0.0, 10.0), null=0.0,
+            "kappa_ph", "1", 0.3, HalfNormal(1.0), bounds=(0.0, math.inf), null=0.0,
             description="growth of the hysteretic force with pressure: z (1 + kappa_ph "
             "p / p_ref_ph)",
             latex=r"\kappa_\mathrm{ph}",
         ),
         Parameter(
-            "p_ref_ph", "Pa", 5e5, LogNormal(5e5, 1.0), bounds=(1e3, 1e7), vary=False,
+            "p_ref_ph", "Pa", 5e5, LogNormal(5e5, 1.0), bounds=(0.0, math.inf), vary=False,
             description="reference pressure of the pressure-dependent hysteresis (the "
             "chirp's peak)",
             latex=r"p_\mathrm{ref}",
@@ -270,13 +272,13 @@ class MaxwellCreep(Effect):
     state = "u_m"
     parameters = (
         Parameter(
-            "k_m", "N/m", 200.0, HalfNormal(500.0), bounds=(0.0, 1e5), null=0.0,
+            "k_m", "N/m", 200.0, HalfNormal(500.0), bounds=(0.0, math.inf), null=0.0,
             description="stiffness of the creep element's spring (in series with its "
             "dashpot, the pair beside the muscle)",
             latex=r"k_\mathrm{m}",
         ),
         Parameter(
-            "tau_m", "s", 0.2, LogNormal(0.2, 1.0), bounds=(1e-3, 100.0), vary=False,
+            "tau_m", "s", 0.2, LogNormal(0.2, 1.0), bounds=(0.0, math.inf), vary=False,
             description="relaxation time c_m / k_m of the creep element (fixed by "
             "default: at k_m = 0 the data cannot say it; free it to identify it)",
             latex=r"\tau_\mathrm{m}",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numba
 
 from pmabayes.model.effects._numerics import power
@@ -26,13 +28,13 @@ class BoucWenExponent(Effect):
     stage = "hysteresis"
     parameters = (
         Parameter(
-            "n_bw", "1", 1.0, Normal(1.0, 0.1), bounds=(0.7, 1.5), null=1.0,
+            "n_bw", "1", 1.0, Normal(1.0, 0.1), bounds=(0.0, math.inf), null=1.0,
             description="Bouc-Wen exponent: dz/dx = alpha - c |z| (|z| / z_ref_bw)^(n_bw "
             "- 1); 1 is the paper's model",
             latex=r"n_\mathrm{BW}",
         ),
         Parameter(
-            "z_ref_bw", "N", 10.0, LogNormal(10.0, 1.0), bounds=(1e-3, 1e4), vary=False,
+            "z_ref_bw", "N", 10.0, LogNormal(10.0, 1.0), bounds=(0.0, math.inf), vary=False,
             description="hysteretic force at which the generalised law meets the paper's "
             "(a typical |z|)",
             latex=r"z_\mathrm{ref}",

@@ -30,7 +30,7 @@ class PositionOffset(Effect):
     stage = "measurement"
     parameters = (
         Parameter(
-            "x_offset", "m", 5e-4, Normal(0.0, 2e-3), bounds=(-0.05, 0.05), null=0.0,
+            "x_offset", "m", 5e-4, Normal(0.0, 2e-3), null=0.0, per_experiment=True,
             description="constant offset of the encoder's zero from the unloaded length",
             latex=r"x_\mathrm{off}",
         ),

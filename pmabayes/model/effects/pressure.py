@@ -100,7 +100,7 @@ class RegulatorLag(Effect):
     stage = "pressure"
     parameters = (
         Parameter(
-            "tau_reg", "s", 0.04, LogNormal(0.03, 1.0), bounds=(0.0, 1.0), null=0.0,
+            "tau_reg", "s", 0.04, LogNormal(0.03, 1.0), bounds=(0.0, math.inf), null=0.0,
             description="time constant of the first-order lag between commanded and "
             "actual pressure",
             latex=r"\tau_\mathrm{reg}",
@@ -133,7 +133,7 @@ class TransportDelay(Effect):
     stage = "pressure"
     parameters = (
         Parameter(
-            "t_delay", "s", 0.02, LogNormal(0.02, 1.0), bounds=(0.0, 0.5), null=0.0,
+            "t_delay", "s", 0.02, LogNormal(0.02, 1.0), bounds=(0.0, math.inf), null=0.0,
             description="dead time between commanded and actual pressure (valve, tubing)",
             latex=r"T_\mathrm{d}",
         ),
@@ -245,13 +245,13 @@ class RegulatorSecondOrder(Effect):
     stage = "pressure"
     parameters = (
         Parameter(
-            "tau_n", "s", 0.01, LogNormal(0.01, 1.0), bounds=(0.0, 1.0), null=0.0,
+            "tau_n", "s", 0.01, LogNormal(0.01, 1.0), bounds=(0.0, math.inf), null=0.0,
             description="inverse natural frequency 1/omega_n of the regulator's "
             "second-order response",
             latex=r"\omega_n^{-1}",
         ),
         Parameter(
-            "zeta_reg", "1", 0.7, LogNormal(0.7, 0.7), bounds=(0.02, 20.0),
+            "zeta_reg", "1", 0.7, LogNormal(0.7, 0.7), bounds=(0.0, math.inf),
             description="damping ratio of the regulator (< 1 rings); not tested when the "
             "regulator is instantaneous",
             latex=r"\zeta_\mathrm{reg}",
