@@ -36,8 +36,10 @@ its reconstructed end values. ``position_m[k]`` is the position at ``time_s[k]``
 Each trial starts at rest: ``x' = 0``, ``z = 0`` and ``x`` at static equilibrium
 under the first input sample; or, with ``initial_state="zero"``, at ``x = x' = z = 0``
 whatever the first input (a simulation switched on at t = 0, as the Bouc-Wen
-benchmark's); or, with ``steady_state``, in the periodic steady state reached from that
-initial state through repeated periods of the input.
+benchmark's); or, with ``initial_state="estimate"``, from a state given per batch member
+(``initial_values``: position, velocity, and ``z`` as an offset from the balance of
+forces at that position and velocity); or, with ``steady_state``, in the periodic
+steady state reached from that initial state through repeated periods of the input.
 
 Kernels are generated per composition of effects, compiled with numba and cached
 on disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``), so the first
@@ -365,6 +367,14 @@ class PlantCode:
             ]
         return lines
 
+    def balance(self, p: str, x: str, v: str, out: str) -> list[str]:
+        """Lines setting ``out`` to the hysteretic force ``z`` that balances the actuator,
+        the spring, the damper and the force effects (at ``z = 0``) at position ``x``,
+        velocity ``v`` and pressure ``p``: the ``z`` of zero acceleration."""
+        t = self.theta
+        return [*self.forces(x, v, p, "fb", False),
+                f"{out} = {self.actuator(p)} - {t}[i, 4] * {x} - {t}[i, 3] * {v} - fb"]
+
     def step(self, p_start: str, p_end: str, x0: str, v0: str, z0: str,
              x1: str, v1: str, z1: str) -> list[str]:
         """Lines advancing the state over one step with pressure from ``p_start`` to ``p_end``."""
@@ -434,7 +444,10 @@ def _generate(model: Model, record: bool, shared_input: bool,
     pressure, measure = plant.pressure, plant.measure
     name_of = plant.name_of
 
-    args = "theta, p_in, time_s, dt, substeps, mass, f_grav, area, out_x"
+    # a given start (``init``: (3, batch)) is an argument only where it is used
+    given = initial_state == "estimate"
+    args = ("theta, p_in, time_s, dt, substeps, mass, f_grav, area, "
+            + ("init, " if given else "") + "out_x")
     if record:
         args += ", out_v, out_z, out_p, out_f, out_true"
     # Few distinct arrays keep the vectoriser's runtime alias checks cheap: all
@@ -451,11 +464,13 @@ def _generate(model: Model, record: bool, shared_input: bool,
             body += _sample_loops(plant, record, "pa", "pb", "p_in[(k + 1) * substeps, 0]",
                                   "p_in[0, 0]",
                                   substep_lines=[f"pa = p_in[{fine}, 0]",
-                                                 f"pb = p_in[{fine} + 1, 0]"], zero=zero)
+                                                 f"pb = p_in[{fine} + 1, 0]"], zero=zero,
+                                  given=given)
         else:
             body += (_pressure_fill(plant, shared_input, True, fine=True)
                      + _sample_loops(plant, record, f"pp[0, {fine}, i]", f"pp[1, {fine}, i]",
-                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]", zero=zero))
+                                     "pp[0, (k + 1) * substeps, i]", "pp[0, 0, i]", zero=zero,
+                                     given=given))
     else:
         ramps = bool(pressure) or linear
         via_pp = (
@@ -468,9 +483,9 @@ def _generate(model: Model, record: bool, shared_input: bool,
         # one loop per kernel: a second copy in the same function does not vectorise
         if ramps or not shared_input:
             body += (_pressure_fill(plant, shared_input, linear)
-                     + _sample_loops(plant, record, *via_pp, zero=zero))
+                     + _sample_loops(plant, record, *via_pp, zero=zero, given=given))
         else:
-            body += _sample_loops(plant, record, *shared, zero=zero)
+            body += _sample_loops(plant, record, *shared, zero=zero, given=given)
     if record:
         body += ["out_true[:, :] = out_x"]
     body += [f"{name_of[e]}(theta[:, {s.start}:{s.stop}], time_s, out_x)" for e, s in measure]
@@ -478,8 +493,8 @@ def _generate(model: Model, record: bool, shared_input: bool,
     text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
     text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
     text += f"# input between samples: {between_samples}\n"
-    if zero:  # only then, so that the rest kernels' text (and disk cache) is unchanged
-        text += "# initial state: zero\n"
+    if zero or given:  # only then, so that the rest kernels' text (and disk cache) is unchanged
+        text += f"# initial state: {initial_state}\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in plant.inject:
         text += f"{g} = None  # injected before the first call\n"
@@ -527,17 +542,25 @@ def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False,
 
 def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
                   p_first: str, substep_lines: tuple[str, ...] | list[str] = (),
-                  zero: bool = False) -> list[str]:
+                  zero: bool = False, given: bool = False) -> list[str]:
     """Lines of the initial state and the time loop, given how the pressure at the
     start and end of a substep, at the next sample and at the first is read
     (``substep_lines`` run once per substep, before the batch loop). The state starts
-    at rest under the first input, or with ``zero`` at ``x = x' = z = 0``."""
+    at rest under the first input, with ``zero`` at ``x = x' = z = 0``, or with
+    ``given`` at ``init[:, i]``: position, velocity, and ``z`` as an offset from the
+    balance at that position and velocity (:meth:`PlantCode.balance`)."""
     out = ["for i in range(batch):", f"    p0 = {p_first}"]
-    out += ["    xi = 0.0"] if zero else ["    " + ln for ln in plant.rest("p0", "xi")]
+    if given:
+        out += ["    xi = init[0, i]", "    st[1, i] = init[1, i]"]
+        out += ["    " + ln for ln in plant.balance("p0", "xi", "init[1, i]", "zi")]
+        out += ["    st[2, i] = zi + init[2, i]"]
+    else:
+        out += ["    xi = 0.0"] if zero else ["    " + ln for ln in plant.rest("p0", "xi")]
     out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     if record:
-        out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
-        out += ["    " + ln for ln in plant.forces("xi", "0.0", "p0", "f0", False)]
+        v, z = ("st[1, i]", "st[2, i]") if given else ("0.0", "0.0")
+        out += [f"    out_v[0, i] = {v}", f"    out_z[0, i] = {z}", "    out_p[0, i] = p0"]
+        out += ["    " + ln for ln in plant.forces("xi", v, "p0", "f0", False, z)]
         out += ["    out_f[0, i] = f0"]
     step = ["x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]"]
     step += plant.step(p_start, p_end, "x0", "v0", "z0", "x1", "v1", "z1")
@@ -852,6 +875,7 @@ def simulate(
     steady_state_tol_m: float = STEADY_STATE_TOL_M,
     max_warmup_periods: int = MAX_WARMUP_PERIODS,
     initial_state: str = "rest",
+    initial_values=None,
 ):
     """Simulate ``model`` for a batch of parameter sets.
 
@@ -919,8 +943,15 @@ def simulate(
         ``x`` at static equilibrium under the first input sample, as after a long
         hold of it) or ``"zero"`` (``x = x' = z = 0`` whatever the first input: a
         plant at rest at zero input that the input switches on at the first sample,
-        as the Bouc-Wen benchmark's simulations start). Pressure effects start as
-        under ``"rest"``.
+        as the Bouc-Wen benchmark's simulations start) or ``"estimate"`` (the state
+        ``initial_values`` gives). Pressure effects start as under ``"rest"``.
+    initial_values : array_like, optional
+        With ``initial_state="estimate"`` (and only then): each member's start,
+        ``(3,)`` shared or ``(B, 3)``: the position in m (before measurement effects),
+        the velocity in m/s, and the hysteretic force ``z`` in N as an offset from the
+        balance at that position and velocity (the ``z`` at which the actuator, spring,
+        damper and force effects leave no acceleration; 0 starts from that balance).
+        Force effects' own states start at 0.
 
     Returns
     -------
@@ -947,6 +978,7 @@ def simulate(
             f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
             f"{initial_state!r}")
     theta = model.theta(params)
+    init = _initial_values(initial_state, initial_values, theta.shape[0], steady_state)
     u = np.asarray(input_signal, dtype=float)
     if not (u.ndim == 1 or (u.ndim == 2 and u.shape[0] == theta.shape[0])):
         raise SimulationError(
@@ -970,18 +1002,44 @@ def simulate(
                              period=_check_period(period_samples, steady_state, n),
                              steady_state=steady_state, steady_state_tol_m=steady_state_tol_m,
                              max_warmup_periods=max_warmup_periods,
-                             initial_state=initial_state)
+                             initial_state=initial_state, init=init)
+
+
+def _initial_values(initial_state: str, values, batch: int, steady_state: bool
+                    ) -> np.ndarray | None:
+    """The kernel's ``init`` ``(3, batch)`` for a given start, checked; None otherwise."""
+    if initial_state != "estimate":
+        if values is not None:
+            raise SimulationError(
+                f"initial_values are the start of initial_state='estimate'; with "
+                f"initial_state={initial_state!r} the start is fixed: leave them out")
+        return None
+    if steady_state:
+        raise SimulationError("initial_state='estimate' gives the record's start, which a "
+                              "steady state would replace: use one or the other")
+    if values is None:
+        raise SimulationError(
+            "initial_state='estimate' needs initial_values: (position m, velocity m/s, "
+            "z offset N) per member, (3,) or (batch, 3)")
+    v = np.asarray(values, dtype=float)
+    if v.shape == (3,):
+        v = np.broadcast_to(v, (batch, 3))
+    if v.shape != (batch, 3) or not np.all(np.isfinite(v)):
+        raise SimulationError(f"initial_values must be 3 finite values, or ({batch}, 3) for "
+                              f"a batch of {batch}; got shape {v.shape}")
+    return np.ascontiguousarray(v.T)
 
 
 def _simulate_on_grid(model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray,
                       dt: float, *, substeps: int, states: bool, between_samples: str,
                       period: int | None, steady_state: bool, steady_state_tol_m: float,
-                      max_warmup_periods: int, initial_state: str):
+                      max_warmup_periods: int, initial_state: str,
+                      init: np.ndarray | None = None):
     """:func:`simulate` on a checked input and time grid (the data set's own, checked
     when it was made: the sampler calls this thousands of times)."""
     run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=substeps,
                states=states, between_samples=between_samples, period=period,
-               initial_state=initial_state)
+               initial_state=initial_state, init=init)
     if not steady_state:
         return _run(**run, warmup=0)
     tol = float(steady_state_tol_m)
@@ -1033,7 +1091,7 @@ class SteadyStateWarning(RuntimeWarning):
 
 def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
          substeps: int, states: bool, between_samples: str, period: int | None,
-         warmup: int, initial_state: str = "rest"):
+         warmup: int, initial_state: str = "rest", init: np.ndarray | None = None):
     """One kernel call over ``warmup`` periods and the record.
 
     Returns the positions ``(B, n)`` (or the :class:`Simulation`) of the record; with
@@ -1051,7 +1109,7 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
     batch = theta.shape[0]
     out_x = np.empty((n + lead, batch))
     args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
-            rig.area_m2, out_x)
+            rig.area_m2, *(() if init is None else (init,)), out_x)
     if not states:
         kernel_for(model, shared_input=shared, between_samples=between_samples,
                    initial_state=initial_state)(*args)
@@ -1071,7 +1129,8 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
 
 
 def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
-                     states: bool = False):
+                     states: bool = False, per_trial: bool = False,
+                     initial_values=None):
     """Simulate ``model`` on a data set's input, as the data set declares it.
 
     The one place where a data set's declarations become simulator options: what
@@ -1090,20 +1149,38 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
         Parameters, as accepted by :meth:`Model.theta`.
     dataset : Dataset
         The data: its first trial's input and its time grid are used (repeated
-        trials share the input).
+        trials share the input), or with ``per_trial`` every trial's own input.
     substeps : int
         Integration steps per sample interval.
     states : bool
         Return a :class:`Simulation` instead of positions.
+    per_trial : bool
+        Simulate each trial on its own input (trials with measured inputs): ``R``
+        trials and ``B`` parameter sets make ``R * B`` simulations, trial-major
+        (member ``r * B + b``).
+    initial_values : array_like, optional
+        For a data set whose start is estimated (``initial_state == "estimate"``):
+        ``(B, 3)`` starts, as :func:`simulate` takes them (shared by the trials).
 
     Returns
     -------
     numpy.ndarray or Simulation
-        As :func:`simulate`.
+        As :func:`simulate`; with ``per_trial``, positions ``(B, R, n_samples)``
+        (a :class:`Simulation`'s members stay trial-major).
     """
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
-    return _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
+    theta = model.theta(params)
+    batch = theta.shape[0]
+    init = _initial_values(dataset.initial_state, initial_values, batch,
+                           dataset.starts_in_steady_state)
+    u = dataset.input[0]
+    if per_trial:
+        trials = dataset.n_trials
+        theta = np.tile(theta, (trials, 1))
+        u = np.repeat(dataset.input, batch, axis=0)
+        init = None if init is None else np.tile(init, (1, trials))
+    out = _simulate_on_grid(model, theta, u, dataset.time_s,
                              dataset.grid_dt_s, substeps=int(substeps), states=states,
                              between_samples=dataset.input_between_samples,
                              period=(None if dataset.period_samples is None
@@ -1111,4 +1188,7 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
                              steady_state=dataset.starts_in_steady_state,
                              steady_state_tol_m=STEADY_STATE_TOL_M,
                              max_warmup_periods=MAX_WARMUP_PERIODS,
-                             initial_state=dataset.initial_state)
+                             initial_state=dataset.initial_state, init=init)
+    if not per_trial or states:
+        return out
+    return out.reshape(trials, batch, -1).transpose(1, 0, 2)
