@@ -415,7 +415,15 @@ def _fingerprint(posterior: Posterior, settings: FitSettings, seed) -> str:
         # chains of an AR(1) + white likelihood are not those of an AR(p) one
         extra["noise_models"] = [None if lik.ar_noise is None
                                  else lik.ar_noise.autocovariance_m2.tolist() for lik in liks]
-    arrays = [a for lik in liks for a in (lik.dataset.position_m, lik.input)]
+    if any(lik.observed is not None or lik.own_inputs or lik.start_parameters()
+           for lik in liks):
+        # what else the likelihood is of: samples missing in it, inputs, starts
+        extra["likelihood"] = [[lik.observed is not None, lik.own_inputs,
+                                [str(p.prior) for p in lik.start_parameters()]]
+                               for lik in liks]
+    arrays = [a for lik in liks for a in (lik.dataset.position_m,
+                                          lik.dataset.input if lik.own_inputs else lik.input,
+                                          *(() if lik.observed is None else (lik.observed,)))]
     return fingerprint(*arrays, extra)
 
 
@@ -600,6 +608,10 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
             if lik.periods_referred:
                 say.say(f"noise of {name} from its periods' residual at the MAP (the "
                         f"model's shakedown from rest removed): {choice.describe()}")
+            elif lik.trials_referred:
+                say.say(f"noise of {name} from its trials' residuals at the MAP, each "
+                        "trial's model on its own input (the model's response to the inputs' "
+                        f"differences removed): {choice.describe()}")
     chains.start(map_result, t_map)
     return map_result, t_map, False
 

@@ -17,7 +17,7 @@ from scipy.optimize import differential_evolution, minimize
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import _laplace_covariance, _scaled_hessian
-from pmabayes.inference.likelihood import JointLikelihood, Likelihood
+from pmabayes.inference.likelihood import JointLikelihood, Likelihood, span
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
 
 __all__ = ["MapResult", "find_map"]
@@ -112,16 +112,18 @@ def find_map(
     """Global search on the paper's RMS cost, then the MAP by local polish.
 
     The global search is differential evolution (strategy ``currenttobest1bin``)
-    over the prior's plausible box. It stops when the whole population has come
+    over the prior's plausible box, of the model's parameters and any estimated start
+    (:attr:`~pmabayes.inference.density.Posterior.n_searched`); its cost skips the
+    samples not observed. It stops when the whole population has come
     together in one basin (the spread of its costs at most 1% of their mean), or
     after ``maxiter`` generations. A noise sampled with the model (no repeats) is
     not searched, since the cost does not depend on it: it starts at its mode
     given the search's optimum (:func:`_noise_start`). The optimum is polished
     (L-BFGS-B, then Newton steps whose Hessian gives the Laplace covariance).
-    Where a periodic record starts from rest, its noise is then learnt again from
-    its periods' residual at that MAP (:func:`refer_periods`), and the MAP polished
-    again under that noise, until a pass moves the MAP by less than 1% of its sd
-    (at most six passes).
+    Where a periodic record starts from rest, or trials have their own inputs, their
+    noise is then learnt again from their repeats' residual at that MAP
+    (:func:`refer_periods`), and the MAP polished again under that noise, until a
+    pass moves the MAP by less than 1% of its sd (at most six passes).
 
     Parameters
     ----------
@@ -154,7 +156,7 @@ def find_map(
     box = posterior.plausible_box(rng, posterior.names)
     # the search's cost does not depend on a sampled noise: searched over the model's
     # parameters, it then starts the noise from the optimum's residual
-    n_model = posterior.n_model
+    n_model = posterior.n_searched  # the model's parameters and any estimated start
     z_model, global_cost = _global_search(posterior, box[:n_model], rng, popsize, maxiter)
     # a second search on its own stream (spawning leaves rng's draws as they were): a
     # short record can hold a second basin of the hysteresis loop's shape (beta and
@@ -235,8 +237,7 @@ def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generat
         out = np.full(theta.shape[0], 1.0)  # 1 m: worse than anything real
         ok = np.isfinite(lp)
         if ok.any():
-            x = lik.simulate(posterior.full_theta(theta[ok]))
-            cost = lik.rms_cost(x)
+            cost = lik.rms_cost(posterior.output(theta[ok]))
             out[ok] = np.where(np.isfinite(cost), cost, 1.0)
         return out
 
@@ -312,10 +313,10 @@ def _check_fit_quality(lik: Likelihood | JointLikelihood, x: np.ndarray) -> floa
              else [(lik, x)])
     for one, xe in parts:
         cost = float(one.rms_cost(xe)[0])
-        if not np.isfinite(cost) or cost > 0.25 * np.ptp(one.y_mean):
+        if not np.isfinite(cost) or cost > 0.25 * span(one.y_mean):
             raise FitError(
                 f"{one.dataset.source or 'the data'}: the best fit leaves an RMS error of "
-                f"{cost * 1e3:.3g} mm on a motion of {np.ptp(one.y_mean) * 1e3:.3g} mm, so the "
+                f"{cost * 1e3:.3g} mm on a motion of {span(one.y_mean) * 1e3:.3g} mm, so the "
                 "data cannot be what this model describes. Check the units (positions in m, "
                 "pressure in Pa), that the input column is the commanded input, and the rig "
                 "(masses, gravity direction)."
