@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from pmabayes.control import ControlError
-from pmabayes.data import DataError, Dataset, load, save
+from pmabayes.data import DataError, Dataset, load, load_segments, save
 from pmabayes.inference.errors import ConvergenceWarning, FitError
 from pmabayes.inference.fitfile import FitFileError, fit_info, load_fit, save_fit
 from pmabayes.inference.likelihood import LikelihoodError
@@ -179,23 +179,49 @@ def _exclude_option(p: argparse.ArgumentParser) -> None:
                    "trials names as drifting or outlying)")
 
 
-def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1) -> Dataset:
-    """A data file, without the trials ``--exclude-trials`` names (said, not silent)."""
-    dataset = load(path)
+def _segments(path: str) -> list[Dataset]:
+    """A data file's segments (:func:`pmabayes.data.load_segments`), said when several."""
+    segments = load_segments(path)
+    if len(segments) > 1:
+        print(f"{path} splits into {len(segments)} segments at gaps longer than its "
+              f"max_gap_s = {segments[0].metadata['max_gap_s']:g} s: "
+              + ", ".join(f"{Path(d.source).stem} ({d.n_samples} samples from "
+                          f"{d.time_s[0]:.4g} s)" for d in segments)
+              + "; each is an experiment of the same rig, from its own start")
+    return segments
+
+
+def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1) -> list[Dataset]:
+    """A data file's segments, without the trials ``--exclude-trials`` names (said, not
+    silent)."""
+    datasets = _segments(path)
     if args.exclude_trials:
-        dataset = exclude_trials(dataset, args.exclude_trials, min_trials=min_trials)
+        datasets = [exclude_trials(d, args.exclude_trials, min_trials=min_trials)
+                    for d in datasets]
         print(f"excluded trials {','.join(map(str, args.exclude_trials))} of {path} "
-              f"(--exclude-trials); {dataset.n_trials} remain")
-    return dataset
+              f"(--exclude-trials); {datasets[0].n_trials} remain")
+    return datasets
 
 
 def _load_all(args: argparse.Namespace) -> list[Dataset]:
-    """The data files of a fit; ``--exclude-trials`` needs a single one (ids are per file)."""
+    """The data files of a fit, a file that splits into segments as several experiments;
+    ``--exclude-trials`` needs a single file (ids are per file)."""
     if args.exclude_trials and len(args.data) > 1:
         raise CliError(f"--exclude-trials names trial ids of one data file, but {len(args.data)} "
                        "were given; leave the trials out of that file first (pmabayes.inference.trials."
                        "exclude_trials, then pmabayes.data.save), or fit it alone")
-    return [_load_data(args, p) for p in args.data]
+    return [d for p in args.data for d in _load_data(args, p)]
+
+
+def _not_yet_criticised(datasets: Sequence[Dataset]) -> str:
+    """Why the model criticism cannot judge these data yet (empty when it can)."""
+    gaps = [d for d in datasets if d.n_missing or d.warmup_s]
+    own = [d for d in datasets if d.n_trials > 1 and not np.all(d.input == d.input[0])]
+    return "; ".join(
+        text for text, hit in ((f"{len(gaps)} data set(s) with samples not observed (gaps or "
+                                "a warm-up)", gaps),
+                               (f"{len(own)} data set(s) whose trials have their own inputs",
+                                own)) if hit)
 
 
 def _parse_effects(items: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -278,7 +304,8 @@ def _fit_settings(args: argparse.Namespace) -> FitSettings:
     return FitSettings(n_walkers=args.walkers, n_ensembles=args.ensembles,
                        max_steps=args.steps, progress=not args.quiet, substeps=args.substeps,
                        tie_noise=getattr(args, "tie_noise", False),
-                       noise_model=getattr(args, "noise_model", "auto"))
+                       noise_model=getattr(args, "noise_model", "auto"),
+                       tie_segments=not getattr(args, "own_segment_noise", False))
 
 
 def _floor_text(floor_m) -> str:
@@ -308,17 +335,48 @@ def _do_fit(args: argparse.Namespace, datasets: list[Dataset], model: Model, out
                   f"RMS cost {exp['rms_cost_m'] * 1e6:.1f} um "
                   f"({_floor_text(exp['noise_floor_m'])}), noise {exp['noise']} "
                   f"from the {exp['noise_source']}")
+    for exp in info["experiments"]:
+        for line in _likelihood_lines(exp):
+            print(f"  {exp['name']}: {line}")
     if not conv["converged"]:
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
     from pmabayes.report.pages import experiment_adequacy  # the model's fit, not the sampler's
 
-    for name, adequacy in experiment_adequacy(tree, datasets=datasets):
-        prefix = f"[{name}] " if len(datasets) > 1 else ""
-        print("\n".join(prefix + line for line in adequacy.lines()))
+    pending = _not_yet_criticised(datasets)
+    if pending:  # the model criticism's statistics take complete, shared-input trials
+        print(f"the model's adequacy is not judged here: {pending} (the criticism of such "
+              "data comes next)")
+    else:
+        for name, adequacy in experiment_adequacy(tree, datasets=datasets):
+            prefix = f"[{name}] " if len(datasets) > 1 else ""
+            print("\n".join(prefix + line for line in adequacy.lines()))
     print(f"wrote {out} (chains in {chains})")
     return tree
+
+
+def _likelihood_lines(exp: dict) -> list[str]:
+    """What an experiment's likelihood took beyond complete, shared, known-start trials
+    (the fit file's record, :mod:`pmabayes.inference.fitfile`)."""
+    lines = []
+    gaps = exp.get("missing_samples")
+    if gaps:
+        lines.append(f"{gaps['left_out_of_likelihood']} samples missing in the likelihood "
+                     f"({gaps['not_observed']} not observed"
+                     + (f", a warm-up of {gaps['warmup_s']:g} s" if gaps["warmup_s"] else "")
+                     + "): the Kalman filter predicts across them")
+    if exp.get("own_inputs"):
+        floor = exp.get("noise_floor_referred_m")
+        lines.append("trials with their own inputs, each simulated on its own; noise from the "
+                     "trials' residuals at the MAP (the model's response to the inputs' "
+                     "differences cancels)"
+                     + (f", noise floor {floor * 1e6:.1f} um" if floor is not None else ""))
+    start = exp.get("start")
+    if start:
+        lines.append("start estimated: " + ", ".join(
+            f"{n} prior {p['prior']}" for n, p in start["parameters"].items()))
+    return lines
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -379,6 +437,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.out:
         _out_folder(args.out)
     datasets = _load_all(args)
+    pending = _not_yet_criticised(datasets)
+    if pending:
+        raise CliError(f"diagnose: {pending}; the criticism of such data comes next. Fit them "
+                       "(pmabayes fit), or diagnose a stretch without gaps (a sidecar "
+                       "\"max_gap_s\" below the shortest gap splits the record there)")
     for ds in datasets:  # the noise is learnt from their spread
         print(check_trials(ds).summary())
     model = _model_for(datasets[0], args)
@@ -548,10 +611,11 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     if args.out:
         _out_folder(args.out)
-    # paths: the fit is read first (a bad fit file is refused before the data), and
-    # its path names it in the outputs
-    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
-                      noise_from=args.noise_from, substeps=args.substeps)
+    # the fit as a path names it in the outputs; a data file that splits at its
+    # sidecar's max_gap_s gives one held-out experiment per segment
+    result = validate(args.fit, [d for p in args.data for d in _segments(p)], n_draws=args.draws,
+                      ci_prob=args.ci_prob, seed=args.seed, noise_from=args.noise_from,
+                      substeps=args.substeps, start_fraction=args.start_fraction)
     print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
           f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
           "each:")
@@ -601,6 +665,10 @@ def _validation_commands(sub) -> None:
                      help="seed of the draws' choice and the predictive noise (0)")
     val.add_argument("--substeps", type=_positive, default=None,
                      help="simulator steps per sample interval (default: as the fit used)")
+    val.add_argument("--start-fraction", type=_probability, default=0.05,
+                     help="for held-out data whose start is declared 'estimate': the first "
+                     "part of the record (a fraction of it, 0.05) from which each posterior "
+                     "draw's start is estimated by least squares")
     val.set_defaults(func=_cmd_validate)
 
 
@@ -680,6 +748,9 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-noise", action="store_true",
                    help="one noise model for all experiments (same sensor and disturbance) "
                    "instead of one per experiment")
+    p.add_argument("--own-segment-noise", action="store_true",
+                   help="give each segment of a file that splits at its sidecar's max_gap_s "
+                   "its own noise (by default the segments of one file share one)")
     _noise_model_option(p)
     _exclude_option(p)
 

@@ -5,6 +5,7 @@ group's estimate and noise model (:mod:`pmabayes.inference.noise`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 from pmabayes.data import Dataset, check_same_input_kind
 from pmabayes.inference.density import Posterior
@@ -20,7 +21,7 @@ from pmabayes.inference.noise import group_noise
 from pmabayes.inference.trials import check_trials
 from pmabayes.model.model import Model, ModelError
 
-__all__ = ["experiments", "build_posterior"]
+__all__ = ["experiments", "build_posterior", "noise_groups"]
 
 
 def experiments(datasets: Dataset | Sequence[Dataset], model: Model
@@ -65,8 +66,41 @@ def experiments(datasets: Dataset | Sequence[Dataset], model: Model
     return datasets, models, experiment_names([ds.source for ds in datasets])
 
 
+def noise_groups(datasets: Sequence[Dataset], *, tie_noise: bool = False,
+                 tie_segments: bool = True) -> list[int]:
+    """The noise group of each experiment.
+
+    One group for all with ``tie_noise``; else one per experiment, except that the
+    segments of one record (:func:`pmabayes.data.load_segments`: the metadata's
+    ``"segment"``, from one file) share one with ``tie_segments``: one sensor, one
+    disturbance, split only by the DAQ's pauses.
+
+    Parameters
+    ----------
+    datasets : sequence of Dataset
+    tie_noise, tie_segments : bool
+
+    Returns
+    -------
+    list of int
+        Groups numbered from 0 in the order of their first experiment.
+    """
+    if tie_noise:
+        return [0] * len(datasets)
+    keys: dict = {}
+    out = []
+    for i, ds in enumerate(datasets):
+        seg = ds.metadata.get("segment")
+        key = (i,)
+        if tie_segments and isinstance(seg, dict) and ds.source:
+            key = (str(Path(ds.source).parent), str(seg.get("name", "")).rpartition("#")[0])
+        out.append(keys.setdefault(key, len(keys)))
+    return out
+
+
 def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, substeps: int = 1,
-                    tie_noise: bool = False, noise_model: str = "auto") -> Posterior:
+                    tie_noise: bool = False, noise_model: str = "auto",
+                    tie_segments: bool = True) -> Posterior:
     """The posterior to sample.
 
     Parameters
@@ -82,6 +116,8 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, subs
     noise_model : {"auto", "ar1", "ar"}
         The noise model each group's repeats choose
         (:func:`pmabayes.inference.likelihood.choose_noise_model`).
+    tie_segments : bool
+        The segments of one record share their noise (:func:`noise_groups`).
 
     Returns
     -------
@@ -103,7 +139,7 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, subs
         raise FitError(str(exc)) from None
     for ds in datasets:  # before their spread is taken for noise
         check_trials(ds, warn=True)
-    groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
+    groups = noise_groups(datasets, tie_noise=tie_noise, tie_segments=tie_segments)
     noises = []
     choices: list[NoiseChoice | None] = [None] * len(liks)
     for g in range(max(groups) + 1):

@@ -100,6 +100,9 @@ class FitSettings:
     tie_noise : bool
         One noise for all experiments (same sensor, same disturbance) instead of
         one per experiment.
+    tie_segments : bool
+        The segments of one record (:func:`pmabayes.data.load_segments`) share one
+        noise (the default), as one sensor's; False gives each its own.
     noise_model : {"auto", "ar1", "ar"}
         The noise model of the trial mean's likelihood where the noise comes from
         repeats (:func:`pmabayes.inference.likelihood.choose_noise_model`): ``"auto"``
@@ -130,6 +133,7 @@ class FitSettings:
     substeps: int = 1
     tie_noise: bool = False
     noise_model: str = "auto"
+    tie_segments: bool = True
 
     def __post_init__(self) -> None:
         if self.max_steps < 20:
@@ -492,7 +496,8 @@ def fit(
 
     Each data set is an experiment: its own input, length, rig (its metadata's
     ``rig``) and trials (one or more). The physical parameters are shared; the
-    noise belongs to each experiment unless ``settings.tie_noise``. An experiment's noise is
+    noise belongs to each experiment unless ``settings.tie_noise`` (the segments of one
+    record share theirs unless ``settings.tie_segments`` is off). An experiment's noise is
     learnt from its repeats (trials, or the periods of a single periodic record);
     a record without repeats has it identified jointly with the model under a guard
     (see :mod:`pmabayes.inference.likelihood`).
@@ -539,7 +544,8 @@ def fit(
     settings = FitSettings() if settings is None else settings
     model = Model() if model is None else model
     posterior = build_posterior(model, datasets, substeps=settings.substeps,
-                                tie_noise=settings.tie_noise, noise_model=settings.noise_model)
+                                tie_noise=settings.tie_noise, noise_model=settings.noise_model,
+                                tie_segments=settings.tie_segments)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
