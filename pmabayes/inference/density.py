@@ -212,8 +212,8 @@ class Posterior:
 
     @property
     def n_searched(self) -> int:
-        """The columns the global search explores, the first ones: the model's and the
-        estimated starts' (the sampled noise does not change the search's cost)."""
+        """The first columns, which the global search's cost depends on: the model's
+        and the estimated starts' (not the sampled noise's)."""
         return self.n_model + self.n_start
 
     def start_of(self, experiment: int, theta: np.ndarray) -> np.ndarray | None:

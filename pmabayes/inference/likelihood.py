@@ -780,8 +780,33 @@ class Likelihood:
         if x.shape != (self.n_outputs,) or not np.all(np.isfinite(x)):
             raise LikelihoodError(f"{self.dataset.source or 'the data set'}: the model's "
                                   f"positions must be {self.n_outputs} finite values")
-        self._set_repeats(*_noise_repeats(self.dataset, x, self.observed)[1:])
+        _, repeats, masks = _noise_repeats(self.dataset, x, self.observed)
+        self._referred = repeats
+        self._set_repeats(repeats, masks)
         self.referred = True
+
+    def referred_trials(self) -> Dataset:
+        """The trials referred to the model (:attr:`trials_referred`), as a data set:
+        each trial's residual at the model's positions, for the check that they are
+        exchangeable (:func:`pmabayes.inference.trials.check_trials`).
+
+        Returns
+        -------
+        Dataset
+
+        Raises
+        ------
+        LikelihoodError
+            If the trials have not been referred to a model.
+        """
+        ds = self.dataset
+        if not self.trials_referred:
+            raise LikelihoodError(f"{ds.source or 'the data set'}: its trials have not been "
+                                  "referred to a model (refer_periods_to)")
+        return Dataset(time_s=ds.time_s, input=ds.input, position_m=self._referred,
+                       trial_ids=ds.trial_ids, input_name=ds.input_name,
+                       source=f"{ds.source or 'the data set'} (the trials' residuals)",
+                       observed=ds.observed if ds.n_missing else None)
 
     def start_parameters(self) -> tuple[Parameter, ...]:
         """The parameters of an estimated start, with their priors; none otherwise.
@@ -1146,17 +1171,19 @@ def _start_priors(lik: Likelihood) -> tuple[Parameter, ...]:
     u = ds.input[np.isfinite(ds.input)]
     swing = float(np.ptp(u)) or float(np.max(np.abs(u))) or 1.0
     sd_z = swing * (lik.model.rig.area_m2 if ds.input_name == "pressure_pa" else 1.0)
+
+    def start(name: str, unit: str, mean: float, sd: float, text: str, latex: str):
+        # bounds far out in the prior's tails: finite, so that boxes built from them are
+        return Parameter(name, unit, mean, Normal(mean, sd), bounds=(mean - 1e3 * sd,
+                                                                    mean + 1e3 * sd),
+                         description=f"{text} (an estimated start)", latex=latex)
+
     return (
-        Parameter("x0_m", "m", float(coef[0]), Normal(float(coef[0]), sd_x),
-                  description="position at the first sample (an estimated start)",
-                  latex=r"x_0"),
-        Parameter("v0_m_s", "m/s", float(coef[1]), Normal(float(coef[1]), sd_v),
-                  description="velocity at the first sample (an estimated start)",
-                  latex=r"\dot x_0"),
-        Parameter("z0_offset_n", "N", 0.0, Normal(0.0, sd_z),
-                  description="hysteretic force at the first sample, as an offset from the "
-                              "balance of forces there (an estimated start)",
-                  latex=r"\Delta z_0"),
+        start("x0_m", "m", float(coef[0]), sd_x, "position at the first sample", r"x_0"),
+        start("v0_m_s", "m/s", float(coef[1]), sd_v, "velocity at the first sample",
+              r"\dot x_0"),
+        start("z0_offset_n", "N", 0.0, sd_z, "hysteretic force at the first sample, as an "
+              "offset from the balance of forces there", r"\Delta z_0"),
     )
 
 

@@ -139,11 +139,12 @@ def _minimise_noise(neg, u0: np.ndarray) -> np.ndarray:
     return best.x
 
 
-def _default_noise_z(posterior: Posterior) -> np.ndarray:
-    """The sampled noise parameters' defaults in unconstrained coordinates (none when
-    the noise comes from repeats)."""
+def _default_noise_z(posterior: Posterior, first: int | None = None) -> np.ndarray:
+    """The defaults, in unconstrained coordinates, of the columns from ``first`` on: by
+    default the sampled noise parameters' (none when the noise comes from repeats)."""
     theta = np.array([[p.default for p in posterior.parameters]])
-    return posterior.to_unconstrained(theta)[0, posterior.n_searched:]
+    first = posterior.n_searched if first is None else first
+    return posterior.to_unconstrained(theta)[0, first:]
 
 
 def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:

@@ -137,8 +137,9 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *, subs
                 for m, ds in zip(models, datasets, strict=True)]
     except (ValueError, LikelihoodError, ModelError) as exc:  # DataError is a ValueError
         raise FitError(str(exc)) from None
-    for ds in datasets:  # before their spread is taken for noise
-        check_trials(ds, warn=True)
+    for ds, lik in zip(datasets, liks, strict=True):  # before their spread is taken for noise
+        if not lik.own_inputs:  # those are checked on their residuals at the MAP
+            check_trials(ds, warn=True)
     groups = noise_groups(datasets, tie_noise=tie_noise, tie_segments=tie_segments)
     noises = []
     choices: list[NoiseChoice | None] = [None] * len(liks)

@@ -38,6 +38,7 @@ from pmabayes.inference.likelihood import check_noise_model_name
 from pmabayes.inference.noise import refer_periods
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import MapResult, find_map
+from pmabayes.inference.trials import check_trials
 from pmabayes.model.model import Model
 from pmabayes.parallel import Runner
 from pmabayes.util import Progress, fingerprint, local_cores
@@ -618,6 +619,7 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
                 say.say(f"noise of {name} from its trials' residuals at the MAP, each "
                         "trial's model on its own input (the model's response to the inputs' "
                         f"differences removed): {choice.describe()}")
+                check_trials(lik.referred_trials(), warn=True)
     chains.start(map_result, t_map)
     return map_result, t_map, False
 
