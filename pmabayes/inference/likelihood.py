@@ -815,11 +815,12 @@ class Likelihood:
         ``x0_m`` (before measurement effects), velocity ``v0_m_s`` and hysteretic force
         at the first sample, the last as ``z0_offset_n``, its offset from the balance
         of forces there (:func:`pmabayes.simulate`'s ``initial_values``). Their
-        priors come from the first :data:`START_WINDOW_S` of the trial mean: a line
-        fitted to it gives the position (its value at the start) and the velocity (its
-        slope), each normal with a spread of three standard errors or three times the
-        line's residual, at least 0.1% of the motion for the position and the record's
-        mean speed for the velocity; the force is normal about the balance with the
+        priors come from the first :data:`START_WINDOW_S` of the trial mean (at least
+        five samples): a parabola fitted to it gives the position (its value at the
+        start) and the velocity (its slope there), each normal with a spread of three
+        standard errors (three times the parabola's residual for the position, its
+        slope itself for the velocity, if larger), at least 0.1% of the motion for the
+        position and the record's mean speed for the velocity; the force is normal about the balance with the
         actuator's whole range of force as its spread (area times the pressure's
         range, or the force's range). Shared by the trials.
 
@@ -1160,10 +1161,12 @@ def _start_priors(lik: Likelihood) -> tuple[Parameter, ...]:
     first = np.flatnonzero(np.isfinite(y) & (t <= START_WINDOW_S))
     if first.size < 5:  # a record sampled slowly: its first five samples
         first = np.flatnonzero(np.isfinite(y))[:5]
-    design = np.stack([np.ones(first.size), t[first]], axis=1)
+    # a parabola: mid-loop the motion curves within the window, and a line's intercept
+    # and slope would carry that curvature's bias
+    design = np.stack([np.ones(first.size), t[first], t[first] ** 2], axis=1)
     coef, *_ = np.linalg.lstsq(design, y[first], rcond=None)
     resid = y[first] - design @ coef
-    s2 = float(resid @ resid) / max(first.size - 2, 1)
+    s2 = float(resid @ resid) / max(first.size - 3, 1)
     se = np.sqrt(np.maximum(np.diag(np.linalg.pinv(design.T @ design)) * s2, 0.0))
     duration = max(float(t[-1]), ds.dt_s)
     sd_x = max(3.0 * se[0], 3.0 * math.sqrt(s2), 1e-3 * lik.motion_m)
