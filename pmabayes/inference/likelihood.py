@@ -3,7 +3,8 @@
 Noise model
 -----------
 Every trial ``r`` of a data set is driven by the same commanded input, so the
-model predicts the same position ``x_k(theta)`` for all of them. What differs
+model predicts the same position ``x_k(theta)`` for all of them (for trials that
+record their own measured inputs, see below). What differs
 from trial to trial is a disturbance that is autocorrelated in time (supply
 pressure, temperature, the braid settling), seen through a sensor that adds
 white noise of its own (encoder quantisation, electronics)::
@@ -94,6 +95,49 @@ likelihood its exact Gaussian density (:class:`ArNoise`: innovations from the
 Durbin-Levinson predictors of orders 0..p, so not conditional on the first ``p``
 samples). The AR(p) is one trial's whole noise, disturbance and sensor together.
 Records without repeats keep AR(1) + white under the guard below.
+
+Samples not observed
+--------------------
+A lab's DAQ pauses (gaps in its clock), and a declared warm-up (a sidecar's
+``"warmup_s"``) is left out: such samples are missing in the likelihood, never
+invented (:attr:`Likelihood.observed`). The Kalman filter takes a missing observation
+as it is: no update there, the prediction carried across, so the likelihood is the
+exact Gaussian density of the samples observed. The model is still simulated through
+them (the input follows the data set's ``input_between_samples``). Where every trial
+misses the same samples, the trial mean and the contrasts still split the likelihood;
+the contrasts (the noise's repeats) take the samples every repeat observed. Where the
+trials miss different samples, the likelihood is the sum of each trial's. The global
+search's cost is over the samples observed. The repeats' AR(p) needs complete series
+(:func:`choose_noise_model`): with samples missing the noise stays AR(1) + white, and
+the choice says so. A record whose gaps are longer than its sidecar's ``"max_gap_s"``
+is read as segments (:func:`pmabayes.data.load_segments`), fitted as experiments of one
+rig, each from its own start, their noise tied by default
+(:func:`pmabayes.inference.posterior.noise_groups`).
+
+Trials with their own inputs
+----------------------------
+A measured pressure differs from trial to trial by the regulator's error even when
+the command repeats, so trials need not share one input (:attr:`Likelihood.own_inputs`).
+Each trial is then simulated on its own input, and the likelihood is the sum of each
+trial's (the trial mean no longer splits it: the model's outputs differ). The noise is
+still learnt from the repeats, but from their deviations *referred to the model*: the
+residuals ``y_r - x_r(theta)``, whose differences between trials cancel the model's
+response to the inputs' differences while a misfit that the trials share still
+cancels. Before a MAP exists the raw trials give a first, too large, noise;
+:func:`pmabayes.inference.search.find_map` refers the trials to the model at its MAP
+(:meth:`Likelihood.refer_periods_to`, as for the periods of a record from rest),
+learns the noise again and polishes the MAP again, until it settles. Their
+exchangeability is checked on those residuals, and the fit records their noise floor
+(``noise_floor_referred_m``). ``analyses/calibration.py --measured-inputs`` measures
+the intervals' coverage.
+
+Estimated starts
+----------------
+A record that starts mid-loop (a held-out part of a longer one, a segment after a
+pause) has no known start: ``"initial_state": "estimate"`` makes the position,
+velocity and hysteretic force at its first sample parameters of the posterior, per
+experiment (:meth:`Likelihood.start_parameters`: priors from the first samples, the
+force about the balance of forces there), shared by its trials.
 
 Several experiments
 -------------------
@@ -820,9 +864,11 @@ class Likelihood:
         start) and the velocity (its slope there), each normal with a spread of three
         standard errors (three times the parabola's residual for the position, its
         slope itself for the velocity, if larger), at least 0.1% of the motion for the
-        position and the record's mean speed for the velocity; the force is normal about the balance with the
-        actuator's whole range of force as its spread (area times the pressure's
-        range, or the force's range). Shared by the trials.
+        position and the record's mean speed for the velocity; the force is normal
+        about the balance with the actuator's whole range of force as its spread (area
+        times the pressure's range, or the force's range). Shared by the trials; the
+        global search keeps them at their prior means, the polish and the sampler
+        free them.
 
         Returns
         -------
