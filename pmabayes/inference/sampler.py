@@ -501,7 +501,11 @@ def fit(
     record share theirs unless ``settings.tie_segments`` is off). An experiment's noise is
     learnt from its repeats (trials, or the periods of a single periodic record);
     a record without repeats has it identified jointly with the model under a guard
-    (see :mod:`pmabayes.inference.likelihood`).
+    (see :mod:`pmabayes.inference.likelihood`). Samples not observed (gaps, a
+    declared warm-up) are missing in the likelihood; trials with their own (measured)
+    inputs are each simulated on theirs, their noise learnt from their residuals at
+    the MAP; a start declared ``"estimate"`` is identified with the model (see the
+    same module).
 
     Parameters
     ----------
