@@ -378,26 +378,31 @@ def _rms_by_time(y, xt):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _kalman_innovations(y, scale, sigma, rho, white):
+def _kalman_innovations(y, scale, sigma, rho, white, seen):
     """Standardised innovations ``v_k / sqrt(S_k)`` of ``scale * y`` (one series).
 
     For data the model and noise describe, these are independent N(0, 1): the
-    whitened residual that system identification's classic tests expect.
+    whitened residual that system identification's classic tests expect. At samples
+    not ``seen`` there is none (NaN): the filter carries its prediction across them.
     """
     n = y.shape[0]
-    out = np.empty(n)
+    out = np.full(n, np.nan)
     s2 = sigma * sigma
     q = s2 * (1.0 - rho * rho)
     r = white * white
     p = s2
     est = 0.0
     for k in range(n):
-        s_k = p + r
-        gain = p / s_k
-        v = scale * y[k] - est
-        out[k] = v / math.sqrt(s_k)
-        est = rho * (est + gain * v)
-        p = rho * rho * (1.0 - gain) * p + q
+        if seen[k]:
+            s_k = p + r
+            gain = p / s_k
+            v = scale * y[k] - est
+            out[k] = v / math.sqrt(s_k)
+            est = rho * (est + gain * v)
+            p = rho * rho * (1.0 - gain) * p + q
+        else:
+            est = rho * est
+            p = rho * rho * p + q
     return out
 
 
@@ -432,51 +437,15 @@ def _masked_gains(sigma, rho, white, seen, gains, variances):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _kalman_loglik_masked(y, xt, scale, sigma, rho, white, obs):
-    """Exact log-likelihood of ``scale * (y[m] - xt[:, m or 0, b])`` with samples not seen.
+def _kalman_loglik_masked_fixed(y, xt, scale, sigma, rho, white, obs):
+    """Exact log-likelihood of ``scale * (y[m] - xt[:, m or 0, b])`` with samples not
+    seen, for a batch that shares one noise (scalars).
 
     ``y`` is ``(series, n)`` (any value where not seen), ``xt`` ``(n, 1 or series,
-    batch)``, ``obs`` ``(1 or series, n)`` (True where seen), the noise ``(batch,)``.
-    Returns ``(series, batch)``. Gains are computed per run of batch members with one
-    noise and per mask row.
+    batch)``, ``obs`` ``(1 or series, n)`` (True where seen). Returns ``(series,
+    batch)``. The gains are computed once per mask row, and the batch is the inner
+    loop, so that its members' filters run side by side.
     """
-    n = y.shape[1]
-    n_series = y.shape[0]
-    batch = xt.shape[2]
-    own_x = xt.shape[1] > 1
-    own_obs = obs.shape[0] > 1
-    out = np.zeros((n_series, batch))
-    gains = np.empty(n)
-    variances = np.empty(n)
-    log2pi = math.log(2.0 * math.pi)
-    const, count = 0.0, 0
-    for b in range(batch):
-        fresh = b == 0 or not (sigma[b] == sigma[b - 1] and rho[b] == rho[b - 1]
-                               and white[b] == white[b - 1])
-        for m in range(n_series):
-            seen = obs[m if own_obs else 0]
-            if fresh or own_obs:
-                const, count = _masked_gains(sigma[b], rho[b], white[b], seen, gains,
-                                             variances)
-                fresh = False
-            xi = m if own_x else 0
-            est = 0.0
-            acc = 0.0
-            for k in range(n):
-                if seen[k]:
-                    v = scale * (y[m, k] - xt[k, xi, b]) - est
-                    acc -= 0.5 * v * v / variances[k]
-                    est = rho[b] * (est + gains[k] * v)
-                else:
-                    est = rho[b] * est
-            out[m, b] = acc - 0.5 * (const + count * log2pi)
-    return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _kalman_loglik_masked_fixed(y, xt, scale, sigma, rho, white, obs):
-    """:func:`_kalman_loglik_masked` for a batch that shares one noise (scalars): the
-    batch is the inner loop, so that its members' filters run side by side."""
     n = y.shape[1]
     n_series = y.shape[0]
     batch = xt.shape[2]
@@ -517,39 +486,17 @@ def _masked_loglik(y: np.ndarray, x3: np.ndarray, scale: float, sigma: np.ndarra
     """The log-likelihood of ``scale * (y[m] - x3[b, m or 0])`` with samples not seen,
     ``(batch, series)``; ``x3`` is ``(batch, 1 or series, n)``, ``obs`` ``(1 or series,
     n)``."""
-    xt = np.ascontiguousarray(np.transpose(x3, (2, 1, 0)))
+    xt = np.transpose(x3, (2, 1, 0))
     y = np.ascontiguousarray(np.where(np.broadcast_to(obs, y.shape), y, 0.0))
     obs = np.ascontiguousarray(obs)
-    if bool(np.all(sigma == sigma[0]) and np.all(rho == rho[0]) and np.all(white == white[0])):
-        out = _kalman_loglik_masked_fixed(y, xt, scale, float(sigma[0]), float(rho[0]),
-                                          float(white[0]), obs)
-    else:
-        out = _kalman_loglik_masked(y, xt, scale, sigma, rho, white, obs)
-    return np.ascontiguousarray(out.T)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _kalman_innovations_masked(y, scale, sigma, rho, white, seen):
-    """:func:`_kalman_innovations` with samples not seen: NaN there (no innovation), the
-    prediction carried across."""
-    n = y.shape[0]
-    out = np.full(n, np.nan)
-    s2 = sigma * sigma
-    q = s2 * (1.0 - rho * rho)
-    r = white * white
-    p = s2
-    est = 0.0
-    for k in range(n):
-        if seen[k]:
-            s_k = p + r
-            gain = p / s_k
-            v = scale * y[k] - est
-            out[k] = v / math.sqrt(s_k)
-            est = rho * (est + gain * v)
-            p = rho * rho * (1.0 - gain) * p + q
-        else:
-            est = rho * est
-            p = rho * rho * p + q
+    # one filter's gains per run of batch members that share their noise
+    change = (np.diff(sigma) != 0) | (np.diff(rho) != 0) | (np.diff(white) != 0)
+    edges = [0, *(np.flatnonzero(change) + 1).tolist(), sigma.size]
+    out = np.empty((sigma.size, y.shape[0]))
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        out[a:b] = _kalman_loglik_masked_fixed(
+            y, np.ascontiguousarray(xt[:, :, a:b]), scale, float(sigma[a]), float(rho[a]),
+            float(white[a]), obs).T
     return out
 
 
@@ -1139,12 +1086,10 @@ class Likelihood:
             ``(n_samples,)``.
         """
         v = np.ascontiguousarray(np.asarray(v, dtype=float).reshape(-1))
-        if self.observed is not None:
-            seen = np.ascontiguousarray(self.observed.any(axis=0))
-            return _kalman_innovations_masked(np.where(seen, v, 0.0), math.sqrt(self.n_trials),
-                                              float(sigma), float(rho), float(white), seen)
-        return _kalman_innovations(v, math.sqrt(self.n_trials), float(sigma), float(rho),
-                                   float(white))
+        seen = (np.ones(v.size, dtype=bool) if self.observed is None
+                else np.ascontiguousarray(self.observed.any(axis=0)))
+        return _kalman_innovations(np.where(seen, v, 0.0), math.sqrt(self.n_trials),
+                                   float(sigma), float(rho), float(white), seen)
 
     def innovations(self, x: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
         """Standardised innovations of the trial mean's residual under the noise model.
