@@ -41,8 +41,8 @@ records the pressure a transducer measures, with white noise of 0.3% of its 0.5 
 full scale (:class:`pmabayes.synthetic.Regulator`). Each trial is then simulated on its
 own measured input, and the noise is learnt from the trials' residuals at the MAP
 (:mod:`pmabayes.inference.likelihood`). Its rows add each data set's noise floor from
-those residuals (``noise_floor_referred_m``) beside the floor of the drawn noise alone
-(``noise_floor_drawn_m``).
+those residuals (``noise_floor_referred_m``: the fit's ``noise_floor_m``) beside the
+floor of the drawn noise alone (``noise_floor_drawn_m``).
 
 ``--noise two-scale`` draws the repeated chirps' disturbance with two time scales
 (:data:`TWO_SCALE_NOISE`: 20 um of 10 ms correlation time plus 50 um of 1 s, then
@@ -207,8 +207,7 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                      "converged": info["convergence"]["converged"],
                      "noise_model": info["experiments"][0]["noise_model"]["model"], **extra})
         if extra:
-            rows[-1]["noise_floor_referred_m"] = info["experiments"][0][
-                "noise_floor_referred_m"]
+            rows[-1]["noise_floor_referred_m"] = info["experiments"][0]["noise_floor_m"]
     return rows, time.perf_counter() - start
 
 

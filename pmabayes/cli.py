@@ -373,11 +373,11 @@ def _likelihood_lines(exp: dict) -> list[str]:
                      + (f", a warm-up of {gaps['warmup_s']:g} s" if gaps["warmup_s"] else "")
                      + "): the Kalman filter predicts across them")
     if exp.get("own_inputs"):
-        floor = exp.get("noise_floor_referred_m")
-        lines.append("trials with their own inputs, each simulated on its own; noise from the "
-                     "trials' residuals at the MAP (the model's response to the inputs' "
-                     "differences cancels)"
-                     + (f", noise floor {floor * 1e6:.1f} um" if floor is not None else ""))
+        raw = exp.get("noise_floor_of_raw_trials_m")
+        lines.append("trials with their own inputs, each simulated on its own; noise and "
+                     "noise floor from the trials' residuals at the MAP (the model's response "
+                     "to the inputs' differences cancels)"
+                     + (f"; the raw trials' spread makes {raw * 1e6:.1f} um" if raw else ""))
     start = exp.get("start")
     if start:
         lines.append("start estimated: " + ", ".join(

@@ -287,7 +287,7 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         data = {"source": ds.source, "n_trials": ds.n_trials, "n_samples": ds.n_samples,
                 "dt_s": ds.dt_s, "input_name": ds.input_name,
                 "synthetic": bool(ds.metadata.get("synthetic", False)),
-                "noise_floor_m": _finite_or_none(ds.noise_floor_m)}
+                "noise_floor_m": _finite_or_none(_noise_floor(posterior.likelihoods[0]))}
     else:
         dss = [lik.dataset for lik in posterior.likelihoods]
         noise["tied"] = len(set(posterior.groups)) == 1
@@ -351,7 +351,8 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``noise_model``
         (:meth:`pmabayes.inference.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
-        ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
+        ``noise_floor_m`` (None without repeated trials; of the trials' residuals at
+        the MAP for trials with their own inputs), ``synthetic`` and
         ``metadata`` (the data set's, to rebuild it).
     """
     noise_map = noise_map or {}
@@ -383,7 +384,7 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
             "periods_referred_to_model": lik.periods_referred, "noise_estimate": est,
             "noise_model": posterior.noise_choices[e].to_dict(),
-            "noise_floor_m": _finite_or_none(ds.noise_floor_m),
+            "noise_floor_m": _finite_or_none(_noise_floor(lik)),
             "rms_cost_m": (None if theta is None else _finite_or_none(
                 lik.rms_cost(posterior.simulate(theta, e))[0])),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
@@ -391,6 +392,13 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         })
         out[-1].update(_likelihood_record(posterior, e))
     return out
+
+
+def _noise_floor(lik: Likelihood) -> float:
+    """The data's noise floor: of the trials, or of their residuals at the MAP where
+    the trials have their own inputs (the raw trials' spread holds the model's response
+    to the inputs' differences)."""
+    return lik.referred_noise_floor_m if lik.trials_referred else lik.dataset.noise_floor_m
 
 
 def _likelihood_record(posterior: Posterior, e: int) -> dict:
@@ -408,7 +416,7 @@ def _likelihood_record(posterior: Posterior, e: int) -> dict:
     if lik.own_inputs:
         out["own_inputs"] = True
         out["trials_referred_to_model"] = lik.trials_referred
-        out["noise_floor_referred_m"] = _finite_or_none(lik.referred_noise_floor_m)
+        out["noise_floor_of_raw_trials_m"] = _finite_or_none(lik.dataset.noise_floor_m)
     if e in posterior.start_columns:
         out["start"] = {"initial_state": "estimate",
                         "parameters": {posterior.names[c]: {

@@ -127,8 +127,8 @@ cancels. Before a MAP exists the raw trials give a first, too large, noise;
 :func:`pmabayes.inference.search.find_map` refers the trials to the model at its MAP
 (:meth:`Likelihood.refer_periods_to`, as for the periods of a record from rest),
 learns the noise again and polishes the MAP again, until it settles. Their
-exchangeability is checked on those residuals, and the fit records their noise floor
-(``noise_floor_referred_m``). ``analyses/calibration.py --measured-inputs`` measures
+exchangeability is checked on those residuals, and the fit's noise floor is theirs
+(:attr:`Likelihood.referred_noise_floor_m`). ``analyses/calibration.py --measured-inputs`` measures
 the intervals' coverage.
 
 Estimated starts
