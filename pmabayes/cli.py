@@ -453,7 +453,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.out:
         _out_folder(args.out)
     datasets = _load_all(args)
-    pending = _not_yet_criticised(datasets)
+    pending = "; ".join(filter(None, [
+        _not_yet_criticised(datasets),
+        (f"{sum(d.initial_state == 'estimate' for d in datasets)} data set(s) whose start "
+         "is estimated (initial_state 'estimate')"
+         if any(d.initial_state == "estimate" for d in datasets) else "")]))
     if pending:
         raise CliError(f"diagnose: {pending}; the criticism of such data comes next. Fit them "
                        "(pmabayes fit), or diagnose a stretch without gaps (a sidecar "
