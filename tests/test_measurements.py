@@ -187,6 +187,12 @@ def test_a_record_with_gaps_gives_the_gap_free_posterior_to_within_what_is_lost(
     assert info["experiments"][0]["missing_samples"]["left_out_of_likelihood"] == 450
     assert experiment_datasets(fits[1])[0] == with_mask(gappy, gappy.observed)
     hdi = az.hdi(fits[1], prob=0.99)
+    print("\ngaps (5% of samples missing) against the gap-free record, per parameter: "
+          "shift of the posterior mean / its sd, sd ratio: " + ", ".join(
+              f"{n} {(f1 - f0) / s0:+.2f} {s1 / s0:.3f}" for n, f0, s0, f1, s1 in (
+                  (n, *(v for f in fits for v in (f["posterior"][n].values.mean(),
+                                                  f["posterior"][n].values.std())))
+                  for n in BASE)))
     for name in BASE:
         a, b = (f["posterior"][name].values for f in fits)
         lo, hi = hdi[name].values
@@ -332,6 +338,9 @@ def test_trials_with_measured_inputs_are_identified_and_their_noise_floor_found(
     assert exp["own_inputs"] and exp["trials_referred_to_model"]
     # the floor of the trials' residuals at the MAP is the drawn noise's; the raw
     # trials' is not (it holds the model's response to the inputs' differences)
+    print(f"\nmeasured inputs: noise floor of the trials' residuals at the MAP "
+          f"{exp['noise_floor_m'] * 1e6:.1f} um, of the drawn noise {drawn * 1e6:.1f} um, of "
+          f"the raw trials {exp['noise_floor_of_raw_trials_m'] * 1e6:.1f} um")
     assert exp["noise_floor_m"] == pytest.approx(drawn, rel=0.15)
     assert exp["noise_floor_of_raw_trials_m"] > 2 * drawn
     assert "measured input" in info["noise"]["estimated_from"]
@@ -428,6 +437,11 @@ def test_an_estimated_start_recovers_a_record_that_starts_mid_loop():
     noise_of_mean = 20e-6 / math.sqrt(3)
     est, rest = (validate(tree, d, n_draws=100).experiments[0]
                  for d in (tail_estimate, tail_rest))
+    print(f"\nheld-out last 30% (mid-loop): error at t = 0 with an estimated start "
+          f"{abs(est.prediction_m[0] - x[cut]) * 1e6:.1f} um, from rest "
+          f"{abs(rest.prediction_m[0] - x[cut]) * 1e6:.0f} um (noise of the mean "
+          f"{noise_of_mean * 1e6:.1f} um); RMSE {est.rmse_m * 1e6:.1f} um against "
+          f"{rest.rmse_m * 1e6:.0f} um")
     assert abs(est.prediction_m[0] - x[cut]) < 2 * noise_of_mean
     assert abs(rest.prediction_m[0] - x[cut]) > 1e-3
     assert est.start["samples"] == round(0.05 * t[cut:].size) and est.start["fraction"] == 0.05
