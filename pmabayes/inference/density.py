@@ -225,8 +225,10 @@ class Posterior:
         """One experiment's model output ``(batch, n_outputs)`` for identified values
         ``(batch, ndim)`` (the model's parameters and the experiment's start)."""
         theta = np.atleast_2d(theta)
-        return self.likelihoods[experiment].simulate(self.full_theta(theta),
-                                                     self.start_of(experiment, theta))
+        start = self.start_of(experiment, theta)
+        lik = self.likelihoods[experiment]
+        full = self.full_theta(theta)
+        return lik.simulate(full) if start is None else lik.simulate(full, start)
 
     def output(self, theta: np.ndarray) -> np.ndarray:
         """Every experiment's model output, concatenated as :attr:`likelihood` has them."""

@@ -538,11 +538,9 @@ NOISE_SOURCES: tuple[str, ...] = ("trials", "periods", "record")
 GUARD_FACTOR: float = 10.0
 
 
-def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None,
-                   observed: np.ndarray | None = None
-                   ) -> tuple[str, np.ndarray, np.ndarray | None]:
-    """The noise source of a data set, the repeated series it offers and which of
-    their samples are observed (None: all).
+def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None
+                   ) -> tuple[str, np.ndarray]:
+    """The noise source of a data set and the repeated series it offers.
 
     Trials when there are two or more; else the periods of a periodic record (all
     of them when it starts in steady state, from the second on when it starts from
@@ -552,26 +550,37 @@ def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None,
     for noise (see :meth:`Likelihood.refer_periods_to`). Given the model's positions
     on each trial (``(n_trials, n_samples)``, trials with their own inputs), the
     trials are those of the residual: the model's response to the inputs'
-    differences is not taken for noise either.
+    differences is not taken for noise either. :func:`_repeat_mask` says which of
+    their samples are observed.
     """
     if dataset.n_trials >= 2:
         y = np.ascontiguousarray(dataset.position_m)
         if model_position_m is not None:
             y = y - np.asarray(model_position_m, dtype=float).reshape(y.shape)
-        return "trials", y, observed
+        return "trials", y
     y = dataset.position_m[0]
-    seen = None if observed is None else observed[0]
     if model_position_m is not None and not dataset.starts_in_steady_state:
         y = y - np.asarray(model_position_m, dtype=float).reshape(-1)
     period, n_per = dataset.period_samples, dataset.n_periods
     if period is not None and n_per is not None:
         first = 0 if dataset.starts_in_steady_state else 1
         if n_per - first >= 2:
-            cut = slice(first * period, n_per * period)
-            segs = y[cut].reshape(n_per - first, period)
-            return "periods", np.ascontiguousarray(segs), (
-                None if seen is None else seen[cut].reshape(n_per - first, period))
-    return "record", np.ascontiguousarray(y[None, :]), None if seen is None else seen[None, :]
+            segs = y[first * period: n_per * period].reshape(n_per - first, period)
+            return "periods", np.ascontiguousarray(segs)
+    return "record", np.ascontiguousarray(y[None, :])
+
+
+def _repeat_mask(dataset: Dataset, observed: np.ndarray | None) -> np.ndarray | None:
+    """Which samples of :func:`_noise_repeats`' series are observed (``observed``:
+    the trials', ``(n_trials, n_samples)``), in their shape; None when all are."""
+    if observed is None or dataset.n_trials >= 2:
+        return observed
+    period, n_per = dataset.period_samples, dataset.n_periods
+    if period is not None and n_per is not None:
+        first = 0 if dataset.starts_in_steady_state else 1
+        if n_per - first >= 2:
+            return observed[0, first * period: n_per * period].reshape(n_per - first, period)
+    return observed[:1]
 
 
 class LikelihoodError(ValueError):
@@ -675,10 +684,10 @@ class Likelihood:
         self._mean_obs = None if complete or self.per_trial else observed[:1]
         self._y_mean = (self.y_mean if self._mean_obs is None
                         else np.where(self._mean_obs[0], self._trials.mean(axis=0), 0.0))
-        self.noise_source, repeats, masks = _noise_repeats(dataset, observed=self.observed)
+        self.noise_source, repeats = _noise_repeats(dataset)
         self.n_repeats = repeats.shape[0]
         self.referred = False
-        self._set_repeats(repeats, masks)
+        self._set_repeats(repeats, _repeat_mask(dataset, self.observed))
         self.motion_m = motion
         self.ar_noise: ArNoise | None = None
         self._start = (_start_priors(self) if dataset.initial_state == "estimate" else ())
@@ -771,9 +780,9 @@ class Likelihood:
         if x.shape != (self.n_outputs,) or not np.all(np.isfinite(x)):
             raise LikelihoodError(f"{self.dataset.source or 'the data set'}: the model's "
                                   f"positions must be {self.n_outputs} finite values")
-        _, repeats, masks = _noise_repeats(self.dataset, x, self.observed)
+        repeats = _noise_repeats(self.dataset, x)[1]
         self._referred = repeats
-        self._set_repeats(repeats, masks)
+        self._set_repeats(repeats, _repeat_mask(self.dataset, self.observed))
         self.referred = True
 
     def referred_trials(self) -> Dataset:
