@@ -13,6 +13,7 @@ Usage::
                                    [--single {record,periodic}]
                                    [--noise {default,two-scale}]
                                    [--noise-model {auto,ar1,ar}]
+                                   [--measured-inputs]
 
 Writes ``calibration.csv`` and ``calibration.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``coverage_min: <fraction>``. ``--quick``
@@ -32,6 +33,16 @@ here and on the workers); the rows are the same.
   0.5 Hz, phases from the data set's seed) from rest, at 500 Hz, with the default
   measurement (AR(1) of 60 um and 0.1 s, quantised). Periods 2 to 4 are the
   noise's repeats.
+
+``--measured-inputs`` draws repeated chirps whose inputs are measured, as a lab's are
+(files ``calibration_measured_inputs.*``): each trial is driven by the command through
+a regulator, a first-order lag whose time constant is drawn per trial in 2-6 ms, and
+records the pressure a transducer measures, with white noise of 0.3% of its 0.5 MPa
+full scale (:class:`pmabayes.synthetic.Regulator`). Each trial is then simulated on its
+own measured input, and the noise is learnt from the trials' residuals at the MAP
+(:mod:`pmabayes.inference.likelihood`). Its rows add each data set's noise floor from
+those residuals (``noise_floor_referred_m``: the fit's ``noise_floor_m``) beside the
+floor of the drawn noise alone (``noise_floor_drawn_m``).
 
 ``--noise two-scale`` draws the repeated chirps' disturbance with two time scales
 (:data:`TWO_SCALE_NOISE`: 20 um of 10 ms correlation time plus 50 um of 1 s, then
@@ -61,7 +72,13 @@ from pmabayes.inference.batch import dask_client
 from pmabayes.inference.fitfile import fit_info
 from pmabayes.inference.sampler import FitSettings, fit
 from pmabayes.parallel import Runner
-from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
+from pmabayes.synthetic import (
+    Chirp,
+    MeasurementNoise,
+    Regulator,
+    draw_plausible,
+    generate_chirp_dataset,
+)
 
 PARAMS = ("alpha", "beta", "gamma", "d", "K_e", "p_dz")  # the noise has no single truth
 SINGLE_MODES = ("record", "periodic")
@@ -113,7 +130,8 @@ def draw_jobs(n_datasets: int, seed: int) -> list[dict]:
 def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trials: int = 10,
               settings: FitSettings | None = None, verbose: bool = True,
               processes: int | None = None, single: str | None = None,
-              client=None, noise: str = "default", noise_model: str = "auto") -> list[dict]:
+              client=None, noise: str = "default", noise_model: str = "auto",
+              measured_inputs: bool = False) -> list[dict]:
     """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter.
 
     The data sets are drawn here, in order, from ``seed``; their fits run on
@@ -125,12 +143,14 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
     ``single`` (``"record"`` or ``"periodic"``) fits single records instead of
     ``n_trials`` repeated chirps (see the module's docstring). ``noise`` (a key of
     :data:`NOISES`) is the repeated chirps' measurement, and ``noise_model`` the fits'
-    (:func:`pmabayes.inference.sampler.fit`).
+    (:func:`pmabayes.inference.sampler.fit`). ``measured_inputs`` gives each trial its
+    own measured input (:class:`pmabayes.synthetic.Regulator`).
     """
     if single is not None and single not in SINGLE_MODES:
         raise ValueError(f"single must be one of {SINGLE_MODES} or None, got {single!r}")
     jobs = [{**job, "chirp": chirp, "n_trials": n_trials, "single": single, "noise": noise,
-             "noise_model": noise_model} for job in draw_jobs(n_datasets, seed)]
+             "noise_model": noise_model, "measured_inputs": measured_inputs}
+            for job in draw_jobs(n_datasets, seed)]
     runner = Runner(processes, client=client, tasks=n_datasets)
     settings = FitSettings() if settings is None else settings
     if not runner.local:  # the data sets share the cores; a fit needs no pool of its own
@@ -158,9 +178,19 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
         ds = generate_chirp_dataset(n_trials=1, seed=data_seed, chirp=RECORD_CHIRP,
                                     noise=RECORD_NOISE, params=truth)
     else:
+        regulator = Regulator() if job.get("measured_inputs") else None
         ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed,
                                     chirp=job["chirp"], params=truth,
-                                    noise=NOISES[job.get("noise", "default")])
+                                    noise=NOISES[job.get("noise", "default")],
+                                    regulator=regulator)
+    extra = {}
+    if job.get("measured_inputs"):  # the drawn noise alone: the same draws without it
+        clean = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed,
+                                       chirp=job["chirp"], params=truth, noise=None,
+                                       regulator=Regulator())
+        e = ds.position_m - clean.position_m
+        extra["noise_floor_drawn_m"] = float(np.sqrt(np.mean(e.var(axis=0, ddof=1))
+                                                     / e.shape[0]))
     start = time.perf_counter()
     tree = fit(ds, Model(), seed=data_seed,
                settings=replace(job["settings"], noise_model=job.get("noise_model", "auto")))
@@ -175,7 +205,9 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                      "covered": bool(lo <= truth[name] <= hi),
                      "z": float((truth[name] - draws.mean()) / draws.std()),
                      "converged": info["convergence"]["converged"],
-                     "noise_model": info["experiments"][0]["noise_model"]["model"]})
+                     "noise_model": info["experiments"][0]["noise_model"]["model"], **extra})
+        if extra:
+            rows[-1]["noise_floor_referred_m"] = info["experiments"][0]["noise_floor_m"]
     return rows, time.perf_counter() - start
 
 
@@ -216,13 +248,17 @@ def main(argv: list[str] | None = None) -> int:
                         "or 'two-scale' (a disturbance of two time scales)")
     parser.add_argument("--noise-model", choices=("auto", "ar1", "ar"), default="auto",
                         help="the fits' noise model (pmabayes fit --noise-model)")
+    parser.add_argument("--measured-inputs", action="store_true",
+                        help="repeated chirps whose trials each record their own measured "
+                        "pressure (a regulator's lag of 2-6 ms drawn per trial, a "
+                        "transducer's noise of 0.3%% of full scale)")
     parser.add_argument("--dask", metavar="ADDRESS", default=None,
                         help="run the fits on this Dask scheduler (tcp://HOST:8786)")
     args = parser.parse_args(argv)
     if args.dask is not None and args.processes is not None:
         parser.error("give --processes or --dask, not both")
-    if args.single is not None and args.noise != "default":
-        parser.error("--noise applies to repeated chirps, not to --single")
+    if args.single is not None and (args.noise != "default" or args.measured_inputs):
+        parser.error("--noise and --measured-inputs apply to repeated chirps, not to --single")
     chirp, n_trials, n = None, 10, args.datasets or 20
     if args.quick:
         chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, args.datasets or 4
@@ -230,12 +266,16 @@ def main(argv: list[str] | None = None) -> int:
     stem = "calibration" if args.single is None else f"calibration_single_{args.single}"
     if args.noise != "default":
         stem = f"calibration_{args.noise}_{args.noise_model}"
+    if args.measured_inputs:
+        stem = "calibration_measured_inputs" + (
+            "" if args.noise == "default" else f"_{args.noise}_{args.noise_model}")
     start = time.perf_counter()
     with (dask_client(args.dask) if args.dask is not None
           else contextlib.nullcontext()) as client:
         rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
                          processes=args.processes, single=args.single, settings=settings,
-                         client=client, noise=args.noise, noise_model=args.noise_model)
+                         client=client, noise=args.noise, noise_model=args.noise_model,
+                         measured_inputs=args.measured_inputs)
     cov = coverage(rows)
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -252,6 +292,12 @@ def main(argv: list[str] | None = None) -> int:
               for p, c in cov.items()]
     (args.out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    if args.measured_inputs:
+        floors = {r["dataset"]: (r["noise_floor_referred_m"], r["noise_floor_drawn_m"])
+                  for r in rows}
+        ratio = np.array([a / b for a, b in floors.values() if a is not None])
+        print(f"noise floor from the trials' residuals at the MAP over the drawn noise's: "
+              f"median {np.median(ratio):.3f}, range {ratio.min():.3f}-{ratio.max():.3f}")
     n_conv = len({r["dataset"] for r in rows if r["converged"]})
     print(f"{n} data sets, {n_conv} converged, {time.perf_counter() - start:.0f} s")
     print(f"coverage_min: {min(cov.values()):.3f}")

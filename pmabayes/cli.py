@@ -432,24 +432,36 @@ def _say() -> Progress:
     return Progress()
 
 
+def _segments(path: str) -> list:
+    """A data file's segments (:func:`pmabayes.data.load_segments`), said when several."""
+    from pmabayes.data import load_segments
+
+    segments = load_segments(path)
+    if len(segments) > 1:
+        print(f"{path} splits into {len(segments)} segments at gaps longer than its "
+              f"max_gap_s = {segments[0].metadata['max_gap_s']:g} s: "
+              + ", ".join(f"{Path(d.source).stem} ({d.n_samples} samples from "
+                          f"{d.time_s[0]:.4g} s)" for d in segments)
+              + "; each is an experiment of the same rig, from its own start")
+    return segments
+
+
 def _load_data(args: argparse.Namespace, path: str, *, min_trials: int = 1,
-               first: Callable[[], None] | None = None):
-    """A data file, without the trials ``--exclude-trials`` names (said, not silent);
-    ``first`` runs after the line that says so, before the reading."""
+               first: Callable[[], None] | None = None) -> list:
+    """A data file's segments, without the trials ``--exclude-trials`` names (said, not
+    silent); ``first`` runs after the line that says so, before the reading."""
     _say().say(f"reading {path}")  # first: importing the data layer takes a moment
     if first is not None:
         first()
-    from pmabayes.data import load
-
-    dataset = load(path)
+    datasets = _segments(path)
     exclude = getattr(args, "exclude_trials", None)
     if exclude:
         from pmabayes.inference.trials import exclude_trials
 
-        dataset = exclude_trials(dataset, exclude, min_trials=min_trials)
+        datasets = [exclude_trials(d, exclude, min_trials=min_trials) for d in datasets]
         print(f"excluded trials {','.join(map(str, exclude))} of {path} "
-              f"(--exclude-trials); {dataset.n_trials} remain")
-    return dataset
+              f"(--exclude-trials); {datasets[0].n_trials} remain")
+    return datasets
 
 
 def _load_all(args: argparse.Namespace, *effect_options: str) -> list:
@@ -466,7 +478,21 @@ def _load_all(args: argparse.Namespace, *effect_options: str) -> list:
         for option in effect_options:
             _check_effects(getattr(args, option[2:].replace("-", "_")), option)
 
-    return [_load_data(args, p, first=check if k == 0 else None) for k, p in enumerate(paths)]
+    return [d for k, p in enumerate(paths)
+            for d in _load_data(args, p, first=check if k == 0 else None)]
+
+
+def _not_yet_criticised(datasets: Sequence) -> str:
+    """Why the model criticism cannot judge these data yet (empty when it can)."""
+    import numpy as np
+
+    gaps = [d for d in datasets if d.n_missing or d.warmup_s]
+    own = [d for d in datasets if d.n_trials > 1 and not np.all(d.input == d.input[0])]
+    return "; ".join(
+        text for text, hit in ((f"{len(gaps)} data set(s) with samples not observed (gaps or "
+                                "a warm-up)", gaps),
+                               (f"{len(own)} data set(s) whose trials have their own inputs",
+                                own)) if hit)
 
 
 def _model_for(dataset, args: argparse.Namespace):
@@ -484,7 +510,8 @@ def _fit_settings(args: argparse.Namespace):
                        tie_noise=getattr(args, "tie_noise", False),
                        noise_model=getattr(args, "noise_model", "auto"),
                        steady_state_tol_m=getattr(args, "steady_state_tol", None),
-                       max_warmup_periods=getattr(args, "max_warmup_periods", None))
+                       max_warmup_periods=getattr(args, "max_warmup_periods", None),
+                       tie_segments=not getattr(args, "own_segment_noise", False))
 
 
 def _floor_text(floor_m) -> str:
@@ -598,9 +625,40 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
               + "\nThe fit is saved anyway; rerun the same command with more --steps to "
               "continue the chains.\n" + "!" * 78)
-    _print_adequacy(tree, datasets)
+    for exp in info["experiments"]:
+        for line in _likelihood_lines(exp):
+            print(f"  {exp['name']}: {line}")
+    pending = _not_yet_criticised(datasets)
+    if pending:  # the model criticism's statistics take complete, shared-input trials
+        print(f"the model's adequacy is not judged here: {pending} (the criticism of such "
+              "data comes next)")
+    else:
+        _print_adequacy(tree, datasets)
     print(f"wrote {out} (chains in {chains})")
     return tree
+
+
+def _likelihood_lines(exp: dict) -> list[str]:
+    """What an experiment's likelihood took beyond complete, shared, known-start trials
+    (the fit file's record, :mod:`pmabayes.inference.fitfile`)."""
+    lines = []
+    gaps = exp.get("missing_samples")
+    if gaps:
+        lines.append(f"{gaps['left_out_of_likelihood']} samples missing in the likelihood "
+                     f"({gaps['not_observed']} not observed"
+                     + (f", a warm-up of {gaps['warmup_s']:g} s" if gaps["warmup_s"] else "")
+                     + "): the Kalman filter predicts across them")
+    if exp.get("own_inputs"):
+        raw = exp.get("noise_floor_of_raw_trials_m")
+        lines.append("trials with their own inputs, each simulated on its own; noise and "
+                     "noise floor from the trials' residuals at the MAP (the model's response "
+                     "to the inputs' differences cancels)"
+                     + (f"; the raw trials' spread makes {raw * 1e6:.1f} um" if raw else ""))
+    start = exp.get("start")
+    if start:
+        lines.append("start estimated: " + ", ".join(
+            f"{n} prior {p['prior']}" for n, p in start["parameters"].items()))
+    return lines
 
 
 def _fit_out(args: argparse.Namespace, out: Path) -> None:
@@ -631,7 +689,7 @@ def _report_datasets(tree, paths: Sequence[str] | None, args: argparse.Namespace
     if len(paths) != n_exp:
         raise CliError(f"--data got {len(paths)} file(s) but the fit has {n_exp} "
                        "experiment(s); give one data file per experiment, in the fit's order")
-    return [_load_data(args, p) for p in paths]
+    return [d for p in paths for d in _load_data(args, p)]
 
 
 def _write_report(tree, out: Path, datasets, kind: str) -> list[str]:
@@ -656,6 +714,13 @@ def _cmd_report(args: argparse.Namespace) -> int:
     out = _out_folder(args.out, "report", inputs=[args.fit, *(args.data or [])])
     tree = _read_fit(args.fit)
     datasets = _report_datasets(tree, args.data, args)
+    from pmabayes.inference.fitfile import experiment_datasets
+
+    pending = _not_yet_criticised(datasets or experiment_datasets(tree))
+    if pending:
+        raise CliError(f"report: {pending}; the report of such data (gaps shaded, each "
+                       "trial's own input) comes next. The fit file holds the posterior: "
+                       "read it with pmabayes.load_fit")
     written = _write_report(tree, out, datasets, "report")
     _print_adequacy(tree, datasets)
     _wrote(out, written, "the report")
@@ -673,6 +738,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     args.interrupted = lambda: (f"the fit is saved in {out / 'fit.nc'}; the report was not "
                                 "written: run `pmabayes report` on the fit, or this command "
                                 "again")
+    pending = _not_yet_criticised(datasets)
+    if pending:
+        print(f"no report: {pending}; the report of such data (gaps shaded, each trial's own "
+              f"input) comes next ({time.perf_counter() - start:.1f} s in all)")
+        return 0
     written = _write_report(tree, out, datasets, "run")
     _wrote(out, written, "the report")
     print(f"({time.perf_counter() - start:.1f} s in all)")
@@ -706,6 +776,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             raise CliError(f"--proposal-dir {args.proposal_dir}: this is a file, not a folder")
         _writable(Path(args.proposal_dir), "--proposal-dir", Path(args.proposal_dir))
     datasets = _load_all(args, "--effects", "--candidates")
+    pending = "; ".join(filter(None, [
+        _not_yet_criticised(datasets),
+        (f"{sum(d.initial_state == 'estimate' for d in datasets)} data set(s) whose start "
+         "is estimated (initial_state 'estimate')"
+         if any(d.initial_state == "estimate" for d in datasets) else "")]))
+    if pending:
+        raise CliError(f"diagnose: {pending}; the criticism of such data comes next. Fit them "
+                       "(pmabayes fit), or diagnose a stretch without gaps (a sidecar "
+                       "\"max_gap_s\" below the shortest gap splits the record there)")
     from pmabayes.criticism.diagnosis import diagnose
     from pmabayes.criticism.settings import DiagnoseSettings
     from pmabayes.inference.trials import check_trials
@@ -766,7 +845,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
                 f"{path} is a fit of {n} experiment(s) but --data got {len(args.data)} file(s) "
                 f"({', '.join(args.data)}); give the data file of each experiment the fits were "
                 "made from, in the fit's order, and compare only fits of the same experiments")
-    datasets = [_load_data(args, p) for p in args.data]
+    datasets = [d for p in args.data for d in _load_data(args, p)]
     result = compare_fits(fits, datasets if len(datasets) > 1 else datasets[0], labels=labels,
                           sources=args.fits)
     parts = result.experiments or {"": result}
@@ -951,10 +1030,17 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     _say().say(f"validating {args.fit} on {', '.join(args.data)}")
     from pmabayes.criticism.validation import validate
 
-    # paths: the fit is read first (a bad fit file is refused before the data), and
-    # its path names it in the outputs
-    result = validate(args.fit, args.data, n_draws=args.draws, ci_prob=args.ci_prob, seed=args.seed,
-                      noise_from=args.noise_from, substeps=args.substeps)
+    # the fit as a path names it in the outputs; a data file that splits at its
+    # sidecar's max_gap_s gives one held-out experiment per segment
+    held_out = [d for p in args.data for d in _segments(p)]
+    pending = _not_yet_criticised(held_out)
+    if pending:
+        raise CliError(f"validate: held-out {pending}; validation of such data comes next. "
+                       "Validate a stretch without gaps (a sidecar \"max_gap_s\" below the "
+                       "shortest gap splits the record there)")
+    result = validate(args.fit, held_out, n_draws=args.draws, ci_prob=args.ci_prob,
+                      seed=args.seed, noise_from=args.noise_from, substeps=args.substeps,
+                      start_fraction=args.start_fraction)
     print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
           f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
           "each:")
@@ -1137,6 +1223,9 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tie-noise", action="store_true",
                    help="one noise model for all experiments (same sensor and disturbance) "
                    "instead of one per experiment")
+    p.add_argument("--own-segment-noise", action="store_true",
+                   help="give each segment of a file that splits at its sidecar's max_gap_s "
+                   "its own noise (by default the segments of one file share one)")
     _noise_model_option(p)
     _exclude_option(p)
 
@@ -1302,6 +1391,10 @@ def _validation_commands(sub, common) -> None:
                      help="seed of the draws' choice and the predictive noise (0)")
     val.add_argument("--substeps", type=_positive, default=None,
                      help="simulator steps per sample interval (default: as the fit used)")
+    val.add_argument("--start-fraction", type=_probability, default=0.05,
+                     help="for held-out data whose start is declared 'estimate': the first "
+                     "part of the record (a fraction of it, 0.05) from which each posterior "
+                     "draw's start is estimated by least squares")
     val.set_defaults(func=_cmd_validate)
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "draw_plausible",
     "Chirp",
     "MeasurementNoise",
+    "Regulator",
     "hidden_effects_model",
     "generate_chirp_dataset",
     "HiddenDetent",
@@ -203,6 +204,69 @@ class MeasurementNoise:
         return y
 
 
+@dataclass(frozen=True)
+class Regulator:
+    """A pressure regulator and its transducer: why the measured pressures of repeated
+    trials differ although their command is one.
+
+    Each trial's acting pressure is the command through a first-order lag whose time
+    constant is drawn per trial, uniformly in ``[tau_min_s, tau_max_s]`` (the
+    regulator's response changes a little from run to run), starting at rest at the
+    first command; the transducer adds white noise of ``sensor_std_fs`` times the
+    full scale ``full_scale_pa``. The model is driven by the acting pressure; the data
+    set records the measured one.
+
+    Parameters
+    ----------
+    tau_min_s, tau_max_s : float
+        Range of the lag's time constant, s.
+    sensor_std_fs : float
+        Transducer noise, a fraction of the full scale (0.003: 0.3%).
+    full_scale_pa : float
+        The transducer's full scale, Pa.
+    """
+
+    tau_min_s: float = 0.002
+    tau_max_s: float = 0.006
+    sensor_std_fs: float = 0.003
+    full_scale_pa: float = 0.5e6
+
+    def __post_init__(self) -> None:
+        if not 0 < self.tau_min_s <= self.tau_max_s:
+            raise DataError(f"the regulator needs 0 < tau_min_s <= tau_max_s, got {self}")
+        if not (self.sensor_std_fs >= 0 and self.full_scale_pa > 0):
+            raise DataError(f"the regulator needs sensor_std_fs >= 0 and full_scale_pa > 0, "
+                            f"got {self}")
+
+    def pressures(self, command_pa: np.ndarray, n_trials: int, dt_s: float,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The acting and the measured pressures, each ``(n_trials, n_samples)``.
+
+        Parameters
+        ----------
+        command_pa : numpy.ndarray
+            The command, ``(n_samples,)``, held between samples.
+        n_trials : int
+        dt_s : float
+            Sample interval.
+        rng : numpy.random.Generator
+            Draws the time constants, then the transducer's noise.
+
+        Returns
+        -------
+        acting, measured : numpy.ndarray
+        """
+        tau = rng.uniform(self.tau_min_s, self.tau_max_s, n_trials)
+        a = np.exp(-dt_s / tau)
+        acting = np.empty((n_trials, command_pa.size))
+        acting[:, 0] = command_pa[0]
+        for k in range(1, command_pa.size):  # exact for a command held over the step
+            acting[:, k] = a * acting[:, k - 1] + (1.0 - a) * command_pa[k - 1]
+        measured = acting + rng.normal(0.0, self.sensor_std_fs * self.full_scale_pa,
+                                       acting.shape)
+        return acting, measured
+
+
 def hidden_effects_model(
     effects: Mapping[str | type[Effect], Mapping[str, float] | float] | None,
     *,
@@ -261,6 +325,7 @@ def generate_chirp_dataset(
     effects: Mapping[str | type[Effect], Mapping[str, float] | float] | None = None,
     rig: Rig | None = None,
     description: str = "",
+    regulator: Regulator | None = None,
 ) -> Dataset:
     """Repeated chirp trials from a model with optional hidden effects.
 
@@ -284,6 +349,10 @@ def generate_chirp_dataset(
         The rig; characterisation rig by default.
     description : str
         Free text stored in the metadata.
+    regulator : Regulator, optional
+        Measured inputs: each trial is driven by the command through the regulator,
+        and records the measured pressure (its own per trial; drawn before the
+        measurement noise). None (the default): every trial records the command.
 
     Returns
     -------
@@ -303,16 +372,20 @@ def generate_chirp_dataset(
     time_s = chirp.time_s
     dt = 1.0 / chirp.sample_rate_hz
     pressure = chirp.pressure_pa(time_s)
-    x = simulate(model, values, pressure, time_s=time_s)[0]
     if rng is None:
         rng = np.random.default_rng(seed)
         recorded_seed = seed
     else:
         recorded_seed = None
-    if noise is None:
-        position = np.repeat(x[None], n_trials, axis=0)
-    else:
-        position = noise.apply(np.repeat(x[None], n_trials, axis=0), dt, rng)
+    if regulator is None:
+        x = simulate(model, values, pressure, time_s=time_s)[0]
+        inputs = np.repeat(pressure[None], n_trials, axis=0)
+    else:  # each trial driven by its own acting pressure, which it records as measured
+        acting, inputs = regulator.pressures(pressure, n_trials, dt, rng)
+        x = simulate(model, model.theta(values)[np.zeros(n_trials, dtype=int)], acting,
+                     time_s=time_s)
+    trials_x = np.repeat(x[None], n_trials, axis=0) if x.ndim == 1 else x
+    position = trials_x if noise is None else noise.apply(trials_x, dt, rng)
     metadata = {
         "synthetic": True,
         "description": description
@@ -330,9 +403,11 @@ def generate_chirp_dataset(
             "parameters": {k: float(v) for k, v in values.items()},
         },
     }
+    if regulator is not None:
+        metadata["generator"]["regulator"] = asdict(regulator)
     return Dataset(
         time_s=time_s,
-        input=np.repeat(pressure[None], n_trials, axis=0),
+        input=inputs,
         position_m=position,
         trial_ids=np.arange(n_trials),
         input_name=model.rig.input_name,

@@ -28,7 +28,7 @@ def _multisine(n: int = 1500) -> tuple:
 
 
 def test_the_conventions_on_offer():
-    assert INITIAL_STATES == ("rest", "zero")
+    assert INITIAL_STATES == ("rest", "zero", "estimate")
     assert pb.data.INITIAL_STATES == INITIAL_STATES
 
 
@@ -136,5 +136,5 @@ def test_bad_declarations_are_errors_that_name_the_file_and_the_fix(metadata, pa
 
 def test_a_bad_argument_names_the_choices():
     with pytest.raises(SimulationError, match=r"initial_state must be one of 'rest', 'zero', "
-                                              r"got 'origin'"):
+                                              r"'estimate', got 'origin'"):
         pb.simulate(OSC, BENCH, np.zeros(10), dt_s=1e-3, initial_state="origin")

@@ -371,21 +371,6 @@ def test_check_trials_compares_the_samples_every_trial_observed() -> None:
     assert check.to_dict() == same.to_dict() and 5 in check.flagged
 
 
-def test_the_likelihood_refuses_samples_not_observed() -> None:
-    from pmabayes.inference.likelihood import Likelihood, LikelihoodError
-    from pmabayes.model.model import Model
-
-    observed = np.ones((2, 100), dtype=bool)
-    observed[1, 40:45] = False
-    ds = Dataset(time_s=np.arange(100) * 1e-3, input=np.full((2, 100), 2e5),
-                 position_m=np.tile(np.sin(np.arange(100) / 9.0) * 1e-3, (2, 1)),
-                 trial_ids=np.array([1, 2]), source="gappy.csv", observed=observed)
-    with pytest.raises(LikelihoodError, match=r"^gappy\.csv: 5 samples are not observed \(gaps "
-                                              r"in the clock\); the likelihood of missing "
-                                              r"samples comes next"):
-        Likelihood(Model(), ds)
-
-
 # ----------------------------------------------------------------------------- bad input
 
 

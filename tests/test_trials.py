@@ -128,7 +128,7 @@ def test_exclude_trials_on_the_command_line(tmp_path, capsys):
         args = cli._parser().parse_args([command, str(path), "--out", str(tmp_path / "o"),
                                          "--exclude-trials", "1,2"])
         ds = (cli._load_all(args)[0] if command != "diagnose"
-              else cli._load_data(args, args.data[0], min_trials=2))
+              else cli._load_data(args, args.data[0], min_trials=2)[0])
         assert list(ds.trial_ids) == [0, 3]
     assert "excluded trials 1,2 of" in capsys.readouterr().out
     args = cli._parser().parse_args(["fit", str(path), "--out", "x", "--exclude-trials", "8"])

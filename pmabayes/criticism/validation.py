@@ -36,6 +36,14 @@ noise-free position):
     The error of the trial mean per frequency band, from
     :func:`pmabayes.criticism.bands.band_errors`.
 
+Held-out data whose start is declared ``"estimate"`` (a record that starts mid-loop)
+have it estimated from the record itself, as MATLAB's ``compare`` does with estimated
+initial conditions: for each posterior draw, the position, velocity and hysteretic
+force at the first sample (:func:`pmabayes.simulate`'s ``initial_values``) that fit
+the first ``start_fraction`` of the record (5% by default) best in least squares. The
+numbers above are over the whole record; ``start`` says how much of it the start
+used, and ``rmse_after_start_m`` is the error over the rest alone.
+
 Fits of several experiments (one noise per fitted experiment, the noise variables
 then having an ``experiment`` dimension): the noise of the fitted experiment whose
 rig has the held-out data's rig name is used; when several match, their draws are
@@ -67,13 +75,13 @@ from pmabayes.inference.fitfile import (
     model_from_fit,
     noise_models,
 )
-from pmabayes.inference.likelihood import measurement_noise
+from pmabayes.inference.likelihood import Likelihood, measurement_noise
 from pmabayes.model.effects import EffectError
 from pmabayes.model.model import RIG_PREFIX, Model, ModelError, Rig
-from pmabayes.model.simulator import simulate_dataset
+from pmabayes.model.simulator import simulate, simulate_dataset
 
-__all__ = ["DEFAULT_DRAWS", "NOISE_NAMES", "ValidationError", "ExperimentValidation",
-           "Validation", "validate"]
+__all__ = ["DEFAULT_DRAWS", "START_FRACTION", "NOISE_NAMES", "ValidationError",
+           "ExperimentValidation", "Validation", "validate"]
 
 #: Posterior draws simulated per held-out experiment by default.
 DEFAULT_DRAWS = 300
@@ -149,6 +157,11 @@ class ExperimentValidation:
     notes : list of str
         What the numbers need said beside them (a rescaled noise correlation, band
         errors not available, ...).
+    start : dict
+        The held-out record's start: ``initial_state``, and for ``"estimate"`` how it
+        was estimated (``samples`` and ``seconds`` of the record used, ``fraction``,
+        ``rmse_after_start_m``: the error of the trial mean after them, and the
+        draws' median start).
     """
 
     name: str
@@ -175,6 +188,7 @@ class ExperimentValidation:
     n_draws: int
     ci_prob: float
     notes: list = field(default_factory=list)
+    start: dict = field(default_factory=dict)
 
     @property
     def n_trials(self) -> int:
@@ -205,7 +219,12 @@ class ExperimentValidation:
                 f"{floor}; NRMSE {self.nrmse:.3g}; {100 * self.band_coverage:.1f}% of the "
                 f"samples inside the {100 * self.ci_prob:.4g}% predictive band, "
                 f"{100 * self.model_band_coverage:.1f}% of the trial mean inside the "
-                "model-only band")
+                "model-only band"
+                + (f"; start estimated from the first {self.start['samples']} samples "
+                   f"({100 * self.start['fraction']:.3g}% of the record, "
+                   f"{self.start['seconds']:.3g} s), RMSE after them "
+                   f"{self.start['rmse_after_start_m'] * 1e6:.3g} um"
+                   if self.start.get("initial_state") == "estimate" else ""))
 
     def to_dict(self, *, arrays: bool = True) -> dict:
         """JSON-ready values (no NaN: a missing number is None).
@@ -244,6 +263,8 @@ class ExperimentValidation:
                 for b in self.band_errors],
             "noise": dict(self.noise),
             "notes": list(self.notes),
+            "start": {k: _json_float(v) if isinstance(v, float) else v
+                      for k, v in self.start.items()},
         }
         if arrays:
             out["predictive_band"] = {
@@ -588,8 +609,66 @@ def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list) -> list | Non
         return None
 
 
+#: The first part of a held-out record whose start is estimated (a fraction of it), by
+#: default.
+START_FRACTION = 0.05
+
+
+def _estimated_starts(model: Model, theta: np.ndarray, ds: Dataset, fraction: float,
+                      substeps: int) -> tuple[np.ndarray, int]:
+    """Each draw's start ``(draws, 3)`` fitted to the first ``fraction`` of the record,
+    and how many samples that is.
+
+    Levenberg-Marquardt on all draws at once, in coordinates scaled by the start's
+    prior spreads, from its prior means
+    (:meth:`pmabayes.inference.likelihood.Likelihood.start_parameters`), with
+    forward-difference Jacobians; it stops when no draw's step moves by more than
+    1e-6 of a spread, after at most 50 steps.
+    """
+    n = min(ds.n_samples, max(int(round(fraction * ds.n_samples)), 10))
+    prior = Likelihood(model, ds).start_parameters()
+    s0 = np.array([p.default for p in prior])
+    scale = np.array([p.prior.sigma for p in prior])
+    y = ds.mean_position_m[:n]
+    seen = np.isfinite(y)
+    batch = theta.shape[0]
+    run = dict(time_s=ds.time_s[:n], substeps=substeps, initial_state="estimate",
+               between_samples=ds.input_between_samples)
+
+    def residual(q: np.ndarray, th: np.ndarray) -> np.ndarray:
+        x = simulate(model, th, ds.input[0, :n], initial_values=s0 + q * scale, **run)
+        return (y - x)[:, seen]
+
+    q = np.zeros((batch, 3))
+    r = residual(q, theta)
+    cost = np.sum(r * r, axis=1)
+    lam = np.full(batch, 1e-3)
+    h = 1e-4
+    tiled = np.tile(theta, (4, 1))
+    for _ in range(50):
+        qs = np.concatenate([q] + [q + h * np.eye(3)[j] for j in range(3)])
+        rs = residual(qs, tiled).reshape(4, batch, -1)
+        jac = (rs[0][:, :, None] - np.stack(rs[1:], axis=2)) / h  # d(model)/dq
+        a = np.einsum("bkj,bkl->bjl", jac, jac)
+        g = np.einsum("bkj,bk->bj", jac, rs[0])
+        damped = a + lam[:, None, None] * (np.eye(3) * np.diagonal(a, axis1=1, axis2=2)[:, None]
+                                            + 1e-12 * np.eye(3))
+        step = np.linalg.solve(damped, g[:, :, None])[:, :, 0]
+        r_new = residual(q + step, theta)
+        new = np.sum(r_new * r_new, axis=1)
+        better = np.isfinite(new) & (new < cost)
+        q[better] += step[better]
+        cost[better] = new[better]
+        lam = np.where(better, lam / 3.0, lam * 4.0)
+        done = np.where(better, np.max(np.abs(step), axis=1) < 1e-6, lam > 1e8)
+        if done.all():
+            break
+    return s0 + q * scale, n
+
+
 def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,
-         substeps: int, rng: np.random.Generator, tree: xr.DataTree) -> ExperimentValidation:
+         substeps: int, rng: np.random.Generator, tree: xr.DataTree,
+         start_fraction: float = START_FRACTION) -> ExperimentValidation:
     where = ds.source or "held-out data set"
     model = _check_dataset(fit, ds, where)
     try:
@@ -605,7 +684,15 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
     names = _draw_names(fit, model, where)
     theta = model.theta({n: _flat(fit.draws[names[n]], names[n], where)[pick]
                          for n in model.free_names})
-    x = simulate_dataset(model, theta, ds, substeps=substeps)
+    starts, start = None, {"initial_state": ds.initial_state}
+    if ds.initial_state == "estimate":
+        starts, n_start = _estimated_starts(model, theta, ds, start_fraction, substeps)
+        start.update(samples=n_start, fraction=n_start / ds.n_samples,
+                     seconds=float(ds.time_s[n_start - 1] - ds.time_s[0]),
+                     **{f"{k}_median": float(v) for k, v in
+                        zip(("x0_m", "v0_m_s", "z0_offset_n"), np.median(starts, axis=0),
+                            strict=True)})
+    x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts)
     sigma, rho, white, fit_dt, col = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
     ok = np.all(np.isfinite(x), axis=1)
@@ -618,6 +705,13 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                       DataWarning, stacklevel=3)
         notes.append(f"{int((~ok).sum())} of {pick.size} draws failed to simulate (left out)")
         x, sigma, rho, white, col = x[ok], sigma[ok], rho[ok], white[ok], col[ok]
+    if "samples" in start:
+        after = (ds.mean_position_m - x.mean(axis=0))[start["samples"]:]
+        start["rmse_after_start_m"] = float(np.sqrt(np.mean(after**2)))
+        notes.append(f"the start was estimated for each draw from the first {start['samples']} "
+                     f"samples ({100 * start['fraction']:.3g}% of the record, "
+                     f"{start['seconds']:.3g} s; start_fraction); the numbers are over the "
+                     "whole record, rmse_after_start_m over the rest")
     if fit_dt is not None and abs(ds.dt_s - fit_dt) > 1e-9 * fit_dt:
         ratio = ds.dt_s / fit_dt
         rho = np.sign(rho) * np.abs(rho) ** ratio
@@ -660,7 +754,7 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
         noise={"from": noise_text,
                **{f"{n}_median": float(np.median(v))
                   for n, v in zip(NOISE_NAMES, (sigma, rho, white), strict=True)}},
-        n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes)
+        n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes, start=start)
 
 
 def validate(
@@ -673,6 +767,7 @@ def validate(
     rng: np.random.Generator | None = None,
     noise_from: str | None = None,
     substeps: int | None = None,
+    start_fraction: float = START_FRACTION,
 ) -> Validation:
     """Predict held-out experiments with a fit's posterior and compare with their data.
 
@@ -700,6 +795,10 @@ def validate(
     substeps : int, optional
         Simulator steps per sample interval (see :func:`pmabayes.simulate`); by default
         as many as the fit used (its file records them).
+    start_fraction : float
+        For a held-out data set whose start is declared ``"estimate"``: the first part
+        of its record (a fraction, :data:`START_FRACTION`) from which each draw's start
+        is estimated (see the module's docstring).
 
     Returns
     -------
@@ -719,6 +818,9 @@ def validate(
     ci_prob = float(ci_prob)
     if not 0.0 < ci_prob < 1.0:
         raise ValidationError(f"ci_prob must be in (0, 1), got {ci_prob!r} (e.g. 0.9)")
+    if not 0.0 < float(start_fraction) <= 1.0:
+        raise ValidationError(f"start_fraction must be in (0, 1], got {start_fraction!r} "
+                              "(e.g. 0.05: the first 5% of the record)")
     fit_path = None
     if isinstance(tree, str | os.PathLike):
         fit_path = os.fspath(tree)
@@ -738,11 +840,14 @@ def validate(
     if rng is None:
         rng = np.random.default_rng(seed)
     experiments = [_one(fit, ds, n_draws=int(n_draws), ci_prob=ci_prob,
-                        noise_from=noise_from, substeps=substeps, rng=rng, tree=tree)
+                        noise_from=noise_from, substeps=substeps, rng=rng, tree=tree,
+                        start_fraction=float(start_fraction))
                    for ds in datasets]
     return Validation(
         experiments=experiments, fit_source=fit_path or fit.source,
         effects=tuple(e.name for e in fit.effects),
         settings={"n_draws": int(n_draws), "ci_prob": ci_prob,
                   "seed": recorded_seed,
-                  "noise_from": noise_from, "substeps": substeps})
+                  "noise_from": noise_from, "substeps": substeps,
+                  **({"start_fraction": float(start_fraction)}
+                     if any(d.initial_state == "estimate" for d in datasets) else {})})

@@ -40,8 +40,11 @@ BETWEEN_SAMPLES = ("hold", "linear", "bandlimited")
 #: ``"rest"`` (the default: at rest in static equilibrium under the first input
 #: sample, as after a long hold of it) or ``"zero"`` (position, velocity and
 #: hysteresis all zero whatever the first input: a plant at rest at zero input,
-#: switched on at the first sample, as the Bouc-Wen benchmark's simulations start).
-INITIAL_STATES = ("rest", "zero")
+#: switched on at the first sample, as the Bouc-Wen benchmark's simulations start) or
+#: ``"estimate"`` (unknown, as in a record that starts mid-loop: position, velocity and
+#: hysteretic force at the first sample are identified with the model, from priors
+#: set by the first samples; see :mod:`pmabayes.inference.likelihood`).
+INITIAL_STATES = ("rest", "zero", "estimate")
 #: The metadata (sidecar) keys pmabayes reads or writes; a key close to one of
 #: these is taken for a misspelling. Any other key is free-form and kept.
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
@@ -50,7 +53,7 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
                  "time_origin_s", "position_reference", "steady_state_tol_m",
-                 "max_warmup_periods")
+                 "max_warmup_periods", "warmup_s")
 
 
 class DataError(ValueError):
@@ -232,7 +235,20 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{where}: metadata 'initial_state' is {initial!r}; it must be one of "
             f"{', '.join(map(repr, INITIAL_STATES))} ('rest' for a trial that starts at rest "
             "under its first input sample, 'zero' for one that starts at zero position, "
-            "velocity and hysteresis with the input switched on at the first sample).")
+            "velocity and hysteresis with the input switched on at the first sample, "
+            "'estimate' for one whose starting state is unknown, e.g. mid-loop).")
+    if initial == "estimate" and steady:
+        raise DataError(
+            f"{where}: metadata 'initial_state' is 'estimate' but 'starts_in_steady_state' is "
+            "true; a record in periodic steady state has a known start (the steady state): "
+            "remove one of them.")
+    warmup = metadata.get("warmup_s")
+    if warmup is not None and (isinstance(warmup, bool) or not isinstance(warmup, numbers.Real)
+                               or not math.isfinite(warmup) or warmup < 0):
+        raise DataError(
+            f"{where}: metadata 'warmup_s' is {warmup!r}; it must be a number of seconds, at "
+            "least 0: the samples in the record's first warmup_s seconds are left out of the "
+            "likelihood (they still drive the simulation). Fix it, or remove it.")
     if steady and period is None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
@@ -532,6 +548,11 @@ class Dataset:
         object.__setattr__(self, "_grid_dt_s", grid_dt_s)
         _check_metadata_rate(self.metadata, self.sample_rate_hz, f"{where}: metadata")
         _check_period(self.metadata, n, where)
+        if self.warmup_s >= float(time_s[-1] - time_s[0]):
+            raise DataError(
+                f"{where}: metadata 'warmup_s' is {_fmt(self.warmup_s)} s but the record is "
+                f"only {_fmt(time_s[-1] - time_s[0])} s long; the warm-up would leave nothing "
+                "to fit: shorten 'warmup_s'.")
 
     def _observed(self, shape: tuple[int, int], ids: np.ndarray, where: str) -> np.ndarray:
         """The ``observed`` mask, checked: boolean, of the data's shape, each trial
@@ -608,6 +629,16 @@ class Dataset:
         :func:`pmabayes.simulate` takes it as ``initial_state``.
         """
         return self.metadata.get("initial_state", "rest")
+
+    @property
+    def warmup_s(self) -> float:
+        """Seconds at the start of each trial left out of the likelihood (metadata; 0).
+
+        A sidecar's ``"warmup_s"`` declares a warm-up: the samples with ``time_s <
+        time_s[0] + warmup_s`` still drive the simulation, but the likelihood treats
+        them as not observed (an unknown start's transient, a sensor settling).
+        """
+        return float(self.metadata.get("warmup_s", 0.0))
 
     @property
     def n_trials(self) -> int:

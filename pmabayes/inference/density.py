@@ -77,9 +77,16 @@ class Posterior:
     Attributes
     ----------
     names : tuple of str
-        Identified parameters: the model's free parameters, then any sampled noise
-        parameters (``sigma_noise_m``, ... for one group, ``sigma_noise_m[NAME]``,
-        ... per experiment otherwise).
+        Identified parameters: the model's free parameters, then the start of each
+        experiment whose start is estimated (``x0_m``, ``v0_m_s``, ``z0_offset_n``;
+        ``x0_m[NAME]``, ... with several experiments;
+        :meth:`pmabayes.inference.likelihood.Likelihood.start_parameters`), then any
+        sampled noise parameters (``sigma_noise_m``, ... for one group,
+        ``sigma_noise_m[NAME]``, ... per experiment otherwise).
+    n_model, n_start : int
+        How many of them are the model's, and starts'.
+    start_columns : dict
+        Experiment index to the columns of its estimated start.
     likelihoods : list of Likelihood
         One per experiment.
     likelihood : Likelihood or JointLikelihood
@@ -126,6 +133,19 @@ class Posterior:
                     priors.append(lik.model.priors[n])
         self.n_model = len(names_out)
         self._layout(liks, names_out)
+        # estimated starts: three columns per experiment that declares one
+        self.start_columns: dict[int, list[int]] = {}
+        for e, lik in enumerate(liks):
+            if not lik.start_parameters():
+                continue
+            self.start_columns[e] = []
+            for p in lik.start_parameters():
+                self.start_columns[e].append(len(params))
+                params.append(p)
+                priors.append(p.prior)
+                names_out.append(p.name if len(liks) == 1
+                                 else f"{p.name}[{self.experiment_names[e]}]")
+        self.n_start = len(params) - self.n_model
         # sampled noise: the columns of each group without repeats
         self._noise_cols: dict[int, list[int]] = {}
         for g in range(n_groups):
@@ -244,6 +264,31 @@ class Posterior:
         """Number of identified parameters."""
         return len(self.names)
 
+    @property
+    def n_searched(self) -> int:
+        """The first columns, which the global search's cost depends on: the model's
+        and the estimated starts' (not the sampled noise's)."""
+        return self.n_model + self.n_start
+
+    def start_of(self, experiment: int, theta: np.ndarray) -> np.ndarray | None:
+        """An experiment's estimated start ``(batch, 3)`` in identified values, or None."""
+        cols = self.start_columns.get(experiment)
+        return None if cols is None else np.atleast_2d(theta)[:, cols]
+
+    def simulate(self, theta: np.ndarray, experiment: int) -> np.ndarray:
+        """One experiment's model output ``(batch, n_outputs)`` for identified values
+        ``(batch, ndim)`` (the model's parameters and the experiment's start)."""
+        theta = np.atleast_2d(theta)
+        start = self.start_of(experiment, theta)
+        lik = self.likelihoods[experiment]
+        full = self.full_theta(theta)
+        return lik.simulate(full) if start is None else lik.simulate(full, start)
+
+    def output(self, theta: np.ndarray) -> np.ndarray:
+        """Every experiment's model output, concatenated as :attr:`likelihood` has them."""
+        xs = [self.simulate(theta, e) for e in range(self.n_experiments)]
+        return xs[0] if len(xs) == 1 else np.concatenate(xs, axis=1)
+
     # -- coordinates ------------------------------------------------------------
     def to_natural(self, z: np.ndarray) -> np.ndarray:
         """Natural parameter values from unconstrained coordinates ``(batch, ndim)``."""
@@ -334,8 +379,7 @@ class Posterior:
         if not ok.any():
             return lp, ll, None
         sub = theta[ok]
-        full = self.full_theta(sub)
-        xs = [lik.simulate(full) for lik in self.likelihoods]
+        xs = [self.simulate(sub, e) for e in range(self.n_experiments)]
         total = np.zeros(sub.shape[0])
         for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
             total += lik.mean_log_likelihood(x, *self.noise_of(e, sub))
@@ -344,7 +388,7 @@ class Posterior:
         ll[ok] = np.where(np.isfinite(total), total, -np.inf)
         if not return_x:
             return lp, ll, None
-        x = np.full((theta.shape[0], self.likelihood.n_samples), np.nan)
+        x = np.full((theta.shape[0], self.likelihood.n_outputs), np.nan)
         x[ok] = np.concatenate(xs, axis=1)
         return lp, ll, x
 

@@ -85,6 +85,13 @@ def fit_tree(posterior: Posterior, z: np.ndarray, lp_z: np.ndarray, ensemble: np
              for e in range(posterior.n_experiments)]
     model_post = {n: theta[:, j].reshape(n_chain, n_draw)
                   for j, n in enumerate(posterior.names[: posterior.n_model])}
+    # estimated starts: x0_m, ... (one experiment) or x0_m__NAME, ... (several)
+    for e, cols in posterior.start_columns.items():
+        for c in cols:
+            name = posterior.parameters[c].name
+            if posterior.n_experiments > 1:
+                name = f"{name}__{posterior.experiment_names[e]}"
+            model_post[name] = theta[:, c].reshape(n_chain, n_draw)
     keys = [p.name for p in NOISE_PARAMETERS]
     if posterior.n_experiments == 1:
         tree = _single_tree(posterior.likelihoods[0], model_post, keys, noise[0], lp,
@@ -103,19 +110,22 @@ def _single_tree(lik: Likelihood, model_post: dict, keys, noise, lp, pointwise, 
     """The layout of a one-experiment fit (unchanged since the first fit files)."""
     y_pp, x_pp = pred
     ds = lik.dataset
+    # trials with their own inputs: each trial's input, and its model output
+    own = lik.own_inputs
     data = {
         "posterior": {**model_post, **{k: np.asarray(v).reshape(n_chain, n_draw)
                                        for k, v in zip(keys, noise, strict=True)}},
         "sample_stats": {"lp": lp},
         "observed_data": {"position_m": ds.position_m},
-        "constant_data": {ds.input_name: ds.input[0]},
+        "constant_data": {ds.input_name: ds.input if own else ds.input[0]},
         "posterior_predictive": {
             "position_m": y_pp[None].astype(np.float32),
             "model_position_m": x_pp[None].astype(np.float32),
         },
     }
-    dims = {"position_m": ["trial", "time"], "model_position_m": ["time"],
-            ds.input_name: ["time"]}
+    dims = {"position_m": ["trial", "time"],
+            "model_position_m": ["trial", "time"] if own else ["time"],
+            ds.input_name: ["trial", "time"] if own else ["time"]}
     coords = {"trial": ds.trial_ids, "time": ds.time_s}
     # a chain is one walker: more chains than draws is intended, so ArviZ's check
     # that would warn "chain dimension longer than draw" is off
@@ -150,11 +160,13 @@ def _multi_tree(posterior: Posterior, model_post: dict, keys, noise, lp, pointwi
         trial, time_ = f"trial__{name}", f"time__{name}"
         coords[trial], coords[time_] = ds.trial_ids, ds.time_s
         obs[f"position_m__{name}"] = ((trial, time_), ds.position_m)
-        const[f"{ds.input_name}__{name}"] = ((time_,), ds.input[0])
+        own = posterior.likelihoods[e].own_inputs
+        const[f"{ds.input_name}__{name}"] = (((trial, time_), ds.input) if own
+                                             else ((time_,), ds.input[0]))
         y_pp, x_pp = preds[e]
         pp[f"position_m__{name}"] = (("chain", "draw", trial, time_),
                                      y_pp[None].astype(np.float32))
-        pp[f"model_position_m__{name}"] = (("chain", "draw", time_),
+        pp[f"model_position_m__{name}"] = (("chain", "draw", *((trial,) if own else ()), time_),
                                            x_pp[None].astype(np.float32))
     n_pp = preds[0][1].shape[0]
     tree["observed_data"] = xr.DataTree(xr.Dataset(obs, coords=coords))
@@ -182,26 +194,28 @@ def _pointwise(posterior: Posterior, e: int, theta, sigma, rho, white) -> np.nda
     out = np.empty((theta.shape[0], lik.n_trials))
     for a in range(0, theta.shape[0], 512):
         sl = slice(a, a + 512)
-        x = lik.simulate(posterior.full_theta(theta[sl]))
+        x = posterior.simulate(theta[sl], e)
         out[sl] = lik.pointwise(x, sigma[sl], rho[sl], white[sl])
     return out
 
 
 def _predictive(posterior: Posterior, e: int, theta, sigma, rho, white, pick: np.ndarray,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Picked draws' model output for experiment ``e``, and trials made from it with
-    fresh noise."""
+    """Picked draws' model output for experiment ``e`` (per trial, ``(draws, trials,
+    n)``, for trials with their own inputs), and trials made from it with fresh noise."""
     lik = posterior.likelihoods[e]
     sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
                          for v in (sigma, rho, white))
-    x_pp = lik.simulate(posterior.full_theta(theta[pick]))
+    x_pp = posterior.simulate(theta[pick], e)
+    x_pp = lik._by_trial(x_pp) if lik.own_inputs else x_pp
     if lik.ar_noise is not None:  # the likelihood's own noise model: the repeats' AR(p)
         noise = lik.ar_noise.draw(len(pick) * lik.n_trials, lik.n_samples, rng)
     else:
         noise = measurement_noise(len(pick) * lik.n_trials, lik.n_samples,
                                   *(np.repeat(v[pick], lik.n_trials)
                                     for v in (sigma, rho, white)), rng)
-    y_pp = x_pp[:, None, :] + noise.reshape(len(pick), lik.n_trials, lik.n_samples)
+    y_pp = ((x_pp if lik.own_inputs else x_pp[:, None, :])
+            + noise.reshape(len(pick), lik.n_trials, lik.n_samples))
     return y_pp, x_pp
 
 
@@ -257,11 +271,16 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
     source = noise_values if noise_values is not None else (map_record.get("values") or {})
     noise_map = {k: source.get(k) for k in (p.name for p in NOISE_PARAMETERS)}
     experiments = experiment_records(posterior, noise_map, map_record.get("values"))
-    sources = {e["noise_source"] for e in experiments}
+    sources = {"own inputs" if e.get("own_inputs") else e["noise_source"]
+               for e in experiments}
     estimated_from = "; ".join(
         text for key, text in (
             ("trials", "deviations of the trials from their mean (repeatability); posterior by "
                        "Laplace approximation, independent draws"),
+            ("own inputs", "deviations of the trials' residuals from their mean at the MAP, "
+                           "each trial's model simulated on its own measured input (the "
+                           "model's response to the inputs' differences cancels); posterior "
+                           "by Laplace approximation, independent draws"),
             ("periods", "deviations of the periods of a single periodic record from their "
                         "mean; posterior by Laplace approximation, independent draws"),
             ("record", "the record itself, jointly with the model (sampled), the disturbance's "
@@ -279,7 +298,7 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
         data = {"source": ds.source, "n_trials": ds.n_trials, "n_samples": ds.n_samples,
                 "dt_s": ds.dt_s, "input_name": ds.input_name,
                 "synthetic": bool(ds.metadata.get("synthetic", False)),
-                "noise_floor_m": finite_or_none(ds.noise_floor_m)}
+                "noise_floor_m": finite_or_none(_noise_floor(posterior.likelihoods[0]))}
     else:
         dss = [lik.dataset for lik in posterior.likelihoods]
         noise["tied"] = len(set(posterior.groups)) == 1
@@ -343,15 +362,17 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``noise_model``
         (:meth:`pmabayes.inference.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
-        ``noise_floor_m`` (None without repeated trials), ``synthetic`` and
+        ``noise_floor_m`` (None without repeated trials; of the trials' residuals at
+        the MAP for trials with their own inputs), ``synthetic`` and
         ``metadata`` (the data set's, to rebuild it).
     """
     noise_map = noise_map or {}
     map_values = map_values or {}
     theta = None
-    if all(n in map_values for n in posterior.names[: posterior.n_model]):
-        theta = posterior.full_theta(np.array([[float(map_values[n]) for n in
-                                                posterior.names[: posterior.n_model]]]))
+    searched = posterior.names[: posterior.n_searched]  # the model's and the starts'
+    if all(n in map_values for n in searched):
+        theta = np.zeros((1, posterior.ndim))
+        theta[0, : posterior.n_searched] = [float(map_values[n]) for n in searched]
     out = []
     tied = len(set(posterior.groups)) < len(posterior.groups)
     for e, (lik, name) in enumerate(zip(posterior.likelihoods, posterior.experiment_names,
@@ -374,13 +395,47 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "noise": "tied" if tied else "own", "noise_source": lik.noise_source,
             "periods_referred_to_model": lik.periods_referred, "noise_estimate": est,
             "noise_model": posterior.noise_choices[e].to_dict(),
-            "noise_floor_m": finite_or_none(ds.noise_floor_m),
-            "rms_cost_m": (None if theta is None
-                           else finite_or_none(lik.rms_cost(lik.simulate(theta))[0])),
+            "noise_floor_m": finite_or_none(_noise_floor(lik)),
+            "rms_cost_m": (None if theta is None else finite_or_none(
+                lik.rms_cost(posterior.simulate(theta, e))[0])),
             "parameters": dict(posterior.identified[e]),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
             "metadata": ds.metadata,
         })
+        out[-1].update(_likelihood_record(posterior, e))
+    return out
+
+
+def _noise_floor(lik: Likelihood) -> float:
+    """The data's noise floor: of the trials, or of their residuals at the MAP where
+    the trials have their own inputs (the raw trials' spread holds the model's response
+    to the inputs' differences)."""
+    return lik.referred_noise_floor_m if lik.trials_referred else lik.dataset.noise_floor_m
+
+
+def _likelihood_record(posterior: Posterior, e: int) -> dict:
+    """What an experiment's likelihood took beyond complete, shared, known-start trials:
+    samples missing in it, trials with their own inputs, an estimated start (nothing
+    for data that have none of them, so that their records stay as they were)."""
+    lik = posterior.likelihoods[e]
+    out: dict = {}
+    if lik.observed is not None:
+        out["missing_samples"] = {
+            "not_observed": int(lik.dataset.n_missing), "warmup_s": lik.dataset.warmup_s,
+            "left_out_of_likelihood": int((~lik.observed).sum()),
+            "how": "missing in the likelihood: the Kalman filter predicts across them "
+                   "(no update), the input follows input_between_samples"}
+    if lik.own_inputs:
+        out["own_inputs"] = True
+        out["trials_referred_to_model"] = lik.trials_referred
+        out["noise_floor_of_raw_trials_m"] = finite_or_none(lik.dataset.noise_floor_m)
+    if e in posterior.start_columns:
+        out["start"] = {"initial_state": "estimate",
+                        "parameters": {posterior.names[c]: {
+                            "unit": posterior.parameters[c].unit,
+                            "prior": str(posterior.priors[c]),
+                            "description": posterior.parameters[c].description}
+                            for c in posterior.start_columns[e]}}
     return out
 
 
@@ -448,14 +503,19 @@ def experiment_datasets(tree: xr.DataTree) -> list[Dataset]:
         name = exp.get("input_name") or "pressure_pa"
         u_var = name if single else f"{name}__{exp['name']}"
         obs = obs_g[var].transpose(trial_dim, time_dim)
-        # without the stored input (an old fit), zeros
-        u = (np.asarray(const[u_var].values, dtype=float)
+        # without the stored input (an old fit), zeros; trials with their own inputs
+        # have one each
+        u = (const[u_var].transpose(..., time_dim).values
              if const is not None and u_var in const.data_vars else np.zeros(obs.sizes[time_dim]))
+        u = np.asarray(u, dtype=float)
+        position = np.asarray(obs.values, dtype=float)
+        seen = np.isfinite(position)  # a sample not observed is stored as NaN
         out.append(Dataset(time_s=np.asarray(obs[time_dim].values, dtype=float),
-                           input=np.tile(u, (obs.sizes[trial_dim], 1)),
-                           position_m=np.asarray(obs.values, dtype=float),
+                           input=u if u.ndim == 2 else np.tile(u, (obs.sizes[trial_dim], 1)),
+                           position_m=position,
                            trial_ids=np.asarray(obs[trial_dim].values), input_name=name,
-                           metadata=dict(exp.get("metadata") or {}), source=exp.get("source")))
+                           metadata=dict(exp.get("metadata") or {}), source=exp.get("source"),
+                           observed=None if seen.all() else seen))
     return out
 
 

@@ -6,8 +6,10 @@ the exact likelihood comes from a Kalman filter. It factorises into the trials'
 deviations from their mean, which do not depend on the model and give the noise, and
 the trial mean's residual, which gives the model. A record without repeats learns its
 noise from its periods, or with the model under a guard on the noise's correlation
-time. The documentation's page "The likelihood" (``docs/theory/likelihood.rst``)
-gives the model, the factorisation and why.
+time. Samples not observed (gaps, a warm-up) are missing in the filter; trials with
+their own measured inputs are each simulated on their own, their noise learnt from
+their residuals; a start may be estimated. The documentation's page "The likelihood"
+(``docs/theory/likelihood.rst``) gives the model, the factorisation and why.
 """
 
 from __future__ import annotations
@@ -22,14 +24,15 @@ from scipy import signal
 
 from pmabayes.data import Dataset
 from pmabayes.model.model import Model
-from pmabayes.model.parameters import LogNormal, Parameter, Uniform
+from pmabayes.model.parameters import LogNormal, Normal, Parameter, Uniform
 from pmabayes.model.simulator import position_reference, simulate_dataset, warmup_settings
 
 __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
            "LikelihoodError", "ar1_noise", "measurement_noise", "NOISE_MODELS", "LEVEL_ADEQUATE",
            "MAX_AR_ORDER", "LJUNG_BOX_LAGS", "ljung_box_statistic", "levinson", "ArNoise",
            "ar_noise_from_repeats", "NoiseChoice", "check_noise_model_name",
-           "ar1_whiteness_of_repeats", "choose_noise_model", "NOISE_PER_AMPLITUDE"]
+           "ar1_whiteness_of_repeats", "choose_noise_model", "NOISE_PER_AMPLITUDE", "span",
+           "START_WINDOW_S"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
@@ -247,26 +250,155 @@ def _rms_by_time(y, xt):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _kalman_innovations(y, scale, sigma, rho, white):
+def _kalman_innovations(y, scale, sigma, rho, white, seen):
     """Standardised innovations ``v_k / sqrt(S_k)`` of ``scale * y`` (one series).
 
     For data the model and noise describe, these are independent N(0, 1): the
-    whitened residual that system identification's classic tests expect.
+    whitened residual that system identification's classic tests expect. At samples
+    not ``seen`` there is none (NaN): the filter carries its prediction across them.
     """
     n = y.shape[0]
-    out = np.empty(n)
+    out = np.full(n, np.nan)
     s2 = sigma * sigma
     q = s2 * (1.0 - rho * rho)
     r = white * white
     p = s2
     est = 0.0
     for k in range(n):
-        s_k = p + r
-        gain = p / s_k
-        v = scale * y[k] - est
-        out[k] = v / math.sqrt(s_k)
-        est = rho * (est + gain * v)
-        p = rho * rho * (1.0 - gain) * p + q
+        if seen[k]:
+            s_k = p + r
+            gain = p / s_k
+            v = scale * y[k] - est
+            out[k] = v / math.sqrt(s_k)
+            est = rho * (est + gain * v)
+            p = rho * rho * (1.0 - gain) * p + q
+        else:
+            est = rho * est
+            p = rho * rho * p + q
+    return out
+
+
+# -- samples not observed: the filter predicts across them --------------------------
+# A Kalman filter takes a missing observation as it is: no update, the prediction
+# carried on. The kernels below are the masked forms of those above (``obs`` True where
+# a sample enters the likelihood); complete data keep the kernels above, bit for bit.
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _masked_gains(sigma, rho, white, seen, gains, variances):
+    """Fill the filter's gains and innovation variances for one mask ``seen`` (``(n,)``);
+    returns the sum of the log variances and the number of samples seen."""
+    s2 = sigma * sigma
+    q = s2 * (1.0 - rho * rho)
+    r = white * white
+    p = s2
+    const = 0.0
+    count = 0
+    for k in range(seen.shape[0]):
+        if seen[k]:
+            s_k = p + r
+            gain = p / s_k
+            const += math.log(s_k)
+            count += 1
+            variances[k] = s_k
+            gains[k] = gain
+            p = rho * rho * (1.0 - gain) * p + q
+        else:
+            p = rho * rho * p + q
+    return const, count
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _kalman_loglik_masked_fixed(y, xt, scale, sigma, rho, white, obs):
+    """Exact log-likelihood of ``scale * (y[m] - xt[:, m or 0, b])`` with samples not
+    seen, for a batch that shares one noise (scalars).
+
+    ``y`` is ``(series, n)`` (any value where not seen), ``xt`` ``(n, 1 or series,
+    batch)``, ``obs`` ``(1 or series, n)`` (True where seen). Returns ``(series,
+    batch)``. The gains are computed once per mask row, and the batch is the inner
+    loop, so that its members' filters run side by side.
+    """
+    n = y.shape[1]
+    n_series = y.shape[0]
+    batch = xt.shape[2]
+    own_x = xt.shape[1] > 1
+    own_obs = obs.shape[0] > 1
+    out = np.zeros((n_series, batch))
+    est = np.empty(batch)
+    gains = np.empty(n)
+    variances = np.empty(n)
+    const, count = 0.0, 0
+    for m in range(n_series):
+        seen = obs[m if own_obs else 0]
+        if m == 0 or own_obs:
+            const, count = _masked_gains(sigma, rho, white, seen, gains, variances)
+        xi = m if own_x else 0
+        est[:] = 0.0
+        acc = out[m]
+        for k in range(n):
+            if seen[k]:
+                s_k = variances[k]
+                gain = gains[k]
+                y_mk = y[m, k]
+                x_k = xt[k, xi]
+                for b in range(batch):
+                    v = scale * (y_mk - x_k[b]) - est[b]
+                    acc[b] -= 0.5 * v * v / s_k
+                    est[b] = rho * (est[b] + gain * v)
+            else:
+                for b in range(batch):
+                    est[b] = rho * est[b]
+        for b in range(batch):
+            acc[b] -= 0.5 * (const + count * math.log(2.0 * math.pi))
+    return out
+
+
+def _masked_loglik(y: np.ndarray, x3: np.ndarray, scale: float, sigma: np.ndarray,
+                   rho: np.ndarray, white: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """The log-likelihood of ``scale * (y[m] - x3[b, m or 0])`` with samples not seen,
+    ``(batch, series)``; ``x3`` is ``(batch, 1 or series, n)``, ``obs`` ``(1 or series,
+    n)``."""
+    xt = np.transpose(x3, (2, 1, 0))
+    y = np.ascontiguousarray(np.where(np.broadcast_to(obs, y.shape), y, 0.0))
+    obs = np.ascontiguousarray(obs)
+    # one filter's gains per run of batch members that share their noise
+    change = (np.diff(sigma) != 0) | (np.diff(rho) != 0) | (np.diff(white) != 0)
+    edges = [0, *(np.flatnonzero(change) + 1).tolist(), sigma.size]
+    out = np.empty((sigma.size, y.shape[0]))
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        out[a:b] = _kalman_loglik_masked_fixed(
+            y, np.ascontiguousarray(xt[:, :, a:b]), scale, float(sigma[a]), float(rho[a]),
+            float(white[a]), obs).T
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rms_masked(y, xt, obs):
+    """RMS over the samples seen in any trial of the mean, over the trials seen there, of
+    ``y[r] - xt[:, r or 0, b]``; ``y`` ``(trials, n)``, ``xt`` ``(n, 1 or trials, batch)``,
+    ``obs`` ``(trials, n)``. Returns ``(batch,)``."""
+    n_trials, n = y.shape
+    batch = xt.shape[2]
+    own_x = xt.shape[1] > 1
+    out = np.zeros(batch)
+    mean = np.empty(batch)
+    used = 0
+    for k in range(n):
+        seen = 0
+        mean[:] = 0.0
+        for r in range(n_trials):
+            if obs[r, k]:
+                seen += 1
+                x_k = xt[k, r if own_x else 0]
+                for b in range(batch):
+                    mean[b] += y[r, k] - x_k[b]
+        if seen:
+            used += 1
+            for b in range(batch):
+                d = mean[b] / seen
+                out[b] += d * d
+    for b in range(batch):
+        out[b] = math.sqrt(out[b] / max(used, 1))
     return out
 
 
@@ -287,10 +419,17 @@ def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None
     rest); else the record alone. Given the model's positions on a record that
     starts from rest, its periods are those of the residual, record minus model:
     the model's own change from period to period (its shakedown) is then not taken
-    for noise (see :meth:`Likelihood.refer_periods_to`).
+    for noise (see :meth:`Likelihood.refer_periods_to`). Given the model's positions
+    on each trial (``(n_trials, n_samples)``, trials with their own inputs), the
+    trials are those of the residual: the model's response to the inputs'
+    differences is not taken for noise either. :func:`_repeat_mask` says which of
+    their samples are observed.
     """
     if dataset.n_trials >= 2:
-        return "trials", np.ascontiguousarray(dataset.position_m)
+        y = np.ascontiguousarray(dataset.position_m)
+        if model_position_m is not None:
+            y = y - np.asarray(model_position_m, dtype=float).reshape(y.shape)
+        return "trials", y
     y = dataset.position_m[0]
     if model_position_m is not None and not dataset.starts_in_steady_state:
         y = y - np.asarray(model_position_m, dtype=float).reshape(-1)
@@ -303,23 +442,41 @@ def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None
     return "record", np.ascontiguousarray(y[None, :])
 
 
+def _repeat_mask(dataset: Dataset, observed: np.ndarray | None) -> np.ndarray | None:
+    """Which samples of :func:`_noise_repeats`' series are observed (``observed``:
+    the trials', ``(n_trials, n_samples)``), in their shape; None when all are."""
+    if observed is None or dataset.n_trials >= 2:
+        return observed
+    period, n_per = dataset.period_samples, dataset.n_periods
+    if period is not None and n_per is not None:
+        first = 0 if dataset.starts_in_steady_state else 1
+        if n_per - first >= 2:
+            return observed[0, first * period: n_per * period].reshape(n_per - first, period)
+    return observed[:1]
+
+
 class LikelihoodError(ValueError):
     """The data cannot be fitted as given (too few trials, no motion, wrong rig)."""
 
 
 class Likelihood:
-    """Likelihood of the trials of one experiment, which share one input.
+    """Likelihood of the trials of one experiment.
 
     The noise is AR(1) + white (Kalman filter), or an AR(p) of the repeats once
-    :meth:`use_ar_noise` set one (see the module's docstring).
+    :meth:`use_ar_noise` set one (see the module's docstring). Samples not observed
+    (gaps in a lab's clock, a declared ``warmup_s``) are missing in the likelihood:
+    the filter predicts across them. Trials may have their own inputs (measured
+    pressures): each is simulated on its own, and the likelihood is the sum of each
+    trial's. A start declared ``"estimate"`` is simulated from the ``start`` given
+    (:meth:`start_parameters`).
 
     Parameters
     ----------
     model : Model
         The composed model, on this experiment's rig.
     dataset : Dataset
-        One experiment: one or more trials, all sharing the input (the commanded
-        pressure or force).
+        One experiment: one or more trials, sharing the input (the commanded pressure
+        or force) or each with its own (a measured one).
     substeps : int
         Simulator substeps per sample (see :func:`pmabayes.simulate`).
     steady_state_tol_m, max_warmup_periods : optional
@@ -337,46 +494,58 @@ class Likelihood:
     n_repeats : int
         The number of repeated series the noise is learnt from without the model
         (trials or periods; 1 for ``"record"``).
-    periods_referred : bool
-        Whether the periods are those of the residual at a model's positions
-        (:meth:`refer_periods_to`) rather than of the record itself.
     columns : numpy.ndarray or None
         Where a posterior of several experiments gives this one's model parameters
         their own columns (per-experiment parameters, rig values of its own): the
         columns of the posterior's full parameter array that :meth:`simulate` takes
         (:meth:`pmabayes.inference.density.Posterior.full_theta`); None takes the
         array as this model's.
+    own_inputs : bool
+        Whether the trials have inputs of their own (measured ones, which differ by
+        the regulator's error): each is simulated on its own input
+        (:attr:`n_outputs`), the likelihood is the sum of each trial's, and the noise
+        is learnt from the trials referred to the model (:meth:`refer_periods_to`).
+    observed : numpy.ndarray or None
+        ``(n_trials, n_samples)``, True where a sample enters the likelihood: observed
+        (:attr:`pmabayes.data.Dataset.observed`) and after the declared warm-up
+        (:attr:`pmabayes.data.Dataset.warmup_s`). None when every sample does.
+    per_trial : bool
+        Whether the likelihood is the sum of each trial's: trials with their own
+        inputs, or trials observed at different samples. Otherwise the trial mean and
+        the contrasts split it (see the module's docstring).
+    n_outputs : int
+        Values of one model output (:meth:`simulate`): ``n_samples``, or ``n_trials *
+        n_samples`` with :attr:`own_inputs` (trial after trial).
+    referred : bool
+        Whether the repeats are those of the residual at a model's positions
+        (:meth:`refer_periods_to`) rather than of the data themselves.
 
     Raises
     ------
     LikelihoodError
-        With trials of different inputs, an input kind that does not match the rig,
-        positions that never change, or samples not observed (gaps in a lab's clock).
+        With an input kind that does not match the rig, positions that never change,
+        or a trial with no sample left for the likelihood.
     """
 
     def __init__(self, model: Model, dataset: Dataset, *, substeps: int = 1,
                  steady_state_tol_m: float | None = None,
                  max_warmup_periods: int | None = None) -> None:
         where = dataset.source or "the data set"
-        if dataset.n_missing:
-            raise LikelihoodError(
-                f"{where}: {dataset.n_missing} samples are not observed (gaps in the "
-                "clock); the likelihood of missing samples comes next. Until then, fit a "
-                "stretch without gaps: a sidecar \"max_gap_s\" below the shortest gap "
-                "splits the record there (pmabayes.data.load_segments)")
         if dataset.input_name != model.rig.input_name:
             raise LikelihoodError(
                 f"{where}: the input column is {dataset.input_name!r} but the model's rig "
                 f"({model.rig.name}) expects {model.rig.input_name!r}; use a matching rig"
             )
-        same = np.all(dataset.input == dataset.input[0], axis=1)
-        if not same.all():
-            bad = int(dataset.trial_ids[np.argmin(same)])
+        self.own_inputs = not bool(np.all(dataset.input == dataset.input[0]))
+        observed = dataset.observed & (dataset.time_s - dataset.time_s[0]
+                                       >= dataset.warmup_s)[None, :]
+        empty = ~observed.any(axis=1)
+        if empty.any():
             raise LikelihoodError(
-                f"{where}: trial {bad} has a different input from trial "
-                f"{int(dataset.trial_ids[0])}; repeated trials must share the commanded input"
-            )
-        motion = float(np.ptp(dataset.position_m))
+                f"{where}: trial {int(dataset.trial_ids[np.argmax(empty)])} has no sample "
+                f"after the warm-up of {dataset.warmup_s:g} s (warmup_s); shorten the warm-up")
+        complete = bool(observed.all())
+        motion = float(np.ptp(dataset.position_m if complete else dataset.position_m[observed]))
         if motion == 0.0:
             raise LikelihoodError(
                 f"{where}: every position is {float(dataset.position_m.flat[0])!r} m, so there is "
@@ -390,17 +559,33 @@ class Likelihood:
         position_reference(dataset)  # a bad declaration fails here, not in the search
         self.columns: np.ndarray | None = None
         self.n_trials, self.n_samples = dataset.position_m.shape
+        self.observed = None if complete else observed
+        self.per_trial = self.n_trials >= 2 and (
+            self.own_inputs or not (complete or bool(np.all(observed == observed[0]))))
+        self.n_outputs = self.n_samples * (self.n_trials if self.own_inputs else 1)
         self.input = np.ascontiguousarray(dataset.input[0])
         self.y_mean = dataset.mean_position_m
-        self._trials = np.ascontiguousarray(dataset.position_m)
+        self._trials = np.ascontiguousarray(
+            dataset.position_m if complete else np.where(observed, dataset.position_m, 0.0))
+        # the split's trial mean and its samples (a mask shared by the trials)
+        self._mean_obs = None if complete or self.per_trial else observed[:1]
+        self._y_mean = (self.y_mean if self._mean_obs is None
+                        else np.where(self._mean_obs[0], self._trials.mean(axis=0), 0.0))
         self.noise_source, repeats = _noise_repeats(dataset)
         self.n_repeats = repeats.shape[0]
-        self.periods_referred = False
-        self._set_repeats(repeats)
+        self.referred = False
+        self._set_repeats(repeats, _repeat_mask(dataset, self.observed))
         self.motion_m = motion
         self.ar_noise: ArNoise | None = None
+        self._start = (_start_priors(self) if dataset.initial_state == "estimate" else ())
 
-    def _set_repeats(self, repeats: np.ndarray) -> None:
+    def _set_repeats(self, repeats: np.ndarray, masks: np.ndarray | None = None) -> None:
+        # where the repeats are not all observed, the contrasts take the samples seen
+        # in every repeat; the others are missing for them
+        both = None if masks is None else masks.all(axis=0)
+        self._contrast_obs = None if both is None or both.all() else both[None, :]
+        if both is not None:
+            repeats = np.where(both, repeats, 0.0)
         self._repeats = repeats
         if self.n_repeats >= 2:
             # Helmert contrasts: R - 1 orthonormal combinations of the repeats that
@@ -428,29 +613,115 @@ class Likelihood:
         """
         return self.noise_source == "periods" and not self.dataset.starts_in_steady_state
 
-    def refer_periods_to(self, model_position_m: np.ndarray) -> None:
-        """Take the noise from the periods of the residual, record minus model.
+    @property
+    def refers_to_model(self) -> bool:
+        """Whether the repeats must be referred to the model (:meth:`refer_periods_to`)
+        for their deviations to be noise alone: the periods of a record from rest
+        (:attr:`periods_from_rest`), or trials with their own inputs, whose model
+        outputs differ by the response to the inputs' differences."""
+        return self.periods_from_rest or (self.noise_source == "trials" and self.own_inputs)
 
-        For a periodic record that starts from rest (:attr:`periods_from_rest`;
-        otherwise nothing changes). The model's change from period to period is
-        then not counted as noise, while any misfit that repeats every period still
-        cancels in the deviations, as for the raw periods: the noise stays what the
-        model cannot explain away. :func:`pmabayes.inference.search.find_map` calls this at its
-        first optimum and estimates the noise again.
+    @property
+    def periods_referred(self) -> bool:
+        """Whether the periods are those of the residual at a model's positions."""
+        return self.referred and self.noise_source == "periods"
+
+    @property
+    def trials_referred(self) -> bool:
+        """Whether the trials (with their own inputs) are those of the residual at a
+        model's positions."""
+        return self.referred and self.noise_source == "trials"
+
+    @property
+    def referred_noise_floor_m(self) -> float:
+        """The noise floor of trials referred to the model (:attr:`trials_referred`):
+        the RMS error a perfect model would have against the trial mean, from the
+        spread of the trials' residuals (over the samples every trial observed); NaN
+        otherwise."""
+        if not self.trials_referred:
+            return math.nan
+        d = self._d if self._contrast_obs is None else self._d[:, self._contrast_obs[0]]
+        var = float(np.mean(np.sum(d * d, axis=0) / (self.n_repeats - 1)))
+        return math.sqrt(var / self.n_repeats)
+
+    def refer_periods_to(self, model_position_m: np.ndarray) -> None:
+        """Take the noise from the repeats of the residual, data minus model.
+
+        For a periodic record that starts from rest (:attr:`periods_from_rest`), or
+        trials with their own inputs (:attr:`own_inputs`); otherwise nothing changes.
+        The model's change from period to period, or its response to the trials'
+        differing inputs, is then not counted as noise, while any misfit that the
+        repeats share still cancels in the deviations, as for the raw repeats: the
+        noise stays what the model cannot explain away.
+        :func:`pmabayes.inference.search.find_map` calls this at its first optimum
+        and estimates the noise again.
 
         Parameters
         ----------
         model_position_m : numpy.ndarray
-            The model's positions on the record, ``(n_samples,)``.
+            The model's positions, ``(n_outputs,)`` (:meth:`simulate`'s row).
         """
-        if not self.periods_from_rest:
+        if not self.refers_to_model:
             return
         x = np.asarray(model_position_m, dtype=float).reshape(-1)
-        if x.shape != (self.n_samples,) or not np.all(np.isfinite(x)):
+        if x.shape != (self.n_outputs,) or not np.all(np.isfinite(x)):
             raise LikelihoodError(f"{self.dataset.source or 'the data set'}: the model's "
-                                  f"positions must be {self.n_samples} finite values")
-        self._set_repeats(_noise_repeats(self.dataset, x)[1])
-        self.periods_referred = True
+                                  f"positions must be {self.n_outputs} finite values")
+        repeats = _noise_repeats(self.dataset, x)[1]
+        self._referred = repeats
+        self._set_repeats(repeats, _repeat_mask(self.dataset, self.observed))
+        self.referred = True
+
+    def referred_trials(self) -> Dataset:
+        """The trials referred to the model (:attr:`trials_referred`), as a data set:
+        each trial's residual at the model's positions, for the check that they are
+        exchangeable (:func:`pmabayes.inference.trials.check_trials`).
+
+        Returns
+        -------
+        Dataset
+
+        Raises
+        ------
+        LikelihoodError
+            If the trials have not been referred to a model.
+        """
+        ds = self.dataset
+        if not self.trials_referred:
+            raise LikelihoodError(f"{ds.source or 'the data set'}: its trials have not been "
+                                  "referred to a model (refer_periods_to)")
+        return Dataset(time_s=ds.time_s, input=ds.input, position_m=self._referred,
+                       trial_ids=ds.trial_ids, input_name=ds.input_name,
+                       source=f"{ds.source or 'the data set'} (the trials' residuals)",
+                       observed=ds.observed if ds.n_missing else None)
+
+    def start_parameters(self) -> tuple[Parameter, ...]:
+        """The parameters of an estimated start, with their priors; none otherwise.
+
+        For a data set whose ``initial_state`` is ``"estimate"``: the position
+        ``x0_m`` (before measurement effects), velocity ``v0_m_s`` and hysteretic force
+        at the first sample, the last as ``z0_offset_n``, its offset from the balance
+        of forces there (:func:`pmabayes.simulate`'s ``initial_values``). Their
+        priors come from the first :data:`START_WINDOW_S` of the trial mean (at least
+        five samples): a parabola fitted to it gives the position (its value at the
+        start) and the velocity (its slope there), each normal with a spread of three
+        standard errors (three times the parabola's residual for the position, its
+        slope itself for the velocity, if larger), at least 0.1% of the motion for the
+        position and the record's mean speed for the velocity; the force is normal
+        about the balance with the actuator's whole range of force as its spread (area
+        times the pressure's range, or the force's range). Shared by the trials; the
+        global search keeps them at their prior means, the polish and the sampler
+        free them.
+
+        Returns
+        -------
+        tuple of Parameter
+        """
+        return self._start
+
+    def start_defaults(self) -> np.ndarray:
+        """The start's prior means ``(3,)`` (an estimated start; empty otherwise)."""
+        return np.array([p.default for p in self._start])
 
     # -- the noise model ----------------------------------------------------------
     @property
@@ -475,6 +746,11 @@ class Likelihood:
         """
         if ar is not None and not isinstance(ar, ArNoise):
             raise TypeError(f"ar must be an ArNoise or None, got {type(ar).__name__}")
+        if ar is not None and self.observed is not None:
+            raise LikelihoodError(
+                f"{self.dataset.source or 'the data set'}: samples not observed (gaps, a "
+                "warm-up) leave AR(1) + white as the noise model: the exact AR(p) density "
+                "here is for complete series (see choose_noise_model)")
         self.ar_noise = ar
 
     @property
@@ -555,18 +831,43 @@ class Likelihood:
         return (sig, guarded, white)
 
     # -- model output ---------------------------------------------------------
-    def simulate(self, theta: np.ndarray) -> np.ndarray:
-        """Model positions ``(batch, n_samples)`` for a full parameter array (the
-        posterior's, of which :attr:`columns` are this model's, where set)."""
+    def simulate(self, theta: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+        """Model positions ``(batch, n_outputs)`` for a full parameter array.
+
+        The array is the posterior's, of which :attr:`columns` are this model's, where
+        set. With :attr:`own_inputs`, each trial on its own input, trial after trial
+        (``n_trials * n_samples`` values). ``start`` is an estimated start's
+        ``(batch, 3)`` values (:meth:`start_parameters`); without it such a start is at
+        its prior means (for callers that do not sample it).
+        """
+        theta = np.atleast_2d(theta)
         if self.columns is not None:
-            theta = np.ascontiguousarray(np.atleast_2d(theta)[:, self.columns])
-        return simulate_dataset(self.model, theta, self.dataset, substeps=self.substeps,
-                                steady_state_tol_m=self.warmup[0],
-                                max_warmup_periods=self.warmup[1])
+            theta = np.ascontiguousarray(theta[:, self.columns])
+        if self._start and start is None:
+            start = np.broadcast_to(self.start_defaults(), (theta.shape[0], 3))
+        x = simulate_dataset(self.model, theta, self.dataset, substeps=self.substeps,
+                             steady_state_tol_m=self.warmup[0],
+                             max_warmup_periods=self.warmup[1], per_trial=self.own_inputs,
+                             initial_values=start if self._start else None)
+        return x.reshape(x.shape[0], -1) if self.own_inputs else x
+
+    def _by_trial(self, x: np.ndarray) -> np.ndarray:
+        """Model outputs ``(batch, n_outputs)`` as ``(batch, 1 or n_trials, n_samples)``."""
+        x = np.atleast_2d(x)
+        return x.reshape(x.shape[0], -1, self.n_samples)
 
     def rms_cost(self, x: np.ndarray) -> np.ndarray:
-        """The paper's cost: RMS of the trial mean minus the model, per batch member."""
+        """The paper's cost: RMS of the trial mean minus the model, per batch member.
+
+        Over the samples observed (any trial), each the mean over the trials observed
+        there of data minus model (their own model, with :attr:`own_inputs`).
+        """
         x = np.atleast_2d(x)
+        if self.observed is not None or self.own_inputs:
+            obs = (self.observed if self.observed is not None
+                   else np.ones(self._trials.shape, dtype=bool))
+            xt = np.ascontiguousarray(np.transpose(self._by_trial(x), (2, 1, 0)))
+            return _rms_masked(self._trials, xt, obs)
         if x.shape[0] > 1 and x.T.flags.c_contiguous:  # the simulator's own layout
             return _rms_by_time(self.y_mean, x.T)
         return np.sqrt(np.mean((self.y_mean - x) ** 2, axis=1))
@@ -585,7 +886,8 @@ class Likelihood:
         The deviations are ``R - 1`` independent series of the noise process in
         disguise: their Helmert contrasts. The repeats are the trials, or the
         periods of a single periodic record (:attr:`noise_source`); a record
-        without repeats has none (the result is 0).
+        without repeats has none (the result is 0). The contrasts take the samples
+        observed in every repeat; the others are missing for them.
 
         Parameters
         ----------
@@ -600,22 +902,28 @@ class Likelihood:
         """
         batch = np.broadcast(np.asarray(sigma), np.asarray(rho), np.asarray(white)).size
         pars = self._params(sigma, rho, white, batch)
+        if self._contrast_obs is not None and self._contrasts.shape[0]:
+            zero = np.zeros((batch, 1, self.n_samples))
+            return _masked_loglik(self._contrasts, zero, 1.0, *pars,
+                                  self._contrast_obs).sum(axis=1)
         zero = np.zeros((1, self._contrasts.shape[1]))
         return _noise_loglik(self._contrasts, zero, 1.0, *pars).sum(axis=1)
 
     def mean_log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
-        """Log-likelihood of the trial mean given the model.
+        """Log-likelihood of the data given the model: the part that depends on it.
 
         The density of ``sqrt(R) (ybar - x)``, one more series of the noise process
         and the orthonormal complement of the contrasts, so that it adds to
         :meth:`deviation_log_likelihood` exactly. Under AR(1) + white (a Kalman
         filter), or under the AR(p) of the repeats once :meth:`use_ar_noise` set it
-        (then ``sigma``, ``rho`` and ``white`` are ignored).
+        (then ``sigma``, ``rho`` and ``white`` are ignored). Where the trial mean does
+        not split the likelihood (:attr:`per_trial`: trials with their own inputs, or
+        observed at different samples), the sum of each trial's likelihood.
 
         Parameters
         ----------
         x : numpy.ndarray
-            Model positions ``(batch, n_samples)``.
+            Model positions ``(batch, n_outputs)``.
         sigma, rho, white : array_like
             Noise parameters, scalars or ``(batch,)``.
 
@@ -625,9 +933,14 @@ class Likelihood:
             ``(batch,)``.
         """
         x = np.atleast_2d(x)
+        if self.per_trial:
+            return self.pointwise(x, sigma, rho, white).sum(axis=1)
         if self.ar_noise is not None:
             return self._ar_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials))[:, 0]
         pars = self._params(sigma, rho, white, x.shape[0])
+        if self._mean_obs is not None:
+            return _masked_loglik(self._y_mean[None, :], x[:, None, :], math.sqrt(self.n_trials),
+                                  *pars, self._mean_obs)[:, 0]
         return _noise_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials), *pars)[:, 0]
 
     def log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
@@ -636,12 +949,13 @@ class Likelihood:
         Equal to :meth:`deviation_log_likelihood` plus :meth:`mean_log_likelihood`
         for repeated trials; for a single record (periodic or not) the record's
         likelihood, :meth:`mean_log_likelihood` (its periods identify the noise but
-        are not data beside the record).
+        are not data beside the record); for :attr:`per_trial` trials the sum of each
+        trial's, :meth:`mean_log_likelihood` too.
 
         Parameters
         ----------
         x : numpy.ndarray
-            Model positions ``(batch, n_samples)``.
+            Model positions ``(batch, n_outputs)``.
         sigma, rho, white : array_like
             Noise parameters, scalars or ``(batch,)``.
 
@@ -652,7 +966,7 @@ class Likelihood:
         """
         x = np.atleast_2d(x)
         mean = self.mean_log_likelihood(x, sigma, rho, white)
-        if self.noise_source != "trials":
+        if self.noise_source != "trials" or self.per_trial:
             return mean
         if self.ar_noise is not None:
             zero = np.zeros((1, self.n_samples))
@@ -663,7 +977,8 @@ class Likelihood:
         """Standardised Kalman innovations of ``sqrt(R) v`` under the noise model.
 
         Linear in ``v``. Applied to the trial mean's residual it gives
-        :meth:`innovations`; applied to sensitivities, their whitened versions.
+        :meth:`innovations`; applied to sensitivities, their whitened versions. NaN
+        at samples no trial observed (the filter predicts across them).
 
         Parameters
         ----------
@@ -678,8 +993,10 @@ class Likelihood:
             ``(n_samples,)``.
         """
         v = np.ascontiguousarray(np.asarray(v, dtype=float).reshape(-1))
-        return _kalman_innovations(v, math.sqrt(self.n_trials), float(sigma), float(rho),
-                                   float(white))
+        seen = (np.ones(v.size, dtype=bool) if self.observed is None
+                else np.ascontiguousarray(self.observed.any(axis=0)))
+        return _kalman_innovations(np.where(seen, v, 0.0), math.sqrt(self.n_trials),
+                                   float(sigma), float(rho), float(white), seen)
 
     def innovations(self, x: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
         """Standardised innovations of the trial mean's residual under the noise model.
@@ -694,7 +1011,8 @@ class Likelihood:
         Returns
         -------
         numpy.ndarray
-            ``(n_samples,)``; independent N(0, 1) when the model describes the data.
+            ``(n_samples,)``; independent N(0, 1) when the model describes the data
+            (NaN where no trial is observed).
         """
         return self.whiten(self.y_mean - np.asarray(x, dtype=float).reshape(-1),
                            sigma, rho, white)
@@ -705,7 +1023,7 @@ class Likelihood:
         Parameters
         ----------
         x : numpy.ndarray
-            Model positions ``(batch, n_samples)``.
+            Model positions ``(batch, n_outputs)``.
         sigma, rho, white : array_like
             Noise parameters, scalars or ``(batch,)``.
 
@@ -714,11 +1032,75 @@ class Likelihood:
         numpy.ndarray
         """
         x = np.atleast_2d(x)
+        if self.own_inputs and self.ar_noise is not None:
+            x3 = self._by_trial(x)
+            return np.stack([self._ar_loglik(self._trials[r:r + 1], x3[:, r], 1.0)[:, 0]
+                             for r in range(self.n_trials)], axis=1)
         if self.ar_noise is not None:
             return self._ar_loglik(self._trials, x, 1.0)
         pars = self._params(sigma, rho, white, x.shape[0])
+        if self.observed is not None or self.own_inputs:
+            obs = self.observed if self.observed is not None else np.ones((1, self.n_samples),
+                                                                          dtype=bool)
+            return _masked_loglik(self._trials, self._by_trial(x), 1.0, *pars, obs)
         return _noise_loglik(self._trials, x, 1.0, *pars)
 
+
+#: Seconds at the start of a record whose samples set the priors of an estimated start
+#: (:meth:`Likelihood.start_parameters`).
+START_WINDOW_S = 0.05
+
+
+def _start_priors(lik: Likelihood) -> tuple[Parameter, ...]:
+    """The priors of an estimated start (:meth:`Likelihood.start_parameters`)."""
+    ds = lik.dataset
+    t = ds.time_s - ds.time_s[0]
+    y = ds.mean_position_m
+    first = np.flatnonzero(np.isfinite(y) & (t <= START_WINDOW_S))
+    if first.size < 5:  # a record sampled slowly: its first five samples
+        first = np.flatnonzero(np.isfinite(y))[:5]
+    # a parabola: mid-loop the motion curves within the window, and a line's intercept
+    # and slope would carry that curvature's bias
+    design = np.stack([np.ones(first.size), t[first], t[first] ** 2], axis=1)
+    coef, *_ = np.linalg.lstsq(design, y[first], rcond=None)
+    resid = y[first] - design @ coef
+    s2 = float(resid @ resid) / max(first.size - 3, 1)
+    se = np.sqrt(np.maximum(np.diag(np.linalg.pinv(design.T @ design)) * s2, 0.0))
+    duration = max(float(t[-1]), ds.dt_s)
+    sd_x = max(3.0 * se[0], 3.0 * math.sqrt(s2), 1e-3 * lik.motion_m)
+    sd_v = max(3.0 * se[1], abs(float(coef[1])), lik.motion_m / duration)
+    u = ds.input[np.isfinite(ds.input)]
+    swing = float(np.ptp(u)) or float(np.max(np.abs(u))) or 1.0
+    sd_z = swing * (lik.model.rig.area_m2 if ds.input_name == "pressure_pa" else 1.0)
+
+    def start(name: str, unit: str, mean: float, sd: float, text: str, latex: str):
+        # bounds far out in the prior's tails: finite, so that boxes built from them are
+        return Parameter(name, unit, mean, Normal(mean, sd), bounds=(mean - 1e3 * sd,
+                                                                    mean + 1e3 * sd),
+                         description=f"{text} (an estimated start)", latex=latex)
+
+    return (
+        start("x0_m", "m", float(coef[0]), sd_x, "position at the first sample", r"x_0"),
+        start("v0_m_s", "m/s", float(coef[1]), sd_v, "velocity at the first sample",
+              r"\dot x_0"),
+        start("z0_offset_n", "N", 0.0, sd_z, "hysteretic force at the first sample, as an "
+              "offset from the balance of forces there", r"\Delta z_0"),
+    )
+
+
+
+def span(y: np.ndarray) -> float:
+    """Largest minus smallest of the values observed (NaN marks a sample not observed).
+
+    Parameters
+    ----------
+    y : numpy.ndarray
+
+    Returns
+    -------
+    float
+    """
+    return float(np.nanmax(y) - np.nanmin(y))
 
 
 class JointLikelihood:
@@ -759,12 +1141,12 @@ class JointLikelihood:
         self.model = first
         self.dataset = self.likelihoods[0].dataset
         self.substeps = self.likelihoods[0].substeps
-        self.sizes = [lik.n_samples for lik in self.likelihoods]
+        self.sizes = [lik.n_outputs for lik in self.likelihoods]
         self._edges = np.cumsum([0, *self.sizes])
-        self.n_samples = int(self._edges[-1])
+        self.n_samples = self.n_outputs = int(self._edges[-1])
         self.y_mean = np.concatenate([lik.y_mean for lik in self.likelihoods])
         self.input = np.concatenate([lik.input for lik in self.likelihoods])
-        self.motions_m = np.array([float(np.ptp(lik.y_mean)) for lik in self.likelihoods])
+        self.motions_m = np.array([span(lik.y_mean) for lik in self.likelihoods])
 
     def split(self, x: np.ndarray) -> list[np.ndarray]:
         """Concatenated outputs ``(batch, n_samples)`` cut into each experiment's.
@@ -781,9 +1163,12 @@ class JointLikelihood:
         x = np.atleast_2d(x)
         return [x[:, a:b] for a, b in zip(self._edges[:-1], self._edges[1:], strict=True)]
 
-    def simulate(self, theta: np.ndarray) -> np.ndarray:
-        """Every experiment's model positions, concatenated: ``(batch, n_samples)``."""
-        return np.concatenate([lik.simulate(theta) for lik in self.likelihoods], axis=1)
+    def simulate(self, theta: np.ndarray, starts=None) -> np.ndarray:
+        """Every experiment's model positions, concatenated: ``(batch, n_outputs)``
+        (``starts``: each experiment's estimated start, or None)."""
+        starts = starts or [None] * len(self.likelihoods)
+        return np.concatenate([lik.simulate(theta, start) for lik, start in
+                               zip(self.likelihoods, starts, strict=True)], axis=1)
 
     def rms_costs(self, x: np.ndarray) -> np.ndarray:
         """Each experiment's RMS cost, ``(batch, n_experiments)``."""
@@ -1161,12 +1546,15 @@ class NoiseChoice:
         (NaN without repeats, or when not tested).
     level : float
         The test's level.
+    note : str
+        Why the choice was not the test's (samples not observed), or empty.
     """
 
     requested: str
     ar: ArNoise | None
     ljung_box_p: float
     level: float = LEVEL_ADEQUATE
+    note: str = ""
 
     @property
     def name(self) -> str:
@@ -1175,6 +1563,8 @@ class NoiseChoice:
 
     def describe(self) -> str:
         """One sentence for the progress line and reports."""
+        if self.note:
+            return f"AR(1) + white: {self.note}"
         tested = (f"Ljung-Box of the repeats whitened by AR(1) + white p = "
                   f"{self.ljung_box_p:.2g}" if math.isfinite(self.ljung_box_p) else "")
         if self.ar is None:
@@ -1193,6 +1583,8 @@ class NoiseChoice:
         out = {"model": self.name, "requested": self.requested,
                "ljung_box_p": self.ljung_box_p if math.isfinite(self.ljung_box_p) else None,
                "level": self.level, "order": 1}
+        if self.note:
+            out["note"] = self.note
         if self.ar is not None:
             out.update(self.ar.to_dict())
         return out
@@ -1266,7 +1658,12 @@ def choose_noise_model(likelihoods, sigma: float, rho: float, white: float,
     ``"auto"``: AR(1) + white unless the repeats' contrasts whitened by it fail a
     pooled Ljung-Box test at ``level`` (:func:`ar1_whiteness_of_repeats`); then the
     AR(p) of the repeats (:func:`ar_noise_from_repeats`). ``"ar1"`` and ``"ar"`` force
-    one or the other. Without repeats the choice is AR(1) + white.
+    one or the other. Without repeats the choice is AR(1) + white, and with samples not
+    observed (gaps, a warm-up) too, said in the choice's ``note``: the AR(p) density is
+    exact for complete series (Durbin-Levinson over the record); with samples missing
+    it would need a state of ``p`` lags in a Kalman filter (``p`` up to
+    :data:`MAX_AR_ORDER`, ``p^2`` times the work a sample), and its Yule-Walker
+    estimate and the whiteness test are made for complete series too.
 
     Parameters
     ----------
@@ -1290,6 +1687,12 @@ def choose_noise_model(likelihoods, sigma: float, rho: float, white: float,
     contrasts = [lik.contrasts for lik in liks if lik.contrasts.shape[0] > 0]
     if not contrasts:
         return NoiseChoice(noise_model, None, math.nan, level)
+    gaps = sum(int((~lik.observed).sum()) for lik in liks if lik.observed is not None)
+    if gaps:
+        return NoiseChoice(noise_model, None, math.nan, level, note=(
+            f"{gaps} samples are not observed (gaps or a warm-up), and the repeats' AR(p) "
+            "is exact for complete series only; the filter takes missing samples as they "
+            "are"))
     p = ar1_whiteness_of_repeats(liks, sigma, rho, white)[0]
     if noise_model == "ar1" or (noise_model == "auto" and p >= level):
         return NoiseChoice(noise_model, None, p, level)

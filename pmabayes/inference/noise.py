@@ -78,7 +78,7 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
     # start from moments of the deviations: total variance, lag-one correlation, and
     # the white part from the drop of the autocorrelation at lag one
     def moment(lag: int) -> float:
-        each = [float(np.mean(lik._d[:, lag:] * lik._d[:, : lik._d.shape[1] - lag]))
+        each = [_lag_moment(lik._d, lik._contrast_obs, lag)
                 * (lik.n_repeats / (lik.n_repeats - 1)) for lik in liks]
         if len(each) == 1:
             return each[0]
@@ -97,6 +97,17 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
                        "that they are not copies of one another, and record more repetitions"
                        ) from None
     return NoiseEstimate(float(np.exp(u[0])), float(np.tanh(u[1])), float(np.exp(u[2])), u, cov)
+
+
+def _lag_moment(d: np.ndarray, observed: np.ndarray | None, lag: int) -> float:
+    """Mean of ``d[:, k] d[:, k - lag]`` over series ``d`` ``(series, n)``: over every
+    pair, or over the pairs of samples both ``observed`` (``(1 or series, n)``; ``d`` is
+    0 where a sample is not)."""
+    n = d.shape[1]
+    if observed is None:
+        return float(np.mean(d[:, lag:] * d[:, : n - lag]))
+    pairs = np.broadcast_to(observed[:, lag:] & observed[:, : n - lag], (d.shape[0], n - lag))
+    return float(np.sum(d[:, lag:] * d[:, : n - lag]) / max(int(pairs.sum()), 1))
 
 
 def _moment_start(var: float, c1: float, c2: float, rho_high: float = 0.9999) -> np.ndarray:
@@ -128,11 +139,12 @@ def _minimise_noise(neg, u0: np.ndarray) -> np.ndarray:
     return best.x
 
 
-def _default_noise_z(posterior: Posterior) -> np.ndarray:
-    """The sampled noise parameters' defaults in unconstrained coordinates (none when
-    the noise comes from repeats)."""
+def _default_noise_z(posterior: Posterior, first: int | None = None) -> np.ndarray:
+    """The defaults, in unconstrained coordinates, of the columns from ``first`` on: by
+    default the sampled noise parameters' (none when the noise comes from repeats)."""
     theta = np.array([[p.default for p in posterior.parameters]])
-    return posterior.to_unconstrained(theta)[0, posterior.n_model:]
+    first = posterior.n_searched if first is None else first
+    return posterior.to_unconstrained(theta)[0, first:]
 
 
 def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
@@ -145,10 +157,10 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
     the search's optimum is a series of the noise (plus what misfit is left): its
     moments start the search, over the noise coordinates only, of the posterior.
     """
-    cols = np.arange(posterior.n_model, posterior.ndim)
+    cols = np.arange(posterior.n_searched, posterior.ndim)
     if cols.size == 0:
         return z
-    x = posterior.likelihood.simulate(posterior.full_theta(posterior.to_natural(z[None])))
+    x = posterior.output(posterior.to_natural(z[None]))
     parts = (posterior.likelihood.split(x) if isinstance(posterior.likelihood, JointLikelihood)
              else [x])
     starts: dict[int, np.ndarray] = {}  # per sampled group, from its first experiment
@@ -156,7 +168,9 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
         g = posterior.groups[e]
         if posterior.noise_sampled(e) and g not in starts:
             r = lik.y_mean - xe[0]
-            c = [float(np.mean(r[k:] * r[: r.size - k])) for k in range(3)]
+            if lik.observed is not None:  # a single record: its samples observed
+                r = np.where(lik.observed[0], r, 0.0)
+            c = [_lag_moment(r[None], lik.observed, k) for k in range(3)]
             starts[g] = _moment_start(*c, rho_high=0.99 * lik.rho_max)
     u0 = np.concatenate([starts[g] for g in sorted(starts)])  # the columns' order
 
@@ -208,11 +222,13 @@ def group_noise(members: list[Likelihood], noise_model: str
 
 
 def refer_periods(posterior: Posterior, z: np.ndarray) -> bool:
-    """Learn the noise of records from rest from their periods' residual at ``z``.
+    """Learn the noise of records from rest, and of trials with their own inputs, from
+    their repeats' residual at ``z``.
 
-    Each experiment whose noise comes from the periods of a record that starts
-    from rest (:attr:`pmabayes.inference.likelihood.Likelihood.periods_from_rest`) takes its
-    periods from the residual at ``z``
+    Each experiment whose repeats must be referred to the model
+    (:attr:`pmabayes.inference.likelihood.Likelihood.refers_to_model`: the periods of a
+    record that starts from rest, or trials with their own inputs) takes its repeats
+    from the residual at ``z``
     (:meth:`~pmabayes.inference.likelihood.Likelihood.refer_periods_to`), and the noise of its
     group is estimated again, its noise model chosen again as first requested.
     Other experiments keep theirs.
@@ -230,12 +246,12 @@ def refer_periods(posterior: Posterior, z: np.ndarray) -> bool:
         Whether any experiment's periods were referred to the model.
     """
     liks = posterior.likelihoods
-    shaken = [e for e, lik in enumerate(liks) if lik.periods_from_rest]
+    shaken = [e for e, lik in enumerate(liks) if lik.refers_to_model]
     if not shaken:
         return False
-    full = posterior.full_theta(posterior.to_natural(np.asarray(z, dtype=float)[None]))
+    theta = posterior.to_natural(np.asarray(z, dtype=float)[None])
     for e in shaken:
-        liks[e].refer_periods_to(liks[e].simulate(full)[0])
+        liks[e].refer_periods_to(posterior.simulate(theta, e)[0])
     for g in sorted({posterior.groups[e] for e in shaken}):
         members = [e for e, gg in enumerate(posterior.groups) if gg == g]
         est, choice = group_noise([liks[e] for e in members],

@@ -5,6 +5,7 @@ group's estimate and noise model (:mod:`pmabayes.inference.noise`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -24,7 +25,7 @@ from pmabayes.model.model import Model, ModelError, force_rig_priors
 from pmabayes.model.simulator import SimulationError, simulate_dataset
 
 __all__ = ["experiments", "build_posterior", "choose_substeps", "data_scaled_priors",
-           "prior_median", "SUBSTEP_CHOICES", "SUBSTEP_TOLERANCE"]
+           "prior_median", "noise_groups", "SUBSTEP_CHOICES", "SUBSTEP_TOLERANCE"]
 
 
 def experiments(datasets: Dataset | Sequence[Dataset], model: Model
@@ -191,10 +192,43 @@ def data_scaled_priors(model: Model, datasets: Sequence[Dataset]) -> tuple[Model
                          "sqrt(mass / compliance); the noise's scale from the amplitude"}
 
 
+def noise_groups(datasets: Sequence[Dataset], *, tie_noise: bool = False,
+                 tie_segments: bool = True) -> list[int]:
+    """The noise group of each experiment.
+
+    One group for all with ``tie_noise``; else one per experiment, except that the
+    segments of one record (:func:`pmabayes.data.load_segments`: the metadata's
+    ``"segment"``, from one file) share one with ``tie_segments``: one sensor, one
+    disturbance, split only by the DAQ's pauses.
+
+    Parameters
+    ----------
+    datasets : sequence of Dataset
+    tie_noise, tie_segments : bool
+
+    Returns
+    -------
+    list of int
+        Groups numbered from 0 in the order of their first experiment.
+    """
+    if tie_noise:
+        return [0] * len(datasets)
+    keys: dict = {}
+    out = []
+    for i, ds in enumerate(datasets):
+        seg = ds.metadata.get("segment")
+        key = (i,)
+        if tie_segments and isinstance(seg, dict) and ds.source:
+            key = (str(Path(ds.source).parent), str(seg.get("name", "")).rpartition("#")[0])
+        out.append(keys.setdefault(key, len(keys)))
+    return out
+
+
 def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *,
                     substeps: int | str = 1, tie_noise: bool = False,
                     noise_model: str = "auto", steady_state_tol_m: float | None = None,
-                    max_warmup_periods: int | None = None) -> Posterior:
+                    max_warmup_periods: int | None = None,
+                    tie_segments: bool = True) -> Posterior:
     """The posterior to sample.
 
     Parameters
@@ -216,6 +250,8 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *,
     steady_state_tol_m, max_warmup_periods : optional
         The periodic steady state's settings where the data start in it, over each
         sidecar's (:func:`pmabayes.model.simulator.warmup_settings`).
+    tie_segments : bool
+        The segments of one record share their noise (:func:`noise_groups`).
 
     Returns
     -------
@@ -248,9 +284,10 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *,
                 for m, ds in zip(models, datasets, strict=True)]
     except (ValueError, LikelihoodError, ModelError, SimulationError) as exc:
         raise FitError(str(exc)) from None  # DataError is a ValueError
-    for ds in datasets:  # before their spread is taken for noise
-        check_trials(ds, warn=True)
-    groups = [0] * len(liks) if tie_noise else list(range(len(liks)))
+    for ds, lik in zip(datasets, liks, strict=True):  # before their spread is taken for noise
+        if not lik.own_inputs:  # those are checked on their residuals at the MAP
+            check_trials(ds, warn=True)
+    groups = noise_groups(datasets, tie_noise=tie_noise, tie_segments=tie_segments)
     noises = []
     choices: list[NoiseChoice | None] = [None] * len(liks)
     for g in range(max(groups) + 1):

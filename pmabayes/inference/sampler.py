@@ -38,6 +38,7 @@ from pmabayes.inference.likelihood import check_noise_model_name
 from pmabayes.inference.noise import refer_periods
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import MapResult, find_map
+from pmabayes.inference.trials import check_trials
 from pmabayes.model.model import Model
 from pmabayes.parallel import Runner
 from pmabayes.util import Progress, fingerprint, local_cores, show_progress
@@ -103,6 +104,9 @@ class FitSettings:
     tie_noise : bool
         One noise for all experiments (same sensor, same disturbance) instead of
         one per experiment.
+    tie_segments : bool
+        The segments of one record (:func:`pmabayes.data.load_segments`) share one
+        noise (the default), as one sensor's; False gives each its own.
     noise_model : {"auto", "ar1", "ar"}
         The noise model of the trial mean's likelihood where the noise comes from
         repeats (:func:`pmabayes.inference.likelihood.choose_noise_model`): ``"auto"``
@@ -141,6 +145,7 @@ class FitSettings:
     noise_model: str = "auto"
     steady_state_tol_m: float | None = None
     max_warmup_periods: int | None = None
+    tie_segments: bool = True
 
     def __post_init__(self) -> None:
         if self.max_steps < 20:
@@ -445,7 +450,15 @@ def _fingerprint(posterior: Posterior, settings: FitSettings, seed) -> str:
         # chains of an AR(1) + white likelihood are not those of an AR(p) one
         extra["noise_models"] = [None if lik.ar_noise is None
                                  else lik.ar_noise.autocovariance_m2.tolist() for lik in liks]
-    arrays = [a for lik in liks for a in (lik.dataset.position_m, lik.input)]
+    if any(lik.observed is not None or lik.own_inputs or lik.start_parameters()
+           for lik in liks):
+        # what else the likelihood is of: samples missing in it, inputs, starts
+        extra["likelihood"] = [[lik.observed is not None, lik.own_inputs,
+                                [str(p.prior) for p in lik.start_parameters()]]
+                               for lik in liks]
+    arrays = [a for lik in liks for a in (lik.dataset.position_m,
+                                          lik.dataset.input if lik.own_inputs else lik.input,
+                                          *(() if lik.observed is None else (lik.observed,)))]
     return fingerprint(*arrays, extra)
 
 
@@ -514,10 +527,15 @@ def fit(
 
     Each data set is an experiment: its own input, length, rig (its metadata's
     ``rig``) and trials (one or more). The physical parameters are shared; the
-    noise belongs to each experiment unless ``settings.tie_noise``. An experiment's noise is
+    noise belongs to each experiment unless ``settings.tie_noise`` (the segments of one
+    record share theirs unless ``settings.tie_segments`` is off). An experiment's noise is
     learnt from its repeats (trials, or the periods of a single periodic record);
     a record without repeats has it identified jointly with the model under a guard
-    (see :mod:`pmabayes.inference.likelihood`).
+    (see :mod:`pmabayes.inference.likelihood`). Samples not observed (gaps, a
+    declared warm-up) are missing in the likelihood; trials with their own (measured)
+    inputs are each simulated on theirs, their noise learnt from their residuals at
+    the MAP; a start declared ``"estimate"`` is identified with the model (see the
+    same module).
 
     Parameters
     ----------
@@ -570,7 +588,8 @@ def _fit(datasets, model: Model, seed, settings: FitSettings, chains_dir, restar
     posterior = build_posterior(model, datasets, substeps=settings.substeps,
                                 tie_noise=settings.tie_noise, noise_model=settings.noise_model,
                                 steady_state_tol_m=settings.steady_state_tol_m,
-                                max_warmup_periods=settings.max_warmup_periods)
+                                max_warmup_periods=settings.max_warmup_periods,
+                                tie_segments=settings.tie_segments)
     _check_settings(settings, posterior)
     s_map, s_walkers, s_ppc = np.random.SeedSequence(seed).spawn(3)
     ens_seeds = [int(s.generate_state(1)[0]) for s in s_walkers.spawn(settings.n_ensembles)]
@@ -639,6 +658,11 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
             if lik.periods_referred:
                 say.say(f"noise of {name} from its periods' residual at the MAP (the "
                         f"model's shakedown from rest removed): {choice.describe()}")
+            elif lik.trials_referred:
+                say.say(f"noise of {name} from its trials' residuals at the MAP, each "
+                        "trial's model on its own input (the model's response to the inputs' "
+                        f"differences removed): {choice.describe()}")
+                check_trials(lik.referred_trials(), warn=True)
     chains.start(map_result, t_map)
     return map_result, t_map, False
 

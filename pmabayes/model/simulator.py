@@ -5,8 +5,9 @@ step: the linear mass-spring-damper discretised exactly for a force linear over 
 interval, the remaining force found by one linearly implicit step, and the Bouc-Wen
 force ``z`` advanced by the exact solution of its law over the step's displacement.
 Kernels are generated per composition of effects, compiled with numba and cached on
-disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``). A periodic steady
-state is found by Newton's method on the period map. The documentation's page "The
+disk (``$PMABAYES_CACHE_DIR``, default ``~/.cache/pmabayes``). A record starts at
+rest, at zero, from a given (estimated) state, or in a periodic steady state found by
+Newton's method on the period map. The documentation's page "The
 simulator" (``docs/theory/simulator.rst``) gives the scheme and the input conventions.
 """
 
@@ -275,6 +276,14 @@ class PlantCode:
             return f"{area} * max({p} - {self.cst}[11, i], 0.0) - {f_grav}"
         return f"{area} * {p} - {f_grav}"
 
+    def balance(self, p: str, x: str, v: str, out: str) -> list[str]:
+        """Lines setting ``out`` to the hysteretic force ``z`` that balances the actuator,
+        the spring, the damper and the force effects (at ``z = 0``) at position ``x``,
+        velocity ``v`` and pressure ``p``: the ``z`` of zero acceleration."""
+        t = self.theta
+        return [*self.forces(x, v, p, "fb", False),
+                f"{out} = {self.actuator(p)} - {t}[i, 4] * {x} - {t}[i, 3] * {v} - fb"]
+
     def forces(self, x: str, v: str, p: str, out: str, derivs: bool, z: str = "0.0",
                states: dict | None = None, slopes: dict | None = None) -> list[str]:
         """Lines summing the force effects into ``out`` (and ``out_x``, ``out_v``).
@@ -417,10 +426,13 @@ def _generate(model: Model, record: bool, shared_input: bool,
     """Source of the kernel for ``model`` and the globals it needs injected."""
     plant = PlantCode(model)
     zero = initial_state == "zero"
+    # a given start (``init``: (3, batch)) is an argument only where it is used
+    given = initial_state == "estimate"
     pressure, measure = plant.pressure, plant.measure
     name_of = plant.name_of
 
-    args = "theta, p_in, time_s, dt, substeps, mass, f_grav, area, out_x"
+    args = ("theta, p_in, time_s, dt, substeps, mass, f_grav, area, "
+            + ("init, " if given else "") + "out_x")
     if record:
         args += ", out_v, out_z, out_p, out_f, out_true"
     if resume:
@@ -431,7 +443,7 @@ def _generate(model: Model, record: bool, shared_input: bool,
     if resume:  # the plant starts at sample `start`, from st_io unless from_rest
         body += ["k0 = start * substeps" if between_samples == "bandlimited" else "k0 = start"]
     first = "k0" if resume else "0"
-    loops = dict(zero=zero, resume=resume)
+    loops = dict(zero=zero, resume=resume, given=given)
     # within a sample interval the pressure is linear from pp[0] to pp[1]
     linear = between_samples == "linear"
     body += [f"st = np.zeros(({plant.n_rows}, batch))"]
@@ -471,8 +483,8 @@ def _generate(model: Model, record: bool, shared_input: bool,
     text = _HEADER.format(effects=", ".join(model.effect_names) or "none")
     text += f"# input shared by the batch: {shared_input}; recording states: {record}\n"
     text += f"# input between samples: {between_samples}\n"
-    if zero:  # only then, so that the rest kernels' text (and disk cache) is unchanged
-        text += "# initial state: zero\n"
+    if zero or given:  # only then, so that the rest kernels' text (and disk cache) is unchanged
+        text += f"# initial state: {initial_state}\n"
     if resume:
         text += "# resumes from a given state\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
@@ -522,11 +534,14 @@ def _pressure_fill(plant: PlantCode, shared_input: bool, linear: bool = False,
 
 def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_next: str,
                   p_first: str, substep_lines: tuple[str, ...] | list[str] = (),
-                  zero: bool = False, resume: bool = False) -> list[str]:
+                  zero: bool = False, resume: bool = False, given: bool = False
+                  ) -> list[str]:
     """Lines of the initial state and the time loop, given how the pressure at the
     start and end of a substep, at the next sample and at the first is read
     (``substep_lines`` run once per substep, before the batch loop). The state starts
-    at rest under the first input, or with ``zero`` at ``x = x' = z = 0``. With
+    at rest under the first input, with ``zero`` at ``x = x' = z = 0``, or with
+    ``given`` at ``init[:, i]``: position, velocity, and ``z`` as an offset from the
+    balance at that position and velocity (:meth:`PlantCode.balance`). With
     ``resume`` the plant starts at sample ``start`` from the state rows ``st_io`` (or as
     above where ``from_rest``), and leaves its final state there."""
     rest = ["xi = 0.0"] if zero else plant.rest("p0", "xi")
@@ -536,18 +551,26 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
         out += ["        st[0, i] = xi", "    else:",
                 f"        for r in range({plant.n_rows}):", "            st[r, i] = st_io[r, i]",
                 "    xi = st[0, i]", "    out_x[start, i] = xi"]
+    elif given:
+        out += ["    xi = init[0, i]", "    st[1, i] = init[1, i]"]
+        out += ["    " + ln for ln in plant.balance("p0", "xi", "init[1, i]", "zi")]
+        out += ["    st[2, i] = zi + init[2, i]"]
+        out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     else:
         out += ["    " + ln for ln in rest]
         out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     k0 = "start" if resume else "0"
     if record:
         states = {e: f"st[{row}, i]" for e, row in plant.state_row.items()}
-        out += [f"    out_v[{k0}, i] = st[1, i]", f"    out_z[{k0}, i] = st[2, i]",
-                f"    out_p[{k0}, i] = p0"] if resume else [
-            "    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
-        out += ["    " + ln for ln in (plant.forces("xi", "st[1, i]", "p0", "f0", False,
-                                                    "st[2, i]", states) if resume
-                                       else plant.forces("xi", "0.0", "p0", "f0", False))]
+        if resume or given:
+            out += [f"    out_v[{k0}, i] = st[1, i]", f"    out_z[{k0}, i] = st[2, i]",
+                    f"    out_p[{k0}, i] = p0"]
+        else:
+            out += ["    out_v[0, i] = 0.0", "    out_z[0, i] = 0.0", "    out_p[0, i] = p0"]
+        out += ["    " + ln for ln in (
+            plant.forces("xi", "st[1, i]", "p0", "f0", False, "st[2, i]", states) if resume
+            else plant.forces("xi", "st[1, i]", "p0", "f0", False, "st[2, i]") if given
+            else plant.forces("xi", "0.0", "p0", "f0", False))]
         out += [f"    out_f[{k0}, i] = f0"]
     step = ["x0 = st[0, i]; v0 = st[1, i]; z0 = st[2, i]"]
     step += plant.step(p_start, p_end, "x0", "v0", "z0", "x1", "v1", "z1")
@@ -896,6 +919,7 @@ def simulate(
     steady_state_tol_m: float = STEADY_STATE_TOL_M,
     max_warmup_periods: int = MAX_WARMUP_PERIODS,
     initial_state: str = "rest",
+    initial_values=None,
 ):
     """Simulate ``model`` for a batch of parameter sets.
 
@@ -964,8 +988,15 @@ def simulate(
         ``x`` at static equilibrium under the first input sample, as after a long
         hold of it) or ``"zero"`` (``x = x' = z = 0`` whatever the first input: a
         plant at rest at zero input that the input switches on at the first sample,
-        as the Bouc-Wen benchmark's simulations start). Pressure effects start as
-        under ``"rest"``.
+        as the Bouc-Wen benchmark's simulations start) or ``"estimate"`` (the state
+        ``initial_values`` gives). Pressure effects start as under ``"rest"``.
+    initial_values : array_like, optional
+        With ``initial_state="estimate"`` (and only then): each member's start,
+        ``(3,)`` shared or ``(B, 3)``: the position in m (before measurement effects),
+        the velocity in m/s, and the hysteretic force ``z`` in N as an offset from the
+        balance at that position and velocity (the ``z`` at which the actuator, spring,
+        damper and force effects leave no acceleration; 0 starts from that balance).
+        Force effects' own states start at 0.
 
     Returns
     -------
@@ -1010,22 +1041,51 @@ def simulate(
             raise SimulationError(
                 f"max_warmup_periods must be an integer >= 3, got {max_warmup_periods!r}")
     t, dt = _time_axis(n, dt_s, time_s)
+    init = _initial_values(initial_state, initial_values, theta.shape[0], steady_state)
     return _simulate_on_grid(model, theta, u, t, dt, substeps=int(substeps), states=states,
                              between_samples=between_samples,
                              period=_check_period(period_samples, steady_state, n),
                              steady_state=steady_state, steady_state_tol_m=steady_state_tol_m,
                              max_warmup_periods=max_warmup_periods,
-                             initial_state=initial_state)
+                             initial_state=initial_state, init=init)
+
+
+def _initial_values(initial_state: str, values, batch: int, steady_state: bool
+                    ) -> np.ndarray | None:
+    """The kernel's ``init`` ``(3, batch)`` for a given start, checked; None otherwise."""
+    if initial_state != "estimate":
+        if values is not None:
+            raise SimulationError(
+                f"initial_values are the start of initial_state='estimate'; with "
+                f"initial_state={initial_state!r} the start is fixed: leave them out")
+        return None
+    if steady_state:
+        raise SimulationError("initial_state='estimate' gives the record's start, which a "
+                              "steady state would replace: use one or the other")
+    if values is None:
+        raise SimulationError(
+            "initial_state='estimate' needs initial_values: (position m, velocity m/s, "
+            "z offset N) per member, (3,) or (batch, 3)")
+    v = np.asarray(values, dtype=float)
+    if v.shape == (3,):
+        v = np.broadcast_to(v, (batch, 3))
+    if v.shape != (batch, 3) or not np.all(np.isfinite(v)):
+        raise SimulationError(f"initial_values must be 3 finite values, or ({batch}, 3) for "
+                              f"a batch of {batch}; got shape {v.shape}")
+    return np.ascontiguousarray(v.T)
 
 
 def _simulate_on_grid(model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray,
                       dt: float, *, substeps: int, states: bool, between_samples: str,
                       period: int | None, steady_state: bool, steady_state_tol_m: float,
-                      max_warmup_periods: int, initial_state: str):
+                      max_warmup_periods: int, initial_state: str,
+                      init: np.ndarray | None = None):
     """:func:`simulate` on a checked input and time grid (the data set's own, checked
     when it was made: the sampler calls this thousands of times)."""
     run = dict(model=model, theta=theta, u=u, t=t, dt=dt, substeps=substeps,
                between_samples=between_samples, period=period, initial_state=initial_state)
+    if init is not None:  # a given start (never with a steady state)
+        run["init"] = init
     if not steady_state:
         return _run(**run, states=states)
     start = _steady_state(run, float(steady_state_tol_m), int(max_warmup_periods))
@@ -1123,7 +1183,7 @@ def _periods(run: dict, state: np.ndarray | None, members: np.ndarray
 def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: float,
          substeps: int, states: bool, between_samples: str, period: int | None,
          initial_state: str = "rest", lead: int = 0, state: np.ndarray | None = None,
-         periodic_input: bool = False):
+         periodic_input: bool = False, init: np.ndarray | None = None):
     """One kernel call over the record, after ``lead`` periods of its first period that
     only drive the pressure path.
 
@@ -1143,7 +1203,7 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
     batch = theta.shape[0]
     out_x = np.zeros((n + ahead, batch)) if lead else np.empty((n + ahead, batch))
     args = (theta, p_in, t, dt, substeps, rig.moving_mass_kg, rig.gravity_force_n,
-            rig.area_m2, out_x)
+            rig.area_m2, *(() if init is None else (init,)), out_x)
     kernel = dict(shared_input=shared, between_samples=between_samples,
                   initial_state=initial_state, resume=bool(lead))
     rows = state_rows(model) if lead else 0
@@ -1237,7 +1297,8 @@ def position_reference(dataset) -> str:
 
 def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
                      states: bool = False, steady_state_tol_m: float | None = None,
-                     max_warmup_periods: int | None = None):
+                     max_warmup_periods: int | None = None, per_trial: bool = False,
+                     initial_values=None):
     """Simulate ``model`` on a data set's input, as the data set declares it.
 
     The one place where a data set's declarations become simulator options: what
@@ -1258,19 +1319,28 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
         Parameters, as accepted by :meth:`Model.theta`.
     dataset : Dataset
         The data: its first trial's input and its time grid are used (repeated
-        trials share the input).
+        trials share the input), or with ``per_trial`` every trial's own input.
     substeps : int
         Integration steps per sample interval.
     states : bool
         Return a :class:`Simulation` instead of positions.
     steady_state_tol_m, max_warmup_periods : optional
         The steady state's settings, over the sidecar's (:func:`warmup_settings`).
+    per_trial : bool
+        Simulate each trial on its own input (trials with measured inputs): ``R``
+        trials and ``B`` parameter sets make ``R * B`` simulations, trial-major
+        (member ``r * B + b``).
+    initial_values : array_like, optional
+        For a data set whose start is estimated (``initial_state == "estimate"``):
+        ``(B, 3)`` starts, as :func:`simulate` takes them (shared by the trials).
 
     Returns
     -------
     numpy.ndarray or Simulation
-        As :func:`simulate`; with ``position_reference`` ``"start"`` the measured
-        positions are relative to the model's at the first sample.
+        As :func:`simulate`, with ``per_trial`` positions ``(B, R, n_samples)`` (a
+        :class:`Simulation`'s members stay trial-major); with ``position_reference``
+        ``"start"`` the measured positions are relative to the model's at the first
+        sample.
     """
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
@@ -1278,15 +1348,26 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
     tol, budget = (warmup_settings(dataset, steady_state_tol_m, max_warmup_periods) if steady
                    else (STEADY_STATE_TOL_M, MAX_WARMUP_PERIODS))
     relative = position_reference(dataset) == "start"
-    out = _simulate_on_grid(model, model.theta(params), dataset.input[0], dataset.time_s,
+    theta = model.theta(params)
+    batch = theta.shape[0]
+    init = _initial_values(dataset.initial_state, initial_values, batch, steady)
+    u = dataset.input[0]
+    if per_trial:
+        trials = dataset.n_trials
+        theta = np.tile(theta, (trials, 1))
+        u = np.repeat(dataset.input, batch, axis=0)
+        init = None if init is None else np.tile(init, (1, trials))
+    out = _simulate_on_grid(model, theta, u, dataset.time_s,
                             dataset.grid_dt_s, substeps=int(substeps), states=states,
                             between_samples=dataset.input_between_samples,
                             period=(None if dataset.period_samples is None
                                     else int(dataset.period_samples)),
                             steady_state=steady, steady_state_tol_m=tol,
-                            max_warmup_periods=budget, initial_state=dataset.initial_state)
-    if not relative:
+                            max_warmup_periods=budget, initial_state=dataset.initial_state,
+                            init=init)
+    if relative:
+        out = (dataclasses.replace(out, position_m=out.position_m - out.position_m[:, :1])
+               if states else out - out[:, :1])
+    if not per_trial or states:
         return out
-    if states:
-        return dataclasses.replace(out, position_m=out.position_m - out.position_m[:, :1])
-    return out - out[:, :1]
+    return out.reshape(trials, batch, -1).transpose(1, 0, 2)
