@@ -248,14 +248,14 @@ def test_a_bug_keeps_its_traceback_and_bad_input_is_one_line(tmp_path, monkeypat
     def bug(*args, **kwargs):
         raise ValueError("an internal bug")
 
-    monkeypatch.setattr(data, "load", bug)
+    monkeypatch.setattr(data, "load_segments", bug)
     with pytest.raises(ValueError, match="an internal bug"):
         main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o")])
 
     def bad_input(*args, **kwargs):
         raise DataError("d.csv: line 3: bad; fix it")
 
-    monkeypatch.setattr(data, "load", bad_input)
+    monkeypatch.setattr(data, "load_segments", bad_input)
     capsys.readouterr()
     assert main(["predict", str(tmp_path / "d.csv"), "--out", str(tmp_path / "o"),
                  "--quiet"]) == 2
