@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -73,6 +73,10 @@ class Refit:
         diagnosis' order.
     elpd_i : numpy.ndarray or None
         Per-trial leave-one-out ELPD, for paired comparisons of refits.
+    implausible : str or None
+        Why the refit's estimates are not physics (outside their plausible range, or
+        run to a bound: :func:`pmabayes.criticism.plausibility.implausible`); such a
+        refit is never named missing. None when they are plausible.
 
     Notes
     -----
@@ -94,17 +98,19 @@ class Refit:
     explained_with_next: float = 0.0
     signatures: tuple = ()
     elpd_i: np.ndarray | None = None
+    implausible: str | None = None
 
     def to_dict(self) -> dict:
-        """JSON-ready summary: ``rms_m`` (pooled), ``elpd_diff``, ``elpd_diff_se`` and
-        ``experiments``, one ``{"rms_m", "noise_ratio", "ljung_box_p", "energy"}`` each.
+        """JSON-ready summary: ``rms_m`` (pooled), ``elpd_diff``, ``elpd_diff_se``,
+        ``implausible`` and ``experiments``, one ``{"rms_m", "noise_ratio",
+        "ljung_box_p", "energy"}`` each.
 
         Returns
         -------
         dict
         """
         return {"rms_m": self.rms_m, "elpd_diff": self.elpd_diff,
-                "elpd_diff_se": self.elpd_diff_se,
+                "elpd_diff_se": self.elpd_diff_se, "implausible": self.implausible,
                 "experiments": [{"rms_m": sig.bands[-1].rms_m,
                                  "noise_ratio": finite_or_none(sig.ratio),
                                  "ljung_box_p": sig.ljung_box_p, "energy": sig.energy}
@@ -138,6 +144,12 @@ class Finding:
     explanation : str
         A paragraph in physical terms: what the effect is, the residual's
         signature, and what adding it does.
+    left_out : str or None
+        Why it was left out of the score tests (``"cannot act on these data: ..."``);
+        then ``evidence`` and ``p_value`` are NaN. None when it was tested.
+    implausible : str or None
+        Why its estimates are not physics (outside their plausible range; a refit's on
+        a bound): an implausible estimate is not a finding. None when plausible.
     """
 
     effect: str
@@ -149,6 +161,8 @@ class Finding:
     explained: float
     refit: Refit | None
     explanation: str
+    left_out: str | None = None
+    implausible: str | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary (an entry of a diagnosis' ``ranking``).
@@ -156,15 +170,17 @@ class Finding:
         Returns
         -------
         dict
-            ``effect``, ``evidence``, ``p_value``, ``significant``, ``estimate``,
-            ``interval``, ``explained``, ``explanation`` and ``refit``
-            (:meth:`Refit.to_dict`, or None).
+            ``effect``, ``evidence``, ``p_value`` (None when left out), ``significant``,
+            ``estimate``, ``interval``, ``explained``, ``explanation``, ``left_out``,
+            ``implausible`` and ``refit`` (:meth:`Refit.to_dict`, or None).
         """
         return {
-            "effect": self.effect, "evidence": self.evidence, "p_value": self.p_value,
+            "effect": self.effect, "evidence": finite_or_none(self.evidence),
+            "p_value": finite_or_none(self.p_value),
             "significant": self.significant, "estimate": dict(self.estimate),
             "interval": {k: [float(a), float(b)] for k, (a, b) in self.interval.items()},
             "explained": self.explained, "explanation": self.explanation,
+            "left_out": self.left_out, "implausible": self.implausible,
             "refit": None if self.refit is None else self.refit.to_dict(),
         }
 
@@ -196,6 +212,11 @@ class ExperimentDiagnosis:
         repeats (nothing to measure it with).
     adequate : bool
         The adequacy rule on this experiment's whitened residual.
+    baselines : dict
+        The yardsticks fitted to the diagnosis' data, on this experiment
+        (:meth:`pmabayes.criticism.baselines.Baselines.scores`): ``"linear"`` and
+        ``"play"``, each with its in-sample ``rmse_m`` and ``nrmse``; empty when they
+        could not be fitted.
     """
 
     name: str
@@ -206,6 +227,7 @@ class ExperimentDiagnosis:
     simulation: Simulation
     signature: Signature
     adequate: bool
+    baselines: dict = field(default_factory=dict)
 
     @property
     def rms_m(self) -> float:
@@ -259,9 +281,10 @@ class ExperimentDiagnosis:
             ``rho_noise``, ``sigma_white_m``), ``rms_m``, ``noise_floor_m`` and
             ``ratio`` (None without repeats), ``adequate``, ``floor_note`` (None with
             a floor), ``whiteness`` (``ljung_box_p``, ``energy``, ``energy_p``),
-            ``signature`` (:meth:`~pmabayes.criticism.signature.Signature.describe`)
-            and ``bands`` (one :meth:`~pmabayes.criticism.bands.BandErrors.to_dict`
-            each, the last overall).
+            ``signature`` (:meth:`~pmabayes.criticism.signature.Signature.describe`),
+            ``bands`` (one :meth:`~pmabayes.criticism.bands.BandErrors.to_dict`
+            each, the last overall) and ``baselines`` (the yardsticks' in-sample
+            errors here, beside the model's ``rms_m``).
         """
         sig = self.signature
         return {
@@ -279,6 +302,8 @@ class ExperimentDiagnosis:
                           "energy_p": sig.energy_p},
             "signature": sig.describe(),
             "bands": [b.to_dict() for b in sig.bands],
+            "baselines": {n: {k: finite_or_none(v) if isinstance(v, float) else v
+                              for k, v in b.items()} for n, b in self.baselines.items()},
         }
 
 

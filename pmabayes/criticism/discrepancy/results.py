@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+from pmabayes.util import finite_or_none
 
 __all__ = ["StateEvidence", "Proposal", "Discrepancy"]
 
@@ -99,10 +102,12 @@ class Discrepancy:
         Share of the whitened residual's excess energy (above the noise) that the
         flexible force, with the parameters readjusted, removes (linearised).
     ratio_after : float
-        RMS error over the floor with the flexible force (linearised).
+        RMS error over the floor with the flexible force (linearised); NaN for a record
+        without repeats (no floor).
     elpd_gain : float
         Leave-one-trial-out ELPD of the flexible force minus that of the model with
-        its parameters readjusted alone.
+        its parameters readjusted alone; for a record without repeats, leaving out one
+        stretch of it at a time.
     elpd_gain_se : float
         Its standard error.
     memory_tau_s : float
@@ -114,12 +119,16 @@ class Discrepancy:
         The closed form (or tabulated shape), None when none could be formed.
     near_floor : bool
         Whether the flexible force brings the model near the floor (ratio within
-        1.5x).
+        1.5x; without a floor, a whitened residual energy within the adequacy
+        tolerance of pure noise).
     other_cause : str or None
         When the flexible force cannot: what is left and which non-force cause the
         residual's signature suggests.
     text : str
         The conclusion in words.
+    energy_after : float
+        Mean square of the whitened residual with the flexible force (linearised; 1 for
+        pure noise).
     """
 
     states: list
@@ -133,11 +142,14 @@ class Discrepancy:
     near_floor: bool
     other_cause: str | None
     text: str
+    energy_after: float = math.nan
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
         return {"states": [s.to_dict() for s in self.states], "explained": self.explained,
-                "ratio_after": self.ratio_after, "elpd_gain": self.elpd_gain,
+                "ratio_after": finite_or_none(self.ratio_after),
+                "energy_after": finite_or_none(self.energy_after),
+                "elpd_gain": self.elpd_gain,
                 "elpd_gain_se": self.elpd_gain_se, "memory_tau_s": self.memory_tau_s,
                 "near_floor": self.near_floor, "other_cause": self.other_cause,
                 "proposal": None if self.proposal is None else self.proposal.to_dict(),
