@@ -233,15 +233,22 @@ def _linear_solve(records: list, masks: list, order: int, theta: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, float]:
     """Numerator and offset by least squares for given poles: the residual over the masked
     samples, the coefficients (numerator, then offset) and the offset."""
+    y = np.concatenate([rec.y[m] for rec, m in zip(records, masks, strict=True)])
+    worst = (np.full(y.size, 1e3 * (np.std(y) + 1.0)), np.zeros(order + 1), 0.0)
+    if not np.all(np.abs(theta) < 40.0):  # a pole the search flung out of all reason
+        return worst
     den = _denominator(_sections(order, theta))
-    rows, target = [], []
-    for rec, m in zip(records, masks, strict=True):
-        b = _basis(den, rec.u, rec.dt_s)
-        rows.append(np.concatenate([b, np.ones((b.shape[0], 1))], axis=1)[m])
-        target.append(rec.y[m])
-    a, y = np.concatenate(rows), np.concatenate(target)
+    rows = []
+    try:
+        with np.errstate(all="ignore"):
+            for rec, m in zip(records, masks, strict=True):
+                b = _basis(den, rec.u, rec.dt_s)
+                rows.append(np.concatenate([b, np.ones((b.shape[0], 1))], axis=1)[m])
+    except (ValueError, ZeroDivisionError):  # numpy's LinAlgError is a ValueError
+        return worst
+    a = np.concatenate(rows)
     if not np.all(np.isfinite(a)):
-        return np.full(y.size, 1e3 * (np.std(y) + 1.0)), np.zeros(order + 1), 0.0
+        return worst
     norms = np.linalg.norm(a, axis=0)
     norms = np.where(norms > 0, norms, 1.0)
     coef = np.linalg.lstsq(a / norms, y, rcond=None)[0] / norms

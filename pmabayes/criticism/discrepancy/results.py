@@ -87,7 +87,10 @@ class Proposal:
         return {"effect": self.effect, "expression": self.expression,
                 "plugin": self.plugin, "description": self.description,
                 "kind": self.kind, "terms": list(self.terms), "elpd_diff": self.elpd_diff,
-                "elpd_diff_se": self.elpd_diff_se, "verified": self.verified}
+                "elpd_diff_se": self.elpd_diff_se,
+                # a record without repeats has no floor: its ratio is None
+                "verified": None if self.verified is None else {
+                    **self.verified, "ratio": finite_or_none(self.verified["ratio"])}}
 
 
 @dataclass(frozen=True)
