@@ -7,14 +7,23 @@ exponential covariance (continuous-time AR(1), a Matérn-1/2 kernel)::
 
     cov(delta(t), delta(t + h)) = sigma_d^2 exp(-|h| / tau_d)
 
-and its two hyperparameters are fitted by maximum likelihood to the fit's training
-residual (the trial mean minus the posterior-mean prediction) *beyond the measurement
-noise*: the residual is modelled as ``delta`` plus the noise of a trial mean (the
-fit's AR(1) disturbance and white sensor noise, their variances divided by the number
-of trials), the noise held at the fit's posterior medians, and the likelihood is exact
-(a two-state Kalman filter; samples not observed are skipped). When the likelihood
-ratio against no discrepancy is not significant (:data:`LEVEL`, two degrees of
-freedom), the discrepancy is zero: an adequate model keeps its bands as they were.
+and its two hyperparameters are fitted to the fit's training residual (the trial mean
+minus the posterior-mean prediction) *beyond the measurement noise*: the residual is
+modelled as ``delta`` plus the noise of a trial mean (the fit's AR(1) disturbance and
+white sensor noise, their variances divided by the number of trials, held at the fit's
+posterior medians).
+
+* ``sigma_d^2`` by moments: the residual's mean square less the noise's variance. The
+  band's coverage is about the errors' marginal spread, which this matches; the
+  likelihood's own estimate of the variance is poorly determined when the correlation
+  time comes out as long as the record (a wrong model's residual is slow), and gave
+  bands that covered less evenly in the study ``analyses/discrepancy_bands.py``.
+* ``tau_d`` by maximum likelihood, the variance held, the likelihood exact (a two-state
+  Kalman filter; samples not observed are skipped).
+
+When the likelihood ratio against no discrepancy is not significant (:data:`LEVEL`,
+two degrees of freedom), the discrepancy is zero: an adequate model keeps its bands as
+they were.
 
 :func:`learn_inadequacy` does the fit; :meth:`Inadequacy.draw` draws discrepancies to
 add to a posterior-predictive band (:mod:`~pmabayes.criticism.validation`). The
@@ -113,7 +122,8 @@ class Inadequacy:
     corr_time_s : float
         Its correlation time ``tau_d`` (NaN when ``sigma_m`` is 0).
     log_lr : float
-        Log-likelihood ratio of the fitted discrepancy against none.
+        Log-likelihood ratio of the fitted discrepancy against none (0 when the residual
+        has no spread beyond the noise).
     significant : bool
         Whether ``2 log_lr`` exceeds the chi-squared quantile of :data:`LEVEL` (2 dof).
     residual_rms_m : float
@@ -208,21 +218,24 @@ def learn_inadequacy(records: Sequence[ResidualRecord]) -> Inadequacy:
     null = _total(records, 0.0, 1.0)
     dt = min(r.dt_s for r in records)
     span = max(r.dt_s * r.residual_m.size for r in records)
-    size = math.sqrt(max(rms * rms - noise_var, 1e-6 * rms * rms, 1e-30))
+    size = math.sqrt(max(rms * rms - noise_var, 0.0))
+    if not size > 0:  # no spread beyond the noise at all
+        return Inadequacy(0.0, math.nan, 0.0, False, rms, float(math.sqrt(noise_var)),
+                          int(seen.size))
 
-    def neg(v: np.ndarray) -> float:
-        value = _total(records, math.exp(v[0]), math.exp(v[1]))
+    def neg(log_tau: float) -> float:
+        value = _total(records, size, math.exp(log_tau))
         return -value if math.isfinite(value) else 1e300
 
-    starts = [np.array([math.log(size * f), math.log(t)]) for f in (0.5, 1.0, 2.0)
-              for t in np.geomspace(3.0 * dt, max(span / 2.0, 10.0 * dt), 10)]
-    best = min(starts, key=neg)
-    sol = optimize.minimize(neg, best, method="Nelder-Mead",
-                            options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 400})
-    x = sol.x if sol.fun <= neg(best) else best
-    log_lr = float(-neg(x) - null)
+    grid = np.log(np.geomspace(3.0 * dt, max(10.0 * span, 10.0 * dt), 16))
+    k = int(np.argmin([neg(g) for g in grid]))
+    sol = optimize.minimize_scalar(neg, bracket=None, bounds=(grid[max(k - 1, 0)],
+                                                              grid[min(k + 1, grid.size - 1)]),
+                                   method="bounded", options={"xatol": 1e-4})
+    log_tau = float(sol.x) if sol.fun <= neg(grid[k]) else float(grid[k])
+    log_lr = float(-neg(log_tau) - null)
     significant = bool(2.0 * log_lr > stats.chi2.isf(LEVEL, 2))
-    return Inadequacy(sigma_m=float(math.exp(x[0])) if significant else 0.0,
-                      corr_time_s=float(math.exp(x[1])) if significant else math.nan,
+    return Inadequacy(sigma_m=size if significant else 0.0,
+                      corr_time_s=float(math.exp(log_tau)) if significant else math.nan,
                       log_lr=log_lr, significant=significant, residual_rms_m=rms,
                       noise_rms_m=float(math.sqrt(noise_var)), n_samples=int(seen.size))
