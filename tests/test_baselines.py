@@ -108,12 +108,13 @@ def test_the_discrepancy_is_learnt_beyond_the_noise(size_m):
         assert not np.any(d.draw(2, 10, dt, rng))
 
 
-def lagged_fit():
-    """A fit-like tree of the base model whose training data come from the plant with a
-    45 ms regulator lag (the model lacks it): the chirp, measured as the generator does."""
+def trained_on(effects=None):
+    """A fit-like tree of the base model (tight around the plant's values) whose training
+    data are the 8 s chirp of the plant with ``effects``, measured as the generator does:
+    with the 45 ms regulator lag (``LAG``), a model that lacks it."""
     tree = plant_fit(n_time=8000)
     chirp = generate_chirp_dataset(n_trials=3, seed=7, chirp=Chirp(duration_s=8.0),
-                                   effects=LAG)
+                                   effects=effects)
     obs = tree["observed_data"].to_dataset()
     obs["position_m"] = (("trial", "time"), chirp.position_m)
     tree["observed_data"] = type(tree)(obs)
@@ -128,7 +129,7 @@ def test_validate_reports_baselines_and_a_band_with_the_discrepancy():
     The held-out inputs are chirps of other sweeps and sizes than the training one: a
     stationary discrepancy describes inputs of the training input's kind (the study
     ``analyses/discrepancy_bands.py`` fits for real)."""
-    tree = lagged_fit()
+    tree = trained_on(LAG)
     held = [held_out(Chirp(duration_s=6.0).pressure_pa(), seed=30, effects=LAG,
                      source="chirp_6s.csv"),
             held_out(Chirp(duration_s=12.0, p_max_pa=0.4e6).pressure_pa(), seed=31,
@@ -150,14 +151,7 @@ def test_validate_reports_baselines_and_a_band_with_the_discrepancy():
 
 def test_an_adequate_model_keeps_its_band():
     """The plant's own training data: no discrepancy, and the band as it was."""
-    tree = plant_fit(n_time=8000)
-    chirp = generate_chirp_dataset(n_trials=3, seed=7, chirp=Chirp(duration_s=8.0))
-    obs = tree["observed_data"].to_dataset()
-    obs["position_m"] = (("trial", "time"), chirp.position_m)
-    tree["observed_data"] = type(tree)(obs)
-    const = tree["constant_data"].to_dataset()
-    const["pressure_pa"] = ("time", chirp.input[0])
-    tree["constant_data"] = type(tree)(const)
+    tree = trained_on()
     v = validate(tree, held_out(steps_pa(), seed=11, source="steps.csv"), n_draws=100, seed=0)
     e = v.experiments[0]
     assert not v.discrepancy.significant and v.discrepancy.sigma_m == 0.0

@@ -6,6 +6,7 @@ one.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -254,10 +255,17 @@ def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
 
 def _explaining(refits: dict, s: DiagnoseSettings) -> list[Refit]:
     """The refits that account for the misfit and predict left-out trials better, with
-    estimates that are physics (:mod:`~pmabayes.criticism.plausibility`)."""
+    estimates that are physics (:mod:`~pmabayes.criticism.plausibility`). Where an
+    experiment has no floor (a record without repeats), a refit must remove the excess
+    itself: its noise is identified with each model and takes in what the model leaves,
+    so neither its adequacy nor the look-ahead's first-order share (measured against
+    that noise) is evidence there."""
+    floors = all(math.isfinite(sig.bands[-1].floor_m) for r in refits.values()
+                 for sig in r.signatures)
     return [r for r in refits.values()
-            if (max(r.explained, r.explained_with_next) >= s.min_explained
-                or s.all_adequate(r.signatures))
+            if ((max(r.explained, r.explained_with_next) >= s.min_explained
+                 or s.all_adequate(r.signatures)) if floors
+                else r.explained >= s.min_explained)
             and r.elpd_diff > 2.0 * r.elpd_diff_se and r.implausible is None]
 
 
