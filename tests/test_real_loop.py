@@ -133,6 +133,7 @@ def test_the_discrepancy_step_runs_on_a_record_without_repeats():
     assert out["discrepancy"]["ratio_after"] is None and out["discrepancy"]["energy_after"] > 0
 
 
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")  # a noise held constant
 def test_the_summary_labels_its_map_and_adds_the_highest_density_draw():
     tree = fake_fit()
     info = json.loads(tree.attrs["pmabayes"])
@@ -149,6 +150,7 @@ def test_the_summary_labels_its_map_and_adds_the_highest_density_draw():
     assert rows["alpha"]["paper"] is not None  # the characterisation rig: the paper's rig
 
 
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")  # a noise held constant
 def test_the_paper_column_only_beside_the_papers_rig():
     tree = fake_fit()
     info = json.loads(tree.attrs["pmabayes"])
