@@ -388,8 +388,10 @@ class Diagnosis:
 
     @property
     def score_threshold(self) -> float:
-        """The score statistic above which a candidate is significant (1 dof)."""
-        return significance_threshold(self.settings["level"], len(self.ranking))
+        """The score statistic above which a candidate is significant (1 dof; Bonferroni
+        over the candidates tested, those left out not counted)."""
+        return significance_threshold(self.settings["level"],
+                                      sum(f.left_out is None for f in self.ranking))
 
     def to_dict(self) -> dict:
         """JSON-ready summary (``pmabayes diagnose --json``), one shape for any number of

@@ -254,7 +254,8 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
     Parameters
     ----------
     findings : list of pmabayes.criticism.results.Finding
-        The ranking of a diagnosis.
+        The ranking of a diagnosis (a candidate left out of the score tests is drawn
+        pale at the axis' foot, "(left out)").
     threshold : float, optional
         The significance threshold of the score statistic, drawn as a line
         (:attr:`pmabayes.criticism.results.Diagnosis.score_threshold`); none drawn if not
@@ -268,9 +269,13 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
     -------
     matplotlib.figure.Figure
     """
-    names = [f.effect for f in findings][::-1]
-    values = [max(f.evidence, 1e-3) for f in findings][::-1]
-    colors = ["tab:red" if f.significant else "tab:gray" for f in findings][::-1]
+    left = [getattr(f, "left_out", None) is not None for f in findings]
+    names = [f.effect + (" (left out)" if out else "")
+             for f, out in zip(findings, left, strict=True)][::-1]
+    values = [1e-3 if out else max(f.evidence, 1e-3)
+              for f, out in zip(findings, left, strict=True)][::-1]
+    colors = ["0.85" if out else "tab:red" if f.significant else "tab:gray"
+              for f, out in zip(findings, left, strict=True)][::-1]
     fig = Figure(figsize=(7.5, 0.45 * len(names) + 1.2), layout="constrained")
     ax = fig.subplots()
     ax.barh(names, values, color=colors)
