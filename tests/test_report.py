@@ -146,7 +146,8 @@ def test_write_summary_csv_and_markdown(bad_fit, tmp_path):
     header = [c.strip() for c in lines[0].strip("|").split("|")]
     assert header[:6] == ["parameter", "unit (SI)", "mean", "sd", "90% HDI low",
                           "90% HDI high"]
-    assert "paper" in header and "MAP" in header and "ESS bulk" in header
+    assert "paper" in header and "MAP (global search)" in header and "ESS bulk" in header
+    assert "highest-density draw" in header
     assert re.fullmatch(r"\|(-{3}:?\|)+", lines[1].replace("---:", "---").replace(
         "|---|", "|---|"))
     assert len(lines) == 2 + len(rows)
@@ -158,7 +159,7 @@ def test_write_summary_csv_and_markdown(bad_fit, tmp_path):
         assert cells["mean"] == f"{r['mean']:.4g}"
         assert float(cells["90% HDI low"]) == float(f"{r['hdi_low']:.4g}")
         assert cells["paper"] == ("\u2014" if r["paper"] is None else f"{r['paper']:.4g}")
-        assert cells["MAP"] == f"{r['map']:.4g}"
+        assert cells["MAP (global search)"] == f"{r['map']:.4g}"
 
 
 # ----------------------------------------------------------------------------- report

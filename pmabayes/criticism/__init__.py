@@ -10,6 +10,7 @@ Each file owns one idea:
 ``signature``      the residual's signature: where and how a model fails
 ``adequacy``       the one adequacy rule and its verdict in words
 ``scores``         score tests of candidate effects, with no refit
+``plausibility``   whether an estimate is physics: each parameter's plausible range
 ``elpd``           leave-one-trial-out ELPD: Laplace PSIS-LOO, tables, paired differences
 ``settings``       :class:`~pmabayes.criticism.settings.DiagnoseSettings`
 ``refits``         the diagnosed model at its MAP, the refits and the missing effect
@@ -18,6 +19,8 @@ Each file owns one idea:
 ``diagnosis``      ``diagnose``, a short sequence of the steps above
 ``discrepancy``    the missing force estimated from the data (a package)
 ``compare``        fits of the same data side by side
+``baselines``      yardsticks: a linear output-error and a Prandtl-Ishlinskii model
+``inadequacy``     the model's discrepancy learnt from its training residual
 ``validation``     predictions of held-out experiments
 =================  ==================================================================
 """
@@ -43,6 +46,7 @@ from pmabayes.criticism.bands import (
     instantaneous_frequency,
     power_spectrum,
 )
+from pmabayes.criticism.baselines import Baselines, fit_baselines
 from pmabayes.criticism.compare import FitComparison, compare_fits
 from pmabayes.criticism.diagnosis import diagnose
 from pmabayes.criticism.discrepancy import (
@@ -55,6 +59,8 @@ from pmabayes.criticism.discrepancy import (
     force_response,
     stlsq,
 )
+from pmabayes.criticism.inadequacy import Inadequacy, learn_inadequacy
+from pmabayes.criticism.plausibility import implausible, plausible_range
 from pmabayes.criticism.results import Diagnosis, ExperimentDiagnosis, Finding, Refit
 from pmabayes.criticism.scores import EffectEvidence, rank_effects, significance_threshold
 from pmabayes.criticism.settings import DiagnoseSettings
@@ -85,6 +91,7 @@ __all__ = [
     "Adequacy",
     "BandError",
     "BandErrors",
+    "Baselines",
     "DEFAULT_BANDS_HZ",
     "DEFAULT_DRAWS",
     "DiagnoseSettings",
@@ -97,6 +104,7 @@ __all__ = [
     "ExperimentValidation",
     "Finding",
     "FitComparison",
+    "Inadequacy",
     "LEVEL_ADEQUATE",
     "MAX_AR_ORDER",
     "MIN_BINS",
@@ -122,14 +130,18 @@ __all__ = [
     "diagnose",
     "estimate_discrepancy",
     "excited_band",
+    "fit_baselines",
     "floor_ratio",
     "force_response",
+    "implausible",
     "innovations",
     "input_bands",
     "instantaneous_frequency",
     "is_adequate",
     "judged_whiteness",
+    "learn_inadequacy",
     "ljung_box",
+    "plausible_range",
     "power_spectrum",
     "rank_effects",
     "residual_signature",

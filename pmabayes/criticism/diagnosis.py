@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from pmabayes.criticism.bands import input_bands
+from pmabayes.criticism.baselines import fit_baselines, nrmse, yardstick_text
 from pmabayes.criticism.discrepancy import Discrepancy, estimate_discrepancy
+from pmabayes.criticism.plausibility import implausible
 from pmabayes.criticism.prose import (
     contribution_text,
     describe_signatures,
@@ -51,10 +53,19 @@ def _findings(ranked: list, refits: dict, base: BaseFit, ci_prob: float) -> list
     residuals = base.residuals
     describe = describe_signatures(base.signatures, base.names)
     edges = np.cumsum([0, *(r.size for r in residuals)])
+    datasets = [lik.dataset for lik in base.likelihoods]
     findings = []
     for ev in ranked:
         eff = get_effect(ev.effect)
         refit = refits.get(ev.effect)
+        if ev.left_out is not None:
+            findings.append(Finding(
+                effect=ev.effect, evidence=ev.statistic, p_value=ev.p_value, significant=False,
+                estimate={}, interval={}, explained=0.0, refit=None, left_out=ev.left_out,
+                explanation=(f"{eff.name} ({eff.stage} stage): "
+                             f"{' '.join(eff.description.split())} Left out of the score "
+                             f"tests: it {ev.left_out}.")))
+            continue
         if refit is not None:
             estimate = {k: refit.values[k] for k in refit.interval}
             interval, explained = refit.interval, refit.explained
@@ -68,15 +79,22 @@ def _findings(ranked: list, refits: dict, base: BaseFit, ci_prob: float) -> list
             contrib = "".join(texts)
         else:
             estimate, interval, explained, contrib = ev.estimate, ev.interval, ev.explained, ""
+        odd = (refit.implausible if refit is not None else
+               implausible(base.likelihoods[0].model.with_effects(ev.effect), estimate,
+                           list(estimate), datasets))
+        text = explanation_text(eff, ev.statistic, ev.p_value, ev.significant, describe, refit,
+                                contrib, ci_prob, base.names)
         findings.append(Finding(
             effect=ev.effect, evidence=ev.statistic, p_value=ev.p_value,
             significant=ev.significant, estimate=estimate, interval=interval,
-            explained=explained, refit=refit,
-            explanation=explanation_text(eff, ev.statistic, ev.p_value, ev.significant,
-                                         describe, refit, contrib, ci_prob, base.names),
+            explained=explained, refit=refit, implausible=odd,
+            explanation=text + (f" Implausible, not a finding: {odd}." if odd else ""),
         ))
-    # refitted candidates first, by how well they predict left-out trials
-    findings.sort(key=lambda f: (f.refit is None, -(f.refit.elpd if f.refit else f.evidence)))
+    # refitted candidates first, by how well they predict left-out trials; those left out
+    # of the score tests last
+    findings.sort(key=lambda f: (f.left_out is not None, f.refit is None,
+                                 -(f.refit.elpd if f.refit else
+                                   (0.0 if f.left_out is not None else f.evidence))))
     return findings
 
 
@@ -207,7 +225,8 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
                           level=s.level)
     refits = refit_significant(base, ranked, s, rng, say)
     findings = _findings(ranked, refits, base, s.ci_prob)
-    experiments = _experiment_diagnoses(base, s)
+    say.say("fitting the yardsticks (linear output-error, Prandtl-Ishlinskii)")
+    experiments = _experiment_diagnoses(base, s, _yardsticks(base))
     adequate = all(e.adequate for e in experiments)
     missing = missing_effect(refits, s)
     verdict = verdict_text(label, models[0].effect_names, experiments, adequate, missing,
@@ -215,7 +234,7 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     found, found_in, words = None, None, ""
     if s.discrepancy and not adequate and missing is None:
         found, found_in, words = _discrepancy_step(base, experiments, plugin_dir, say)
-    verdict += words
+    verdict += words + _yardstick_words(experiments)
     say.say("diagnosis done: " + ("adequate" if adequate else f"{missing} is missing"
                                   if missing else "not adequate"))
     return Diagnosis(
@@ -235,30 +254,57 @@ def _checked(settings: DiagnoseSettings | None) -> DiagnoseSettings:
     return settings
 
 
-def _experiment_diagnoses(base: BaseFit, s: DiagnoseSettings) -> tuple:
-    """Each experiment's data, model, noise, simulation, signature and adequacy."""
+def _experiment_diagnoses(base: BaseFit, s: DiagnoseSettings, yardsticks: list) -> tuple:
+    """Each experiment's data, model, noise, simulation, signature, adequacy and
+    yardsticks."""
     return tuple(
         ExperimentDiagnosis(name=n, dataset=lik.dataset, model=lik.model, noise=noise,
                             noise_source=lik.noise_source, simulation=sim, signature=sig,
-                            adequate=s.is_adequate(sig))
-        for n, lik, noise, sim, sig in zip(base.names, base.likelihoods, base.noises,
-                                           base.simulations, base.signatures, strict=True))
+                            adequate=s.is_adequate(sig), baselines=yard)
+        for n, lik, noise, sim, sig, yard in zip(base.names, base.likelihoods, base.noises,
+                                                 base.simulations, base.signatures, yardsticks,
+                                                 strict=True))
+
+
+def _yardsticks(base: BaseFit) -> list[dict]:
+    """The yardsticks fitted to the diagnosis' data, each experiment's in-sample errors
+    (empty where they could not be fitted): diagnose has no held-out data, so the physics
+    is compared with them on the record both were fitted to."""
+    datasets = [lik.dataset for lik in base.likelihoods]
+    try:
+        fitted = fit_baselines(datasets)
+    except ValueError:
+        return [{} for _ in datasets]
+    return [fitted.scores(ds) for ds in datasets]
+
+
+def _yardstick_words(experiments: tuple) -> str:
+    """The verdict's sentence when the fitted model does not beat a yardstick on the
+    training record (in-sample, as both were fitted to it)."""
+    words = ""
+    for e in experiments:
+        if not e.baselines:
+            continue
+        rmse, normalised = nrmse(e.dataset.mean_position_m, e.simulation.position_m[0])
+        where = "on the training record" + (f" {e.name}" if len(experiments) > 1 else "")
+        text = yardstick_text({"rmse_m": rmse, "nrmse": normalised}, e.baselines,
+                              metric="rmse_m", where=where + " (in-sample, as both were fitted "
+                              "to it)")
+        words += f" {text}" if text else ""
+    return words
 
 
 def _discrepancy_step(base: BaseFit, experiments: tuple, plugin_dir, say: Progress
                       ) -> tuple[Discrepancy | None, str | None, str]:
     """The missing force estimated from the data: the discrepancy, the experiment it was
     estimated on, and what it adds to the verdict."""
-    # its evidence leaves one trial out: it needs an experiment with repeated trials
-    repeated = [e for e, lik in enumerate(base.likelihoods) if lik.dataset.n_trials >= 2]
-    if not repeated:
-        return None, None, (" The data-driven discrepancy step needs repeated trials (its "
-                            "evidence leaves one trial out), and these data have none; record "
-                            "repeats to estimate the missing force.")
     # the missing force is estimated on one experiment: with several, the one whose
     # residual is furthest above its floor (the others are named in the command that
-    # checks the proposal on all of them)
-    k = _worst_experiment(base.signatures, [e.adequate for e in experiments], repeated)
+    # checks the proposal on all of them). Its evidence leaves out one trial at a time,
+    # or, on a record without repeats, one stretch of it under the noise identified with
+    # the model.
+    k = _worst_experiment(base.signatures, [e.adequate for e in experiments],
+                          range(len(base.likelihoods)))
     several = len(experiments) > 1
     say.say(f"estimating the missing force from {base.names[k]} (discrepancy; the experiment "
             "furthest above its floor)" if several else

@@ -6,12 +6,14 @@ one.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from pmabayes.criticism.bands import excess_removed
 from pmabayes.criticism.elpd import laplace_loo, paired_difference
+from pmabayes.criticism.plausibility import implausible
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
@@ -222,6 +224,8 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
         explained_with_next=explained + (1.0 - explained) * (nxt.explained if nxt else 0.0),
         signatures=tuple(sigs),
         elpd_i=e_elpd_i,
+        implausible=implausible(ext, ext_map.values, tested,
+                                [lik.dataset for lik in base.likelihoods], refit=True),
     )
 
 
@@ -256,11 +260,19 @@ def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
 
 
 def _explaining(refits: dict, s: DiagnoseSettings) -> list[Refit]:
-    """The refits that account for the misfit and predict left-out trials better."""
+    """The refits that account for the misfit and predict left-out trials better, with
+    estimates that are physics (:mod:`~pmabayes.criticism.plausibility`). Where an
+    experiment has no floor (a record without repeats), a refit must remove the excess
+    itself: its noise is identified with each model and takes in what the model leaves,
+    so neither its adequacy nor the look-ahead's first-order share (measured against
+    that noise) is evidence there."""
+    floors = all(math.isfinite(sig.bands[-1].floor_m) for r in refits.values()
+                 for sig in r.signatures)
     return [r for r in refits.values()
-            if (max(r.explained, r.explained_with_next) >= s.min_explained
-                or s.all_adequate(r.signatures))
-            and r.elpd_diff > 2.0 * r.elpd_diff_se]
+            if ((max(r.explained, r.explained_with_next) >= s.min_explained
+                 or s.all_adequate(r.signatures)) if floors
+                else r.explained >= s.min_explained)
+            and r.elpd_diff > 2.0 * r.elpd_diff_se and r.implausible is None]
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -79,6 +79,10 @@ class Refit:
         share the words report beside the RMS errors; None without a floor.
     adequate : bool
         Whether the refitted model is adequate in every experiment.
+    implausible : str or None
+        Why the refit's estimates are not physics (outside their plausible range, or
+        run to a bound: :func:`pmabayes.criticism.plausibility.implausible`); such a
+        refit is never named missing. None when they are plausible.
 
     Notes
     -----
@@ -102,11 +106,12 @@ class Refit:
     elpd_i: np.ndarray | None = None
     explained_rms: float | None = None
     adequate: bool = False
+    implausible: str | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary: ``rms_m`` (pooled), ``explained`` (whitened energy),
         ``explained_rms`` (mean square above the floor), ``adequate``, ``elpd_diff``,
-        ``elpd_diff_se`` and ``experiments``, one ``{"rms_m", "noise_ratio",
+        ``elpd_diff_se``, ``implausible`` and ``experiments``, one ``{"rms_m", "noise_ratio",
         "ljung_box_p", "energy"}`` each.
 
         Returns
@@ -116,6 +121,7 @@ class Refit:
         return {"rms_m": self.rms_m, "explained": self.explained,
                 "explained_rms": self.explained_rms, "adequate": self.adequate,
                 "elpd_diff": self.elpd_diff, "elpd_diff_se": self.elpd_diff_se,
+                "implausible": self.implausible,
                 "experiments": [{"rms_m": sig.bands[-1].rms_m,
                                  "noise_ratio": finite_or_none(sig.ratio),
                                  "ljung_box_p": sig.ljung_box_p, "energy": sig.energy}
@@ -149,6 +155,12 @@ class Finding:
     explanation : str
         A paragraph in physical terms: what the effect is, the residual's
         signature, and what adding it does.
+    left_out : str or None
+        Why it was left out of the score tests (``"cannot act on these data: ..."``);
+        then ``evidence`` and ``p_value`` are NaN. None when it was tested.
+    implausible : str or None
+        Why its estimates are not physics (outside their plausible range; a refit's on
+        a bound): an implausible estimate is not a finding. None when plausible.
     """
 
     effect: str
@@ -160,6 +172,8 @@ class Finding:
     explained: float
     refit: Refit | None
     explanation: str
+    left_out: str | None = None
+    implausible: str | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary (an entry of a diagnosis' ``ranking``).
@@ -167,18 +181,21 @@ class Finding:
         Returns
         -------
         dict
-            ``effect``, ``evidence``, ``p_value``, ``significant``, ``estimate``,
-            ``interval``, ``explained`` (whitened residual energy), ``explained_rms``
-            (mean square above the floor, for a refit with one; else None),
-            ``explanation`` and ``refit`` (:meth:`Refit.to_dict`, or None).
+            ``effect``, ``evidence``, ``p_value`` (None when left out), ``significant``,
+            ``estimate``, ``interval``, ``explained`` (whitened residual energy),
+            ``explained_rms`` (mean square above the floor, for a refit with one; else
+            None), ``explanation``, ``left_out``, ``implausible`` and ``refit``
+            (:meth:`Refit.to_dict`, or None).
         """
         return {
-            "effect": self.effect, "evidence": self.evidence, "p_value": self.p_value,
+            "effect": self.effect, "evidence": finite_or_none(self.evidence),
+            "p_value": finite_or_none(self.p_value),
             "significant": self.significant, "estimate": dict(self.estimate),
             "interval": {k: [float(a), float(b)] for k, (a, b) in self.interval.items()},
             "explained": self.explained,
             "explained_rms": None if self.refit is None else self.refit.explained_rms,
             "explanation": self.explanation,
+            "left_out": self.left_out, "implausible": self.implausible,
             "refit": None if self.refit is None else self.refit.to_dict(),
         }
 
@@ -210,6 +227,11 @@ class ExperimentDiagnosis:
         repeats (nothing to measure it with).
     adequate : bool
         The adequacy rule on this experiment's whitened residual.
+    baselines : dict
+        The yardsticks fitted to the diagnosis' data, on this experiment
+        (:meth:`pmabayes.criticism.baselines.Baselines.scores`): ``"linear"`` and
+        ``"play"``, each with its in-sample ``rmse_m`` and ``nrmse``; empty when they
+        could not be fitted.
     """
 
     name: str
@@ -220,6 +242,7 @@ class ExperimentDiagnosis:
     simulation: Simulation
     signature: Signature
     adequate: bool
+    baselines: dict = field(default_factory=dict)
 
     @property
     def rms_m(self) -> float:
@@ -273,9 +296,10 @@ class ExperimentDiagnosis:
             ``rho_noise``, ``sigma_white_m``), ``rms_m``, ``noise_floor_m`` and
             ``ratio`` (None without repeats), ``adequate``, ``floor_note`` (None with
             a floor), ``whiteness`` (``ljung_box_p``, ``energy``, ``energy_p``),
-            ``signature`` (:meth:`~pmabayes.criticism.signature.Signature.describe`)
-            and ``bands`` (one :meth:`~pmabayes.criticism.bands.BandErrors.to_dict`
-            each, the last overall).
+            ``signature`` (:meth:`~pmabayes.criticism.signature.Signature.describe`),
+            ``bands`` (one :meth:`~pmabayes.criticism.bands.BandErrors.to_dict`
+            each, the last overall) and ``baselines`` (the yardsticks' in-sample
+            errors here, beside the model's ``rms_m``).
         """
         sig = self.signature
         return {
@@ -293,6 +317,8 @@ class ExperimentDiagnosis:
                           "energy_p": sig.energy_p},
             "signature": sig.describe(),
             "bands": [b.to_dict() for b in sig.bands],
+            "baselines": {n: {k: finite_or_none(v) if isinstance(v, float) else v
+                              for k, v in b.items()} for n, b in self.baselines.items()},
         }
 
 
@@ -377,8 +403,10 @@ class Diagnosis:
 
     @property
     def score_threshold(self) -> float:
-        """The score statistic above which a candidate is significant (1 dof)."""
-        return significance_threshold(self.settings["level"], len(self.ranking))
+        """The score statistic above which a candidate is significant (1 dof; Bonferroni
+        over the candidates tested, those left out not counted)."""
+        return significance_threshold(self.settings["level"],
+                                      sum(f.left_out is None for f in self.ranking))
 
     def to_dict(self) -> dict:
         """JSON-ready summary (``pmabayes diagnose --json``), one shape for any number of

@@ -17,6 +17,10 @@ from pmabayes.util import Progress
 
 __all__ = ["EffectEvidence", "rank_effects", "significance_threshold"]
 
+#: A tested parameter whose Fisher information is at most this fraction of the largest
+#: one's has no effect on the output: the effect cannot act on the data.
+_SILENT = 1e-20
+
 
 @dataclass(frozen=True)
 class EffectEvidence:
@@ -46,6 +50,11 @@ class EffectEvidence:
         Fraction of the whitened residual's excess energy (above pure noise) that
         the effect removes to first order: near 1 when it explains the misfit,
         near 0 when something else is missing.
+    left_out : str or None
+        Why the effect was left out of the score tests (``"cannot act on these data:
+        ..."``, or a score matrix that is singular there); None when it was tested.
+        A left-out effect has NaN ``statistic`` and ``p_value``, is not significant and
+        does not count among the candidates of the Bonferroni level.
     """
 
     effect: str
@@ -56,6 +65,7 @@ class EffectEvidence:
     estimate: dict
     interval: dict
     explained: float
+    left_out: str | None = None
 
 
 def rank_effects(
@@ -107,7 +117,9 @@ def rank_effects(
     Returns
     -------
     list of EffectEvidence
-        Most evidence first.
+        Most evidence first; the effects left out (:attr:`EffectEvidence.left_out`:
+        an effect that cannot act on these data, whose sensitivities are zero at every
+        sample, or one whose score matrix is singular there) last, in the given order.
 
     Raises
     ------
@@ -127,9 +139,31 @@ def rank_effects(
     for name in names:
         out.append(_score_test(liks, noises, values, name))
         bar.advance()
-    threshold = level / max(len(out), 1)
+    threshold = level / max(sum(e.left_out is None for e in out), 1)
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
-    return sorted(out, key=lambda e: -e.statistic)
+    return sorted(out, key=lambda e: (e.left_out is not None,
+                                      0.0 if e.left_out is not None else -e.statistic))
+
+
+def _left_out(name: str, tested: list, why: str) -> EffectEvidence:
+    """A candidate left out of the score tests, with the reason."""
+    nan = math.nan
+    return EffectEvidence(name, nan, len(tested), nan, False, {}, {}, 0.0, why)
+
+
+def _cannot_act(ext, eff, tested: list, likelihoods: list) -> str:
+    """Why an effect whose sensitivities are all zero cannot act on these data."""
+    unit = {"pressure_pa": "Pa", "force_n": "N"}
+    spans = "; ".join(
+        f"{lik.dataset.input_name} spans {float(np.min(lik.dataset.input)):.4g} to "
+        f"{float(np.max(lik.dataset.input)):.4g} {unit.get(lik.dataset.input_name, '')}"
+        .rstrip() for lik in likelihoods)
+    fixed = [f"{p.name} = {ext.fixed.get(p.name, p.default):.6g} {p.unit}".rstrip()
+             for p in eff.parameters if p.name in ext.fixed]
+    return (f"cannot act on these data: moving {', '.join(tested)} from "
+            f"{', '.join(f'{ext.parameter(n).null:g}' for n in tested)} changes the simulated "
+            f"output at no sample ({spans}"
+            + (f"; its fixed {', '.join(fixed)}" if fixed else "") + ")")
 
 
 def _score_test(likelihoods: list, noises: list, values: dict, name: str) -> EffectEvidence:
@@ -172,12 +206,29 @@ def _score_test(likelihoods: list, noises: list, values: dict, name: str) -> Eff
         n_samples += r_w.size
     t_idx = [free.index(n) for n in tested]
     o_idx = [k for k in range(len(free)) if k not in t_idx]
+    scale = float(np.max(np.diag(info))) if info.size else 0.0
+    if not all(info[i, i] > _SILENT * scale for i in t_idx):
+        if not any(info[i, i] > _SILENT * scale for i in t_idx):
+            return _left_out(name, tested, _cannot_act(ext, eff, tested, likelihoods))
+        silent = [n for n, i in zip(tested, t_idx, strict=True) if not info[i, i] > _SILENT * scale]
+        return _left_out(name, tested, f"cannot act on these data through {', '.join(silent)}, "
+                         "whose sensitivities are zero at every sample, so its parameters "
+                         "cannot be tested together")
     i_oo = info[np.ix_(o_idx, o_idx)]
     i_to = info[np.ix_(t_idx, o_idx)]
-    eff_score = score[t_idx] - i_to @ np.linalg.solve(i_oo, score[o_idx])
-    var = info[np.ix_(t_idx, t_idx)] - i_to @ np.linalg.solve(i_oo, i_to.T)
-    step = np.linalg.solve(var, eff_score)
-    sd = np.sqrt(np.diag(np.linalg.inv(var)))
+    try:
+        eff_score = score[t_idx] - i_to @ np.linalg.solve(i_oo, score[o_idx])
+        var = info[np.ix_(t_idx, t_idx)] - i_to @ np.linalg.solve(i_oo, i_to.T)
+        step = np.linalg.solve(var, eff_score)
+        sd = np.sqrt(np.diag(np.linalg.inv(var)))
+    except np.linalg.LinAlgError:
+        return _left_out(name, tested, "not testable on these data: its score matrix is "
+                         "singular (its sensitivities repeat those of the model's own "
+                         "parameters here)")
+    if not (np.all(np.isfinite(step)) and np.all(np.isfinite(sd))):
+        return _left_out(name, tested, "not testable on these data: its score matrix is "
+                         "numerically singular (its sensitivities all but repeat the model's "
+                         "own parameters' here)")
     stat = float(eff_score @ step)
     one_sided = [ext.parameter(n).bounds[0] == ext.parameter(n).null for n in tested]
     if len(tested) == 1 and one_sided[0]:

@@ -67,9 +67,13 @@ import numpy as np
 import xarray as xr
 
 from pmabayes.criticism.bands import band_errors
+from pmabayes.criticism.baselines import Baselines, fit_baselines, nrmse, yardstick_text
+from pmabayes.criticism.inadequacy import Inadequacy, ResidualRecord, learn_inadequacy
 from pmabayes.data import DataError, Dataset, DataWarning, load
 from pmabayes.inference.fitfile import (
     check_dataset,
+    experiment_datasets,
+    experiment_models,
     fit_info,
     load_fit,
     model_from_fit,
@@ -156,7 +160,22 @@ class ExperimentValidation:
         Probability of the bands.
     notes : list of str
         What the numbers need said beside them (a rescaled noise correlation, band
-        errors not available, ...).
+        errors not available, the yardsticks beating the physics, ...).
+    coverage : float or None
+        Fraction of the measured samples inside the band with the model's learnt
+        discrepancy (``low_with_discrepancy_m`` to ``high_with_discrepancy_m``); None
+        when the discrepancy could not be learnt (see ``notes``).
+    coverage_parameters_only : float or None
+        Fraction of the measured samples inside ``[low_m, high_m]`` (the parameters
+        and the fit's noise, no discrepancy), over the observed samples:
+        ``band_coverage`` for a record without gaps.
+    low_with_discrepancy_m, high_with_discrepancy_m : numpy.ndarray or None
+        Central ``ci_prob`` band of one measured trial with draws of the discrepancy
+        added (:mod:`~pmabayes.criticism.inadequacy`).
+    baselines : dict
+        The yardsticks on this experiment (:meth:`pmabayes.criticism.baselines.Baselines.scores`
+        with their predictions): ``"linear"`` and ``"play"``; empty when they could not
+        be fitted.
     start : dict
         The held-out record's start: ``initial_state``, and for ``"estimate"`` how it
         was estimated (``samples`` and ``seconds`` of the record used, ``fraction``,
@@ -189,6 +208,11 @@ class ExperimentValidation:
     ci_prob: float
     notes: list = field(default_factory=list)
     start: dict = field(default_factory=dict)
+    coverage: float | None = None
+    coverage_parameters_only: float | None = None
+    low_with_discrepancy_m: np.ndarray | None = None
+    high_with_discrepancy_m: np.ndarray | None = None
+    baselines: dict = field(default_factory=dict)
 
     @property
     def n_trials(self) -> int:
@@ -214,12 +238,16 @@ class ExperimentValidation:
                  else f"= {self.ratio_to_floor:.3g}x the noise floor "
                       f"{self.noise_floor_m * 1e6:.3g} um")
         synth = ", synthetic" if self.synthetic else ""
+        with_d = ("" if self.coverage is None else
+                  f" ({100 * self.coverage:.1f}% with the model's discrepancy)")
+        yard = "".join(f"; {name} yardstick NRMSE {b['nrmse']:.3g}"
+                       for name, b in self.baselines.items())
         return (f"{self.name}: {self.n_trials} trial(s) x {self.n_samples} samples"
                 f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um "
-                f"{floor}; NRMSE {self.nrmse:.3g}; {100 * self.band_coverage:.1f}% of the "
-                f"samples inside the {100 * self.ci_prob:.4g}% predictive band, "
-                f"{100 * self.model_band_coverage:.1f}% of the trial mean inside the "
-                "model-only band"
+                f"{floor}; NRMSE {self.nrmse:.3g}{yard}; {100 * self.band_coverage:.1f}% "
+                f"of the samples inside the {100 * self.ci_prob:.4g}% predictive band"
+                f"{with_d}, {100 * self.model_band_coverage:.1f}% of the trial mean inside "
+                "the model-only band"
                 + (f"; start estimated from the first {self.start['samples']} samples "
                    f"({100 * self.start['fraction']:.3g}% of the record, "
                    f"{self.start['seconds']:.3g} s), RMSE after them "
@@ -240,10 +268,14 @@ class ExperimentValidation:
             ``name``, ``source``, ``synthetic``, ``rig``, ``input_name``,
             ``n_trials``, ``n_samples``, ``dt_s``, ``rmse_m``, ``nrmse``,
             ``max_error_m``, ``noise_floor_m``, ``ratio_to_floor``,
-            ``band_coverage``, ``ci_prob``, ``n_draws``, ``band_errors``, ``noise``,
-            ``notes`` and, with ``arrays``, ``predictive_band`` (``time_s``,
-            ``prediction_m``, ``low_m``, ``high_m``, ``model_low_m``,
-            ``model_high_m``).
+            ``band_coverage``, ``coverage`` (with the discrepancy),
+            ``coverage_parameters_only``, ``ci_prob``, ``n_draws``, ``band_errors``,
+            ``noise``, ``notes``, ``baselines`` (``linear`` and ``play``, each with
+            ``rmse_m``, ``nrmse`` and its description) and, with ``arrays``,
+            ``predictive_band`` (``time_s``, ``prediction_m``, ``low_m``, ``high_m``,
+            ``model_low_m``, ``model_high_m``, ``low_with_discrepancy_m``,
+            ``high_with_discrepancy_m`` and each yardstick's prediction,
+            ``linear_m`` and ``play_m``).
         """
         out = {
             "name": self.name, "source": self.source, "synthetic": self.synthetic,
@@ -265,14 +297,24 @@ class ExperimentValidation:
             "notes": list(self.notes),
             "start": {k: _json_float(v) if isinstance(v, float) else v
                       for k, v in self.start.items()},
+            "coverage": _json_float(self.coverage),
+            "coverage_parameters_only": _json_float(self.coverage_parameters_only),
+            "baselines": {n: {k: _json_float(v) if isinstance(v, float) else v
+                              for k, v in b.items() if k != "prediction_m"}
+                          for n, b in self.baselines.items()},
         }
         if arrays:
             out["predictive_band"] = {
                 k: [float(v) for v in getattr(self, a)]
                 for k, a in (("time_s", "time_s"), ("prediction_m", "prediction_m"),
                              ("low_m", "low_m"), ("high_m", "high_m"),
-                             ("model_low_m", "model_low_m"), ("model_high_m", "model_high_m"))
+                             ("model_low_m", "model_low_m"), ("model_high_m", "model_high_m"),
+                             ("low_with_discrepancy_m", "low_with_discrepancy_m"),
+                             ("high_with_discrepancy_m", "high_with_discrepancy_m"))
+                if getattr(self, a) is not None
             }
+            out["predictive_band"].update({f"{n}_m": [float(v) for v in b["prediction_m"]]
+                                           for n, b in self.baselines.items()})
         return out
 
 
@@ -290,12 +332,22 @@ class Validation:
         The fit's effects.
     settings : dict
         ``n_draws``, ``ci_prob``, ``seed`` and ``noise_from``.
+    discrepancy : Inadequacy or None
+        The model's discrepancy learnt from the fit's training residual
+        (:func:`pmabayes.criticism.inadequacy.learn_inadequacy`), which widens the bands
+        of ``coverage``; None when it could not be learnt.
+    baselines : Baselines or None
+        The yardsticks fitted to the fit's training data
+        (:func:`pmabayes.criticism.baselines.fit_baselines`); None when they could not
+        be fitted.
     """
 
     experiments: list
     fit_source: str | None
     effects: tuple
     settings: dict
+    discrepancy: Inadequacy | None = None
+    baselines: Baselines | None = None
 
     def to_dict(self, *, arrays: bool = True) -> dict:
         """JSON-ready values.
@@ -308,12 +360,18 @@ class Validation:
         Returns
         -------
         dict
-            ``fit``, ``effects``, ``settings``, ``definitions`` and ``experiments``
+            ``fit``, ``effects``, ``settings``, ``definitions``, ``discrepancy``
+            (:meth:`~pmabayes.criticism.inadequacy.Inadequacy.to_dict`, or None),
+            ``baselines`` (``trained_on``, ``seconds``; or None) and ``experiments``
             (:meth:`ExperimentValidation.to_dict` of each).
         """
         return {
             "fit": self.fit_source, "effects": list(self.effects),
             "settings": dict(self.settings), "definitions": dict(DEFINITIONS),
+            "discrepancy": None if self.discrepancy is None else self.discrepancy.to_dict(),
+            "baselines": None if self.baselines is None else {
+                "trained_on": list(self.baselines.trained_on),
+                "seconds": self.baselines.seconds},
             "experiments": [e.to_dict(arrays=arrays) for e in self.experiments],
         }
 
@@ -340,6 +398,16 @@ DEFINITIONS = {
     "model_band_coverage": "fraction of the trial mean's samples inside the central "
                            "ci_prob band of the noise-free model draws (parameters alone)",
     "prediction": "mean over the simulated posterior draws of the noise-free model position",
+    "coverage": "fraction of the measured samples inside the central ci_prob band of the "
+                "model draws plus the fit's noise plus draws of the model's discrepancy "
+                "learnt from the training residual (see discrepancy)",
+    "coverage_parameters_only": "fraction of the measured samples inside the predictive "
+                                "band without the discrepancy (band_coverage over the "
+                                "observed samples)",
+    "baselines": "yardsticks fitted to the fit's training data in seconds, predicting the "
+                 "same held-out input: a linear output-error model (order chosen on the "
+                 "training data) and a Prandtl-Ishlinskii model of play operators; their "
+                 "rmse_m and nrmse as the physics' (see pmabayes.criticism.baselines)",
 }
 
 
@@ -666,9 +734,105 @@ def _estimated_starts(model: Model, theta: np.ndarray, ds: Dataset, fraction: fl
     return s0 + q * scale, n
 
 
+#: Posterior draws simulated on the training data for its residual (evenly spaced over
+#: the fit's draws, so that no random draw is taken).
+_TRAINING_DRAWS = 100
+
+
+@dataclass(frozen=True, eq=False)
+class _Training:
+    """What validation learns from the fit's own training data: the yardsticks, the
+    model's discrepancy, what could not be had, and the discrepancy's generator."""
+
+    baselines: Baselines | None
+    inadequacy: Inadequacy | None
+    notes: list
+    rng: np.random.Generator | None
+
+
+def _column(values: np.ndarray, e: int) -> np.ndarray:
+    """An experiment's column of a per-experiment variable; a shared one as it is."""
+    return values if values.ndim == 1 else values[:, min(e, values.shape[1] - 1)]
+
+
+def _residual_records(fit: _FitDraws, training: list, models: list, substeps: int,
+                      where: str, identified: list) -> list[ResidualRecord]:
+    """Each training experiment's trial mean minus the posterior-mean prediction, with the
+    fit's noise (posterior medians) of that experiment; ``identified`` maps each
+    experiment's parameters to the fit's variables (its own offset, a rig prior's)."""
+    idx = np.unique(np.linspace(0, fit.n_total - 1, min(_TRAINING_DRAWS, fit.n_total))
+                    .astype(int))
+    out = []
+    for e, (ds, model) in enumerate(zip(training, models, strict=True)):
+        names = {n: identified[e].get(n, n) for n in model.free_names}
+        theta = model.theta({n: _column(_flat(fit.draws[v], v, where)[idx], e)
+                             for n, v in names.items()})
+        x = simulate_dataset(model, theta, ds, substeps=substeps)
+        ok = np.all(np.isfinite(x), axis=1)
+        if not ok.any():
+            raise ValueError(f"no posterior draw simulates training experiment {e + 1}")
+        noise = (float(np.median(_column(fit.noise[n], e))) for n in NOISE_NAMES)
+        out.append(ResidualRecord(ds.mean_position_m - x[ok].mean(axis=0), ds.dt_s, *noise,
+                                  ds.n_trials))
+    return out
+
+
+def _learn_from_training(fit: _FitDraws, tree: xr.DataTree, substeps: int, where: str,
+                         rng: np.random.Generator) -> _Training:
+    """The yardsticks and the model's discrepancy, both from the fit's training data."""
+    notes: list[str] = []
+    try:
+        training, models = experiment_datasets(tree), experiment_models(tree)
+    except (DataError, ModelError, EffectError, KeyError, ValueError) as err:
+        notes.append(f"the fit's training data could not be rebuilt ({err}): no yardsticks "
+                     "and no discrepancy band")
+        return _Training(None, None, notes, None)
+    baselines = inadequacy = None
+    try:
+        baselines = fit_baselines(training)
+    except ValueError as err:
+        notes.append(f"the yardsticks could not be fitted to the training data: {err}")
+    try:
+        identified = [exp.get("parameters") or {}
+                      for exp in fit_info(tree).get("experiments") or [{}]]
+        inadequacy = learn_inadequacy(_residual_records(fit, training, models, substeps, where,
+                                                        identified))
+    except (KeyError, ValueError, ModelError) as err:
+        notes.append(f"the model's discrepancy could not be learnt from the training data: "
+                     f"{err}")
+    # its own stream: spawning leaves the draws and the noise of the bands as they were
+    return _Training(baselines, inadequacy, notes, rng.spawn(1)[0])
+
+
+def _inside(data: np.ndarray, low: np.ndarray, high: np.ndarray) -> float:
+    """Fraction of the observed samples inside a band."""
+    seen = np.isfinite(data)
+    return float(np.mean(((data >= low) & (data <= high))[seen]))
+
+
+def _with_training(training: _Training, ds: Dataset, y: np.ndarray, q: float,
+                   physics: dict, notes: list) -> dict:
+    """The band with the discrepancy (``y``: the predictive draws, changed in place) and
+    the yardsticks on a held-out data set, as :class:`ExperimentValidation` fields."""
+    data = ds.position_m
+    out: dict = {"baselines": {}}
+    notes.extend(training.notes)
+    if training.inadequacy is not None:
+        y += training.inadequacy.draw(y.shape[0], y.shape[1], ds.dt_s, training.rng)
+        low, high = np.quantile(y, [q, 1.0 - q], axis=0)
+        out.update(low_with_discrepancy_m=low, high_with_discrepancy_m=high,
+                   coverage=_inside(data, low, high))
+    if training.baselines is not None:
+        out["baselines"] = training.baselines.scores(ds, arrays=True)
+        text = yardstick_text(physics, out["baselines"], where="on these held-out data")
+        if text:
+            notes.append(text)
+    return out
+
+
 def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,
          substeps: int, rng: np.random.Generator, tree: xr.DataTree,
-         start_fraction: float = START_FRACTION) -> ExperimentValidation:
+         training: _Training, start_fraction: float = START_FRACTION) -> ExperimentValidation:
     where = ds.source or "held-out data set"
     model = _check_dataset(fit, ds, where)
     try:
@@ -734,27 +898,29 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
     prediction = x.mean(axis=0)
     ybar = ds.mean_position_m
     resid = ybar - prediction
-    rmse = float(np.sqrt(np.mean(resid**2)))
-    motion = float(np.sqrt(np.mean((ybar - ybar.mean()) ** 2)))
+    rmse, normalised = nrmse(ybar, prediction)
     floor = ds.noise_floor_m
     data = ds.position_m
     coverage = float(np.mean((data >= low) & (data <= high)))
+    per_band = _band_errors(ds, prediction, notes)
+    extra = _with_training(training, ds, y, q, {"rmse_m": rmse, "nrmse": normalised}, notes)
     return ExperimentValidation(
         name=Path(ds.source).stem if ds.source else "data set",
         source=ds.source, synthetic=bool(ds.metadata.get("synthetic", False)),
         rig=model.rig.to_dict(), input_name=ds.input_name, time_s=np.array(ds.time_s),
         input=np.array(ds.input[0]), position_m=np.array(data), prediction_m=prediction,
         model_low_m=model_low, model_high_m=model_high, low_m=low, high_m=high,
-        rmse_m=rmse, nrmse=rmse / motion if motion > 0 else math.inf,
+        rmse_m=rmse, nrmse=normalised,
         max_error_m=float(np.max(np.abs(resid))),
         noise_floor_m=None if math.isnan(floor) else float(floor),
         band_coverage=coverage,
         model_band_coverage=float(np.mean((ybar >= model_low) & (ybar <= model_high))),
-        band_errors=_band_errors(ds, prediction, notes),
+        band_errors=per_band,
         noise={"from": noise_text,
                **{f"{n}_median": float(np.median(v))
                   for n, v in zip(NOISE_NAMES, (sigma, rho, white), strict=True)}},
-        n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes, start=start)
+        n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes, start=start,
+        coverage_parameters_only=_inside(data, low, high), **extra)
 
 
 def validate(
@@ -839,9 +1005,10 @@ def validate(
     recorded_seed = None if rng is not None else seed
     if rng is None:
         rng = np.random.default_rng(seed)
+    training = _learn_from_training(fit, tree, substeps, fit_path or "the fit", rng)
     experiments = [_one(fit, ds, n_draws=int(n_draws), ci_prob=ci_prob,
                         noise_from=noise_from, substeps=substeps, rng=rng, tree=tree,
-                        start_fraction=float(start_fraction))
+                        training=training, start_fraction=float(start_fraction))
                    for ds in datasets]
     return Validation(
         experiments=experiments, fit_source=fit_path or fit.source,
@@ -850,4 +1017,5 @@ def validate(
                   "seed": recorded_seed,
                   "noise_from": noise_from, "substeps": substeps,
                   **({"start_fraction": float(start_fraction)}
-                     if any(d.initial_state == "estimate" for d in datasets) else {})})
+                     if any(d.initial_state == "estimate" for d in datasets) else {})},
+        discrepancy=training.inadequacy, baselines=training.baselines)

@@ -126,11 +126,16 @@ def _ranking_section(d, several: bool) -> list[str]:
         "mean-square error over the noise floor (refits, with a floor). Estimates and "
         "intervals of refitted candidates come from the "
         f"refit's MAP and Laplace draws ({d.settings['ci_prob']:.0%} intervals); the others "
-        "are the score test's one-step values.</p>",
+        "are the score test's one-step values. A candidate that cannot act on these "
+        "data is left out of the score tests (its reason below the table); an estimate "
+        "outside its plausible range is marked implausible, not a finding.</p>",
         html_table(["effect", "evidence", "p", "significant", "estimate", "interval",
                     "excess energy removed", "excess mean square removed", "ΔELPD ± se"],
-                   [[f.effect, f.evidence, f.p_value, "yes" if f.significant else "no",
-                     ", ".join(f"{k} = {fmt(v)}" for k, v in f.estimate.items()),
+                   [[f.effect + (" (left out)" if f.left_out else ""),
+                     None if f.left_out else f.evidence, None if f.left_out else f.p_value,
+                     "yes" if f.significant else "no",
+                     ", ".join(f"{k} = {fmt(v)}" for k, v in f.estimate.items())
+                     + (" (implausible)" if f.implausible else ""),
                      ", ".join(f"{fmt(a)} to {fmt(b)}" for a, b in f.interval.values()),
                      f"{f.explained:.0%}",
                      "—" if f.refit is None or f.refit.explained_rms is None
@@ -140,7 +145,7 @@ def _ranking_section(d, several: bool) -> list[str]:
                     for f in d.ranking], num_from=1),
     ]
     return out + [f"<h3>{html.escape(f.effect)}</h3><p>{html.escape(f.explanation)}</p>"
-                  for f in d.ranking if f.significant]
+                  for f in d.ranking if f.significant or f.left_out]
 
 
 def _discrepancy_section(disc) -> list[str]:

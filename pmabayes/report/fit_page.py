@@ -40,7 +40,13 @@ from pmabayes.report.markup import (
     um,
     write_page,
 )
-from pmabayes.report.summary import DISPLAY_COLUMNS, display_headers, summary_table, write_summary
+from pmabayes.report.summary import (
+    DISPLAY_COLUMNS,
+    display_headers,
+    map_note,
+    summary_table,
+    write_summary,
+)
 from pmabayes.report.verdicts import experiment_adequacy, judge_fit
 from pmabayes.util import Progress
 
@@ -259,8 +265,10 @@ def _report_figures(tree: xr.DataTree, rows: list, pred: Mapping, residual_m: np
             + (f" {rank_note}" if rank_note else "")
         ),
         "pair": (
-            f"Corner plot of {n_pair} evenly spaced draws: MAP (black ×, solid line), paper "
-            "value (red ○, dashed line; an arrow-head at the edge when off scale)."
+            f"Corner plot of {n_pair} evenly spaced draws: MAP (black ×, solid line)"
+            + (", paper value (red ○, dashed line; an arrow-head at the edge when off scale)."
+               if any(r.get("paper") is not None for r in rows)
+               else " (an arrow-head at the edge when off scale).")
         ),
         "ppc": (
             f"Posterior predictive check: data (black), {pct} predictive band pooled over "
@@ -304,6 +312,8 @@ def _parameter_section(rows: list, info: dict, ci_prob: float) -> list[str]:
                       [[r["name"], r.get("unit") or "\u2014"]
                        + [r.get(k) for k, _ in DISPLAY_COLUMNS[2:]] for r in rows],
                       num_from=2)]
+    if map_note(rows):
+        out.append(f'<p class="note">{html.escape(map_note(rows))}</p>')
     fixed = (info.get("model") or {}).get("fixed") or {}
     if fixed:
         units = units_of(info)

@@ -24,7 +24,8 @@ from pmabayes.report.fit_data import (
 )
 from pmabayes.report.markup import fmt
 
-__all__ = ["SUMMARY_COLUMNS", "summary_table", "write_summary", "pair_figure"]
+__all__ = ["SUMMARY_COLUMNS", "PAPER_RIGS", "summary_table", "paper_rig", "map_outside_hdi",
+           "map_note", "write_summary", "pair_figure"]
 
 
 #: Keys of a summary row, in CSV column order.
@@ -44,7 +45,13 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
     "paper",
     "map",
     "global_search",
+    "best_draw",
 )
+
+#: The rigs the paper's values were identified on: a pressure-driven muscle on the
+#: characterisation or the control rig. Beside any other rig's parameters they mean
+#: nothing, and the summary leaves them out.
+PAPER_RIGS = ("characterisation", "control")
 
 
 # Markdown/HTML headers of the displayed columns (ci_prob is shown in the HDI header).
@@ -60,7 +67,8 @@ DISPLAY_COLUMNS = (
     ("ess", "ESS (tau)"),
     ("ess_bulk", "ESS bulk"),
     ("paper", "paper"),
-    ("map", "MAP"),
+    ("map", "MAP (global search)"),
+    ("best_draw", "highest-density draw"),
 )
 
 
@@ -87,9 +95,13 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
         ensembles, from the fit's convergence record); ``ess`` (the
         autocorrelation-time ESS on which the fit's convergence decision rests);
         ``ess_bulk`` (ArviZ's bulk ESS over walkers); ``tau`` (integrated
-        autocorrelation time in steps); ``paper`` (the paper's point estimate);
-        ``map`` (the MAP); ``global_search`` (the paper-style least-squares
-        optimum). Values are Python floats, or None where the fit has no value.
+        autocorrelation time in steps); ``paper`` (the paper's point estimate, only
+        for a fit of the paper's kind of rig, :func:`paper_rig`); ``map`` (the MAP
+        the global search and its polish found: not a draw of the posterior, and it may
+        lie outside the posterior's interval when the sampler found its mass elsewhere,
+        :func:`map_outside_hdi`); ``global_search`` (the paper-style least-squares
+        optimum); ``best_draw`` (the posterior draw of highest density, a point of the
+        posterior). Values are Python floats, or None where the fit has no value.
 
     Raises
     ------
@@ -123,6 +135,8 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
     units = units_of(info)
     conv = info.get("convergence") or {}
     point = info.get("map") or {}
+    paper = info.get("paper_values") if paper_rig(info) else None
+    best = _best_draw(tree)
     rows = []
     for name in tree["posterior"].data_vars:
         s = stats[name]
@@ -144,14 +158,88 @@ def summary_table(tree: xr.DataTree, *, ci_prob: float = 0.9) -> list[dict[str, 
                 "ess": opt_float(conv.get("ess"), name),
                 "ess_bulk": get("ess_bulk"),
                 "tau": opt_float(conv.get("tau"), name),
-                "paper": opt_float(info.get("paper_values"), name),
+                "paper": opt_float(paper, name),
                 "map": map_value(point.get("values"), str(name)),
                 "global_search": opt_float(
                     (point.get("global_search") or {}).get("values"), name
                 ),
+                "best_draw": opt_float(best, name),
             }
         )
     return rows
+
+
+def paper_rig(info: Mapping) -> bool:
+    """Whether a fit is of the paper's kind: a pressure-driven muscle on the
+    characterisation or control rig, in every experiment (:data:`PAPER_RIGS`).
+
+    Parameters
+    ----------
+    info : mapping
+        The fit's metadata (:func:`pmabayes.inference.fitfile.fit_info`).
+
+    Returns
+    -------
+    bool
+    """
+    rigs = [e.get("rig") for e in info.get("experiments") or [] if isinstance(e, Mapping)]
+    rigs = rigs or [(info.get("model") or {}).get("rig")]
+    return all(isinstance(r, Mapping) and r.get("name") in PAPER_RIGS
+               and r.get("input_kind", "pressure") == "pressure" for r in rigs)
+
+
+def _best_draw(tree: xr.DataTree) -> dict[str, float] | None:
+    """Every posterior variable at the draw of highest log posterior (``sample_stats.lp``);
+    None when the fit has no such statistic."""
+    if "sample_stats" not in tree.children or "lp" not in tree["sample_stats"].data_vars:
+        return None
+    lp = tree["sample_stats"]["lp"]
+    if set(lp.dims) != {"chain", "draw"}:
+        return None
+    lp = lp.transpose("chain", "draw")
+    chain, draw = np.unravel_index(int(np.nanargmax(lp.values)), lp.shape)
+    post = tree["posterior"]
+    return {str(n): float(v.transpose("chain", "draw", ...).values[chain, draw])
+            for n, v in post.data_vars.items() if set(v.dims) == {"chain", "draw"}}
+
+
+def map_outside_hdi(rows: Sequence[Mapping]) -> list[str]:
+    """The variables whose MAP lies outside their highest density interval.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Rows of :func:`summary_table`.
+
+    Returns
+    -------
+    list of str
+        Their names, in the rows' order.
+    """
+    return [r["name"] for r in rows
+            if r.get("map") is not None and r.get("hdi_low") is not None
+            and not r["hdi_low"] <= r["map"] <= r["hdi_high"]]
+
+
+def map_note(rows: Sequence[Mapping]) -> str:
+    """A sentence when the MAP lies outside the posterior's interval; empty otherwise.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Rows of :func:`summary_table`.
+
+    Returns
+    -------
+    str
+    """
+    names = map_outside_hdi(rows)
+    if not names:
+        return ""
+    return (f"The MAP of {', '.join(names)} lies outside the posterior's {_hdi_label(rows)}: "
+            "the global search's optimum is not where the sampler found the posterior's mass "
+            "(another basin, or a mode the sampler left), so it is no point estimate of this "
+            "posterior; the highest-density draw is.")
 
 
 def _hdi_label(rows: Sequence[Mapping]) -> str:
@@ -216,6 +304,8 @@ def write_summary(rows: Sequence[Mapping[str, Any]], out_dir: str | Path, *,
         return text.replace("|", "\\|")
 
     lines = [] if adequacy is None else [*_adequacy_markdown(adequacy), ""]
+    note = map_note(rows)
+    lines += [f"> {note}", ""] if note else []
     lines += [
         "| " + " | ".join(display_headers(rows)) + " |",
         "|" + "|".join("---" if k in ("name", "unit") else "---:"

@@ -60,12 +60,20 @@ def write_validation(validation, out_dir: str | Path) -> Path:
         f"samples inside the {pct} band (about {pct} for a model and noise that describe "
         "the data). The model-only band holds the parameters' uncertainty alone: what "
         "counts for noiseless held-out data.</p>",
+        f"<p>{html.escape(_discrepancy_words(v, pct))} {html.escape(_yardstick_words(v))}"
+        "</p>",
         html_table(["experiment", "rig", "noise from", "trials", "samples", "RMSE [µm]",
-                "noise floor [µm]", "RMSE / floor", "NRMSE", f"inside the {pct} band",
+                "noise floor [µm]", "RMSE / floor", "NRMSE", "NRMSE linear yardstick",
+                "NRMSE play yardstick", f"inside the {pct} band",
+                f"inside the {pct} band with the discrepancy",
                 "trial mean inside the model-only band"],
                [[e.name, e.rig.get("name"), e.noise["from"], e.n_trials, e.n_samples,
                  e.rmse_m * 1e6, None if e.noise_floor_m is None else e.noise_floor_m * 1e6,
-                 e.ratio_to_floor, e.nrmse, f"{100 * e.band_coverage:.1f}%",
+                 e.ratio_to_floor, e.nrmse,
+                 *(e.baselines[n]["nrmse"] if n in e.baselines else None
+                   for n in ("linear", "play")),
+                 f"{100 * e.band_coverage:.1f}%",
+                 "—" if e.coverage is None else f"{100 * e.coverage:.1f}%",
                  f"{100 * e.model_band_coverage:.1f}%"]
                 for e in v.experiments], num_from=3),
     ]
@@ -82,6 +90,39 @@ def write_validation(validation, out_dir: str | Path) -> Path:
             body.append(html_table(BAND_HEADER, band_rows(e.band_errors)))
         body.append(html_figure(png, f"validation of {e.name}",
                          f"{e.name}: measured trials (grey), the {pct} predictive band "
-                         "(blue) and the posterior-mean prediction (red); bottom: the same "
-                         "less the prediction, with the trial mean (black)."))
+                         "(blue), the band with the model's discrepancy (light blue), the "
+                         "posterior-mean prediction (red) and the yardsticks' predictions "
+                         "(dotted: linear output-error green, Prandtl-Ishlinskii purple); "
+                         "bottom: the same less the prediction, with the trial mean "
+                         "(black)."))
     return write_page(out_dir, "pmabayes validation on held-out experiments", body)
+
+
+def _discrepancy_words(v, pct: str) -> str:
+    """What the discrepancy band adds, in one or two sentences."""
+    d = v.discrepancy
+    if d is None:
+        return "The model's discrepancy could not be learnt from the training data."
+    if not d.significant:
+        return (f"The training residual ({d.residual_rms_m * 1e6:.3g} µm RMS) is consistent "
+                f"with the fit's noise ({d.noise_rms_m * 1e6:.3g} µm for the trial mean): no "
+                f"discrepancy is added, and the {pct} band with it is the predictive band.")
+    return (f"The model's discrepancy, learnt from the training residual beyond the fit's "
+            f"noise (Kennedy and O'Hagan; a stationary process of {d.sigma_m * 1e6:.3g} µm "
+            f"RMS with a correlation time of {d.corr_time_s:.3g} s), is added to the draws "
+            f"to make the {pct} band with the discrepancy: the band that still means what "
+            "it says when the model is wrong, as long as the held-out input is of the "
+            "training input's kind.")
+
+
+def _yardstick_words(v) -> str:
+    """What the yardsticks are and where they were fitted."""
+    b = v.baselines
+    if b is None:
+        return "The yardsticks could not be fitted to the training data."
+    return (f"The yardsticks, fitted to the fit's training data in {b.seconds:.2g} s: a "
+            f"linear output-error model of order {b.linear.order} "
+            f"({b.linear.n_parameters} parameters) and a Prandtl-Ishlinskii model of "
+            f"{b.play.n_operators} play operator(s) ({b.play.n_parameters} parameters); a "
+            "physics model that predicts no better than they do has not earned its "
+            "parameters.")

@@ -4,6 +4,7 @@ a nonlinear refit."""
 
 from __future__ import annotations
 
+import math
 import re
 import tempfile
 from dataclasses import dataclass, replace
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pmabayes.criticism.adequacy import ENERGY_TOLERANCE
 from pmabayes.criticism.bands import band_errors, excess_removed
 from pmabayes.criticism.discrepancy.dictionary import (
     best_hinges,
@@ -108,11 +110,14 @@ def estimate_discrepancy(
         if e0 > n else 0.0
     corr = correction(problem, blocks, full.coef)
     before = band_errors(problem.dataset, problem.x0)[-1]
-    after = band_errors(problem.dataset, problem.x0 + corr)[-1]
-    ratio_after = after.ratio
-    removed = excess_removed([before.rms_m], [after.rms_m], [before.floor_m], [n])
+    after_band = band_errors(problem.dataset, problem.x0 + corr)[-1]
+    ratio_after = after_band.ratio
+    removed = excess_removed([before.rms_m], [after_band.rms_m], [before.floor_m], [n])
+    energy_after = full.energy / n
     states, pdep = _state_evidence(problem, full, loo_full)
-    near = bool(ratio_after <= 1.5)
+    # without repeats there is no floor: near it means a whitened residual near pure noise
+    near = bool(ratio_after <= 1.5) if math.isfinite(ratio_after) else \
+        bool(energy_after <= 1.0 + ENERGY_TOLERANCE)
     st = problem.states(tau)
     proposal = None
     if gain > max(2.0 * gain_se, 2.0):
@@ -125,15 +130,45 @@ def estimate_discrepancy(
         else:
             proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
                                 plugin_dir, verify, command)
+    after = _level(ratio_after, float(np.sqrt(np.mean((problem.resid - corr) ** 2))),
+                   energy_after)
     other = None if near and explained >= 0.5 else _other_cause(
-        likelihood, noise, simulation, explained, ratio_after)
-    text = _text(states, explained, removed, ratio_after, gain, gain_se, proposal, other,
-                 command, tuple(effects))
+        likelihood, noise, simulation, explained, after)
+    text = _text(states, explained, removed, ratio_after, after, gain, gain_se, proposal,
+                 other, command, tuple(effects),
+                 "left-out stretches of the record" if problem.by_stretches
+                 else "left-out trials")
     return Discrepancy(states=states, explained=explained, explained_rms=removed,
                        ratio_after=float(ratio_after),
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
                        partial_dependence=pdep, proposal=proposal, near_floor=near,
-                       other_cause=other, text=text)
+                       other_cause=other, text=text, energy_after=float(energy_after))
+
+
+def _level(ratio: float, rms_m: float, energy: float) -> str:
+    """Where a model stands: ``"2.1x the floor"``, or, for a record without repeats (no
+    floor), its RMS error and its whitened residual's energy."""
+    if math.isfinite(ratio):
+        return f"{ratio:.3g}x the floor"
+    return (f"an RMS error of {rms_m * 1e6:.4g} µm (no floor; whitened residual energy "
+            f"{energy:.3g} under the noise identified with the diagnosed model)")
+
+
+def _good(v: dict | None) -> bool:
+    """A verified proposal that brings the model to adequate within 1.5x the floor; without
+    a floor, to a whitened residual no larger than the noise (the noise identified with
+    the diagnosed model holds part of its misfit, so adequacy under it means little)."""
+    if v is None:
+        return False
+    if not math.isfinite(v["ratio"]):
+        return bool(v["energy"] <= 1.0 + ENERGY_TOLERANCE)
+    return bool(v["adequate"] and v["ratio"] <= 1.5)
+
+
+def _closeness(v: dict) -> tuple:
+    """Order of verified proposals: adequate first, then nearer the floor (nearer pure
+    noise without a floor)."""
+    return (v["adequate"], -v["ratio"] if math.isfinite(v["ratio"]) else -v["energy"])
 
 
 def _block_slice(problem: LinearProblem, blocks: list, i: int) -> slice:
@@ -260,7 +295,7 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
         # force, a period slightly off): the nonlinear refit decides
         prop = write(closed[0], "closed form", closed[1], closed[2], series=series)
         v = prop.verified
-        if v is not None and v["adequate"] and v["ratio"] <= 1.5:
+        if _good(v):
             return prop
         _discard(prop, existing)
     # no closed form near the flexible estimate: the flexible shape itself, tabulated
@@ -281,7 +316,7 @@ def _closed_form(problem, dic: _Dictionary, closed: tuple, scored: list, series:
     prop = write(chosen, "closed form", d, se, series=series)
     plain = [c for c in scored if all(dic.terms[j][0].state in WRITABLE for j in c[2])]
     v = prop.verified
-    if (v is None or (v["adequate"] and v["ratio"] <= 1.5) or not plain
+    if (v is None or _good(v) or not plain
             or all(t.state in WRITABLE for t, _ in chosen)):
         return prop
     # terms in z or memory trade against the base model's own parameters in the
@@ -289,7 +324,7 @@ def _closed_form(problem, dic: _Dictionary, closed: tuple, scored: list, series:
     d2, se2, support2 = max(plain, key=lambda c: c[0])
     prop2 = write(dic.fit(problem, support2), "closed form", d2, se2, series=series)
     v2 = prop2.verified
-    better = v2 is not None and (v2["adequate"], -v2["ratio"]) > (v["adequate"], -v["ratio"])
+    better = v2 is not None and _closeness(v2) > _closeness(v)
     keep, drop = (prop2, prop) if better else (prop, prop2)
     _discard(drop, existing)
     return keep
@@ -359,13 +394,13 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
                     elpd_diff_se=float(se), plugin=plugin, verified=verified)
 
 
-def _other_cause(lik, noise, sim, explained: float, ratio_after: float) -> str:
+def _other_cause(lik, noise, sim, explained: float, after: str) -> str:
     """What the flexible force leaves, and which non-force cause the signature suggests."""
     sig = residual_signature(lik, noise, sim)
     corr = sig.correlations
     name, value = max(corr.items(), key=lambda kv: abs(kv[1])) if corr else ("", 0.0)
-    text = (f"Even a flexible force in the states leaves the model at {ratio_after:.3g}x the "
-            f"floor (it explains {explained:.0%} of the excess residual): the missing piece "
+    text = (f"Even a flexible force in the states leaves the model at {after} "
+            f"(it explains {explained:.0%} of the excess residual): the missing piece "
             "may not be a force.")
     timing = abs(sig.ccf_peak) > sig.ccf_bound and sig.ccf_lag_s > 0
     if "position" in name and abs(value) > 0.5:
@@ -381,24 +416,27 @@ def _other_cause(lik, noise, sim, explained: float, ratio_after: float) -> str:
     return text
 
 
-def _text(states, explained, removed, ratio_after, gain, gain_se, proposal, other, command,
-          effects) -> str:
+def _text(states, explained, removed, ratio_after, after, gain, gain_se, proposal, other,
+          command, effects, held_out: str = "left-out trials") -> str:
     needed = [s for s in states if s.needed]
     if not needed and not gain > max(2.0 * gain_se, 2.0):
-        return ("A flexible force in the states does not predict left-out trials better "
+        return (f"A flexible force in the states does not predict {held_out} better "
                 f"(ΔELPD {gain:+.1f} ± {gain_se:.1f}): no discrepancy in the force is found.")
     dep = ", ".join(f"{s.state} (ΔELPD {s.elpd_loss:+.1f} ± {s.se:.1f})" for s in needed) or \
         "no single state"
     # linearised: never called adequate, so never "100%" while above the floor
     text = (f"A flexible force estimated from the data "
-            f"{removed_text(removed, explained, ratio_after, False)} (linearised; ΔELPD "
-            f"{gain:+.1f} ± {gain_se:.1f}). It depends on {dep}.")
+            f"{removed_text(removed, explained, ratio_after, False)}"
+            + ("" if math.isfinite(ratio_after) else f" (to {after})")
+            + f" (linearised; ΔELPD {gain:+.1f} ± {gain_se:.1f}). It depends on {dep}.")
     if proposal is not None:
         text += f" Proposed: {proposal.description} ({proposal.expression})."
         v = proposal.verified
         if v is not None:
-            text += (f" Refitted with it, the model reaches {v['ratio']:.3g}x the floor"
-                     f" ({'adequate' if v['adequate'] else 'not adequate'}).")
+            judged = (f" ({'adequate' if v['adequate'] else 'not adequate'})"
+                      if math.isfinite(v["ratio"]) else "")
+            text += (f" Refitted with it, the model reaches "
+                     f"{_level(v['ratio'], v['rms_m'], v['energy'])}{judged}.")
         if proposal.plugin:
             data = command or "DATA"
             names = ",".join([*effects, proposal.effect])

@@ -36,6 +36,15 @@ MEMORY_TAUS_S = (0.1, 0.4, 1.6)
 WRITABLE = ("position", "velocity", "pressure")
 
 
+#: folds of a record without repeats: its cross-validation leaves one out at a time where
+#: a record with repeats leaves out one trial. The record is cut into
+#: ``N_FOLDS * STRETCHES_PER_FOLD`` contiguous stretches dealt to the folds in turn, so
+#: that every fold spans the whole input (a chirp's slow start and fast end alike) and
+#: the folds' scores compare
+N_FOLDS = 10
+STRETCHES_PER_FOLD = 5
+
+
 def bspline_design(s: np.ndarray, n_basis: int, lo: float, hi: float
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Cubic B-spline basis over ``[lo, hi]`` (clamped knots) at ``s``: the design
@@ -81,6 +90,7 @@ class LinearProblem:
     def __init__(self, likelihood: Likelihood, noise, values: dict, sim: Simulation) -> None:
         self.lik = likelihood
         self._gram: dict = {}
+        self._folds: list | None = None
         self._targets = None
         self.noise = noise
         self.values = values
@@ -93,6 +103,7 @@ class LinearProblem:
         self.plant = linearised_plant(self.model, values, sim, self.dataset.dt_s)
         self.resid = likelihood.y_mean - self.x0
         self.r_w = self.whiten(self.resid)
+        self.r_w_col = self.r_w[:, None]  # kept: products with it are cached by its id
         self.j_raw, self.j_names = self._sensitivities()
         norms = np.linalg.norm(self.whiten_cols(self.j_raw), axis=0)
         norms = np.where(norms > 0, norms, 1.0)
@@ -104,6 +115,29 @@ class LinearProblem:
         key = (id(u), id(v))
         if key not in self._gram:
             self._gram[key] = (u, v, at_b(u, v))  # the arrays are kept: their ids stay theirs
+        return self._gram[key][2]
+
+    @property
+    def by_stretches(self) -> bool:
+        """Whether the cross-validation leaves out stretches of one record (no repeats)
+        instead of trials."""
+        return self.r_trials < 2
+
+    def folds(self) -> list[np.ndarray]:
+        """The :data:`N_FOLDS` folds of the record: each the sample indices of every
+        ``N_FOLDS``-th stretch of it."""
+        if self._folds is None:
+            edges = np.linspace(0, self.n, N_FOLDS * STRETCHES_PER_FOLD + 1).astype(int)
+            stretch = np.repeat(np.arange(edges.size - 1), np.diff(edges))
+            self._folds = [np.flatnonzero(stretch % N_FOLDS == k) for k in range(N_FOLDS)]
+        return self._folds
+
+    def fold_gram(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``(N_FOLDS, ku, kv)``: ``u[f].T @ v[f]`` over each fold, computed once per pair
+        of arrays."""
+        key = ("folds", id(u), id(v))
+        if key not in self._gram:
+            self._gram[key] = (u, v, np.stack([at_b(u[f], v[f]) for f in self.folds()]))
         return self._gram[key][2]
 
     def loo_targets(self) -> np.ndarray:

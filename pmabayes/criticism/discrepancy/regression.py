@@ -152,7 +152,9 @@ def correction(problem: LinearProblem, blocks: list, coef: np.ndarray) -> np.nda
 
 
 def loo_scores(problem: LinearProblem, blocks: list, log_lambda, extra=None) -> np.ndarray:
-    """Leave-one-trial-out log density of each trial with the given terms refitted.
+    """Leave-one-trial-out log density of each trial with the given terms refitted; for a
+    record without repeats, of each fold of its stretches left out
+    (:meth:`LinearProblem.folds`).
 
     ``extra``: unpenalised columns (a closed form) as ``(white, raw, index)``: the
     whitened and unwhitened responses of the whole dictionary and the columns used.
@@ -173,6 +175,8 @@ def loo_scores(problem: LinearProblem, blocks: list, log_lambda, extra=None) -> 
         p2[:k, :k] = prec
         p2[k:, k:] = 1e-8 * np.eye(len(idx))
         prec = p2
+    if problem.by_stretches:
+        return _stretch_scores(problem, parts, sel, prec)
     targets = problem.loo_targets()
     gram = np.block([[problem.gram(u, v)[np.ix_(_ix(su, u), _ix(sv, v))]
                       for v, sv in zip(parts, sel, strict=True)]
@@ -188,6 +192,31 @@ def loo_scores(problem: LinearProblem, blocks: list, log_lambda, extra=None) -> 
 
 def _ix(sel, arr: np.ndarray) -> np.ndarray:
     return np.arange(arr.shape[1])[sel]
+
+
+def _stretch_scores(problem: LinearProblem, parts: list, sel: list, prec: np.ndarray
+                    ) -> np.ndarray:
+    """Leave-one-fold-out scores of a record without repeats: the terms refitted on the
+    whitened residual of the other folds, the left-out fold scored by its
+    whitened residual's Gaussian log density (the noise's own terms, the same for every
+    set of terms, left out)."""
+    r = problem.r_w_col
+    ix = [_ix(su, u) for u, su in zip(parts, sel, strict=True)]
+    gram = np.block([[problem.gram(u, v)[np.ix_(iu, iv)] for v, iv in zip(parts, ix, strict=True)]
+                     for u, iu in zip(parts, ix, strict=True)])
+    rhs = np.concatenate([problem.gram(u, r)[iu] for u, iu in zip(parts, ix, strict=True)])
+    fold_gram = np.concatenate([np.concatenate(
+        [problem.fold_gram(u, v)[:, iu][:, :, iv] for v, iv in zip(parts, ix, strict=True)],
+        axis=2) for u, iu in zip(parts, ix, strict=True)], axis=1)
+    fold_rhs = np.concatenate([problem.fold_gram(u, r)[:, iu]
+                               for u, iu in zip(parts, ix, strict=True)], axis=1)
+    design = np.concatenate([u[:, iu] for u, iu in zip(parts, ix, strict=True)], axis=1)
+    out = np.empty(len(problem.folds()))
+    for k, f in enumerate(problem.folds()):
+        coef = spd_solve(gram - fold_gram[k] + prec, rhs - fold_rhs[k])
+        e = problem.r_w[f] - a_b(design[f], coef)[:, 0]
+        out[k] = -0.5 * float(e @ e)
+    return out
 
 
 def stlsq_path(a: np.ndarray, b: np.ndarray, k0: int, max_terms: int = 4) -> set:

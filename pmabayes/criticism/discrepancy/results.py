@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+from pmabayes.util import finite_or_none
 
 __all__ = ["StateEvidence", "Proposal", "Discrepancy"]
 
@@ -84,7 +87,10 @@ class Proposal:
         return {"effect": self.effect, "expression": self.expression,
                 "plugin": self.plugin, "description": self.description,
                 "kind": self.kind, "terms": list(self.terms), "elpd_diff": self.elpd_diff,
-                "elpd_diff_se": self.elpd_diff_se, "verified": self.verified}
+                "elpd_diff_se": self.elpd_diff_se,
+                # a record without repeats has no floor: its ratio is None
+                "verified": None if self.verified is None else {
+                    **self.verified, "ratio": finite_or_none(self.verified["ratio"])}}
 
 
 @dataclass(frozen=True)
@@ -99,10 +105,12 @@ class Discrepancy:
         Share of the whitened residual's excess energy (above the noise) that the
         flexible force, with the parameters readjusted, removes (linearised).
     ratio_after : float
-        RMS error over the floor with the flexible force (linearised).
+        RMS error over the floor with the flexible force (linearised); NaN for a record
+        without repeats (no floor).
     elpd_gain : float
         Leave-one-trial-out ELPD of the flexible force minus that of the model with
-        its parameters readjusted alone.
+        its parameters readjusted alone; for a record without repeats, leaving out one
+        stretch of it at a time.
     elpd_gain_se : float
         Its standard error.
     memory_tau_s : float
@@ -114,7 +122,8 @@ class Discrepancy:
         The closed form (or tabulated shape), None when none could be formed.
     near_floor : bool
         Whether the flexible force brings the model near the floor (ratio within
-        1.5x).
+        1.5x; without a floor, a whitened residual energy within the adequacy
+        tolerance of pure noise).
     other_cause : str or None
         When the flexible force cannot: what is left and which non-force cause the
         residual's signature suggests.
@@ -124,6 +133,9 @@ class Discrepancy:
         Share of the mean-square error above the floor that the flexible force
         removes (linearised; :func:`pmabayes.criticism.bands.excess_removed`), the
         share the words report; None without a floor.
+    energy_after : float
+        Mean square of the whitened residual with the flexible force (linearised; 1 for
+        pure noise).
     """
 
     states: list
@@ -138,12 +150,15 @@ class Discrepancy:
     other_cause: str | None
     text: str
     explained_rms: float | None = None
+    energy_after: float = math.nan
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
         return {"states": [s.to_dict() for s in self.states], "explained": self.explained,
                 "explained_rms": self.explained_rms,
-                "ratio_after": self.ratio_after, "elpd_gain": self.elpd_gain,
+                "ratio_after": finite_or_none(self.ratio_after),
+                "energy_after": finite_or_none(self.energy_after),
+                "elpd_gain": self.elpd_gain,
                 "elpd_gain_se": self.elpd_gain_se, "memory_tau_s": self.memory_tau_s,
                 "near_floor": self.near_floor, "other_cause": self.other_cause,
                 "proposal": None if self.proposal is None else self.proposal.to_dict(),

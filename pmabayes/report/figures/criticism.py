@@ -254,7 +254,8 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
     Parameters
     ----------
     findings : list of pmabayes.criticism.results.Finding
-        The ranking of a diagnosis.
+        The ranking of a diagnosis (a candidate left out of the score tests is drawn
+        pale at the axis' foot, "(left out)").
     threshold : float, optional
         The significance threshold of the score statistic, drawn as a line
         (:attr:`pmabayes.criticism.results.Diagnosis.score_threshold`); none drawn if not
@@ -268,9 +269,13 @@ def plot_ranking(findings, *, threshold: float | None = None, level: float = 0.0
     -------
     matplotlib.figure.Figure
     """
-    names = [f.effect for f in findings][::-1]
-    values = [max(f.evidence, 1e-3) for f in findings][::-1]
-    colors = ["tab:red" if f.significant else "tab:gray" for f in findings][::-1]
+    left = [getattr(f, "left_out", None) is not None for f in findings]
+    names = [f.effect + (" (left out)" if out else "")
+             for f, out in zip(findings, left, strict=True)][::-1]
+    values = [1e-3 if out else max(f.evidence, 1e-3)
+              for f, out in zip(findings, left, strict=True)][::-1]
+    colors = ["0.85" if out else "tab:red" if f.significant else "tab:gray"
+              for f, out in zip(findings, left, strict=True)][::-1]
     fig = Figure(figsize=(7.5, 0.45 * len(names) + 1.2), layout="constrained")
     ax = fig.subplots()
     ax.barh(names, values, color=colors)
@@ -334,8 +339,10 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
     -------
     matplotlib.figure.Figure
         Top: every trial (grey), the predictive band (blue, the model's draws plus the
-        fit's noise) and the posterior-mean prediction (red), with the run's end
-        enlarged; bottom: the same less the prediction, with the trial mean (black).
+        fit's noise), the wider band with the model's learnt discrepancy (light blue),
+        the posterior-mean prediction (red) and the yardsticks' predictions (linear
+        output-error green, Prandtl-Ishlinskii purple), with the run's end enlarged;
+        bottom: the same less the prediction, with the trial mean (black).
     """
     e = experiment
     t, data, pred = e.time_s, e.position_m, e.prediction_m
@@ -345,10 +352,24 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
     fig = Figure(figsize=(12, 6), layout="constrained")
     axes = fig.subplots(2, 2, width_ratios=(3, 1))
     alpha = float(np.clip(2.0 / e.n_trials, 0.15, 0.8))
+    wide = (None if e.low_with_discrepancy_m is None
+            else (e.low_with_discrepancy_m, e.high_with_discrepancy_m))
+    yard = {"linear": "tab:green", "play": "tab:purple"}
     for col, s in enumerate((slice(None), z)):
         top, bottom = axes[0, col], axes[1, col]
+        if wide is not None:
+            top.fill_between(t[s], wide[0][s] * 1e3, wide[1][s] * 1e3, color="tab:blue",
+                             alpha=0.12, lw=0, label=f"{pct} band with the discrepancy")
+            bottom.fill_between(t[s], (wide[0][s] - pred[s]) * 1e6,
+                                (wide[1][s] - pred[s]) * 1e6, color="tab:blue", alpha=0.1,
+                                lw=0)
         top.fill_between(t[s], lo[s] * 1e3, hi[s] * 1e3, color="tab:blue", alpha=0.35, lw=0,
                          label=f"{pct} predictive band")
+        for name, b in e.baselines.items():
+            top.plot(t[s], b["prediction_m"][s] * 1e3, color=yard.get(name, "k"), lw=0.7,
+                     ls=":", label=f"{name} yardstick (NRMSE {b['nrmse']:.3g})")
+            bottom.plot(t[s], (b["prediction_m"][s] - pred[s]) * 1e6, color=yard.get(name, "k"),
+                        lw=0.6, ls=":")
         for r in range(e.n_trials):
             top.plot(t[s], data[r, s] * 1e3, color="0.3", lw=0.5, alpha=alpha,
                      label="measured trials" if r == 0 else None)
@@ -362,6 +383,13 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
             bottom.plot(t[s], (data[:, s].mean(axis=0) - pred[s]) * 1e6, color="k", lw=0.8,
                         label="trial mean − prediction")
         bottom.axhline(0.0, color="tab:red", lw=0.7, ls="--")
+        # the scale of the data and the bands: a far-off yardstick runs off the panel
+        shown = [(data[:, s] - pred[s]), (lo[s] - pred[s]), (hi[s] - pred[s])]
+        shown += [] if wide is None else [wide[0][s] - pred[s], wide[1][s] - pred[s]]
+        ends = [float(np.nanmin([np.nanmin(v) for v in shown])),
+                float(np.nanmax([np.nanmax(v) for v in shown]))]
+        pad = 0.1 * (ends[1] - ends[0]) or 1e-6
+        bottom.set_ylim((ends[0] - pad) * 1e6, (ends[1] + pad) * 1e6)
         bottom.set_xlabel("time [s]")
         for a in (top, bottom):
             a.tick_params(labelsize=8)
@@ -375,6 +403,7 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
              else f"{e.ratio_to_floor:.3g}× floor")
     axes[0, 0].set_title(
         f"{e.name}: RMSE {e.rmse_m * 1e6:.3g} µm ({floor}), NRMSE {e.nrmse:.3g}, "
-        f"{100 * e.band_coverage:.1f}% of the samples inside the {pct} band",
+        f"{100 * e.band_coverage:.1f}% of the samples inside the {pct} band"
+        + ("" if e.coverage is None else f", {100 * e.coverage:.1f}% with the discrepancy"),
         fontsize=9, loc="left")
     return finish(fig, path, REPORT_DPI)
