@@ -200,6 +200,15 @@ def _json_roundtrip_check(metadata: dict, where: str) -> str:
     return text
 
 
+def _check_choice(metadata: dict, key: str, allowed: tuple, where: str, why: str) -> str:
+    """A metadata value that must be one of ``allowed`` (the first is the default)."""
+    value = metadata.get(key, allowed[0])
+    if value not in allowed:
+        raise DataError(f"{where}: metadata {key!r} is {value!r}; it must be one of "
+                        f"{', '.join(map(repr, allowed))} ({why}).")
+    return value
+
+
 def _check_declarations(metadata: dict, where: str) -> None:
     """Metadata keys that look misspelt, and declarations pmabayes cannot honour."""
     for key in metadata:
@@ -211,12 +220,9 @@ def _check_declarations(metadata: dict, where: str) -> None:
                 f"{where}: metadata key {key!r} looks like a misspelling of {close[0]!r}, "
                 f"which pmabayes reads; rename it to {close[0]!r} (keys not close to one "
                 "pmabayes reads are kept as free-form metadata).")
-    between = metadata.get("input_between_samples", "hold")
-    if between not in BETWEEN_SAMPLES:
-        raise DataError(
-            f"{where}: metadata 'input_between_samples' is {between!r}; it must be one of "
-            f"{', '.join(map(repr, BETWEEN_SAMPLES))} ('hold' for a commanded input held by "
-            "the DAQ, 'linear' or 'bandlimited' for samples of a continuous signal).")
+    _check_choice(metadata, "input_between_samples", BETWEEN_SAMPLES, where,
+                  "'hold' for a commanded input held by the DAQ, 'linear' or 'bandlimited' "
+                  "for samples of a continuous signal")
     period = metadata.get("period_samples")
     if period is not None and (isinstance(period, bool) or not isinstance(period, int)
                                or period < 2):
@@ -229,14 +235,12 @@ def _check_declarations(metadata: dict, where: str) -> None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is {steady!r}; it must be true or "
             "false (JSON booleans, not strings).")
-    initial = metadata.get("initial_state", "rest")
-    if initial not in INITIAL_STATES:
-        raise DataError(
-            f"{where}: metadata 'initial_state' is {initial!r}; it must be one of "
-            f"{', '.join(map(repr, INITIAL_STATES))} ('rest' for a trial that starts at rest "
-            "under its first input sample, 'zero' for one that starts at zero position, "
-            "velocity and hysteresis with the input switched on at the first sample, "
-            "'estimate' for one whose starting state is unknown, e.g. mid-loop).")
+    initial = _check_choice(
+        metadata, "initial_state", INITIAL_STATES, where,
+        "'rest' for a trial that starts at rest under its first input sample, 'zero' for "
+        "one that starts at zero position, velocity and hysteresis with the input switched "
+        "on at the first sample, 'estimate' for one whose starting state is unknown, e.g. "
+        "mid-loop")
     if initial == "estimate" and steady:
         raise DataError(
             f"{where}: metadata 'initial_state' is 'estimate' but 'starts_in_steady_state' is "
