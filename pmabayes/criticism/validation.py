@@ -923,6 +923,9 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
     data = np.where(ds.counted, ds.position_m, np.nan)
     coverage = share_inside(data, low, high)
     per_band = _band_errors(ds, prediction, notes, x.mean(axis=0) if own else None)
+    if own and ds.n_trials > 1:  # the raw trials' spread holds the inputs' differences
+        notes.append("the noise floor is the spread of the trials' residuals from the "
+                     "posterior-mean prediction on each one's input")
     extra = _with_training(training, ds, y, q, {"rmse_m": rmse, "nrmse": normalised}, notes)
     return ExperimentValidation(
         name=Path(ds.source).stem if ds.source else "data set",
