@@ -53,7 +53,8 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
                  "time_origin_s", "position_reference", "steady_state_tol_m",
-                 "max_warmup_periods", "warmup_s")
+                 "max_warmup_periods", "warmup_s", "position_sign", "position_zero_s",
+                 "position_zero")
 
 
 class DataError(ValueError):
@@ -258,6 +259,17 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
             "declared; a steady state needs a periodic input: declare 'period_samples' (the "
             "samples in one period), or set 'starts_in_steady_state' to false.")
+    if "position_zero_s" in metadata and "position_zero" in metadata:
+        raise DataError(
+            f"{where}: metadata 'position_zero' says the positions were referred to their "
+            "reading at rest when the file was read, and 'position_zero_s' asks for it again; "
+            "remove 'position_zero_s'.")
+    if metadata.get("position_sign", 1) != 1:
+        raise DataError(
+            f"{where}: metadata 'position_sign' is {metadata['position_sign']!r}; it is applied "
+            "when a file is read (pmabayes.data.load negates the positions of a file whose "
+            "sidecar gives -1). A data set made in Python holds positions as pmabayes' x runs "
+            "(growing as the pressure pushes): negate them yourself and leave the key out.")
     _max_gap_s(metadata, where)
 
 
@@ -691,6 +703,17 @@ class Dataset:
     def n_missing(self) -> int:
         """Samples not observed, over all trials (0 for a complete record)."""
         return int(self.observed.size - np.count_nonzero(self.observed))
+
+    @property
+    def counted(self) -> np.ndarray:
+        """The samples a likelihood and its criticism take, ``(n_trials, n_samples)``.
+
+        :attr:`observed`, less the declared warm-up (:attr:`warmup_s`): those samples
+        still drive the simulation but are not data for the model.
+        """
+        if not self.warmup_s:
+            return np.array(self.observed)
+        return self.observed & (self.time_s - self.time_s[0] >= self.warmup_s)[None, :]
 
     @property
     def mean_position_m(self) -> np.ndarray:
