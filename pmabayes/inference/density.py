@@ -175,7 +175,7 @@ class Posterior:
     def _layout(self, liks: list[Likelihood], names: list[str]) -> None:
         """The full parameter array: the first experiment's model's, then a column for
         each parameter of another experiment's model that it does not share (its own
-        offset, its own rig value); each other experiment's :attr:`Likelihood.columns`."""
+        offset, its own rig value); each other experiment's ``columns`` (:class:`~pmabayes.inference.likelihood.Likelihood`)."""
         first = liks[0].model
         template = list(first.theta(first.defaults)[0])
         slot = {self.identified[0].get(n, ("fixed", n, first.defaults[n])): j
@@ -355,7 +355,7 @@ class Posterior:
         The model's, for one experiment or experiments that share every parameter;
         otherwise the first experiment's model's followed by the columns of the
         others' own parameters, of which each :class:`Likelihood` takes its own
-        (:attr:`Likelihood.columns`).
+        (``columns`` (:class:`~pmabayes.inference.likelihood.Likelihood`)).
         """
         theta = np.atleast_2d(theta)
         full = np.repeat(self._template[None, :], theta.shape[0], axis=0)
