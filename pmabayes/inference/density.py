@@ -175,7 +175,8 @@ class Posterior:
     def _layout(self, liks: list[Likelihood], names: list[str]) -> None:
         """The full parameter array: the first experiment's model's, then a column for
         each parameter of another experiment's model that it does not share (its own
-        offset, its own rig value); each other experiment's ``columns`` (:class:`~pmabayes.inference.likelihood.Likelihood`)."""
+        offset, its own rig value); each other experiment's ``columns``
+        (:class:`~pmabayes.inference.likelihood.Likelihood`)."""
         first = liks[0].model
         template = list(first.theta(first.defaults)[0])
         slot = {self.identified[0].get(n, ("fixed", n, first.defaults[n])): j
