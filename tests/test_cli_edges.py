@@ -530,9 +530,9 @@ def test_plugin_on_either_side_and_a_broken_one_in_one_line(tmp_path, capsys):
     import pmabayes.cli as cli
 
     plugin = tmp_path / "edge.py"
-    plugin.write_text(PLUGIN)
+    plugin.write_text(PLUGIN.replace("cli_stiction", "edge_stiction"))  # test_cli's is taken
     assert main(["effects", "--plugin", str(plugin), "--quiet"]) == 0
-    assert "cli_stiction [force]" in capsys.readouterr().out
+    assert "edge_stiction [force]" in capsys.readouterr().out
     broken = tmp_path / "broken.py"
     broken.write_text("import pmabayes\n\ndef oops(:\n")
     _one_line_error(capsys, main(["--plugin", str(broken), "effects"]),
