@@ -115,7 +115,7 @@ def test_the_pages_hold_the_commands_they_should():
     readme = [c for c in commands if c.page == "README.md"]
     main_job = "pmabayes run data/pma_chirp_lab.csv --out results/lab"
     assert readme[0].text == VENV_PREFIX + main_job
-    assert readme[1].text == "bash .ci/with-venv python -m pytest -q"
+    assert readme[1].text == "bash .ci/with-venv python -m pytest -q -n 2 --dist loadfile"
     for c in commands:
         c.ci_form()  # every instruction is one the harness knows
     rst = [p for p in (ROOT / "docs").rglob("*.rst") if "_build" not in p.parts
