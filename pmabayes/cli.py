@@ -754,7 +754,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         print(check_trials(ds).summary())
     model = _model_for(datasets[0], args)
     settings = DiagnoseSettings(candidates=args.candidates or None,
-                                noise_model=args.noise_model)
+                                noise_model=args.noise_model, substeps=args.substeps)
     # a proposed effect's file goes where the options say; without one it is checked
     # in a temporary folder and not kept (nothing is written into the current folder)
     plugin_dir = args.proposal_dir or out or False
@@ -1278,6 +1278,9 @@ def _criticism_commands(sub, common) -> None:
                       "proposal is checked but not kept; an existing file is never "
                       "overwritten)")
     diag.add_argument("--seed", type=_seed, default=0, help="seed of everything random (0)")
+    diag.add_argument("--substeps", type=_substeps, default="auto",
+                      help="simulator steps per sample interval, or 'auto' (the default, as "
+                      "for fit)")
     _noise_model_option(diag)
     _prior_option(diag)
     _exclude_option(diag)

@@ -257,3 +257,20 @@ def test_warmup_settings_come_from_the_sidecar_and_the_caller():
                               source="warm.csv")
     with pytest.raises(SimulationError, match="warm.csv: max_warmup_periods"):
         warmup_settings(bad)
+
+
+@pytest.mark.slow
+def test_diagnose_chooses_substeps_and_scales_a_force_rigs_priors_as_fit_does():
+    """Fails before issue 22's last step, where diagnose simulated a force rig with one
+    substep and the muscle's priors (its settings held ``substeps: 1``)."""
+    from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
+
+    osc = _force_dataset(n=1500)
+    d = diagnose(osc, settings=DiagnoseSettings(candidates=("coulomb_friction",),
+                                                discrepancy=False, max_refits=0), seed=0)
+    assert d.settings["substeps"] > 1
+    scaled = build_posterior(Model.for_dataset(osc), osc).likelihoods[0].model
+    assert d.experiments[0].model.priors == scaled.priors
+    with pytest.raises(ValueError, match="substeps must be a whole number"):
+        DiagnoseSettings(substeps="fine")

@@ -13,6 +13,7 @@ Its settings are a :class:`~pmabayes.criticism.settings.DiagnoseSettings`; its r
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -41,6 +42,7 @@ from pmabayes.criticism.results import Diagnosis, ExperimentDiagnosis, Finding
 from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.data import Dataset
+from pmabayes.inference.posterior import choose_substeps, data_scaled_priors
 from pmabayes.inference.posterior import experiments as checked_experiments
 from pmabayes.model.effects import get_effect
 from pmabayes.model.model import Model
@@ -217,6 +219,10 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     say = Progress("diagnose")
     rng = np.random.default_rng(seed)
     datasets, models, names = _experiments(datasets, model, effects)
+    # as fit does: a force rig's priors from the data's scale, substeps by accuracy
+    models = [data_scaled_priors(m, datasets)[0] for m in models]
+    if s.substeps == "auto":
+        s = dataclasses.replace(s, substeps=choose_substeps(models, datasets)["chosen"])
     label = " + ".join(["base", *models[0].effect_names])
     where = " and ".join(str(ds.source or "the data") for ds in datasets)
     say.say(f"fitting {label} to {where} (MAP)")

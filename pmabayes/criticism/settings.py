@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 
@@ -43,8 +44,10 @@ class DiagnoseSettings:
         Probability of the intervals, in (0, 1).
     n_draws : int
         Laplace draws for the ELPD and the intervals (50 or more).
-    substeps : int
-        Simulator substeps per sample (1 or more).
+    substeps : int or "auto"
+        Simulator substeps per sample (1 or more), or ``"auto"``: the fewest that
+        pass the simulator's own accuracy check on these data
+        (:func:`~pmabayes.inference.posterior.choose_substeps`), as ``fit`` does.
     candidates : tuple of str or None
         Effects to test (any iterable of registered names is taken); every
         registered effect not in the model when None.
@@ -74,7 +77,7 @@ class DiagnoseSettings:
     min_explained: float = 0.9
     ci_prob: float = 0.9
     n_draws: int = 400
-    substeps: int = 1
+    substeps: int | str = "auto"
     candidates: tuple[str, ...] | None = None
     noise_model: str = "auto"
     discrepancy: bool = True
@@ -89,7 +92,10 @@ class DiagnoseSettings:
                      open_=True)
         for name, least in (("max_refits", 0), ("n_draws", 50), ("substeps", 1)):
             value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < least:
+            if name == "substeps" and value == "auto":
+                continue
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) \
+                    or int(value) != value or value < least:
                 raise ValueError(f"{name} must be a whole number, at least {least}; "
                                  f"got {value!r}")
         check_noise_model_name(self.noise_model)
