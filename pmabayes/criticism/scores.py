@@ -110,8 +110,8 @@ def rank_effects(
         :func:`pmabayes.inference.noise.estimate_noise`; one per experiment with several.
     values : dict or sequence of dict
         The current model's parameter values at its MAP; one per experiment where
-        they differ (an experiment's own offset, :meth:`pmabayes.inference.density.
-        Posterior.experiment_point`).
+        they differ (an experiment's own offset,
+        :meth:`~pmabayes.inference.density.Posterior.experiment_point`).
     candidates : iterable of str, optional
         Effects to test; every registered effect not already in the model by
         default.

@@ -292,7 +292,7 @@ class Posterior:
         -------
         own : dict
             The experiment's model's free parameters under the model's names (its own
-            offset, its rig value's, as :attr:`identified` maps them).
+            offset, its rig value's, as ``identified`` maps them).
         start : numpy.ndarray or None
             Its estimated start ``(3,)``, None where the start is declared.
         """
