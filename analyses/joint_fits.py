@@ -5,7 +5,8 @@ Each data set is two experiments of one plant, drawn with its own seed and its o
 base-model parameters from ``pmabayes.synthetic.PLAUSIBLE_REGION``: a repeated chirp
 on the characterisation rig (3 trials, 0.2 to 3 Hz over 4 s at 500 Hz) and a
 pressure sine on the loaded control rig (2 trials, 4 periods of 1 Hz from rest),
-both with an AR(1) disturbance of 20 um and 2 ms plus encoder quantisation. Their
+both with an AR(1) disturbance of 20 um and 2 ms plus encoder quantisation
+(``--noise default``: the package's default measurement, 60 um and 0.1 s). Their
 joint MAP is found twice on the same posterior and seed: ``before``, from the joint
 global search alone (``find_map(..., own_starts=False)``), and ``after``, also from
 each experiment's own MAP (the default). The oracle is the joint MAP polished from
@@ -20,9 +21,9 @@ is the false alarm rate on experiments that agree.
 Usage::
 
     python analyses/joint_fits.py [--datasets 10] [--seed 0] [--disagree]
-                                  [--factor 3] [--out DIR]
+                                  [--factor 3] [--noise {fast,default}] [--out DIR]
 
-Writes ``joint_fits.csv`` (``joint_fits_disagree.csv``) into ``--out`` (default
+Writes ``joint_fits[_disagree][_default].csv`` into ``--out`` (default
 ``paper/tables``) and prints one line per data set, then the fractions.
 """
 
@@ -43,20 +44,22 @@ from pmabayes.inference.search import _noise_start, _polish_from, find_map
 from pmabayes.model.model import Rig
 from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
-NOISE = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002)
+#: the experiments' measurement, by ``--noise``
+NOISES = {"fast": MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002),
+          "default": MeasurementNoise()}
 CHIRP = Chirp(duration_s=4.0, f0_hz=0.2, f1_hz=3.0, sample_rate_hz=500.0)
 #: the log posterior below the oracle's at which a MAP is in another basin
 BASIN_TOLERANCE = 1.0
 
 
-def loaded_sine(truth: dict, seed: int, *, n_trials: int = 2, freq_hz: float = 1.0,
-                n_periods: int = 4, rate_hz: float = 500.0) -> Dataset:
+def loaded_sine(truth: dict, seed: int, noise: MeasurementNoise, *, n_trials: int = 2,
+                freq_hz: float = 1.0, n_periods: int = 4, rate_hz: float = 500.0) -> Dataset:
     """Trials of a pressure sine from rest (0 to 0.4 MPa) on the loaded control rig."""
     model = Model(rig=Rig.control())
     t = np.arange(int(round(n_periods * rate_hz / freq_hz))) / rate_hz
     p = 0.2e6 * (1.0 - np.cos(2.0 * np.pi * freq_hz * t))
     x = simulate(model, truth, p, time_s=t)[0]
-    y = NOISE.apply(np.repeat(x[None], n_trials, axis=0), 1.0 / rate_hz,
+    y = noise.apply(np.repeat(x[None], n_trials, axis=0), 1.0 / rate_hz,
                     np.random.default_rng(seed))
     meta = {"synthetic": True, "rig": model.rig.to_dict(), "sample_rate_hz": rate_hz,
             "description": "synthetic loaded sine made by analyses/joint_fits.py"}
@@ -64,16 +67,17 @@ def loaded_sine(truth: dict, seed: int, *, n_trials: int = 2, freq_hz: float = 1
                    trial_ids=np.arange(n_trials), metadata=meta, source="sine_loaded.csv")
 
 
-def experiments(truth: dict, seed: int, factor: float | None) -> list[Dataset]:
+def experiments(truth: dict, seed: int, factor: float | None,
+                noise: MeasurementNoise) -> list[Dataset]:
     """The chirp and the loaded sine of one data set (the sine's ``K_e`` times
     ``factor`` when given)."""
-    chirp = generate_chirp_dataset(n_trials=3, seed=seed, chirp=CHIRP, noise=NOISE,
+    chirp = generate_chirp_dataset(n_trials=3, seed=seed, chirp=CHIRP, noise=noise,
                                    params=truth)
     chirp = Dataset(time_s=chirp.time_s, input=chirp.input, position_m=chirp.position_m,
                     trial_ids=chirp.trial_ids, metadata=chirp.metadata,
                     source="chirp_unloaded.csv")
     other = truth if factor is None else {**truth, "K_e": truth["K_e"] * factor}
-    return [chirp, loaded_sine(other, seed + 1)]
+    return [chirp, loaded_sine(other, seed + 1, noise)]
 
 
 def oracle(posterior, truth: dict) -> float:
@@ -88,7 +92,7 @@ def oracle(posterior, truth: dict) -> float:
     return float(posterior.log_prob_z(z_map[None])[0])
 
 
-def study_one(k: int, seed: int, factor: float | None) -> dict:
+def study_one(k: int, seed: int, factor: float | None, noise: MeasurementNoise) -> dict:
     """One data set's row: log posteriors before, after and of the oracle, the loaded
     experiment's RMS at each MAP, and the agreement verdict."""
     rng = np.random.default_rng([seed, k])
@@ -96,7 +100,7 @@ def study_one(k: int, seed: int, factor: float | None) -> dict:
     data_seed = int(rng.integers(2**31))
     row = {"dataset": k, "seed": data_seed, **{f"true_{n}": v for n, v in truth.items()}}
     for which, own in (("before", False), ("after", True)):
-        post = build_posterior(Model(), experiments(truth, data_seed, factor))
+        post = build_posterior(Model(), experiments(truth, data_seed, factor, noise))
         result = find_map(post, rng=np.random.default_rng(data_seed), own_starts=own)
         x = post.output(post.to_natural(result.z[None]))
         rms = post.likelihood.rms_costs(x)[0]
@@ -123,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--disagree", action="store_true",
                         help="draw the loaded sine from another plant (K_e times --factor)")
     parser.add_argument("--factor", type=float, default=3.0)
+    parser.add_argument("--noise", choices=tuple(NOISES), default="fast",
+                        help="the measurement: 20 um of 2 ms (fast) or 60 um of 0.1 s")
     parser.add_argument("--out", type=Path, default=Path("paper/tables"))
     args = parser.parse_args(argv)
     if args.datasets < 1:
@@ -131,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for k in range(args.datasets):
         start = time.perf_counter()
-        row = study_one(k, args.seed, factor)
+        row = study_one(k, args.seed, factor, NOISES[args.noise])
         rows.append(row)
         basin = ("" if factor is not None else
                  f"right basin before={row['right_before']} after={row['right_after']}, ")
@@ -140,7 +146,9 @@ def main(argv: list[str] | None = None) -> int:
               f" um, agree={row['agree']} (p={row['p_value']:.3g}, start: {row['start']}), "
               f"{time.perf_counter() - start:.0f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / ("joint_fits_disagree.csv" if args.disagree else "joint_fits.csv")
+    stem = "joint_fits" + ("_disagree" if args.disagree else "") + (
+        "" if args.noise == "fast" else f"_{args.noise}")
+    path = args.out / f"{stem}.csv"
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()

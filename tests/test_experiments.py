@@ -311,6 +311,39 @@ def test_single_periodic_record_covers_the_truth():
     assert sum(cov.values()) >= 5, cov
 
 
+def test_an_adequate_verdict_says_what_one_record_cannot_tell():
+    from pmabayes.criticism.adequacy import Adequacy
+
+    slow = Adequacy(adequate=True, rms_m=1e-5, floor_m=float("nan"), energy=1.0,
+                    ljung_box_p=0.5, coverage=None, ci_prob=0.9, next_command=None,
+                    noise_note="the disturbance identified with the model is slow")
+    assert slow.advice() == ["But the disturbance identified with the model is slow."]
+    assert slow.to_dict()["noise_note"].startswith("the disturbance")
+    assert Adequacy(adequate=True, rms_m=1e-5, floor_m=float("nan"), energy=1.0,
+                    ljung_box_p=0.5, coverage=None, ci_prob=0.9,
+                    next_command=None).advice() == []
+
+
+@pytest.mark.slow
+def test_a_single_record_with_the_default_slow_disturbance_is_adequate_and_covered():
+    """Issue 23: one 8 s chirp record with the default disturbance (60 um, 0.1 s). A
+    bound at the input's band pinned the noise there, and no interval covered the
+    truth; bounded at a tenth of the record, the correct model is adequate, its
+    intervals cover, and the verdict says that one record cannot tell such a
+    disturbance from slow physics."""
+    from pmabayes.report.verdicts import fit_adequacy
+
+    ds = generate_chirp_dataset(n_trials=1, seed=23, chirp=Chirp(duration_s=8.0),
+                                noise=MeasurementNoise())
+    tree = fit(ds, pb.Model(), seed=5, settings=QUICK_RECORD)
+    rho = np.median(tree["posterior"]["rho_noise"].values)
+    assert rho < Likelihood(pb.Model(), ds).rho_max
+    adequacy = fit_adequacy(tree, dataset=ds)
+    assert adequacy.adequate is True, adequacy.lines()
+    assert "cannot tell it from slow physics" in adequacy.noise_note
+    assert sum(covered(tree).values()) >= 5, covered(tree)
+
+
 @pytest.mark.slow
 def test_a_wrong_model_on_a_single_record_is_still_inadequate():
     """The guard keeps the misfit of a model that lacks an effect visible: the noise
