@@ -15,8 +15,9 @@ the true parameters: a MAP is in the right basin when its log posterior is withi
 
 ``--disagree`` draws the sine from another plant (its ``K_e`` times ``--factor``,
 3 by default) and counts how often the fit says the experiments disagree
-(:func:`pmabayes.inference.search.experiments_agreement`); without it, that count
-is the false alarm rate on experiments that agree.
+(:func:`pmabayes.inference.search.experiments_agreement`; a joint fit refused as
+too poor for the data, with the error saying that they disagree, counts); without
+it, that count is the false alarm rate on experiments that agree.
 
 Usage::
 
@@ -39,6 +40,7 @@ import numpy as np
 
 from pmabayes import Model, simulate
 from pmabayes.data import Dataset
+from pmabayes.inference.errors import FitError
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import _noise_start, _polish_from, find_map
 from pmabayes.model.model import Rig
@@ -101,7 +103,15 @@ def study_one(k: int, seed: int, factor: float | None, noise: MeasurementNoise) 
     row = {"dataset": k, "seed": data_seed, **{f"true_{n}": v for n, v in truth.items()}}
     for which, own in (("before", False), ("after", True)):
         post = build_posterior(Model(), experiments(truth, data_seed, factor, noise))
-        result = find_map(post, rng=np.random.default_rng(data_seed), own_starts=own)
+        try:
+            result = find_map(post, rng=np.random.default_rng(data_seed), own_starts=own)
+        except FitError as err:  # the joint model fits so badly that the fit refuses it
+            row[f"refused_{which}"] = str(err)
+            if own:
+                row.update(agree=False if "disagree" in str(err) else None,
+                           statistic=None, df=None, p_value=None, start=None)
+            continue
+        row[f"refused_{which}"] = ""
         x = post.output(post.to_natural(result.z[None]))
         rms = post.likelihood.rms_costs(x)[0]
         row[f"log_posterior_{which}"] = float(post.log_prob_z(result.z[None])[0])
@@ -114,8 +124,8 @@ def study_one(k: int, seed: int, factor: float | None, noise: MeasurementNoise) 
     if factor is None:
         row["log_posterior_oracle"] = oracle(post, truth)
         for which in ("before", "after"):
-            row[f"right_{which}"] = bool(row[f"log_posterior_{which}"]
-                                         >= row["log_posterior_oracle"] - BASIN_TOLERANCE)
+            row[f"right_{which}"] = bool(not row[f"refused_{which}"] and (
+                row[f"log_posterior_{which}"] >= row["log_posterior_oracle"] - BASIN_TOLERANCE))
     return row
 
 
@@ -141,16 +151,18 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         basin = ("" if factor is not None else
                  f"right basin before={row['right_before']} after={row['right_after']}, ")
-        print(f"data set {k + 1}/{args.datasets}: {basin}sine RMS before "
-              f"{row['rms_sine_before_m'] * 1e6:.3g} um after {row['rms_sine_after_m'] * 1e6:.3g}"
-              f" um, agree={row['agree']} (p={row['p_value']:.3g}, start: {row['start']}), "
-              f"{time.perf_counter() - start:.0f} s", flush=True)
+        rms = {w: (f"{row[f'rms_sine_{w}_m'] * 1e6:.3g} um" if not row[f"refused_{w}"]
+                   else "refused") for w in ("before", "after")}
+        print(f"data set {k + 1}/{args.datasets}: {basin}sine RMS before {rms['before']} "
+              f"after {rms['after']}, agree={row['agree']} (p={row['p_value']}, start: "
+              f"{row['start']}), {time.perf_counter() - start:.0f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     stem = "joint_fits" + ("_disagree" if args.disagree else "") + (
         "" if args.noise == "fast" else f"_{args.noise}")
     path = args.out / f"{stem}.csv"
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)),
+                                restval="")
         writer.writeheader()
         writer.writerows(rows)
     n = len(rows)

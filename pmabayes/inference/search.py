@@ -174,7 +174,8 @@ def find_map(
     FitError
         If no parameter set in the plausible region gives a finite simulation, or
         the best model still explains the data so badly that the data cannot be
-        what the model describes (wrong units, wrong rig, wrong column).
+        what the model describes (wrong units, wrong rig, wrong column); for
+        experiments that disagree (:func:`disagreement_text`), the error says so.
     """
     box = posterior.plausible_box(rng, posterior.names)
     # the search's cost does not depend on a sampled noise: searched over the model's
@@ -220,12 +221,18 @@ def find_map(
     z_map, cov_z = _climb(posterior, z_map, cov_z, scale, rng.spawn(1)[0])
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
-    cost = _check_fit_quality(posterior.likelihood, x[0])
-    values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
-    values.update(posterior.noise_values(theta_map[0]))
     agreement = None
     if own:
         agreement = {**experiments_agreement(posterior, z_map, own), "start": best_start}
+    try:
+        cost = _check_fit_quality(posterior.likelihood, x[0])
+    except FitError as err:  # each alone fits: what fails is their sharing one model
+        text = disagreement_text(agreement) if agreement is not None else ""
+        if not text:
+            raise
+        raise FitError(text[0].upper() + text[1:] + f". ({err})") from err
+    values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
+    values.update(posterior.noise_values(theta_map[0]))
     return MapResult(
         values=values,
         log_posterior=float(lp[0] + ll[0]),
