@@ -26,10 +26,10 @@ here and on the workers); the rows are the same.
 ``calibration_single_MODE.*``):
 
 * ``record``: one chirp record, no repeats, not periodic (0.2 to 3 Hz over 8 s at
-  500 Hz). Its noise is identified with the model under the guard of
-  :mod:`pmabayes.inference.likelihood`, which assumes a disturbance much faster than the input:
-  the measurement is an AR(1) disturbance of 20 um and 2 ms correlation time, plus
-  encoder quantisation.
+  500 Hz). Its noise is identified with the model under the bound of
+  :mod:`pmabayes.inference.likelihood` (a correlation time of at most a tenth of the
+  record): the measurement is an AR(1) disturbance of 20 um and 2 ms correlation
+  time, plus encoder quantisation.
 * ``periodic``: one record of 4 periods of a 2 s multisine (harmonics 1 to 4 of
   0.5 Hz, phases from the data set's seed) from rest, at 500 Hz, with the default
   measurement (AR(1) of 60 um and 0.1 s, quantised). Periods 2 to 4 are the

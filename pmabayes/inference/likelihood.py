@@ -5,7 +5,7 @@ Each trial is the model's position plus an AR(1) disturbance and white sensor no
 the exact likelihood comes from a Kalman filter. It factorises into the trials'
 deviations from their mean, which do not depend on the model and give the noise, and
 the trial mean's residual, which gives the model. A record without repeats learns its
-noise from its periods, or with the model under a guard on the noise's correlation
+noise from its periods, or with the model under a bound on the noise's correlation
 time. Samples not observed (gaps, a warm-up) are missing in the filter; trials with
 their own measured inputs are each simulated on their own, their noise learnt from
 their residuals; a start may be estimated. The documentation's page "The likelihood"
@@ -530,7 +530,7 @@ class Likelihood:
         ``"trials"`` (two or more repeated trials), ``"periods"`` (one record of a
         declared periodic input, its periods in steady state taken as repeats) or
         ``"record"`` (one record without repeats: the noise is identified jointly
-        with the model, under :meth:`noise_parameters`' guard).
+        with the model, under :meth:`noise_parameters`' bound).
     n_repeats : int
         The number of repeated series the noise is learnt from without the model
         (trials or periods; 1 for ``"record"``).
@@ -805,14 +805,14 @@ class Likelihood:
                                      ar.variances)
         return np.ascontiguousarray(out.T)
 
-    # -- the noise guard for records without repeats ----------------------------
+    # -- the noise bound for records without repeats ----------------------------
     @property
     def input_frequency_hz(self) -> float:
         """The input's upper frequency: 99% of its variance lies below it.
 
         Where a model's misfit lives (with the harmonics that hysteresis makes of
-        it); the noise guard of :meth:`noise_parameters` keeps the disturbance's
-        spectrum flat far above it.
+        it); a disturbance slower than one flat far above it (:attr:`rho_flat`) is
+        confounded with slow missing physics in a record without repeats.
         """
         u = self.input - self.input.mean()
         power = np.abs(np.fft.rfft(u)) ** 2
