@@ -286,7 +286,8 @@ def test_single_non_periodic_record_covers_the_truth():
     # the noise was sampled, within the guard, and near the truth's total variance
     rho = tree["posterior"]["rho_noise"].values
     rho_max = Likelihood(pb.Model(), ds).rho_max
-    assert rho_max < 0.95 and np.abs(rho).max() <= rho_max
+    assert rho_max == pytest.approx(np.exp(-ds.dt_s / (0.1 * ds.n_samples * ds.dt_s)))
+    assert np.abs(rho).max() <= rho_max
     total = np.sqrt(tree["posterior"]["sigma_noise_m"].values ** 2
                     + tree["posterior"]["sigma_white_m"].values ** 2)
     assert 10e-6 < np.median(total) < 40e-6
