@@ -14,6 +14,7 @@ Usage::
                                    [--noise {default,two-scale}]
                                    [--noise-model {auto,ar1,ar}]
                                    [--measured-inputs]
+                                   [--disturbance-ms MS] [--diagnose]
 
 Writes ``calibration.csv`` and ``calibration.md`` into ``--out`` (default
 ``paper/tables``). The last line printed is ``coverage_min: <fraction>``. ``--quick``
@@ -25,10 +26,10 @@ here and on the workers); the rows are the same.
 ``calibration_single_MODE.*``):
 
 * ``record``: one chirp record, no repeats, not periodic (0.2 to 3 Hz over 8 s at
-  500 Hz). Its noise is identified with the model under the guard of
-  :mod:`pmabayes.inference.likelihood`, which assumes a disturbance much faster than the input:
-  the measurement is an AR(1) disturbance of 20 um and 2 ms correlation time, plus
-  encoder quantisation.
+  500 Hz). Its noise is identified with the model under the bound of
+  :mod:`pmabayes.inference.likelihood` (a correlation time of at most a tenth of the
+  record): the measurement is an AR(1) disturbance of 20 um and 2 ms correlation
+  time, plus encoder quantisation.
 * ``periodic``: one record of 4 periods of a 2 s multisine (harmonics 1 to 4 of
   0.5 Hz, phases from the data set's seed) from rest, at 500 Hz, with the default
   measurement (AR(1) of 60 um and 0.1 s, quantised). Periods 2 to 4 are the
@@ -43,6 +44,14 @@ own measured input, and the noise is learnt from the trials' residuals at the MA
 (:mod:`pmabayes.inference.likelihood`). Its rows add each data set's noise floor from
 those residuals (``noise_floor_referred_m``: the fit's ``noise_floor_m``) beside the
 floor of the drawn noise alone (``noise_floor_drawn_m``).
+
+``--disturbance-ms MS`` sets a single record's disturbance correlation time (the
+``record``'s 2 ms or the ``periodic``'s 100 ms by default; its standard deviation
+stays the mode's), and the files get ``_MSms`` in their name. ``--diagnose`` also
+judges each fit's adequacy (:func:`pmabayes.report.verdicts.fit_adequacy`) and
+diagnoses each data set (:func:`pmabayes.diagnose` with :data:`FAST_CANDIDATES`,
+one refit, no discrepancy step), and prints the fractions called adequate and
+with an effect named missing.
 
 ``--noise two-scale`` draws the repeated chirps' disturbance with two time scales
 (:data:`TWO_SCALE_NOISE`: 20 um of 10 ms correlation time plus 50 um of 1 s, then
@@ -89,15 +98,30 @@ RECORD_NOISE = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s
 TWO_SCALE_NOISE = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.010,
                                    slow_std_m=50e-6, slow_corr_time_s=1.0)
 NOISES = {"default": MeasurementNoise(), "two-scale": TWO_SCALE_NOISE}
+#: the periodic single record's measurement (the default: 60 um, 0.1 s)
+PERIODIC_NOISE = MeasurementNoise()
+#: ``--diagnose``'s candidates: a slow state (creep), a force (friction) and a lag,
+#: the kinds a slow disturbance could be taken for
+FAST_CANDIDATES = ("maxwell_creep", "coulomb_friction", "regulator_lag")
+
+
+def single_noise(single: str, disturbance_ms: float | None) -> MeasurementNoise:
+    """A single record's measurement: the mode's, with its disturbance's correlation
+    time set to ``disturbance_ms`` when given."""
+    noise = RECORD_NOISE if single == "record" else PERIODIC_NOISE
+    if disturbance_ms is None:
+        return noise
+    return replace(noise, disturbance_corr_time_s=disturbance_ms * 1e-3)
 
 
 def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods: int = 4,
-                    rate_hz: float = 500.0) -> Dataset:
+                    rate_hz: float = 500.0, noise: MeasurementNoise = PERIODIC_NOISE
+                    ) -> Dataset:
     """One synthetic record of ``n_periods`` periods of a multisine, from rest.
 
     Harmonics 1 to 4 of ``1 / period_s`` with phases drawn from ``seed``, scaled to
-    0.05-0.45 MPa; the default measurement (:class:`MeasurementNoise`). Declared
-    periodic (``period_samples``), starting from rest.
+    0.05-0.45 MPa; the measurement ``noise`` (the default :class:`MeasurementNoise`).
+    Declared periodic (``period_samples``), starting from rest.
     """
     rng = np.random.default_rng(seed)
     period = int(round(period_s * rate_hz))
@@ -107,7 +131,7 @@ def periodic_record(truth: dict, seed: int, *, period_s: float = 2.0, n_periods:
     u = 0.05e6 + 0.4e6 * (u - u.min()) / (u.max() - u.min())
     model = Model()
     x = simulate(model, truth, u, time_s=t)[0]
-    y = MeasurementNoise().apply(x[None], 1.0 / rate_hz, rng)
+    y = noise.apply(x[None], 1.0 / rate_hz, rng)
     meta = {"synthetic": True, "sample_rate_hz": rate_hz, "rig": model.rig.to_dict(),
             "period_samples": period, "starts_in_steady_state": False,
             "description": "synthetic periodic multisine record made by analyses/calibration.py "
@@ -131,7 +155,8 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
               settings: FitSettings | None = None, verbose: bool = True,
               processes: int | None = None, single: str | None = None,
               client=None, noise: str = "default", noise_model: str = "auto",
-              measured_inputs: bool = False) -> list[dict]:
+              measured_inputs: bool = False, disturbance_ms: float | None = None,
+              judge: bool = False) -> list[dict]:
     """Fit ``n_datasets`` synthetic data sets; one row per data set and parameter.
 
     The data sets are drawn here, in order, from ``seed``; their fits run on
@@ -144,12 +169,15 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
     ``n_trials`` repeated chirps (see the module's docstring). ``noise`` (a key of
     :data:`NOISES`) is the repeated chirps' measurement, and ``noise_model`` the fits'
     (:func:`pmabayes.inference.sampler.fit`). ``measured_inputs`` gives each trial its
-    own measured input (:class:`pmabayes.synthetic.Regulator`).
+    own measured input (:class:`pmabayes.synthetic.Regulator`). ``disturbance_ms`` sets a
+    single record's disturbance correlation time (:func:`single_noise`); ``judge`` adds
+    each fit's adequacy and its diagnosis (``--diagnose``) to the rows.
     """
     if single is not None and single not in SINGLE_MODES:
         raise ValueError(f"single must be one of {SINGLE_MODES} or None, got {single!r}")
     jobs = [{**job, "chirp": chirp, "n_trials": n_trials, "single": single, "noise": noise,
-             "noise_model": noise_model, "measured_inputs": measured_inputs}
+             "noise_model": noise_model, "measured_inputs": measured_inputs,
+             "disturbance_ms": disturbance_ms, "judge": judge}
             for job in draw_jobs(n_datasets, seed)]
     runner = Runner(processes, client=client, tasks=n_datasets)
     settings = FitSettings() if settings is None else settings
@@ -163,9 +191,11 @@ def calibrate(n_datasets: int, seed: int, *, chirp: Chirp | None = None, n_trial
             if verbose:
                 first = job_rows[0]
                 covered = sum(r["covered"] for r in job_rows)
+                judged = (f", adequate={first['adequate']}, named={first['named'] or '-'}"
+                          if "adequate" in first else "")
                 print(f"data set {first['dataset'] + 1}/{n_datasets} (seed {first['seed']}): "
-                      f"{covered}/{len(PARAMS)} covered, converged={first['converged']}, "
-                      f"{seconds:.0f} s", flush=True)
+                      f"{covered}/{len(PARAMS)} covered, converged={first['converged']}"
+                      f"{judged}, {seconds:.0f} s", flush=True)
     return rows
 
 
@@ -173,10 +203,12 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
     """Fit one data set; its rows and the seconds it took."""
     truth, data_seed = job["truth"], job["seed"]
     if job.get("single") == "periodic":
-        ds = periodic_record(truth, data_seed)
+        ds = periodic_record(truth, data_seed,
+                             noise=single_noise("periodic", job.get("disturbance_ms")))
     elif job.get("single") == "record":
         ds = generate_chirp_dataset(n_trials=1, seed=data_seed, chirp=RECORD_CHIRP,
-                                    noise=RECORD_NOISE, params=truth)
+                                    noise=single_noise("record", job.get("disturbance_ms")),
+                                    params=truth)
     else:
         regulator = Regulator() if job.get("measured_inputs") else None
         ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=data_seed,
@@ -208,7 +240,24 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                      "noise_model": info["experiments"][0]["noise_model"]["model"], **extra})
         if extra:
             rows[-1]["noise_floor_referred_m"] = info["experiments"][0]["noise_floor_m"]
+    if job.get("judge"):
+        verdict = _judge(tree, ds, data_seed)
+        rows = [{**r, **verdict} for r in rows]
     return rows, time.perf_counter() - start
+
+
+def _judge(tree, ds: Dataset, seed: int) -> dict:
+    """The fit's adequacy verdict (and whether it says the noise is slow), and the effect
+    a fast diagnosis names missing (empty when none)."""
+    from pmabayes import diagnose
+    from pmabayes.criticism import DiagnoseSettings
+    from pmabayes.report.verdicts import fit_adequacy
+
+    adequacy = fit_adequacy(tree, dataset=ds)
+    found = diagnose(ds, seed=seed, plugin_dir=False, settings=DiagnoseSettings(
+        candidates=FAST_CANDIDATES, max_refits=1, discrepancy=False))
+    return {"adequate": bool(adequacy.adequate), "slow_noise_said": bool(adequacy.noise_note),
+            "diagnosis_adequate": bool(found.adequate), "named": found.missing or ""}
 
 
 def coverage(rows: list[dict]) -> dict[str, float]:
@@ -225,6 +274,24 @@ def z_spread(rows: list[dict]) -> dict[str, float]:
     """
     return {p: float(np.sqrt(np.mean([r["z"] ** 2 for r in rows if r["parameter"] == p])))
             for p in PARAMS}
+
+
+def judged_line(rows: list[dict]) -> str:
+    """``--diagnose``'s fractions over data sets: called adequate by the fit's verdict,
+    told that the noise is slow, called adequate by ``diagnose``, and with an effect
+    named missing."""
+    first = {r["dataset"]: r for r in rows}.values()
+    n = len(first)
+
+    def frac(key) -> str:
+        k = sum(1 for r in first if key(r))
+        return f"{k}/{n} = {k / n:.0%}"
+
+    named = sorted({r["named"] for r in first if r["named"]})
+    return (f"adequate (fit): {frac(lambda r: r['adequate'])}; slow noise said: "
+            f"{frac(lambda r: r['slow_noise_said'])}; adequate (diagnose): "
+            f"{frac(lambda r: r['diagnosis_adequate'])}; an effect named: "
+            f"{frac(lambda r: r['named'])}" + (f" ({', '.join(named)})" if named else ""))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -252,6 +319,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="repeated chirps whose trials each record their own measured "
                         "pressure (a regulator's lag of 2-6 ms drawn per trial, a "
                         "transducer's noise of 0.3%% of full scale)")
+    parser.add_argument("--disturbance-ms", type=float, default=None, metavar="MS",
+                        help="a single record's disturbance correlation time in ms (the "
+                        "record's 2, the periodic record's 100 by default)")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="judge each fit's adequacy and diagnose each data set (fast "
+                        "candidates), and print the fractions adequate and named")
     parser.add_argument("--dask", metavar="ADDRESS", default=None,
                         help="run the fits on this Dask scheduler (tcp://HOST:8786)")
     args = parser.parse_args(argv)
@@ -259,11 +332,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("give --processes or --dask, not both")
     if args.single is not None and (args.noise != "default" or args.measured_inputs):
         parser.error("--noise and --measured-inputs apply to repeated chirps, not to --single")
+    if args.single is None and args.disturbance_ms is not None:
+        parser.error("--disturbance-ms applies to --single records")
+    if args.disturbance_ms is not None and not args.disturbance_ms > 0:
+        parser.error(f"--disturbance-ms must be > 0, got {args.disturbance_ms}")
     chirp, n_trials, n = None, 10, args.datasets or 20
     if args.quick:
         chirp, n_trials, n = Chirp(duration_s=5.0, f1_hz=2.0), 4, args.datasets or 4
     settings = FitSettings() if args.steps is None else FitSettings(max_steps=args.steps)
     stem = "calibration" if args.single is None else f"calibration_single_{args.single}"
+    if args.disturbance_ms is not None:
+        stem += f"_{args.disturbance_ms:g}ms"
     if args.noise != "default":
         stem = f"calibration_{args.noise}_{args.noise_model}"
     if args.measured_inputs:
@@ -275,7 +354,8 @@ def main(argv: list[str] | None = None) -> int:
         rows = calibrate(n, args.seed, chirp=chirp, n_trials=n_trials,
                          processes=args.processes, single=args.single, settings=settings,
                          client=client, noise=args.noise, noise_model=args.noise_model,
-                         measured_inputs=args.measured_inputs)
+                         measured_inputs=args.measured_inputs,
+                         disturbance_ms=args.disturbance_ms, judge=args.diagnose)
     cov = coverage(rows)
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -300,6 +380,8 @@ def main(argv: list[str] | None = None) -> int:
               f"median {np.median(ratio):.3f}, range {ratio.min():.3f}-{ratio.max():.3f}")
     n_conv = len({r["dataset"] for r in rows if r["converged"]})
     print(f"{n} data sets, {n_conv} converged, {time.perf_counter() - start:.0f} s")
+    if args.diagnose:
+        print(judged_line(rows))
     print(f"coverage_min: {min(cov.values()):.3f}")
     return 0
 

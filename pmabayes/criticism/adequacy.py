@@ -17,6 +17,7 @@ from pmabayes.criticism.whiteness import judged_whiteness, p_text
 from pmabayes.inference.likelihood import (
     LEVEL_ADEQUATE,
     Likelihood,
+    slow_disturbance_note,
 )
 from pmabayes.util import finite_or_none
 
@@ -92,6 +93,10 @@ class Adequacy:
     noise_model : str
         The noise model the residual was whitened with
         (:func:`~pmabayes.criticism.whiteness.judged_whiteness`).
+    noise_note : str
+        What the data cannot tell about the noise, when a record without repeats has a
+        slow disturbance (:func:`~pmabayes.inference.likelihood.slow_disturbance_note`);
+        empty otherwise.
     """
 
     adequate: bool | None
@@ -105,6 +110,7 @@ class Adequacy:
     energy_tolerance: float = ENERGY_TOLERANCE
     level_adequate: float = LEVEL_ADEQUATE
     noise_model: str = "AR(1) + white"
+    noise_note: str = ""
 
     @property
     def ratio(self) -> float:
@@ -138,19 +144,21 @@ class Adequacy:
         return text
 
     def advice(self) -> list[str]:
-        """What the verdict means, in sentences (none for an adequate model).
+        """What the verdict means, in sentences (for an adequate model, only what the
+        data cannot tell about the noise, if anything).
 
         Returns
         -------
         list of str
         """
+        note = [f"But {self.noise_note}."] if self.noise_note else []
         if self.adequate is None:
             return ["The fit holds no noise estimate, so the whitened residual cannot be "
                     "judged."]
         if self.adequate is False:
             return ["The sampler's convergence is not the model's fit: the intervals are "
-                    "those of a model that the data reject."]
-        return []
+                    "those of a model that the data reject.", *note]
+        return note
 
     @property
     def next_step(self) -> str | None:
@@ -181,7 +189,8 @@ class Adequacy:
                 "energy": self.energy, "ljung_box_p": self.ljung_box_p,
                 "coverage": self.coverage, "ci_prob": self.ci_prob,
                 "next_command": self.next_command, "energy_tolerance": self.energy_tolerance,
-                "level_adequate": self.level_adequate, "noise_model": self.noise_model}
+                "level_adequate": self.level_adequate, "noise_model": self.noise_model,
+                "noise_note": self.noise_note}
 
 
 def check_adequacy(
@@ -231,12 +240,13 @@ def check_adequacy(
         r = r if likelihood.observed is None else r[np.isfinite(r)]
         overall = SimpleNamespace(rms_m=float(np.sqrt(np.mean(r * r))), floor_m=math.nan)
     energy = lb_p = adequate = None
-    noise_model = "AR(1) + white"
+    noise_model, note = "AR(1) + white", ""
     if noise is not None:
         _, white, noise_check = judged_whiteness(likelihood, x, noise)
         energy, lb_p = white["energy"], white["ljung_box_p"]
         adequate = is_adequate(energy, lb_p)
         noise_model = noise_check.noise_model
+        note = slow_disturbance_note(likelihood, noise.rho)
     return Adequacy(adequate=adequate, rms_m=overall.rms_m, floor_m=overall.floor_m,
                     energy=energy, ljung_box_p=lb_p, coverage=coverage, ci_prob=ci_prob,
-                    next_command=next_command, noise_model=noise_model)
+                    next_command=next_command, noise_model=noise_model, noise_note=note)

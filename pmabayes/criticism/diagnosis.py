@@ -169,9 +169,10 @@ def diagnose(
     Repeats: an experiment's noise comes from its trials, or from the periods of
     a single periodic record (``period_samples``), whose spread also gives its
     noise floor. A single record without either has no floor; its noise is
-    identified with the model (under the guard of
+    identified with the model (with the bound of
     :meth:`pmabayes.inference.likelihood.Likelihood.noise_parameters`), and the
-    verdict says that it is judged by its whitened residual alone.
+    verdict says that it is judged by its whitened residual alone, and, where its
+    disturbance is slow, that one record cannot tell it from slow missing physics.
 
     Parameters
     ----------

@@ -24,7 +24,7 @@ from pmabayes.criticism.whiteness import (
     whiteness_curves,
 )
 from pmabayes.data import Dataset
-from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.likelihood import Likelihood, slow_disturbance_note
 from pmabayes.inference.noise import NoiseEstimate
 from pmabayes.model.model import Model
 from pmabayes.model.simulator import Simulation
@@ -281,10 +281,12 @@ class ExperimentDiagnosis:
         """Why there is no noise floor, or an empty string when there is one."""
         if math.isfinite(self.noise_floor_m):
             return ""
-        return (f"{self.dataset.source or self.name} is a single record without repeats (no "
+        text = (f"{self.dataset.source or self.name} is a single record without repeats (no "
                 "second trial, no declared periods), so it has no noise floor: its error is "
                 "judged by the whiteness of its residual under the noise identified with the "
-                "model, whose correlation time is bounded far below the input's time scales")
+                "model")
+        slow = slow_disturbance_note(Likelihood(self.model, self.dataset), self.noise.rho)
+        return text + (f"; and {slow}" if slow else "")
 
     def to_dict(self) -> dict:
         """JSON-ready summary of this experiment (an entry of a diagnosis' ``experiments``).

@@ -16,6 +16,7 @@ from pmabayes.inference.density import (
 )
 from pmabayes.inference.errors import (
     ConvergenceWarning,
+    DisagreementWarning,
     FitError,
 )
 from pmabayes.inference.fitfile import (
@@ -85,6 +86,7 @@ from pmabayes.inference.trials import (
 __all__ = [
     "FitError",
     "ConvergenceWarning",
+    "DisagreementWarning",
     "NOISE_PARAMETERS",
     "NOISE_SOURCES",
     "GUARD_FACTOR",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["FitError", "ConvergenceWarning"]
+__all__ = ["FitError", "ConvergenceWarning", "DisagreementWarning"]
 
 
 class FitError(RuntimeError):
@@ -11,3 +11,8 @@ class FitError(RuntimeError):
 
 class ConvergenceWarning(RuntimeWarning):
     """A fit spent its budget before the sampler converged (its result is still returned)."""
+
+
+class DisagreementWarning(UserWarning):
+    """A joint fit's experiments disagree: their own optima are not compatible with one
+    shared parameter set (:func:`pmabayes.inference.search.experiments_agreement`)."""

@@ -5,7 +5,7 @@ Each trial is the model's position plus an AR(1) disturbance and white sensor no
 the exact likelihood comes from a Kalman filter. It factorises into the trials'
 deviations from their mean, which do not depend on the model and give the noise, and
 the trial mean's residual, which gives the model. A record without repeats learns its
-noise from its periods, or with the model under a guard on the noise's correlation
+noise from its periods, or with the model under a bound on the noise's correlation
 time. Samples not observed (gaps, a warm-up) are missing in the filter; trials with
 their own measured inputs are each simulated on their own, their noise learnt from
 their residuals; a start may be estimated. The documentation's page "The likelihood"
@@ -32,7 +32,7 @@ __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "J
            "MAX_AR_ORDER", "LJUNG_BOX_LAGS", "ljung_box_statistic", "levinson", "ArNoise",
            "ar_noise_from_repeats", "NoiseChoice", "check_noise_model_name",
            "ar1_whiteness_of_repeats", "choose_noise_model", "NOISE_PER_AMPLITUDE", "span",
-           "START_WINDOW_S"]
+           "START_WINDOW_S", "RECORD_CORRELATION_FRACTION", "slow_disturbance_note"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
@@ -405,9 +405,17 @@ def _rms_masked(y, xt, obs):
 #: What identifies the noise without the model, per experiment (see :class:`Likelihood`).
 NOISE_SOURCES: tuple[str, ...] = ("trials", "periods", "record")
 
-#: For a record without repeats, the disturbance's spectrum must stay flat up to this
-#: multiple of the input's upper frequency (see :attr:`Likelihood.rho_max`).
+#: A disturbance whose spectrum stays flat up to this multiple of the input's upper
+#: frequency is fast: one record separates it from the model's misfit. A slower one,
+#: in a record without repeats, is confounded with slow physics
+#: (:attr:`Likelihood.rho_flat`, :func:`slow_disturbance_note`).
 GUARD_FACTOR: float = 10.0
+
+#: For a record without repeats, the disturbance's correlation time is at most this
+#: fraction of the record's length (:attr:`Likelihood.rho_max`): slower, the AR(1)
+#: is a random walk over the record, whose spread and correlation time the record
+#: cannot tell apart.
+RECORD_CORRELATION_FRACTION: float = 0.1
 
 
 def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None
@@ -455,6 +463,38 @@ def _repeat_mask(dataset: Dataset, observed: np.ndarray | None) -> np.ndarray | 
     return observed[:1]
 
 
+def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
+    """What a record without repeats cannot tell, when its disturbance is slow.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        The record's.
+    rho : float
+        The identified noise's lag-one correlation.
+
+    Returns
+    -------
+    str
+        A sentence (no final full stop) when the record has no repeats and ``rho`` is
+        above :attr:`Likelihood.rho_flat`; an empty string otherwise.
+    """
+    flat = likelihood.rho_flat
+    if likelihood.noise_source != "record" or not float(rho) > flat:
+        return ""
+    dt = likelihood.dataset.dt_s
+    tau, tau_flat = -dt / math.log(min(float(rho), 0.999999)), -dt / math.log(flat)
+    f_in = max(likelihood.input_frequency_hz,
+               likelihood.dataset.sample_rate_hz / likelihood.n_samples)
+    return (f"the disturbance identified with the model is slow: its correlation time, "
+            f"{tau * 1e3:.3g} ms, reaches into the input's time scales (a disturbance flat up "
+            f"to {GUARD_FACTOR:g} times the input's {f_in:.3g} Hz would be under "
+            f"{tau_flat * 1e3:.2g} ms), so one record cannot tell it from slow physics the "
+            "model lacks: the intervals carry that uncertainty, and a misfit that looks like "
+            "this noise is not seen by the adequacy check. Repeat the record, or make it "
+            "periodic, to separate them")
+
+
 class LikelihoodError(ValueError):
     """The data cannot be fitted as given (too few trials, no motion, wrong rig)."""
 
@@ -490,7 +530,7 @@ class Likelihood:
         ``"trials"`` (two or more repeated trials), ``"periods"`` (one record of a
         declared periodic input, its periods in steady state taken as repeats) or
         ``"record"`` (one record without repeats: the noise is identified jointly
-        with the model, under :meth:`noise_parameters`' guard).
+        with the model, under :meth:`noise_parameters`' bound).
     n_repeats : int
         The number of repeated series the noise is learnt from without the model
         (trials or periods; 1 for ``"record"``).
@@ -765,14 +805,14 @@ class Likelihood:
                                      ar.variances)
         return np.ascontiguousarray(out.T)
 
-    # -- the noise guard for records without repeats ----------------------------
+    # -- the noise bound for records without repeats ----------------------------
     @property
     def input_frequency_hz(self) -> float:
         """The input's upper frequency: 99% of its variance lies below it.
 
         Where a model's misfit lives (with the harmonics that hysteresis makes of
-        it); the noise guard of :meth:`noise_parameters` keeps the disturbance's
-        spectrum flat far above it.
+        it); a disturbance slower than one flat far above it (:attr:`rho_flat`) is
+        confounded with slow missing physics in a record without repeats.
         """
         u = self.input - self.input.mean()
         power = np.abs(np.fft.rfft(u)) ** 2
@@ -785,16 +825,29 @@ class Likelihood:
         return float(freq[min(k, freq.size - 1)])
 
     @property
+    def rho_flat(self) -> float:
+        """Largest lag-one correlation of a disturbance whose spectrum is flat far above
+        the input's band.
+
+        The correlation time ``1 / (2 pi GUARD_FACTOR f_in)`` (``f_in``:
+        :attr:`input_frequency_hz`): the spectrum is flat up to ``GUARD_FACTOR`` times
+        the input's upper frequency. A record without repeats whose noise is slower
+        than this cannot tell it from slow physics the model lacks
+        (:func:`slow_disturbance_note`).
+        """
+        f_in = max(self.input_frequency_hz, self.dataset.sample_rate_hz / self.n_samples)
+        tau_flat = 1.0 / (2.0 * math.pi * GUARD_FACTOR * f_in)
+        return float(min(math.exp(-self.dataset.dt_s / tau_flat), 0.999999))
+
+    @property
     def rho_max(self) -> float:
         """Largest lag-one correlation the noise of a record without repeats may have.
 
         The disturbance's correlation time is bounded by
-        ``1 / (2 pi GUARD_FACTOR f_in)`` (``f_in``: :attr:`input_frequency_hz`),
-        i.e. its spectrum is flat up to ``GUARD_FACTOR`` times the input's upper
-        frequency. Returned for any noise source; used for ``"record"``.
+        :data:`RECORD_CORRELATION_FRACTION` of the record's length. Returned for any
+        noise source; used for ``"record"``.
         """
-        f_in = max(self.input_frequency_hz, self.dataset.sample_rate_hz / self.n_samples)
-        tau_max = 1.0 / (2.0 * math.pi * GUARD_FACTOR * f_in)
+        tau_max = RECORD_CORRELATION_FRACTION * self.n_samples * self.dataset.dt_s
         return float(min(math.exp(-self.dataset.dt_s / tau_max), 0.999999))
 
     def noise_parameters(self) -> tuple[Parameter, ...]:
@@ -803,9 +856,11 @@ class Likelihood:
         :data:`NOISE_PARAMETERS`, with the noise's scale on the data's for a
         force-input rig (:data:`NOISE_PER_AMPLITUDE`), except for a record without
         repeats (``noise_source == "record"``): there ``rho_noise`` is bounded by
-        :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), so that the
-        disturbance cannot become the slow process that would explain a model's
-        misfit away.
+        :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), a correlation
+        time of at most a tenth of the record. A disturbance as slow as the input's
+        time scales is allowed, since one record may hold one; it is then confounded
+        with slow missing physics, and the verdicts say so
+        (:func:`slow_disturbance_note`) instead of pinning the noise at a bound.
 
         Returns
         -------
@@ -821,13 +876,13 @@ class Likelihood:
         if self.noise_source != "record":
             return (sig, rho, white) if self.model.rig.input_kind == "force" else NOISE_PARAMETERS
         r = self.rho_max
-        guarded = Parameter(
+        bounded = Parameter(
             "rho_noise", "1", 0.0, Uniform(-r, r), bounds=(-r, r),
-            description=(f"lag-one autocorrelation of the disturbance, at most {r:.4g} (its "
-                         "correlation time far below the input's time scales)"),
+            description=(f"lag-one autocorrelation of the disturbance, at most {r:.6g} (its "
+                         "correlation time at most a tenth of the record)"),
             latex=r"\rho",
         )
-        return (sig, guarded, white)
+        return (sig, bounded, white)
 
     # -- model output ---------------------------------------------------------
     def simulate(self, theta: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:

@@ -32,12 +32,12 @@ import xarray as xr
 
 from pmabayes.data import Dataset
 from pmabayes.inference.density import Posterior
-from pmabayes.inference.errors import ConvergenceWarning, FitError
+from pmabayes.inference.errors import ConvergenceWarning, DisagreementWarning, FitError
 from pmabayes.inference.fitfile import fit_tree, set_fit_info
 from pmabayes.inference.likelihood import check_noise_model_name
 from pmabayes.inference.noise import refer_periods
 from pmabayes.inference.posterior import build_posterior
-from pmabayes.inference.search import MapResult, find_map
+from pmabayes.inference.search import MapResult, disagreement_text, find_map
 from pmabayes.inference.trials import check_trials
 from pmabayes.model.model import Model
 from pmabayes.parallel import Runner
@@ -574,6 +574,10 @@ def fit(
     -----
     ConvergenceWarning
         Once, when the budget ran out before the sampler converged.
+    DisagreementWarning
+        When several experiments disagree: their own MAPs are not compatible with one
+        shared parameter set (the fit's ``map`` record holds the test,
+        :func:`pmabayes.inference.search.experiments_agreement`).
     """
     settings = FitSettings() if settings is None else settings
     with show_progress("fit", settings.progress):
@@ -652,6 +656,11 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
     t_map = time.perf_counter() - start
     say.say(f"MAP in {t_map:.1f} s: RMS cost {map_result.rms_cost_m * 1e6:.1f} um "
             f"(global search {map_result.global_rms_cost_m * 1e6:.1f} um)")
+    if map_result.agreement is not None:
+        say.say(f"MAP from the {map_result.agreement['start']}")
+        text = disagreement_text(map_result.agreement)
+        if text:
+            warnings.warn(text[0].upper() + text[1:] + ".", DisagreementWarning, stacklevel=4)
     if map_result.period_reference_z is not None:
         for name, lik, choice in zip(posterior.experiment_names, posterior.likelihoods,
                                      posterior.noise_choices, strict=True):

@@ -4,24 +4,28 @@ plausible region, then a local polish (L-BFGS-B, the paper's fmincon) of the neg
 log posterior, and the Laplace approximation there. A second global search on a spawned
 stream is kept only where it finds another, lower basin. Records from rest have their
 noise referred to the model at the MAP (:func:`pmabayes.inference.noise.refer_periods`)
-until the MAP settles.
+until the MAP settles. A joint fit of several experiments also starts from each
+experiment's own MAP, keeps the highest, and tests whether the experiments agree on one
+parameter set (:func:`experiments_agreement`).
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
+from scipy.stats import chi2
 
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import _fd_hessian, _laplace_covariance, _scaled_hessian
-from pmabayes.inference.likelihood import JointLikelihood, Likelihood, span
+from pmabayes.inference.likelihood import LEVEL_ADEQUATE, JointLikelihood, Likelihood, span
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
 from pmabayes.util import Progress
 
-__all__ = ["MapResult", "find_map"]
+__all__ = ["MapResult", "find_map", "experiments_agreement", "disagreement_text"]
 
 
 @dataclass
@@ -51,6 +55,10 @@ class MapResult:
         (:func:`refer_periods`: the MAP of the pass before) before the noise was
         learnt again and the MAP polished again; None where no record needed it. A
         resumed fit rebuilds its noise from it.
+    agreement : dict or None
+        For several experiments, whether they agree on one parameter set
+        (:func:`experiments_agreement`) and which start the MAP came from; None for
+        one experiment, or where the own optima were not searched.
     """
 
     values: dict
@@ -61,6 +69,7 @@ class MapResult:
     z: np.ndarray
     covariance_z: np.ndarray
     period_reference_z: np.ndarray | None = None
+    agreement: dict | None = None
 
     def record(self) -> dict:
         """Everything, JSON-ready (arrays as lists), for the chains folder's stamp."""
@@ -81,10 +90,13 @@ class MapResult:
 
     def summary(self) -> dict:
         """The ``map`` entry of a fit's metadata."""
-        return {"values": self.values, "log_posterior": self.log_posterior,
-                "rms_cost_m": self.rms_cost_m,
-                "global_search": {"values": self.global_values,
-                                  "rms_cost_m": self.global_rms_cost_m}}
+        out = {"values": self.values, "log_posterior": self.log_posterior,
+               "rms_cost_m": self.rms_cost_m,
+               "global_search": {"values": self.global_values,
+                                 "rms_cost_m": self.global_rms_cost_m}}
+        if self.agreement is not None:
+            out["agreement"] = self.agreement
+        return out
 
 
 #: Differential evolution's mutation strategy. ``currenttobest1bin`` moves every
@@ -109,6 +121,7 @@ def find_map(
     popsize: int = 15,
     maxiter: int = 300,
     refer: bool = True,
+    own_starts: bool = True,
 ) -> MapResult:
     """Global search on the paper's RMS cost, then the MAP by local polish.
 
@@ -124,6 +137,13 @@ def find_map(
     noise is then learnt again from their repeats' residual at that MAP
     (:func:`refer_periods`), and the MAP polished again under that noise, until a
     pass moves the MAP by less than 1% of its sd (at most six passes).
+
+    With several experiments, the joint search's optimum can lie in another basin
+    than each experiment's own (a loaded rig's sine and an unloaded chirp traded
+    ``K_e`` against ``alpha``). So each experiment's own MAP is found first (its data
+    alone, the same search), the joint MAP is polished from each of them as well as
+    from the joint search's optimum, and the highest is kept. The experiments'
+    agreement is then tested (:func:`experiments_agreement`).
 
     Parameters
     ----------
@@ -141,6 +161,9 @@ def find_map(
         likelihood must share one noise, or a wrong model's misfit, taken into its
         own noise, would raise its likelihood (:func:`pmabayes.criticism.diagnosis.diagnose`'s
         refits).
+    own_starts : bool
+        With several experiments, also start from each experiment's own MAP and test
+        their agreement. False searches the joint posterior alone (as before).
 
     Returns
     -------
@@ -151,7 +174,8 @@ def find_map(
     FitError
         If no parameter set in the plausible region gives a finite simulation, or
         the best model still explains the data so badly that the data cannot be
-        what the model describes (wrong units, wrong rig, wrong column).
+        what the model describes (wrong units, wrong rig, wrong column); for
+        experiments that disagree (:func:`disagreement_text`), the error says so.
     """
     box = posterior.plausible_box(rng, posterior.names)
     # the search's cost does not depend on a sampled noise: searched over the model's
@@ -178,6 +202,10 @@ def find_map(
     # optimise in coordinates scaled to the plausible box
     scale = box[:, 1] - box[:, 0]
     z_map, cov_z = _polish_from(posterior, z_global, scale)
+    own, best_start = [], "joint search"
+    if own_starts and posterior.n_experiments > 1:
+        own = _own_optima(posterior, rng.spawn(1)[0], popsize, maxiter)
+        z_map, cov_z, best_start = _best_of_starts(posterior, z_map, cov_z, own, scale)
     # the periods of a record from rest still hold the model's shakedown: the noise
     # is learnt again from the residual's periods, and the MAP polished again, until
     # the MAP settles (a first MAP under the inflated noise misses the drift)
@@ -193,7 +221,16 @@ def find_map(
     z_map, cov_z = _climb(posterior, z_map, cov_z, scale, rng.spawn(1)[0])
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
-    cost = _check_fit_quality(posterior.likelihood, x[0])
+    agreement = None
+    if own:
+        agreement = {**experiments_agreement(posterior, z_map, own), "start": best_start}
+    try:
+        cost = _check_fit_quality(posterior.likelihood, x[0])
+    except FitError as err:  # each alone fits: what fails is their sharing one model
+        text = disagreement_text(agreement) if agreement is not None else ""
+        if not text:
+            raise
+        raise FitError(text[0].upper() + text[1:] + f". ({err})") from err
     values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
     values.update(posterior.noise_values(theta_map[0]))
     return MapResult(
@@ -206,7 +243,133 @@ def find_map(
         z=z_map,
         covariance_z=cov_z,
         period_reference_z=reference,
+        agreement=agreement,
     )
+
+
+def _alone(posterior: Posterior, experiment: int) -> Posterior:
+    """One experiment's posterior: its data alone, under the joint's noise for it.
+
+    Its likelihood is a copy, so that the joint's keeps its columns.
+    """
+    g = posterior.groups[experiment]
+    return Posterior(copy.copy(posterior.likelihoods[experiment]), posterior.group_noise[g],
+                     names=[posterior.experiment_names[experiment]],
+                     noise_choices=[posterior.noise_choices[experiment]])
+
+
+def _own_optima(posterior: Posterior, rng: np.random.Generator, popsize: int,
+                maxiter: int) -> list[MapResult]:
+    """Each experiment's own MAP (:func:`find_map` on its data alone, its noise kept),
+    each search on its own stream spawned from ``rng``."""
+    return [find_map(_alone(posterior, e), rng=r, popsize=popsize, maxiter=maxiter,
+                     refer=False)
+            for e, r in enumerate(rng.spawn(posterior.n_experiments))]
+
+
+def _joint_point(posterior: Posterior, z_joint: np.ndarray, experiment: int,
+                 own: MapResult) -> np.ndarray:
+    """The joint coordinates ``z_joint`` with an experiment's own MAP's values for its
+    model's parameters and its start (the others' own parameters kept), its sampled
+    noise started again from the residual there."""
+    theta = posterior.to_natural(z_joint[None])[0]
+    lik = posterior.likelihoods[experiment]
+    ident = posterior.identified[experiment]
+    for n in lik.model.free_names:
+        theta[posterior.names.index(ident[n])] = own.values[n]
+    for c, p in zip(posterior.start_columns.get(experiment, []), lik.start_parameters(),
+                    strict=True):
+        theta[c] = own.values[p.name]
+    return _noise_start(posterior, posterior.to_unconstrained(theta[None])[0])
+
+
+def _best_of_starts(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray,
+                    own: list[MapResult], scale: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, str]:
+    """The highest of the joint MAP and the joint MAPs polished from each
+    experiment's own MAP; its covariance, and which start it came from."""
+    best = (float(posterior.log_prob_z(z_map[None])[0]), z_map, cov_z, "joint search")
+    for e, result in enumerate(own):
+        z_e, cov_e = _polish_from(posterior, _joint_point(posterior, z_map, e, result), scale)
+        lp = float(posterior.log_prob_z(z_e[None])[0])
+        if lp > best[0]:
+            best = (lp, z_e, cov_e, f"own MAP of {posterior.experiment_names[e]}")
+    return best[1], best[2], best[3]
+
+
+def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
+                          own: list[MapResult]) -> dict:
+    """Whether several experiments' data agree on one shared parameter set.
+
+    The likelihood-ratio test of one parameter set for all experiments against each
+    its own: ``2 sum_e (log L_e(own MAP_e) - log L_e(joint MAP))``, chi-squared with
+    as many degrees of freedom as the own fits have parameters beyond the joint
+    one's, at level :data:`~pmabayes.inference.likelihood.LEVEL_ADEQUATE`. Each
+    experiment's likelihood is under the joint's noise as it is now (a record from
+    rest's referred to the model), at its own MAP as found before.
+
+    Parameters
+    ----------
+    posterior : Posterior
+        The joint posterior.
+    z_map : numpy.ndarray
+        The joint MAP, unconstrained.
+    own : list of MapResult
+        Each experiment's own MAP (:func:`find_map` on its data alone).
+
+    Returns
+    -------
+    dict
+        ``agree`` (bool, or None where the own fits have no parameter beyond the
+        joint's), ``statistic``, ``df``, ``p_value``, ``level``, and per experiment
+        (by name) ``log_likelihood_own``, ``log_likelihood_joint`` and
+        ``rms_cost_own_m``, ``rms_cost_joint_m``.
+    """
+    theta = posterior.to_natural(z_map[None])
+    per: dict[str, dict] = {}
+    gain, df = 0.0, -posterior.ndim
+    for e, (name, lik, result) in enumerate(zip(posterior.experiment_names,
+                                                posterior.likelihoods, own, strict=True)):
+        alone = _alone(posterior, e)
+        own_theta = alone.to_natural(result.z[None])
+        _, ll_own, x_own = alone.evaluate(own_theta)
+        x = posterior.simulate(theta, e)
+        ll = float(lik.mean_log_likelihood(x, *posterior.noise_of(e, theta))[0])
+        gain += max(float(ll_own[0]) - ll, 0.0)
+        df += alone.ndim
+        per[name] = {"log_likelihood_own": float(ll_own[0]), "log_likelihood_joint": ll,
+                     "rms_cost_own_m": float(lik.rms_cost(x_own)[0]),
+                     "rms_cost_joint_m": float(lik.rms_cost(x)[0])}
+    stat = 2.0 * gain
+    p = float(chi2.sf(stat, df)) if df > 0 else None
+    return {"agree": None if p is None else bool(p >= LEVEL_ADEQUATE), "statistic": stat,
+            "df": int(df), "p_value": p, "level": LEVEL_ADEQUATE, "experiments": per}
+
+
+def disagreement_text(agreement: dict) -> str:
+    """The verdict on experiments that disagree, or an empty string when they agree.
+
+    Parameters
+    ----------
+    agreement : dict
+        :func:`experiments_agreement`'s.
+
+    Returns
+    -------
+    str
+    """
+    if agreement.get("agree") is not False:
+        return ""
+    per = agreement["experiments"]
+    worst = max(per, key=lambda n: per[n]["log_likelihood_own"] - per[n]["log_likelihood_joint"])
+    w = per[worst]
+    return (f"the experiments disagree: their own optima are not compatible with one shared "
+            f"parameter set (likelihood ratio {agreement['statistic']:.4g} on "
+            f"{agreement['df']} degrees of freedom, p = {agreement['p_value']:.2g}). "
+            f"{worst} loses most: RMS {w['rms_cost_joint_m'] * 1e6:.3g} um at the joint MAP "
+            f"against {w['rms_cost_own_m'] * 1e6:.3g} um alone. The joint posterior averages "
+            "them into a model that is none of theirs: fit them separately, or find what "
+            "differs between them (the rig's values, a parameter that is not shared)")
 
 
 def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray
