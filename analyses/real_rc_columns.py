@@ -58,7 +58,8 @@ def data_folder() -> Path:
 
 
 def declare(out: Path, name: str) -> dict[str, Path]:
-    """Write one specimen as two data files (kN and mm; N and m) with their sidecars."""
+    """Write one specimen as two data files (kN and mm as the lab wrote them; N and m as
+    pmabayes reads them) with their sidecars."""
     import warnings
 
     from pmabayes.data import DataWarning, read_columns
@@ -68,6 +69,8 @@ def declare(out: Path, name: str) -> dict[str, Path]:
         warnings.simplefilter("ignore", DataWarning)  # the conversions, said in the header
         force_n = read_columns(folder / f"load_kN_{name}.txt", {"1": "force_kn"})["force_n"]
         x_m = read_columns(folder / f"displ_{name}.txt", {"1": "position_mm"})["position_m"]
+    load_kn = np.loadtxt(folder / f"load_kN_{name}.txt", ndmin=1)  # the lab's numbers as they are
+    displ_mm = np.loadtxt(folder / f"displ_{name}.txt", ndmin=1)
     n = min(force_n.size, x_m.size)
     if force_n.size != x_m.size:
         print(f"{name}: load_kN_{name}.txt has {force_n.size} values and displ_{name}.txt "
@@ -80,11 +83,11 @@ def declare(out: Path, name: str) -> dict[str, Path]:
             "rig": rig, "initial_state": "rest"}
     paths = {}
     for unit, header, cols in (
-            ("kn", "time_s,force_kn,position_mm", (t, force_n[:n] / 1e3, x_m[:n] * 1e3)),
+            ("kn", "time_s,force_kn,position_mm", (t, load_kn[:n], displ_mm[:n])),
             ("n", "time_s,force_n,position_m", (t, force_n[:n], x_m[:n]))):
         path = out / f"{name}_{unit}.csv"
-        np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="",
-                   fmt="%.17g")
+        rows = (",".join(repr(float(v)) for v in row) for row in np.column_stack(cols))
+        path.write_text(header + "\n" + "\n".join(rows) + "\n")  # shortest exact digits
         path.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
         paths[unit] = path
     return paths
