@@ -44,28 +44,15 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import subprocess
-import sys
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "external" / "real"
-FOLDER = REAL / "cavatappi"
+from _real import pmabayes, real_folder
+
 TRAIN_G = (100, 300, 500)
 HELD_OUT_G = (200, 400)
 LOOP_G = 300
 AREA_PRIOR = "LogNormal(1e-5, 1.5)"
 QUICK_CANDIDATES = "maxwell_creep,pressure_hysteresis"
-
-
-def data_folder() -> Path:
-    """The real cavatappi files beside the checkout, or a clear error."""
-    if not FOLDER.is_dir():
-        sys.exit(f"real_cavatappi.py: {FOLDER} is not there: the real measurements are read "
-                 "from ../shared/external/real beside the checkout (see its README); "
-                 "mount or check out the shared folder there.")
-    return FOLDER
 
 
 def sidecar(load_g: int) -> dict:
@@ -85,7 +72,7 @@ def sidecar(load_g: int) -> dict:
 
 def declare(out: Path) -> dict[int, Path]:
     """Link each file into ``out`` and write its sidecar there; the data file per load."""
-    folder = data_folder()
+    folder = real_folder("cavatappi", "real_cavatappi.py")
     paths = {}
     for load_g in TRAIN_G + HELD_OUT_G:
         name = f"sample1_{load_g}g"
@@ -96,25 +83,6 @@ def declare(out: Path) -> dict[int, Path]:
         link.with_suffix(".json").write_text(json.dumps(sidecar(load_g), indent=1) + "\n")
         paths[load_g] = link
     return paths
-
-
-def pmabayes(*args: str, refusal_ok: bool = False) -> str | None:
-    """Run one pmabayes command as a user would, its output shown, stopping on failure;
-    with ``refusal_ok``, a refusal (exit status 2: pmabayes' own error) is returned as its
-    message instead."""
-    cmd = [sys.executable, "-m", "pmabayes", *args]
-    print("$ pmabayes " + " ".join(args), flush=True)
-    started = time.perf_counter()
-    done = subprocess.run(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True, check=False)
-    sys.stderr.write(done.stderr)
-    print(f"[{time.perf_counter() - started:.0f} s]", flush=True)
-    if refusal_ok and done.returncode == 2:
-        return next((line for line in done.stderr.splitlines() if ": error: " in line),
-                    done.stderr.strip().splitlines()[-1])
-    if done.returncode != 0:
-        raise SystemExit(f"real_cavatappi.py: pmabayes {args[0]} failed "
-                         f"(exit status {done.returncode})")
-    return None
 
 
 def named_effect(diagnosis: dict, tried: list[str]) -> str | None:
@@ -173,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not args.quick:  # the loads together first, as the issue asks
         refused = pmabayes("fit", *train, "--out", str(out / "fit_joint.nc"), "--restart",
-                           *steps, "--walkers", "48", *seed, *quiet, refusal_ok=True)
+                           *steps, "--walkers", "48", *seed, *quiet, refusal_ok=True)[1]
         if refused is None:
             print("the joint fit of " + ", ".join(f"{g} g" for g in TRAIN_G) + " was accepted;"
                   " the loop continues on the middle load, as below", flush=True)

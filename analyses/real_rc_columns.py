@@ -33,28 +33,15 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from _real import pmabayes, real_folder
 
-ROOT = Path(__file__).resolve().parents[1]
-FOLDER = ROOT.parent / "shared" / "external" / "real" / "rc_columns"
 MASS_KG = {"chiu": 1360.0, "gill": 3200.0, "kunnath": 456.0, "sharma": 187.2}
 STEP_S = 0.02
 QUICK_SPECIMENS = ("gill", "kunnath")
 QUICK_CANDIDATES = "coulomb_friction,cubic_stiffness"
-
-
-def data_folder() -> Path:
-    """The real rc_columns files beside the checkout, or a clear error."""
-    if not FOLDER.is_dir():
-        sys.exit(f"real_rc_columns.py: {FOLDER} is not there: the real measurements are read "
-                 "from ../shared/external/real beside the checkout (see its README); "
-                 "mount or check out the shared folder there.")
-    return FOLDER
 
 
 def declare(out: Path, name: str) -> dict[str, Path]:
@@ -64,7 +51,7 @@ def declare(out: Path, name: str) -> dict[str, Path]:
 
     from pmabayes.data import DataWarning, read_columns
 
-    folder = data_folder()
+    folder = real_folder("rc_columns", "real_rc_columns.py")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DataWarning)  # the conversions, said in the header
         force_n = read_columns(folder / f"load_kN_{name}.txt", {"1": "force_kn"})["force_n"]
@@ -91,16 +78,6 @@ def declare(out: Path, name: str) -> dict[str, Path]:
         path.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
         paths[unit] = path
     return paths
-
-
-def pmabayes(*args: str) -> float:
-    """Run one pmabayes command as a user would, its output shown; its time in s."""
-    print("$ pmabayes " + " ".join(args), flush=True)
-    started = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "pmabayes", *args], check=True, cwd=ROOT)
-    took = time.perf_counter() - started
-    print(f"[{took:.0f} s]", flush=True)
-    return took
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -136,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
                 row["play_nrmse"] = e["baselines"]["play"]["nrmse"]
         diag = out / f"{name}_diagnose.json"
         row["diagnose_s"] = pmabayes("diagnose", str(paths["kn"]), "--json", str(diag),
-                                     *candidates, *seed, "--quiet")
+                                     *candidates, *seed, "--quiet")[0]
         found = json.loads(diag.read_text())
         row["adequate"] = found["adequate"]
         row["named"] = next((f["effect"] for f in found["ranking"]
