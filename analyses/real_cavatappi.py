@@ -37,6 +37,8 @@ Usage::
 draws 40 predictions and lets ``diagnose`` test two candidates only (``maxwell_creep``,
 ``pressure_hysteresis``).
 The table is printed last; ``--out`` keeps the fits, JSON outputs and ``table.csv``.
+``--tables-from DIR`` writes the paper's numbers (``paper/tables/numbers_real.tex``)
+from a finished run's folder, without running anything.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ import csv
 import json
 from pathlib import Path
 
-from _real import pmabayes, real_folder
+from _real import ROOT, pmabayes, real_folder
 
 TRAIN_G = (100, 300, 500)
 HELD_OUT_G = (200, 400)
@@ -112,6 +114,44 @@ def rows_of(validation: dict, model: str) -> list[dict]:
     return rows
 
 
+def write_paper_numbers(results: Path, tables: Path) -> Path:
+    """The paper's numbers (``numbers_real.tex``) from a finished run's ``table.csv``: the
+    final model's NRMSE, the yardsticks' and the band's coverage on each held-out load.
+
+    Parameters
+    ----------
+    results : Path
+        The run's ``--out`` folder.
+    tables : Path
+        Where ``numbers_real.tex`` is written.
+
+    Returns
+    -------
+    Path
+        Its path.
+    """
+    with open(results / "table.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    final = [r for r in rows if r["model"] == rows[-1]["model"]]
+    effects = final[0]["model"].split("+")[1:]
+    numbers = {"RealFinalModel": "base" + "".join(
+        f" + \\texttt{{{e.replace('_', chr(92) + '_')}}}" for e in effects)}
+    words = {"sample1_200g": "Two", "sample1_400g": "Four"}
+    for r in final:
+        w = words[r["held_out"]]
+        numbers |= {f"Real{w}Nrmse": f"{float(r['nrmse']):.3f}",
+                    f"Real{w}Linear": f"{float(r['linear_nrmse']):.3f}",
+                    f"Real{w}Play": f"{float(r['play_nrmse']):.3f}",
+                    f"Real{w}Coverage": f"{100 * float(r['coverage']):.1f}",
+                    f"Real{w}ParamsCoverage":
+                        f"{100 * float(r['coverage_parameters_only']):.1f}"}
+    tables.mkdir(parents=True, exist_ok=True)
+    path = tables / "numbers_real.tex"
+    path.write_text("% written by analyses/real_cavatappi.py --tables-from RESULTS\n"
+                    + "".join(f"\\newcommand{{\\pb{k}}}{{{v}}}\n" for k, v in numbers.items()))
+    return path
+
+
 def _fmt(v: float | None, pct: bool = False) -> str:
     if v is None:
         return "-"
@@ -127,7 +167,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rounds", type=int, default=1,
                     help="most effects added as diagnose names them (1)")
+    ap.add_argument("--tables-from", type=Path, metavar="RESULTS",
+                    help="only write the paper's numbers (numbers_real.tex, into --tables) "
+                         "from a finished run's --out folder")
+    ap.add_argument("--tables", type=Path, default=ROOT / "paper" / "tables",
+                    help="where --tables-from writes (paper/tables)")
     args = ap.parse_args(argv)
+    if args.tables_from:
+        print(write_paper_numbers(args.tables_from, args.tables))
+        return 0
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     paths = declare(out)
