@@ -88,14 +88,9 @@ def declare(out: Path) -> dict[int, Path]:
 
 
 def named_effect(diagnosis: dict, tried: list[str]) -> str | None:
-    """The effect ``diagnose`` names (its first significant, plausible finding), if any."""
-    if diagnosis.get("adequate"):
-        return None
-    for finding in diagnosis.get("ranking", []):
-        if (finding.get("significant") and not finding.get("implausible")
-                and not finding.get("left_out") and finding["effect"] not in tried):
-            return finding["effect"]
-    return None
+    """The effect ``diagnose`` says is missing (its JSON's ``missing``), if a new one."""
+    missing = diagnosis.get("missing")
+    return None if diagnosis.get("adequate") or missing in tried else missing
 
 
 def rows_of(validation: dict, model: str) -> list[dict]:

@@ -116,9 +116,7 @@ def main(argv: list[str] | None = None) -> int:
                                      *candidates, *seed, "--quiet")[0]
         found = json.loads(diag.read_text())
         row["adequate"] = found["adequate"]
-        row["named"] = next((f["effect"] for f in found["ranking"]
-                             if f.get("significant") and not f.get("implausible")
-                             and not f.get("left_out")), "-")
+        row["missing"] = found["missing"] or "-"  # the effect diagnose says is missing
         rows.append(row)
 
     with open(out / "table.csv", "w", newline="") as fh:
@@ -127,11 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         writer.writerows(rows)
     print("\nRC columns: fitted on each record, NRMSE on it (validate of the fit on its data)")
     print(f"{'specimen':<9} {'NRMSE kN':>9} {'NRMSE N':>9} {'linear':>7} {'play':>7} "
-          f"{'diagnose':>9} {'adequate':>8}  named")
+          f"{'diagnose':>9} {'adequate':>8}  missing")
     for r in rows:
         print(f"{r['specimen']:<9} {r['nrmse_kn']:>9.4f} {r['nrmse_n']:>9.4f} "
               f"{r['linear_nrmse']:>7.3f} {r['play_nrmse']:>7.3f} {r['diagnose_s']:>8.0f}s "
-              f"{str(r['adequate']):>8}  {r['named']}")
+              f"{str(r['adequate']):>8}  {r['missing']}")
     same = all(abs(r["nrmse_kn"] - r["nrmse_n"]) <= 1e-3 * max(r["nrmse_kn"], 1e-12)
                for r in rows)
     print(f"kN and N give the same NRMSE (within 0.1%) on every specimen: {same}")
