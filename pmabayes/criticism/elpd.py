@@ -11,6 +11,9 @@ import numpy as np
 
 __all__ = ["paired_difference", "laplace_loo", "loo_table"]
 
+#: Fewest usable draws for PSIS-LOO (its Pareto tail needs at least 5 of them).
+_MIN_LOO_DRAWS = 25
+
 
 def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """The ELPD of one model minus another's, paired over the left-out trials.
@@ -53,11 +56,12 @@ def laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, c
     Returns
     -------
     elpd : float
-        Leave-one-trial-out ELPD over every trial of every experiment.
+        Leave-one-trial-out ELPD over every trial of every experiment; NaN when fewer
+        than 25 draws are inside the support with a finite likelihood.
     elpd_i : numpy.ndarray
-        Its per-trial terms.
+        Its per-trial terms (NaN then too).
     interval : dict
-        ``(low, high)`` of each of ``names``.
+        ``(low, high)`` of each of ``names`` (NaN then too).
     """
     import arviz as az
 
@@ -80,13 +84,18 @@ def laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, c
         parts.append(lik.pointwise(x, *noise))
     pointwise = np.concatenate(parts, axis=1)
     ok = np.all(np.isfinite(pointwise), axis=1)
+    tail = (1.0 - ci_prob) / 2.0
+    if ok.sum() < _MIN_LOO_DRAWS:
+        # PSIS cannot smooth so few draws (arviz raises); the ELPD is not known (NaN,
+        # reported as null) rather than a crash, as on the RC column chiu's base model
+        interval = {n: (float("nan"), float("nan")) for n in names}
+        return float("nan"), np.full(pointwise.shape[1], np.nan), interval
     tree = az.from_dict({"posterior": {"theta": theta[ok][None, :, 0]},
                          "log_likelihood": {"position_m": pointwise[ok][None]}},
                         dims={"position_m": ["trial"]})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # Pareto k is reported in the summary instead
         loo = az.loo(tree, var_name="position_m")
-    tail = (1.0 - ci_prob) / 2.0
     interval = {}
     for n in names:
         j = posterior.names.index(n)

@@ -221,6 +221,8 @@ def find_map(
     z_map, cov_z = _climb(posterior, z_map, cov_z, scale, rng.spawn(1)[0])
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
+    if x is None or not np.isfinite(ll[0]):
+        raise FitError(_no_map_message(posterior, theta_map[0]))
     agreement = None
     if own:
         agreement = {**experiments_agreement(posterior, z_map, own), "start": best_start}
@@ -551,6 +553,20 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
         if np.max(np.abs(t * step) * np.sqrt(np.abs(np.diag(hess)))) < 1e-3:
             break
     return u, _scaled_hessian(neg_logpost, u)
+
+
+def _no_map_message(posterior: Posterior, theta: np.ndarray) -> str:
+    """Why the search found no MAP: the point it ended at is outside the priors or its
+    simulation failed (priors far from the data's scale)."""
+    where = " and ".join(str(lik.dataset.source or "the data") for lik in
+                         getattr(posterior.likelihood, "likelihoods", [posterior.likelihood]))
+    bad = [n for n, v in zip(posterior.names, theta, strict=True) if not np.isfinite(v)]
+    what = (f"it ended with {', '.join(bad)} not a number" if bad
+            else "its simulation there is not finite")
+    return (f"{where}: the search for the MAP found no point where the model simulates the "
+            f"data under its priors ({what}): the priors are far from the data's scale. "
+            "Check the units and the rig (mass, input kind), or give priors of the data's "
+            "scale (--prior NAME=SPEC; `pmabayes effects` lists the defaults).")
 
 
 def _check_fit_quality(lik: Likelihood | JointLikelihood, x: np.ndarray) -> float:
