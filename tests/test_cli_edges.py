@@ -423,6 +423,16 @@ def test_excess_removed_agrees_with_the_rms_errors():
     assert excess_removed([1.0], [0.5], [1.0], [10]) is None  # no excess to remove
 
 
+def test_without_a_floor_the_energy_share_says_it_can_exceed_the_rms_fall():
+    """Fails before the cavatappi loop (issue 22), where "removes 99% of the whitened
+    residual's excess energy" stood beside an RMS error that fell by 10%."""
+    from pmabayes.criticism.prose import removed_text
+
+    text = removed_text(None, 0.995, float("nan"), False)
+    assert text.startswith("removes 99% of the whitened residual's excess energy")
+    assert "can exceed the RMS error's fall" in text
+
+
 def test_the_words_never_say_all_while_the_error_is_above_the_floor():
     from pmabayes.criticism.prose import verdict_text
     from pmabayes.criticism.results import Refit

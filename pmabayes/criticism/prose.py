@@ -61,8 +61,10 @@ def removed_text(explained_rms: float | None, explained: float, ratio: float,
     str
         ``"removes X% of ..."``, without a full stop.
     """
-    if explained_rms is None:
-        return f"removes {_share(explained, adequate)} of the whitened residual's excess energy"
+    if explained_rms is None:  # the energy is under noise identified with each model
+        return (f"removes {_share(explained, adequate)} of the whitened residual's excess "
+                "energy (with no noise floor the noise is identified with each model and "
+                "takes in part of the misfit, so this share can exceed the RMS error's fall)")
     text = f"removes {_share(explained_rms, adequate)} of the mean-square error above the floor"
     if not adequate and math.isfinite(ratio):
         text += f", yet the error is still {ratio:.3g}x the floor"
