@@ -132,25 +132,25 @@ class AsymmetricLoop(Effect):
     advance = staticmethod(_asym_loop_advance)
 
 
-def _maxwell(q, x, v, p, z, y):
-    # spring k between the muscle (x) and the dashpot's end (y)
-    return q[0] * (x - y), q[0], 0.0, 0.0, -q[0]
+def _maxwell(q, x, v, p, z, u):
+    # the spring's stretch u (0 when relaxed, as at rest) pulls with k u
+    return q[0] * u, 0.0, 0.0, 0.0, q[0]
 
 
-def _maxwell_advance(q, y, x0, x1, h):
-    # the dashpot's end follows the muscle: y' = (x - y) / tau, trapezoidal rule
+def _maxwell_advance(q, u, x0, x1, h):
+    # the dashpot gives way: u' = x' - u / tau, by the trapezoidal rule
     r = 0.5 * h / q[1]
-    return (y + r * (x0 + x1 - y)) / (1.0 + r), r / (1.0 + r)
+    return (u * (1.0 - r) + (x1 - x0)) / (1.0 + r), 1.0 / (1.0 + r)
 
 
 class MaxwellElement(Effect):
     """A spring in series with a dashpot (time constant ``tau_mx``), beside the muscle,
-    integrated by the trapezoidal rule on the dashpot's end."""
+    its stretch integrated by the trapezoidal rule."""
 
     __test__ = False
     name = "family_maxwell"
     stage = "force"
-    state = "y_dashpot_m"
+    state = "u_stretch_m"
     parameters = (
         Parameter("k_mx", "N/m", 150.0, HalfNormal(500.0), bounds=(0.0, math.inf), null=0.0,
                   description="the element's spring"),
