@@ -482,19 +482,6 @@ def _load_all(args: argparse.Namespace, *effect_options: str) -> list:
             for d in _load_data(args, p, first=check if k == 0 else None)]
 
 
-def _not_yet_criticised(datasets: Sequence) -> str:
-    """Why the model criticism cannot judge these data yet (empty when it can)."""
-    import numpy as np
-
-    gaps = [d for d in datasets if d.n_missing or d.warmup_s]
-    own = [d for d in datasets if d.n_trials > 1 and not np.all(d.input == d.input[0])]
-    return "; ".join(
-        text for text, hit in ((f"{len(gaps)} data set(s) with samples not observed (gaps or "
-                                "a warm-up)", gaps),
-                               (f"{len(own)} data set(s) whose trials have their own inputs",
-                                own)) if hit)
-
-
 def _model_for(dataset, args: argparse.Namespace):
     """The model of a fitting command: the data's rig, the effects and priors asked for."""
     from pmabayes.model.model import Model
@@ -628,12 +615,7 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
     for exp in info["experiments"]:
         for line in _likelihood_lines(exp):
             print(f"  {exp['name']}: {line}")
-    pending = _not_yet_criticised(datasets)
-    if pending:  # the model criticism's statistics take complete, shared-input trials
-        print(f"the model's adequacy is not judged here: {pending} (the criticism of such "
-              "data comes next)")
-    else:
-        _print_adequacy(tree, datasets)
+    _print_adequacy(tree, datasets)
     print(f"wrote {out} (chains in {chains})")
     return tree
 
@@ -714,13 +696,6 @@ def _cmd_report(args: argparse.Namespace) -> int:
     out = _out_folder(args.out, "report", inputs=[args.fit, *(args.data or [])])
     tree = _read_fit(args.fit)
     datasets = _report_datasets(tree, args.data, args)
-    from pmabayes.inference.fitfile import experiment_datasets
-
-    pending = _not_yet_criticised(datasets or experiment_datasets(tree))
-    if pending:
-        raise CliError(f"report: {pending}; the report of such data (gaps shaded, each "
-                       "trial's own input) comes next. The fit file holds the posterior: "
-                       "read it with pmabayes.load_fit")
     written = _write_report(tree, out, datasets, "report")
     _print_adequacy(tree, datasets)
     _wrote(out, written, "the report")
@@ -738,11 +713,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     args.interrupted = lambda: (f"the fit is saved in {out / 'fit.nc'}; the report was not "
                                 "written: run `pmabayes report` on the fit, or this command "
                                 "again")
-    pending = _not_yet_criticised(datasets)
-    if pending:
-        print(f"no report: {pending}; the report of such data (gaps shaded, each trial's own "
-              f"input) comes next ({time.perf_counter() - start:.1f} s in all)")
-        return 0
     written = _write_report(tree, out, datasets, "run")
     _wrote(out, written, "the report")
     print(f"({time.perf_counter() - start:.1f} s in all)")
@@ -776,15 +746,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             raise CliError(f"--proposal-dir {args.proposal_dir}: this is a file, not a folder")
         _writable(Path(args.proposal_dir), "--proposal-dir", Path(args.proposal_dir))
     datasets = _load_all(args, "--effects", "--candidates")
-    pending = "; ".join(filter(None, [
-        _not_yet_criticised(datasets),
-        (f"{sum(d.initial_state == 'estimate' for d in datasets)} data set(s) whose start "
-         "is estimated (initial_state 'estimate')"
-         if any(d.initial_state == "estimate" for d in datasets) else "")]))
-    if pending:
-        raise CliError(f"diagnose: {pending}; the criticism of such data comes next. Fit them "
-                       "(pmabayes fit), or diagnose a stretch without gaps (a sidecar "
-                       "\"max_gap_s\" below the shortest gap splits the record there)")
     from pmabayes.criticism.diagnosis import diagnose
     from pmabayes.criticism.settings import DiagnoseSettings
     from pmabayes.inference.trials import check_trials
@@ -1033,11 +994,6 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     # the fit as a path names it in the outputs; a data file that splits at its
     # sidecar's max_gap_s gives one held-out experiment per segment
     held_out = [d for p in args.data for d in _segments(p)]
-    pending = _not_yet_criticised(held_out)
-    if pending:
-        raise CliError(f"validate: held-out {pending}; validation of such data comes next. "
-                       "Validate a stretch without gaps (a sidecar \"max_gap_s\" below the "
-                       "shortest gap splits the record there)")
     result = validate(args.fit, held_out, n_draws=args.draws, ci_prob=args.ci_prob,
                       seed=args.seed, noise_from=args.noise_from, substeps=args.substeps,
                       start_fraction=args.start_fraction)

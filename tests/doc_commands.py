@@ -2,7 +2,8 @@
 
 A command is a line starting with ``$ `` inside a ```` ```console ```` block of a
 Markdown page (a trailing ``\\`` continues it on the next line); every other line of
-the block is output. A command may end with an instruction for CI:
+the block is output. A ```` ```bash ```` block is a script: it runs whole, as one
+command (``bash -e``). A command may end with an instruction for CI:
 
 ``# ci: ARGS``
     run it with ``ARGS`` appended (argparse: the last occurrence of an option wins);
@@ -112,15 +113,23 @@ def extract(text: str, page: str) -> list[Command]:
     commands: list[Command] = []
     fence: str | None = None
     in_console = False
+    script: list[str] | None = None
     pending: list[str] = []
     start = 0
     for number, line in enumerate(text.splitlines(), start=1):
         match = _FENCE.match(line)
         if fence is None and match:
             fence, in_console = match.group(1), match.group(2) == "console"
+            if match.group(2) in ("bash", "sh"):
+                script, start = [], number + 1
             continue
         if fence is not None and line.strip() == fence:
-            fence, in_console = None, False
+            if script:
+                commands.append(Command(page, start, "set -e\n" + "\n".join(script)))
+            fence, in_console, script = None, False, None
+            continue
+        if script is not None:
+            script.append(line)
             continue
         if not in_console:
             continue

@@ -42,6 +42,11 @@ pmabayes fit DATA.csv --out FIT.nc
 ```python
 $ not a command: a Python block
 ```
+
+```bash
+mkdir -p made
+echo made > made/file
+```
 """
 
 
@@ -50,9 +55,10 @@ def test_extract_reads_commands_continuations_and_ci_instructions():
     assert [c.text for c in commands] == [
         "pmabayes simulate out.csv --trials 2",
         "python analyses/long.py --datasets 60 --seed 3",
+        "set -e\nmkdir -p made\necho made > made/file",
     ]
-    assert [c.line for c in commands] == [4, 6]
-    assert [c.ci for c in commands] == ["--duration 1", "options only"]
+    assert [c.line for c in commands] == [4, 6, 19]
+    assert [c.ci for c in commands] == ["--duration 1", "options only", None]
     assert commands[0].ci_form() == ("run", "pmabayes simulate out.csv --trials 2 --duration 1")
     mode, text = commands[1].ci_form()
     assert mode == "options" and str(OPTIONS_ONLY) in text and "--seed 3" in text

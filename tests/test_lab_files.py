@@ -177,6 +177,41 @@ def test_one_value_a_line_and_a_sample_rate(tmp_path: Path) -> None:
     np.testing.assert_array_equal(ds.position_m[0], x)
 
 
+def test_a_position_sign_negates_and_a_zero_at_rest_refers_the_positions(tmp_path: Path
+                                                                          ) -> None:
+    """A sensor whose negative is the muscle's contraction, not zeroed before the record:
+    ``"position_sign": -1`` negates on reading, ``"position_zero_s"`` subtracts each
+    trial's mean over its first samples at rest; both said, recorded, and not applied
+    again when the data set is written back and read."""
+    t = np.arange(400) * 1e-3
+    x_mm = -(3.0 + np.where(t > 0.05, 2.0 * np.sin(2 * np.pi * (t - 0.05)), 0.0))
+    rows = [f"{float(a)!r},{150.0 + 100.0 * float(b < -3)!r},{float(b)!r}" for a, b in zip(t, x_mm,
+                                                                               strict=True)]
+    path = lab_file(tmp_path, "flip.csv", rows, pressure_reference="gauge",
+                    columns={"1": "time_s", "2": "pressure_kpa", "3": "position_mm"},
+                    position_sign=-1, position_zero_s=0.02)
+    ds, said = read_quietly(path)
+    np.testing.assert_allclose(ds.position_m[0], -(x_mm - x_mm[:20].mean()) / 1e3, atol=1e-15)
+    assert ds.metadata["converted_units"]["position_m"] == {"from": "position_mm",
+                                                           "factor": -1e-3}
+    assert ds.metadata["position_zero"]["subtracted_m"][0] == pytest.approx(3e-3, rel=1e-12)
+    assert "position_sign" not in ds.metadata and "position_zero_s" not in ds.metadata
+    assert any("negated: the sidecar's position_sign is -1" in w for w in said)
+    assert any("positions referred to the sensor's reading at rest" in w for w in said)
+    save(ds, tmp_path / "again.csv")
+    assert read_csv(tmp_path / "again.csv") == ds
+    for key, value, pattern in (("position_sign", 2, "'position_sign' is 2; it must be 1"),
+                                ("position_zero_s", -1, "'position_zero_s' is -1")):
+        bad = lab_file(tmp_path, f"bad_{key}.csv", rows, pressure_reference="gauge",
+                       columns={"1": "time_s", "2": "pressure_kpa", "3": "position_mm"},
+                       **{key: value})
+        with pytest.raises(DataError, match=pattern):
+            read_quietly(bad)
+    with pytest.raises(DataError, match="'position_sign' is -1; it is applied when a file is"):
+        Dataset(time_s=t, input=np.ones((1, t.size)), position_m=x_mm[None] / 1e3,
+                trial_ids=np.array([1]), metadata={"position_sign": -1})
+
+
 # ----------------------------------------------------------------------------- the clock
 
 

@@ -251,6 +251,7 @@ def test_predictive_quantiles_blockwise(monkeypatch):
 
 @pytest.mark.slow
 def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypatch):
+    import arviz as az
     import matplotlib.pyplot as plt
 
     import pmabayes.report.figures as plots
@@ -259,8 +260,8 @@ def test_arviz_plot_failure_falls_back_to_matplotlib(bad_fit, tmp_path, monkeypa
         plt.figure()  # a half-made figure must not leak
         raise RuntimeError("simulated ArviZ failure")
 
-    monkeypatch.setattr(plots.az, "plot_trace_dist", boom)
-    monkeypatch.setattr(plots.az, "plot_rank", boom)
+    monkeypatch.setattr(az, "plot_trace_dist", boom)
+    monkeypatch.setattr(az, "plot_rank", boom)
     before = plt.get_fignums()
     note = plots.plot_trace(bad_fit, tmp_path / "t.png", units={"sigma_noise_m": "m"})
     assert "fallback" in note and "simulated ArviZ failure" in note

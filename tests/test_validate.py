@@ -158,11 +158,6 @@ def test_refusals(fit_tree, held_out_sets, tmp_path):
     with pytest.raises(ValidationError, match="force.csv.*input kind"):
         validate(fit_tree, force)
     ds = held_out_sets[0]
-    mixed = Dataset(time_s=ds.time_s, input=np.stack([ds.input[0], 0.5 * ds.input[1]]),
-                    position_m=ds.position_m[:2], trial_ids=np.arange(2),
-                    metadata=ds.metadata, source="mixed.csv")
-    with pytest.raises(ValidationError, match="mixed.csv: trial 1 has a different input"):
-        validate(fit_tree, mixed)
     with pytest.raises(ValidationError, match="rho_noise, sigma_white_m"):
         validate(fake_fit(), ds)  # the default fake fit holds no noise posterior
     with pytest.raises(ValidationError, match="ci_prob"):

@@ -308,11 +308,11 @@ class CliHelp(SphinxDirective):
     def run(self) -> list[nodes.Node]:
         self.env.note_dependency(str(PACKAGE_DIR / "cli.py"))
         top = _cli_help([])
-        found = re.search(r"\{([a-z,_-]+)\}", top)
-        if found is None:
+        commands = re.findall(r"^    ([a-z][a-z_-]*)(?:\s|$)", top, flags=re.MULTILINE)
+        if not commands:
             raise self.error("pmabayes --help lists no subcommands")
         out = [nodes.literal_block(top, top, language="text")]
-        for command in found.group(1).split(","):
+        for command in commands:
             section = nodes.section(ids=[f"pmabayes-{command}"])
             section += nodes.title(text=f"pmabayes {command}")
             text = _cli_help([command])

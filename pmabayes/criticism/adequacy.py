@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from pmabayes.criticism.bands import band_errors, floor_ratio
+from pmabayes.criticism.observed import model_mean, residual
 from pmabayes.criticism.whiteness import judged_whiteness, p_text
 from pmabayes.inference.likelihood import (
     LEVEL_ADEQUATE,
@@ -199,7 +200,8 @@ def check_adequacy(
     likelihood : Likelihood
         The data and its noise model.
     model_position_m : numpy.ndarray
-        Model output on the data's time grid, ``(n_samples,)``.
+        Model output on the data's time grid, ``(n_samples,)``; each trial's
+        ``(n_trials, n_samples)`` where the trials have their own inputs.
     noise : object, optional
         Identified noise (``sigma``, ``rho``, ``white``); without it the whitened
         residual is not computed and the verdict is unknown.
@@ -217,11 +219,16 @@ def check_adequacy(
         :data:`~pmabayes.inference.likelihood.LEVEL_ADEQUATE`), as
         :func:`pmabayes.criticism.diagnosis.diagnose` uses by default.
     """
-    x = np.asarray(model_position_m, dtype=float).reshape(-1)
+    x = np.asarray(model_position_m, dtype=float)
+    trials = None
+    if likelihood.own_inputs and x.ndim == 2 and x.shape[0] == likelihood.n_trials:
+        trials, x = x, model_mean(likelihood, x.reshape(1, -1))[0]
+    x = x.reshape(-1)
     if likelihood.dataset.n_trials >= 2:
-        overall = band_errors(likelihood.dataset, x, bands_hz=())[-1]
+        overall = band_errors(likelihood.dataset, x, bands_hz=(), model_trials_m=trials)[-1]
     else:  # a single record: its error, and no floor without repeats
-        r = likelihood.y_mean - x
+        r = residual(likelihood, x)
+        r = r if likelihood.observed is None else r[np.isfinite(r)]
         overall = SimpleNamespace(rms_m=float(np.sqrt(np.mean(r * r))), floor_m=math.nan)
     energy = lb_p = adequate = None
     noise_model = "AR(1) + white"

@@ -16,9 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from pmabayes.criticism.observed import bridged
 from pmabayes.data import Dataset
 from pmabayes.inference.likelihood import (
     _noise_repeats,
+    _repeat_mask,
 )
 from pmabayes.util import finite_or_none
 
@@ -36,6 +38,7 @@ __all__ = [
     "input_bands",
     "band_rms",
     "band_errors",
+    "observed_spectrum",
 ]
 
 
@@ -347,6 +350,7 @@ def band_errors(
     model_position_m: np.ndarray,
     *,
     bands_hz: tuple[tuple[float, float], ...] | None = None,
+    model_trials_m: np.ndarray | None = None,
 ) -> list[BandErrors]:
     """Errors of the trial mean against the model, per frequency band and overall.
 
@@ -360,16 +364,28 @@ def band_errors(
     to the overall one (Parseval); the price is that a residual's component
     between two bins leaks a little into the neighbouring ones.
 
+    A record with samples not counted (:attr:`pmabayes.data.Dataset.counted`: gaps in
+    its clock, a warm-up) has its errors from the samples counted alone: the overall
+    row is over them, and each band's share comes from the spectrum of the series with
+    its gaps bridged by straight lines (:func:`~pmabayes.criticism.observed.bridged`,
+    for the spectrum only), scaled to the mean square of the samples counted; the
+    largest error is over those samples too.
+
     Parameters
     ----------
     dataset : Dataset
         The trials.
     model_position_m : numpy.ndarray
-        Model output on the data's time grid, ``(n_samples,)``.
+        The model's trial mean on the data's time grid, ``(n_samples,)``.
     bands_hz : tuple of (low, high), optional
         Frequency bands in Hz; by default :func:`input_bands` (octaves over the
         band the command excites, then everything above). A last row covers all
         frequencies.
+    model_trials_m : numpy.ndarray, optional
+        Each trial's model output ``(n_trials, n_samples)`` for trials with their own
+        inputs: the noise floor then comes from the deviations of the trials'
+        residuals from their mean (the model's response to the inputs' differences is
+        not noise).
 
     Returns
     -------
@@ -388,12 +404,21 @@ def band_errors(
         raise ValueError(f"model output has {x.size} samples, the data {dataset.n_samples}")
     bands = input_bands(dataset) if bands_hz is None else tuple(bands_hz)
     dt = dataset.dt_s
+    counted = dataset.counted
+    seen = counted.any(axis=0)
     mean = dataset.mean_position_m
-    resid = mean - x
-    spec = np.fft.rfft(resid)
-    f, p_resid = power_spectrum(resid, dt)
-    _, p_motion = power_spectrum(mean - mean.mean(), dt)
-    f_floor, p_floor = _floor_spectrum(dataset, x)
+    if seen.all():
+        resid = mean - x
+        f, p_resid = power_spectrum(resid, dt)
+        _, p_motion = power_spectrum(mean - mean.mean(), dt)
+    else:
+        mean = np.where(seen, mean, np.nan)
+        resid = mean - x
+        f, p_resid = observed_spectrum(resid, dt)
+        _, p_motion = observed_spectrum(mean - np.nanmean(mean), dt)
+    bridged_resid = bridged(resid)
+    spec = np.fft.rfft(bridged_resid)
+    f_floor, p_floor = _floor_spectrum(dataset, x, model_trials_m)
     rows = []
     for lo, hi in (*bands, (0.0, math.inf)):
         sel = (f >= lo) & (f < hi)
@@ -401,35 +426,89 @@ def band_errors(
             continue
         rms = math.sqrt(float(p_resid[sel].sum()))
         motion = math.sqrt(float(p_motion[sel].sum()))
-        part = resid if sel.all() else np.fft.irfft(np.where(sel, spec, 0.0), n=resid.size)
+        part = (bridged_resid if sel.all()
+                else np.fft.irfft(np.where(sel, spec, 0.0), n=resid.size))
         rows.append(BandErrors(
             band_hz=(float(lo), float(hi)), n_samples=int(sel.sum()), rms_m=rms,
-            nrms=rms / max(motion, 1e-300), max_m=float(np.max(np.abs(part))),
+            nrms=rms / max(motion, 1e-300),
+            max_m=float(np.max(np.abs(part if seen.all() else part[seen]))),
             floor_m=math.sqrt(float(p_floor[(f_floor >= lo) & (f_floor < hi)].sum())),
         ))
     return rows
 
 
-def _floor_spectrum(dataset: Dataset, model_position_m: np.ndarray
+def observed_spectrum(series: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`power_spectrum` of series with samples not observed (NaN).
+
+    Each row's gaps are bridged by straight lines
+    (:func:`~pmabayes.criticism.observed.bridged`) for the spectrum only, and its
+    periodogram scaled so that its sum is the mean square of the row's observed
+    samples: the bands keep the shares of the bridged series' spectrum and add up to
+    the error over the samples observed.
+
+    Parameters
+    ----------
+    series : numpy.ndarray
+        ``(n_samples,)`` or ``(n_series, n_samples)``, NaN where not observed.
+    dt_s : float
+        Sample interval.
+
+    Returns
+    -------
+    freq_hz, power_m2 : numpy.ndarray
+        As :func:`power_spectrum`; a row with no sample observed has zero power.
+    """
+    a = np.asarray(series, dtype=float)
+    f, p = power_spectrum(np.nan_to_num(bridged(a)), dt_s)
+    rows = p.reshape(-1, p.shape[-1])
+    for row, values in zip(rows, a.reshape(-1, a.shape[-1]), strict=True):
+        seen = np.isfinite(values)
+        total = float(row.sum())
+        row *= (float(np.mean(values[seen] ** 2)) / total) if seen.any() and total > 0 else 0.0
+    return f, p
+
+
+def _floor_spectrum(dataset: Dataset, model_position_m: np.ndarray,
+                    model_trials_m: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
     """The noise floor's spectrum: the power a perfect model's residual would have.
 
     From the trials' deviations from their mean (summed over ``R - 1``, divided by
-    ``R`` for the trial mean); for a single periodic record, from its periods'
-    deviations from their mean (the repeats :mod:`pmabayes.inference.likelihood` learns the
-    noise from: of the residual at ``model_position_m`` where the record starts from
-    rest), on the period's coarser frequency grid, not divided (the record is one
-    series); NaN for a single record without repeats.
+    ``R`` for the trial mean); with trials on their own inputs (``model_trials_m``),
+    from the deviations of their residuals; for a single periodic record, from its
+    periods' deviations from their mean (the repeats :mod:`pmabayes.inference.likelihood`
+    learns the noise from: of the residual at ``model_position_m`` where the record
+    starts from rest), on the period's coarser frequency grid, not divided (the record
+    is one series); NaN for a single record without repeats. Samples not counted are
+    missing in the deviations (:func:`observed_spectrum`).
     """
     dt = dataset.dt_s
     n_trials = dataset.n_trials
+    counted = dataset.counted
     if n_trials >= 2:
-        dev = dataset.position_m - dataset.mean_position_m
-        f, p = power_spectrum(dev, dt)
+        y = dataset.position_m
+        if model_trials_m is not None:
+            y = y - np.asarray(model_trials_m, dtype=float).reshape(y.shape)
+        if counted.all():
+            f, p = power_spectrum(y - y.mean(axis=0), dt)
+        else:
+            f, p = observed_spectrum(_deviations(y, counted), dt)
         return f, p.sum(axis=0) / ((n_trials - 1) * n_trials)
     source, repeats = _noise_repeats(dataset, model_position_m)
     if source == "periods":
-        f, p = power_spectrum(repeats - repeats.mean(axis=0), dt)
+        mask = _repeat_mask(dataset, counted)
+        if mask is None or mask.all():
+            f, p = power_spectrum(repeats - repeats.mean(axis=0), dt)
+        else:
+            f, p = observed_spectrum(_deviations(repeats, mask), dt)
         return f, p.sum(axis=0) / (repeats.shape[0] - 1)
     f = np.fft.rfftfreq(dataset.n_samples, dt)
     return f, np.full(f.shape, np.nan)
+
+
+def _deviations(rows: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Each row's deviation from the mean of the rows seen at each sample (NaN where the
+    row is not seen)."""
+    n = seen.sum(axis=0)
+    mean = np.where(seen, rows, 0.0).sum(axis=0) / np.maximum(n, 1)
+    return np.where(seen, rows - mean, np.nan)

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, signal
 
+from pmabayes.criticism.observed import observed_mean, shared_input
 from pmabayes.data import Dataset
 
 __all__ = ["MAX_LINEAR_ORDER", "PLAY_OPERATORS", "TRAIN_SHARE", "LinearBaseline",
@@ -92,8 +93,7 @@ class _Record:
 
     @classmethod
     def of(cls, ds: Dataset) -> _Record:
-        return cls(np.asarray(ds.input[0], dtype=float), np.asarray(ds.mean_position_m),
-                   float(ds.dt_s))
+        return cls(shared_input(ds), np.asarray(observed_mean(ds)), float(ds.dt_s))
 
     def mask(self, part: str) -> np.ndarray:
         """The samples of the fitting part, the held-back part, or all (observed only)."""
@@ -516,7 +516,7 @@ class Baselines:
         dict
             ``"linear"`` and ``"play"`` to ``(n_samples,)`` positions in m.
         """
-        u = np.asarray(dataset.input[0], dtype=float)
+        u = shared_input(dataset)
         return {"linear": self.linear.predict(u, dataset.dt_s),
                 "play": self.play.predict(u, dataset.dt_s)}
 
@@ -536,7 +536,7 @@ class Baselines:
             ``"linear"`` and ``"play"``, each with ``rmse_m``, ``nrmse`` and its own
             description (:meth:`LinearBaseline.to_dict`, :meth:`PlayBaseline.to_dict`).
         """
-        ybar = dataset.mean_position_m
+        ybar = observed_mean(dataset)
         out = {}
         for name, pred in self.predict(dataset).items():
             rmse, nr = nrmse(ybar, pred)

@@ -22,6 +22,7 @@ import numpy as np
 from pmabayes.criticism.bands import input_bands
 from pmabayes.criticism.baselines import fit_baselines, nrmse, yardstick_text
 from pmabayes.criticism.discrepancy import Discrepancy, estimate_discrepancy
+from pmabayes.criticism.observed import observed_mean
 from pmabayes.criticism.plausibility import implausible
 from pmabayes.criticism.prose import (
     contribution_text,
@@ -221,8 +222,9 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     say.say(f"fitting {label} to {where} (MAP)")
     base = fit_base(models, datasets, names, s, rng)
     say.say("ranking the candidate effects (score test)")
-    ranked = rank_effects(base.likelihoods, base.noises, base.values, candidates=s.candidates,
-                          level=s.level)
+    ranked = rank_effects(base.likelihoods, base.noises, [own for own, _ in base.points],
+                          candidates=s.candidates, level=s.level,
+                          starts=[start for _, start in base.points])
     refits = refit_significant(base, ranked, s, rng, say)
     findings = _findings(ranked, refits, base, s.ci_prob)
     say.say("fitting the yardsticks (linear output-error, Prandtl-Ishlinskii)")
@@ -285,7 +287,7 @@ def _yardstick_words(experiments: tuple) -> str:
     for e in experiments:
         if not e.baselines:
             continue
-        rmse, normalised = nrmse(e.dataset.mean_position_m, e.simulation.position_m[0])
+        rmse, normalised = nrmse(observed_mean(e.dataset), e.simulation.position_m[0])
         where = "on the training record" + (f" {e.name}" if len(experiments) > 1 else "")
         text = yardstick_text({"rmse_m": rmse, "nrmse": normalised}, e.baselines,
                               metric="rmse_m", where=where + " (in-sample, as both were fitted "
@@ -310,10 +312,10 @@ def _discrepancy_step(base: BaseFit, experiments: tuple, plugin_dir, say: Progre
             "furthest above its floor)" if several else
             "estimating the missing force from the data (discrepancy)")
     found = estimate_discrepancy(
-        base.likelihoods[k], base.noises[k], base.values, base.simulations[k],
+        base.likelihoods[k], base.noises[k], base.points[k][0], base.simulations[k],
         plugin_dir=plugin_dir,
         command=" ".join(str(e.dataset.source or "DATA") for e in experiments),
-        effects=experiments[0].model.effect_names)
+        effects=experiments[0].model.effect_names, start=base.points[k][1])
     words = (f" The missing force was estimated from {base.names[k]}, the experiment furthest "
              "above its floor; the command below checks the proposal on all of them."
              if several else "")

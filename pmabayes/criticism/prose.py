@@ -205,7 +205,8 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
         # the rule is on the whitened residual's energy: its number, named as such
         detail = (f" the best refit ({best.effect}) removes only {best.explained:.0%} of the "
                   "whitened residual's excess energy")
-        if best.next_effect:
+        floors = all(math.isfinite(sig.bands[-1].floor_m) for sig in best.signatures)
+        if best.next_effect and floors:  # without a floor the look-ahead is no evidence
             detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
         detail += (f", and at least {min_explained:.0%} is required "
                    f"({_elpd_text(best)})")

@@ -7,12 +7,13 @@ one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from pmabayes.criticism.bands import excess_removed
 from pmabayes.criticism.elpd import laplace_loo, paired_difference
+from pmabayes.criticism.observed import counted_samples, residual, simulate_states
 from pmabayes.criticism.plausibility import implausible
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
@@ -23,7 +24,7 @@ from pmabayes.inference.likelihood import Likelihood
 from pmabayes.inference.noise import NoiseEstimate, group_noise
 from pmabayes.inference.search import find_map
 from pmabayes.model.model import Model
-from pmabayes.model.simulator import Simulation, simulate_dataset
+from pmabayes.model.simulator import Simulation
 from pmabayes.util import Progress
 
 __all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "near_twins",
@@ -102,6 +103,12 @@ class BaseFit:
         Leave-one-trial-out ELPD over every trial of every experiment.
     elpd_i : numpy.ndarray
         Its per-trial terms.
+    points : list of tuple
+        Each experiment's model values and estimated start (None where declared) at
+        the MAP (:meth:`pmabayes.inference.density.Posterior.experiment_point`).
+    trial_models : list
+        Each experiment's per-trial model positions where its trials have their own
+        inputs, else None.
     """
 
     likelihoods: list
@@ -114,25 +121,34 @@ class BaseFit:
     signatures: list
     elpd: float
     elpd_i: np.ndarray
+    points: list = field(default_factory=list)
+    trial_models: list = field(default_factory=list)
 
     @property
     def excess(self) -> float:
-        """The whitened residual's energy above pure noise, summed over the samples (and
-        the experiments)."""
-        total = sum(sig.energy * lik.n_samples - lik.n_samples
-                    for sig, lik in zip(self.signatures, self.likelihoods, strict=True))
+        """The whitened residual's energy above pure noise, summed over the samples
+        counted (and the experiments)."""
+        total = sum(sig.energy * n - n
+                    for sig, n in zip(self.signatures, counts(self.likelihoods), strict=True))
         return max(total, 1e-12)
 
     @property
     def residuals(self) -> list[np.ndarray]:
-        """Each experiment's trial mean minus the model."""
-        return [lik.y_mean - sim.position_m[0]
+        """Each experiment's trial mean minus the model (NaN where no trial is counted)."""
+        return [residual(lik, sim.position_m[0])
                 for lik, sim in zip(self.likelihoods, self.simulations, strict=True)]
 
 
-def _simulate(model: Model, values: dict, likelihood: Likelihood, substeps: int) -> Simulation:
-    return simulate_dataset(model, physical_values(model, values), likelihood.dataset,
-                            substeps=substeps, states=True)
+def counts(likelihoods: list) -> list[int]:
+    """Each experiment's samples of the trial mean that are data (counted)."""
+    return [int(np.count_nonzero(counted_samples(lik))) for lik in likelihoods]
+
+
+def _simulate(model: Model, point: tuple, likelihood: Likelihood, substeps: int
+              ) -> tuple[Simulation, np.ndarray | None]:
+    """The model at an experiment's point (values, start), its trial mean and trials."""
+    values, start = point
+    return simulate_states(likelihood, model, physical_values(model, values), start, substeps)
 
 
 def fit_base(models: list, datasets: list, names: list, s: DiagnoseSettings,
@@ -164,12 +180,15 @@ def fit_base(models: list, datasets: list, names: list, s: DiagnoseSettings,
     repeat_noise = list(posterior.group_noise)
     values = dict(best.values)
     noises = _experiment_noises(posterior, best)
-    sims = [_simulate(lik.model, values, lik, s.substeps) for lik in liks]
-    signatures = [residual_signature(lik, noise, sim)
-                  for lik, noise, sim in zip(liks, noises, sims, strict=True)]
+    points = [posterior.experiment_point(e, values) for e in range(len(liks))]
+    runs = [_simulate(lik.model, pt, lik, s.substeps) for lik, pt in zip(liks, points,
+                                                                          strict=True)]
+    sims = [sim for sim, _ in runs]
+    signatures = [residual_signature(lik, noise, sim, model_trials_m=trials)
+                  for lik, noise, (sim, trials) in zip(liks, noises, runs, strict=True)]
     elpd, elpd_i, _ = laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
     return BaseFit(liks, names, repeat_noise, list(posterior.noise_choices), noises, values,
-                   sims, signatures, elpd, elpd_i)
+                   sims, signatures, elpd, elpd_i, points, [trials for _, trials in runs])
 
 
 def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Generator) -> Refit:
@@ -187,34 +206,34 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
     e_elpd, e_elpd_i, interval = laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob,
                                              tested)
     ext_noises = _experiment_noises(ext_post, ext_map)
-    off = dict(ext_map.values)
-    off.update({p.name: p.null for p in eff.parameters if p.vary and p.null is not None})
+    nulls = {p.name: p.null for p in eff.parameters if p.vary and p.null is not None}
+    points = [ext_post.experiment_point(e, ext_map.values) for e in range(len(ext_liks))]
     sigs, contributions = [], []
-    for lik, ext_lik, noise in zip(base.likelihoods, ext_liks, ext_noises, strict=True):
-        ext_sim = _simulate(ext_lik.model, ext_map.values, lik, s.substeps)
-        contributions.append(ext_sim.position_m[0]
-                             - _simulate(ext_lik.model, off, lik, s.substeps).position_m[0])
-        sigs.append(residual_signature(ext_lik, noise, ext_sim))
+    for lik, ext_lik, noise, (own, start) in zip(base.likelihoods, ext_liks, ext_noises, points,
+                                                  strict=True):
+        ext_sim, trials = _simulate(ext_lik.model, (own, start), lik, s.substeps)
+        off = _simulate(ext_lik.model, ({**own, **nulls}, start), lik, s.substeps)[0]
+        contributions.append(ext_sim.position_m[0] - off.position_m[0])
+        sigs.append(residual_signature(ext_lik, noise, ext_sim, model_trials_m=trials))
+    sizes = counts(base.likelihoods)
     # with no excess over pure noise there is nothing to explain
-    gain = sum((b.energy - x.energy) * lik.n_samples
-               for b, x, lik in zip(base.signatures, sigs, base.likelihoods, strict=True))
-    over = sum((b.energy - 1.0) * lik.n_samples
-               for b, lik in zip(base.signatures, base.likelihoods, strict=True))
+    gain = sum((b.energy - x.energy) * n
+               for b, x, n in zip(base.signatures, sigs, sizes, strict=True))
+    over = sum((b.energy - 1.0) * n for b, n in zip(base.signatures, sizes, strict=True))
     explained = float(np.clip(gain / base.excess, 0.0, 1.0)) if over > 0 else 0.0
     nxt = None
     if explained < s.min_explained and not s.all_adequate(sigs):
         # one step of look-ahead: does another candidate account for what is left?
-        following = [e for e in rank_effects(ext_liks, ext_noises, ext_map.values,
-                                             candidates=s.candidates, level=s.level)
+        following = [e for e in rank_effects(ext_liks, ext_noises, [own for own, _ in points],
+                                             candidates=s.candidates, level=s.level,
+                                             starts=[start for _, start in points])
                      if e.significant]
         nxt = max(following, key=lambda e: e.explained) if following else None
     diff, diff_se = paired_difference(e_elpd_i, base.elpd_i)
-    rms = pooled_rms([sig.bands[-1].rms_m for sig in sigs],
-                     [lik.n_samples for lik in base.likelihoods])
+    rms = pooled_rms([sig.bands[-1].rms_m for sig in sigs], sizes)
     removed = excess_removed([b.bands[-1].rms_m for b in base.signatures],
                              [x.bands[-1].rms_m for x in sigs],
-                             [b.bands[-1].floor_m for b in base.signatures],
-                             [lik.n_samples for lik in base.likelihoods])
+                             [b.bands[-1].floor_m for b in base.signatures], sizes)
     return Refit(
         effect=effect, values=dict(ext_map.values), interval=interval,
         rms_m=rms, explained=explained, explained_rms=removed,

@@ -15,6 +15,7 @@ from pmabayes.criticism.bands import (
     instantaneous_frequency,
 )
 from pmabayes.criticism.discrepancy import Discrepancy
+from pmabayes.criticism.observed import observed_mean, shared_input
 from pmabayes.criticism.scores import significance_threshold
 from pmabayes.criticism.signature import Signature
 from pmabayes.criticism.whiteness import (
@@ -256,8 +257,8 @@ class ExperimentDiagnosis:
 
     @property
     def residual_m(self) -> np.ndarray:
-        """Trial mean minus model, ``(n_samples,)``."""
-        return self.dataset.mean_position_m - self.simulation.position_m[0]
+        """Trial mean minus model, ``(n_samples,)`` (NaN where no trial is counted)."""
+        return observed_mean(self.dataset) - self.simulation.position_m[0]
 
     @property
     def innovations(self) -> np.ndarray:
@@ -273,7 +274,7 @@ class ExperimentDiagnosis:
     def whiteness_curves(self) -> WhitenessCurves:
         """The whiteness figure's curves of the whitened residual (lags to 0.2 s, 99% bound)."""
         label = " + ".join(["base", *self.model.effect_names])
-        rate = np.gradient(self.dataset.input[0], self.dataset.time_s)
+        rate = np.gradient(shared_input(self.dataset), self.dataset.time_s)
         return whiteness_curves({label: self.innovations}, rate, self.dataset.dt_s)
 
     def floor_note(self) -> str:

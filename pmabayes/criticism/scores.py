@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from pmabayes.criticism.observed import model_mean
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.effects import registered_effects
 from pmabayes.util import Progress
@@ -75,6 +76,7 @@ def rank_effects(
     *,
     candidates=None,
     level: float = 0.05,
+    starts: Sequence | None = None,
 ) -> list[EffectEvidence]:
     """Rank effects by the score-test evidence that they are missing.
 
@@ -106,13 +108,26 @@ def rank_effects(
     noise : object or sequence of object
         Identified noise (``sigma``, ``rho``, ``white``), e.g. from
         :func:`pmabayes.inference.noise.estimate_noise`; one per experiment with several.
-    values : dict
-        The current model's parameter values at its MAP.
+    values : dict or sequence of dict
+        The current model's parameter values at its MAP; one per experiment where
+        they differ (an experiment's own offset, :meth:`pmabayes.inference.density.
+        Posterior.experiment_point`).
     candidates : iterable of str, optional
         Effects to test; every registered effect not already in the model by
         default.
     level : float
         Family-wise false-alarm level.
+    starts : sequence, optional
+        Each experiment's estimated start ``(3,)`` at the MAP, or None where it is
+        declared; all declared by default.
+
+    Notes
+    -----
+    The score and the information are sums over the samples: a sample where no trial
+    is counted (a gap, a warm-up) has no innovation and adds nothing. Trials on their
+    own inputs enter through the model's trial mean
+    (:func:`~pmabayes.criticism.observed.model_mean`), whose residual the noise of the
+    trial mean whitens.
 
     Returns
     -------
@@ -135,9 +150,11 @@ def rank_effects(
     bar = Progress()
     bar.start(len(names), "candidates", "score tests (a new effect compiles its simulator "
               "once)")
+    points = [values] * len(liks) if isinstance(values, dict) else list(values)
+    starts = [None] * len(liks) if starts is None else list(starts)
     out = []
     for name in names:
-        out.append(_score_test(liks, noises, values, name))
+        out.append(_score_test(liks, noises, points, starts, name))
         bar.advance()
     threshold = level / max(sum(e.left_out is None for e in out), 1)
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
@@ -166,20 +183,12 @@ def _cannot_act(ext, eff, tested: list, likelihoods: list) -> str:
             + (f"; its fixed {', '.join(fixed)}" if fixed else "") + ")")
 
 
-def _score_test(likelihoods: list, noises: list, values: dict, name: str) -> EffectEvidence:
-    """The score test of one candidate effect over the experiments (``significant`` is set
-    by the caller): their scores and informations add."""
-    exts = [lik.model.with_effects(name) for lik in likelihoods]
-    ext = exts[0]  # the parameters are shared; only the rigs differ
-    eff = ext.effects[-1]
-    # a parameter without a null (a shape, such as a damping ratio) is not identified
-    # when the effect vanishes: it stays at its default and is not tested
-    tested = [p.name for p in eff.parameters if p.vary and p.null is not None]
+def _rows(ext, values: dict, tested: list, free: list) -> tuple[list, list, dict]:
+    """The point of a score test (the MAP, the effect at its null) and the same with
+    each free parameter moved by a small step: the rows, the steps and the point."""
     point = dict(ext.defaults)
     point.update({k: v for k, v in values.items() if k in point})  # not the noise
     point.update({n: ext.parameter(n).null for n in tested})
-    shapes = {p.name for p in eff.parameters if p.null is None}
-    free = [n for n in ext.free_names if n not in shapes]
     base = ext.theta(point)[0]
     steps, rows = [], [base]
     for n in free:
@@ -190,16 +199,40 @@ def _score_test(likelihoods: list, noises: list, values: dict, name: str) -> Eff
         up[j] += h
         rows.append(up)
         steps.append(h)
+    return rows, steps, point
+
+
+def _score_test(likelihoods: list, noises: list, points: list, starts: list,
+                name: str) -> EffectEvidence:
+    """The score test of one candidate effect over the experiments (``significant`` is set
+    by the caller): their scores and informations add."""
+    exts = [lik.model.with_effects(name) for lik in likelihoods]
+    ext = exts[0]  # the parameters are shared; only the rigs differ
+    eff = ext.effects[-1]
+    # a parameter without a null (a shape, such as a damping ratio) is not identified
+    # when the effect vanishes: it stays at its default and is not tested
+    tested = [p.name for p in eff.parameters if p.vary and p.null is not None]
+    shapes = {p.name for p in eff.parameters if p.null is None}
+    free = [n for n in ext.free_names if n not in shapes]
+    rows, steps, point = _rows(ext, points[0], tested, free)
     info = np.zeros((len(free), len(free)))
     score = np.zeros(len(free))
     energy, n_samples = 0.0, 0
-    for lik, ext_e, noise in zip(likelihoods, exts, noises, strict=True):
+    for e, (lik, ext_e, noise) in enumerate(zip(likelihoods, exts, noises, strict=True)):
         def whiten(v: np.ndarray, lik=lik, noise=noise) -> np.ndarray:
             return lik.whiten(v, noise.sigma, noise.rho, noise.white)
 
-        x = Likelihood(ext_e, lik.dataset, substeps=lik.substeps).simulate(np.array(rows))
+        if e and points[e] is not points[0]:
+            rows, steps, _ = _rows(ext_e, points[e], tested, free)
+        ext_lik = Likelihood(ext_e, lik.dataset, substeps=lik.substeps)
+        start = (None if starts[e] is None else
+                 np.broadcast_to(np.asarray(starts[e], dtype=float), (len(rows), 3)))
+        x = model_mean(lik, ext_lik.simulate(np.array(rows), start))
         r_w = whiten(lik.y_mean - x[0])
         w = np.stack([whiten((x[k + 1] - x[0]) / steps[k]) for k in range(len(free))], axis=1)
+        seen = np.isfinite(r_w)
+        if not seen.all():  # a sample not counted has no innovation: it adds nothing
+            r_w, w = r_w[seen], w[seen]
         info += w.T @ w
         score += w.T @ r_w
         energy += float(r_w @ r_w)

@@ -11,6 +11,7 @@ import numpy as np
 
 from pmabayes.criticism.adequacy import ENERGY_TOLERANCE, is_adequate
 from pmabayes.criticism.bands import band_errors, band_label
+from pmabayes.criticism.observed import residual, shared_input
 from pmabayes.criticism.whiteness import cross_correlation, judged_whiteness
 from pmabayes.inference.likelihood import (
     LEVEL_ADEQUATE,
@@ -134,9 +135,14 @@ class Signature:
         return text
 
 
-def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2
-                       ) -> Signature:
+def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float = 0.2,
+                       model_trials_m: np.ndarray | None = None) -> Signature:
     """Measure the signature of a model's residual on the data.
+
+    With samples not counted (gaps, a warm-up) every statistic takes the samples
+    counted (:mod:`~pmabayes.criticism.observed`): the correlations, the whitened
+    residual (NaN there: the filter predicts across), its whiteness over the pairs
+    both observed, and the errors per band.
 
     Parameters
     ----------
@@ -145,9 +151,14 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
     noise : object
         Identified noise (``sigma``, ``rho``, ``white``).
     sim : pmabayes.model.simulator.Simulation
-        The model's simulation (batch of one) with its states.
+        The model's simulation (batch of one) with its states: its trial mean where the
+        trials have their own inputs
+        (:func:`~pmabayes.criticism.observed.simulate_states`).
     max_lag_s : float
         Largest lag of the cross-correlation with the command's rate.
+    model_trials_m : numpy.ndarray, optional
+        Each trial's model position ``(n_trials, n_samples)`` where the trials have
+        their own inputs (for the noise floor of their residuals).
 
     Returns
     -------
@@ -155,21 +166,27 @@ def residual_signature(likelihood: Likelihood, noise, sim, *, max_lag_s: float =
     """
     ds = likelihood.dataset
     x = sim.position_m[0]
-    r = likelihood.y_mean - x
+    r = residual(likelihood, x)
     e, white, noise_check = judged_whiteness(likelihood, x, noise)
-    rate = np.gradient(ds.input[0], ds.time_s)
+    rate = np.gradient(shared_input(ds), ds.time_s)
     signals = {"position": x, "velocity": sim.velocity_m_s[0], "pressure": sim.pressure_pa[0],
                "pressure rate": rate}
+    seen = np.isfinite(r)
     corr = {}
     for name, s in signals.items():
-        if np.std(s) > 0 and np.std(r) > 0:
+        if not seen.all():
+            s, r_seen = s[seen], r[seen]
+            if np.std(s) > 0 and np.std(r_seen) > 0:
+                corr[name] = float(np.corrcoef(r_seen, s)[0, 1])
+        elif np.std(s) > 0 and np.std(r) > 0:
             corr[name] = float(np.corrcoef(r, s)[0, 1])
     max_lag = max(1, int(round(max_lag_s / ds.dt_s)))
     lags_r, ccf_r, bound = cross_correlation(e, rate, max_lag=max_lag)
     pos = lags_r >= 0
     k = int(np.argmax(np.abs(ccf_r[pos])))
     return Signature(
-        bands=band_errors(ds, x), ljung_box_p=white["ljung_box_p"], energy=white["energy"],
+        bands=band_errors(ds, x, model_trials_m=model_trials_m),
+        ljung_box_p=white["ljung_box_p"], energy=white["energy"],
         energy_p=white["energy_p"], correlations=corr,
         ccf_lag_s=float(lags_r[pos][k] * ds.dt_s), ccf_peak=float(ccf_r[pos][k]),
         ccf_bound=bound, noise_model=noise_check.noise_model,

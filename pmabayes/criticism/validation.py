@@ -69,6 +69,7 @@ import xarray as xr
 from pmabayes.criticism.bands import band_errors
 from pmabayes.criticism.baselines import Baselines, fit_baselines, nrmse, yardstick_text
 from pmabayes.criticism.inadequacy import Inadequacy, ResidualRecord, learn_inadequacy
+from pmabayes.criticism.observed import observed_mean, share_inside, shared_input, trials_mean
 from pmabayes.data import DataError, Dataset, DataWarning, load
 from pmabayes.inference.fitfile import (
     check_dataset,
@@ -122,7 +123,8 @@ class ExperimentValidation:
     time_s : numpy.ndarray
         Sample times, ``(n_samples,)``.
     input : numpy.ndarray
-        The input shared by the trials, ``(n_samples,)``.
+        The input shared by the trials, ``(n_samples,)`` (their mean where the trials
+        have their own inputs).
     position_m : numpy.ndarray
         The measured trials, ``(n_trials, n_samples)``.
     prediction_m : numpy.ndarray
@@ -132,7 +134,8 @@ class ExperimentValidation:
         (the parameters' uncertainty alone).
     low_m, high_m : numpy.ndarray
         Central ``ci_prob`` predictive band of one measured trial (parameters and
-        the fit's noise).
+        the fit's noise); ``(n_trials, n_samples)``, each trial's own, where the trials
+        have their own inputs.
     rmse_m : float
         RMS error of the trial mean against ``prediction_m``.
     nrmse : float
@@ -305,7 +308,7 @@ class ExperimentValidation:
         }
         if arrays:
             out["predictive_band"] = {
-                k: [float(v) for v in getattr(self, a)]
+                k: np.asarray(getattr(self, a), dtype=float).tolist()
                 for k, a in (("time_s", "time_s"), ("prediction_m", "prediction_m"),
                              ("low_m", "low_m"), ("high_m", "high_m"),
                              ("model_low_m", "model_low_m"), ("model_high_m", "model_high_m"),
@@ -591,13 +594,6 @@ def _check_dataset(fit: _FitDraws, ds: Dataset, where: str) -> Model:
             f"{where}: the fit has no posterior for {', '.join(lacking)}, which the model "
             f"needs on this data set's rig ({model.rig.name}); the fit's effects cannot "
             "simulate it: validate data from a rig of the fit's kind, or refit with them")
-    same = np.all(ds.input == ds.input[0], axis=1)
-    if not same.all():
-        bad = int(ds.trial_ids[np.argmin(same)])
-        raise ValidationError(
-            f"{where}: trial {bad} has a different input from trial {int(ds.trial_ids[0])}; "
-            "the trials of one experiment must share the input: put each input in its own "
-            "file, one experiment per file")
     return model
 
 
@@ -669,9 +665,10 @@ def _ar_noise(y: np.ndarray, col: np.ndarray, k: int, fit: _FitDraws, same_rate:
 # ----------------------------------------------------------------------------- validate
 
 
-def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list) -> list | None:
+def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list,
+                 trials: np.ndarray | None = None) -> list | None:
     try:
-        return band_errors(ds, prediction)
+        return band_errors(ds, prediction, model_trials_m=trials)
     except ValueError as err:
         notes.append(f"error per frequency band not available: {err}")
         return None
@@ -756,10 +753,13 @@ def _column(values: np.ndarray, e: int) -> np.ndarray:
 
 
 def _residual_records(fit: _FitDraws, training: list, models: list, substeps: int,
-                      where: str, identified: list) -> list[ResidualRecord]:
-    """Each training experiment's trial mean minus the posterior-mean prediction, with the
-    fit's noise (posterior medians) of that experiment; ``identified`` maps each
-    experiment's parameters to the fit's variables (its own offset, a rig prior's)."""
+                      where: str, identified: list, starts_named: list
+                      ) -> list[ResidualRecord]:
+    """Each training experiment's trial mean minus the posterior-mean prediction (NaN
+    where no trial is counted), with the fit's noise (posterior medians) of that
+    experiment; ``identified`` maps each experiment's parameters to the fit's variables
+    (its own offset, a rig prior's), ``starts_named`` names each one's estimated start's
+    variables (none where its start is declared)."""
     idx = np.unique(np.linspace(0, fit.n_total - 1, min(_TRAINING_DRAWS, fit.n_total))
                     .astype(int))
     out = []
@@ -767,12 +767,20 @@ def _residual_records(fit: _FitDraws, training: list, models: list, substeps: in
         names = {n: identified[e].get(n, n) for n in model.free_names}
         theta = model.theta({n: _column(_flat(fit.draws[v], v, where)[idx], e)
                              for n, v in names.items()})
-        x = simulate_dataset(model, theta, ds, substeps=substeps)
+        starts = None
+        if starts_named[e]:  # the draws' own estimated starts
+            starts = np.stack([_flat(fit.draws[v], v, where)[idx] for v in starts_named[e]],
+                              axis=1)
+        own = not bool(np.all(ds.input == ds.input[0]))
+        x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts,
+                             per_trial=own)
+        if own:  # each draw's trial mean, averaged as the trials are
+            x = trials_mean(ds, x)
         ok = np.all(np.isfinite(x), axis=1)
         if not ok.any():
             raise ValueError(f"no posterior draw simulates training experiment {e + 1}")
         noise = (float(np.median(_column(fit.noise[n], e))) for n in NOISE_NAMES)
-        out.append(ResidualRecord(ds.mean_position_m - x[ok].mean(axis=0), ds.dt_s, *noise,
+        out.append(ResidualRecord(observed_mean(ds) - x[ok].mean(axis=0), ds.dt_s, *noise,
                                   ds.n_trials))
     return out
 
@@ -793,10 +801,12 @@ def _learn_from_training(fit: _FitDraws, tree: xr.DataTree, substeps: int, where
     except ValueError as err:
         notes.append(f"the yardsticks could not be fitted to the training data: {err}")
     try:
-        identified = [exp.get("parameters") or {}
-                      for exp in fit_info(tree).get("experiments") or [{}]]
+        exps = fit_info(tree).get("experiments") or [{}]
+        identified = [exp.get("parameters") or {} for exp in exps]
+        starts_named = [list((exp.get("start") or {}).get("parameters") or {})
+                        for exp in exps]
         inadequacy = learn_inadequacy(_residual_records(fit, training, models, substeps, where,
-                                                        identified))
+                                                        identified, starts_named))
     except (KeyError, ValueError, ModelError) as err:
         notes.append(f"the model's discrepancy could not be learnt from the training data: "
                      f"{err}")
@@ -804,24 +814,19 @@ def _learn_from_training(fit: _FitDraws, tree: xr.DataTree, substeps: int, where
     return _Training(baselines, inadequacy, notes, rng.spawn(1)[0])
 
 
-def _inside(data: np.ndarray, low: np.ndarray, high: np.ndarray) -> float:
-    """Fraction of the observed samples inside a band."""
-    seen = np.isfinite(data)
-    return float(np.mean(((data >= low) & (data <= high))[seen]))
-
-
 def _with_training(training: _Training, ds: Dataset, y: np.ndarray, q: float,
                    physics: dict, notes: list) -> dict:
     """The band with the discrepancy (``y``: the predictive draws, changed in place) and
     the yardsticks on a held-out data set, as :class:`ExperimentValidation` fields."""
-    data = ds.position_m
+    data = np.where(ds.counted, ds.position_m, np.nan)
     out: dict = {"baselines": {}}
     notes.extend(training.notes)
     if training.inadequacy is not None:
-        y += training.inadequacy.draw(y.shape[0], y.shape[1], ds.dt_s, training.rng)
+        y += training.inadequacy.draw(int(np.prod(y.shape[:-1])), y.shape[-1], ds.dt_s,
+                                      training.rng).reshape(y.shape)
         low, high = np.quantile(y, [q, 1.0 - q], axis=0)
         out.update(low_with_discrepancy_m=low, high_with_discrepancy_m=high,
-                   coverage=_inside(data, low, high))
+                   coverage=share_inside(data, low, high))
     if training.baselines is not None:
         out["baselines"] = training.baselines.scores(ds, arrays=True)
         text = yardstick_text(physics, out["baselines"], where="on these held-out data")
@@ -856,10 +861,13 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                      **{f"{k}_median": float(v) for k, v in
                         zip(("x0_m", "v0_m_s", "z0_offset_n"), np.median(starts, axis=0),
                             strict=True)})
-    x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts)
+    own = not bool(np.all(ds.input == ds.input[0]))
+    # trials with their own inputs: each draw on each trial's input, (draws, trials, n)
+    x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts,
+                         per_trial=own)
     sigma, rho, white, fit_dt, col = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
-    ok = np.all(np.isfinite(x), axis=1)
+    ok = np.all(np.isfinite(x.reshape(x.shape[0], -1)), axis=1)
     if not ok.any():
         raise ValidationError(f"{where}: the simulation failed (non-finite positions) for "
                               f"every one of {pick.size} posterior draws on this input")
@@ -869,9 +877,11 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                       DataWarning, stacklevel=3)
         notes.append(f"{int((~ok).sum())} of {pick.size} draws failed to simulate (left out)")
         x, sigma, rho, white, col = x[ok], sigma[ok], rho[ok], white[ok], col[ok]
+    x_mean = trials_mean(ds, x) if own else x  # each draw's trial mean
+    ybar = observed_mean(ds)
     if "samples" in start:
-        after = (ds.mean_position_m - x.mean(axis=0))[start["samples"]:]
-        start["rmse_after_start_m"] = float(np.sqrt(np.mean(after**2)))
+        after = (ybar - x_mean.mean(axis=0))[start["samples"]:]
+        start["rmse_after_start_m"] = float(np.sqrt(np.mean(after[np.isfinite(after)]**2)))
         notes.append(f"the start was estimated for each draw from the first {start['samples']} "
                      f"samples ({100 * start['fraction']:.3g}% of the record, "
                      f"{start['seconds']:.3g} s; start_fraction); the numbers are over the "
@@ -887,40 +897,54 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                      "used per sample as it is")
     k = _NOISE_PER_DRAW
     n = ds.n_samples
-    y = measurement_noise(x.shape[0] * k, n, *(np.repeat(v, k) for v in (sigma, rho, white)),
-                          rng)
-    _ar_noise(y, col, k, fit, fit_dt is not None and abs(ds.dt_s - fit_dt) <= 1e-9 * fit_dt,
-              rng, notes)
-    y.reshape(x.shape[0], k, n)[...] += x[:, None, :]
+    # one noise series per draw, copy and trial: each trial its own band where the
+    # trials have their own inputs
+    per = k * (ds.n_trials if own else 1)
+    y = measurement_noise(x.shape[0] * per, n,
+                          *(np.repeat(v, per) for v in (sigma, rho, white)), rng)
+    _ar_noise(y, col, per, fit,
+              fit_dt is not None and abs(ds.dt_s - fit_dt) <= 1e-9 * fit_dt, rng, notes)
+    if own:
+        y = y.reshape(x.shape[0], k, ds.n_trials, n)
+        y += x[:, None]
+        y = y.reshape(-1, ds.n_trials, n)
+        notes.append("the trials have their own inputs: each is predicted on its own, with "
+                     "its own predictive band (low_m, high_m: one row per trial); the "
+                     "prediction, the errors and the model-only band are the trial mean's")
+    else:
+        y.reshape(x.shape[0], k, n)[...] += x[:, None, :]
     q = (1.0 - ci_prob) / 2.0
     low, high = np.quantile(y, [q, 1.0 - q], axis=0)
-    model_low, model_high = np.quantile(x, [q, 1.0 - q], axis=0)
-    prediction = x.mean(axis=0)
-    ybar = ds.mean_position_m
+    model_low, model_high = np.quantile(x_mean, [q, 1.0 - q], axis=0)
+    prediction = x_mean.mean(axis=0)
     resid = ybar - prediction
     rmse, normalised = nrmse(ybar, prediction)
     floor = ds.noise_floor_m
-    data = ds.position_m
-    coverage = float(np.mean((data >= low) & (data <= high)))
-    per_band = _band_errors(ds, prediction, notes)
+    data = np.where(ds.counted, ds.position_m, np.nan)
+    coverage = share_inside(data, low, high)
+    per_band = _band_errors(ds, prediction, notes, x.mean(axis=0) if own else None)
+    if own and ds.n_trials > 1:  # the raw trials' spread holds the inputs' differences
+        notes.append("the noise floor is the spread of the trials' residuals from the "
+                     "posterior-mean prediction on each one's input")
     extra = _with_training(training, ds, y, q, {"rmse_m": rmse, "nrmse": normalised}, notes)
     return ExperimentValidation(
         name=Path(ds.source).stem if ds.source else "data set",
         source=ds.source, synthetic=bool(ds.metadata.get("synthetic", False)),
         rig=model.rig.to_dict(), input_name=ds.input_name, time_s=np.array(ds.time_s),
-        input=np.array(ds.input[0]), position_m=np.array(data), prediction_m=prediction,
+        input=np.array(shared_input(ds)),
+        position_m=np.array(ds.position_m), prediction_m=prediction,
         model_low_m=model_low, model_high_m=model_high, low_m=low, high_m=high,
         rmse_m=rmse, nrmse=normalised,
-        max_error_m=float(np.max(np.abs(resid))),
+        max_error_m=float(np.nanmax(np.abs(resid))),
         noise_floor_m=None if math.isnan(floor) else float(floor),
         band_coverage=coverage,
-        model_band_coverage=float(np.mean((ybar >= model_low) & (ybar <= model_high))),
+        model_band_coverage=share_inside(ybar, model_low, model_high),
         band_errors=per_band,
         noise={"from": noise_text,
                **{f"{n}_median": float(np.median(v))
                   for n, v in zip(NOISE_NAMES, (sigma, rho, white), strict=True)}},
         n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes, start=start,
-        coverage_parameters_only=_inside(data, low, high), **extra)
+        coverage_parameters_only=share_inside(data, low, high), **extra)
 
 
 def validate(

@@ -66,6 +66,8 @@ def innovations(likelihood: Likelihood, model_position_m: np.ndarray, noise) -> 
 
 
 def _corr(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        return _corr_observed(a, b, max_lag)
     a = (a - a.mean()) / a.std()
     b = (b - b.mean()) / b.std()
     n = a.size
@@ -74,6 +76,27 @@ def _corr(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.nd
     values = np.array([np.dot(a[max(0, k): n - max(0, -k)], b[max(0, -k): n - max(0, k)]) / n
                        for k in lags])
     return lags, values
+
+
+def _corr_observed(a: np.ndarray, b: np.ndarray, max_lag: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_corr` of series with samples not observed (NaN): each standardised over
+    its observed samples, each lag the mean product over the pairs both observed."""
+    seen_a, seen_b = np.isfinite(a), np.isfinite(b)
+    a = np.where(seen_a, (a - a[seen_a].mean()) / a[seen_a].std(), 0.0)
+    b = np.where(seen_b, (b - b[seen_b].mean()) / b[seen_b].std(), 0.0)
+    n = a.size
+    lags = np.arange(-max_lag, max_lag + 1)
+    values = []
+    for k in lags:
+        sa, sb = slice(max(0, k), n - max(0, -k)), slice(max(0, -k), n - max(0, k))
+        pairs = np.count_nonzero(seen_a[sa] & seen_b[sb])
+        values.append(np.dot(a[sa], b[sb]) / pairs if pairs else 0.0)
+    return lags, np.array(values)
+
+
+def _n_observed(e: np.ndarray) -> int:
+    return int(np.count_nonzero(np.isfinite(e)))
 
 
 def autocorrelation(e: np.ndarray, *, max_lag: int = 50, level: float = 0.99):
@@ -100,7 +123,7 @@ def autocorrelation(e: np.ndarray, *, max_lag: int = 50, level: float = 0.99):
     """
     lags, values = _corr(np.asarray(e, float), np.asarray(e, float), max_lag)
     keep = lags > 0
-    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(len(e))
+    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(_n_observed(np.asarray(e, float)))
     return lags[keep], values[keep], float(bound)
 
 
@@ -128,7 +151,7 @@ def cross_correlation(e: np.ndarray, u: np.ndarray, *, max_lag: int = 50,
     bound : float
     """
     lags, values = _corr(np.asarray(e, float), np.asarray(u, float), max_lag)
-    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(len(e))
+    bound = stats.norm.ppf(0.5 + level / 2) / math.sqrt(_n_observed(np.asarray(e, float)))
     return lags, values, float(bound)
 
 
@@ -182,7 +205,7 @@ def judged_whiteness(likelihood: Likelihood, model_position_m: np.ndarray, noise
     """
     x = np.asarray(model_position_m, dtype=float).reshape(-1)
     check = check_noise_model(likelihood, noise)
-    if check.adequate:
+    if check.adequate or check.ar is None:
         e = innovations(likelihood, x, noise)
         return e, whiteness_statistics(e), check
     r = likelihood.y_mean - x
@@ -256,7 +279,12 @@ class NoiseModelCheck:
     @property
     def noise_model(self) -> str:
         """The noise model the adequacy verdict whitens with."""
-        return "AR(1) + white" if self.adequate else f"AR({self.ar_order}) from the repeats"
+        if self.adequate:
+            return "AR(1) + white"
+        if self.ar is None:  # samples not observed: the likelihood's own noise model
+            return ("AR(1) + white (rejected by the deviations between trials, but the "
+                    "repeats' AR(p) takes complete records only)")
+        return f"AR({self.ar_order}) from the repeats"
 
     def whiten_series(self, v: np.ndarray) -> np.ndarray:
         """A series of one trial's noise whitened by the AR model of the repeats
@@ -314,6 +342,12 @@ class NoiseModelCheck:
         if self.adequate:
             return (f"Noise model AR(1) + white: it whitens the deviations between trials "
                     f"(Ljung-Box {p_text(self.ljung_box_p)}).")
+        if self.ar is None:
+            return (f"Noise model AR(1) + white is REJECTED by the deviations between trials "
+                    f"(Ljung-Box {p_text(self.ljung_box_p)}), but with samples not observed "
+                    "the repeats' AR(p) is not available (it takes complete records): the "
+                    "adequacy verdict whitens with AR(1) + white, as the likelihood does, and "
+                    "may then find a misfit that is the noise's.")
         return (f"Noise model AR(1) + white is REJECTED by the deviations between trials "
                 f"(Ljung-Box {p_text(self.ljung_box_p)}): the disturbance has more "
                 f"structure (several time scales, vibration, drift). The adequacy verdict "
@@ -375,6 +409,15 @@ def check_noise_model(likelihood: Likelihood, noise, *, max_order: int = MAX_AR_
     # the test and the AR model are the sampler's own (pmabayes.inference.likelihood), so that the
     # verdict and the intervals judge with the same noise model
     lb_p, energy, _ = ar1_whiteness_of_repeats(likelihood, noise.sigma, noise.rho, noise.white)
+    if likelihood.observed is not None:
+        # samples not observed: the repeats' AR(p) is for complete series, and the
+        # likelihood keeps AR(1) + white (choose_noise_model); so does the verdict
+        return NoiseModelCheck(ljung_box_p=lb_p, energy=energy, adequate=bool(lb_p >= level),
+                               ar_order=1, ar_ljung_box_p=math.nan,
+                               coefficients=np.zeros((1, 1)), variances=np.ones(1),
+                               n_trials=r, reference_acf=np.zeros(LJUNG_BOX_LAGS),
+                               reference_energy=1.0, reference_samples=int(contrasts.size),
+                               level=level)
     ar = ar_noise_from_repeats(contrasts, max_order=max_order)
     check = NoiseModelCheck(ljung_box_p=lb_p, energy=energy, adequate=bool(lb_p >= level),
                             ar_order=ar.order, ar_ljung_box_p=math.nan,
@@ -405,9 +448,10 @@ def whiteness_statistics(e: np.ndarray) -> dict:
         chi-squared, one-sided).
     """
     e = np.asarray(e, dtype=float)
-    energy = float(np.mean(e * e))
+    n = _n_observed(e)
+    energy = float(np.mean(e * e) if n == e.size else np.mean(e[np.isfinite(e)] ** 2))
     return {"ljung_box_p": ljung_box(e)[1], "energy": energy,
-            "energy_p": float(stats.chi2.sf(energy * e.size, e.size))}
+            "energy_p": float(stats.chi2.sf(energy * n, n))}
 
 
 @dataclass(frozen=True)

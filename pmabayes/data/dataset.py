@@ -53,7 +53,8 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
                  "time_origin_s", "position_reference", "steady_state_tol_m",
-                 "max_warmup_periods", "warmup_s")
+                 "max_warmup_periods", "warmup_s", "position_sign", "position_zero_s",
+                 "position_zero")
 
 
 class DataError(ValueError):
@@ -200,6 +201,15 @@ def _json_roundtrip_check(metadata: dict, where: str) -> str:
     return text
 
 
+def _check_choice(metadata: dict, key: str, allowed: tuple, where: str, why: str) -> str:
+    """A metadata value that must be one of ``allowed`` (the first is the default)."""
+    value = metadata.get(key, allowed[0])
+    if value not in allowed:
+        raise DataError(f"{where}: metadata {key!r} is {value!r}; it must be one of "
+                        f"{', '.join(map(repr, allowed))} ({why}).")
+    return value
+
+
 def _check_declarations(metadata: dict, where: str) -> None:
     """Metadata keys that look misspelt, and declarations pmabayes cannot honour."""
     for key in metadata:
@@ -211,12 +221,9 @@ def _check_declarations(metadata: dict, where: str) -> None:
                 f"{where}: metadata key {key!r} looks like a misspelling of {close[0]!r}, "
                 f"which pmabayes reads; rename it to {close[0]!r} (keys not close to one "
                 "pmabayes reads are kept as free-form metadata).")
-    between = metadata.get("input_between_samples", "hold")
-    if between not in BETWEEN_SAMPLES:
-        raise DataError(
-            f"{where}: metadata 'input_between_samples' is {between!r}; it must be one of "
-            f"{', '.join(map(repr, BETWEEN_SAMPLES))} ('hold' for a commanded input held by "
-            "the DAQ, 'linear' or 'bandlimited' for samples of a continuous signal).")
+    _check_choice(metadata, "input_between_samples", BETWEEN_SAMPLES, where,
+                  "'hold' for a commanded input held by the DAQ, 'linear' or 'bandlimited' "
+                  "for samples of a continuous signal")
     period = metadata.get("period_samples")
     if period is not None and (isinstance(period, bool) or not isinstance(period, int)
                                or period < 2):
@@ -229,14 +236,12 @@ def _check_declarations(metadata: dict, where: str) -> None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is {steady!r}; it must be true or "
             "false (JSON booleans, not strings).")
-    initial = metadata.get("initial_state", "rest")
-    if initial not in INITIAL_STATES:
-        raise DataError(
-            f"{where}: metadata 'initial_state' is {initial!r}; it must be one of "
-            f"{', '.join(map(repr, INITIAL_STATES))} ('rest' for a trial that starts at rest "
-            "under its first input sample, 'zero' for one that starts at zero position, "
-            "velocity and hysteresis with the input switched on at the first sample, "
-            "'estimate' for one whose starting state is unknown, e.g. mid-loop).")
+    initial = _check_choice(
+        metadata, "initial_state", INITIAL_STATES, where,
+        "'rest' for a trial that starts at rest under its first input sample, 'zero' for "
+        "one that starts at zero position, velocity and hysteresis with the input switched "
+        "on at the first sample, 'estimate' for one whose starting state is unknown, e.g. "
+        "mid-loop")
     if initial == "estimate" and steady:
         raise DataError(
             f"{where}: metadata 'initial_state' is 'estimate' but 'starts_in_steady_state' is "
@@ -254,6 +259,17 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
             "declared; a steady state needs a periodic input: declare 'period_samples' (the "
             "samples in one period), or set 'starts_in_steady_state' to false.")
+    if "position_zero_s" in metadata and "position_zero" in metadata:
+        raise DataError(
+            f"{where}: metadata 'position_zero' says the positions were referred to their "
+            "reading at rest when the file was read, and 'position_zero_s' asks for it again; "
+            "remove 'position_zero_s'.")
+    if metadata.get("position_sign", 1) != 1:
+        raise DataError(
+            f"{where}: metadata 'position_sign' is {metadata['position_sign']!r}; it is applied "
+            "when a file is read (pmabayes.data.load negates the positions of a file whose "
+            "sidecar gives -1). A data set made in Python holds positions as pmabayes' x runs "
+            "(growing as the pressure pushes): negate them yourself and leave the key out.")
     _max_gap_s(metadata, where)
 
 
@@ -687,6 +703,17 @@ class Dataset:
     def n_missing(self) -> int:
         """Samples not observed, over all trials (0 for a complete record)."""
         return int(self.observed.size - np.count_nonzero(self.observed))
+
+    @property
+    def counted(self) -> np.ndarray:
+        """The samples a likelihood and its criticism take, ``(n_trials, n_samples)``.
+
+        :attr:`observed`, less the declared warm-up (:attr:`warmup_s`): those samples
+        still drive the simulation but are not data for the model.
+        """
+        if not self.warmup_s:
+            return np.array(self.observed)
+        return self.observed & (self.time_s - self.time_s[0] >= self.warmup_s)[None, :]
 
     @property
     def mean_position_m(self) -> np.ndarray:

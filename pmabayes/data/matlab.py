@@ -94,7 +94,15 @@ from pmabayes.data.record import (
     _uniform,
 )
 from pmabayes.data.sidecar import _read_sidecar, _sidecar_path
-from pmabayes.data.units import UNITS, converted, quantity, role_problems, to_si, unknown_unit
+from pmabayes.data.units import (
+    UNITS,
+    converted,
+    quantity,
+    role_problems,
+    signed,
+    to_si,
+    unknown_unit,
+)
 
 __all__ = ["MAT_ROLES", "MAT_TRIALS", "read_mat", "read_mat_segments"]
 
@@ -705,7 +713,8 @@ def _mat_datasets(path: str | os.PathLike[str], given: dict[str, Any], mat_trial
     _check_finite(u, u_labels, input_name, where_v)
     _check_finite(x, x_labels, "position_m", where_v)
 
-    u, x = to_si(u, names_as[input_name]), to_si(x, names_as["position_m"])
+    u = to_si(u, names_as[input_name])
+    x = signed(to_si(x, names_as["position_m"]), metadata, declare)
     metadata = converted({r: names_as[r] for r in (input_name, "position_m", *(
         ["time_s"] if time is not None else []))}, where_v, metadata, declare)
     n_samples = x.shape[1]

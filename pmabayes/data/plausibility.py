@@ -23,6 +23,7 @@ import numpy as np
 
 from pmabayes.data.dataset import DataError, Dataset, DataWarning, _first_in_file_order, _fmt
 from pmabayes.data.units import UNITS
+from pmabayes.data.zero import zeroed_at_start
 
 _VACUUM_PA = -101325.0  # lowest possible gauge pressure (absolute vacuum at 1 atm)
 _ATM_PA = 101325.0  # standard atmosphere: the default ambient of "pressure_reference"
@@ -261,9 +262,9 @@ def _checked(
                 and "sample_rate_hz" not in ds.metadata):
             _check_clock_unit(ds, where, declare, columns["time_s"])
     if ds.input_name != "pressure_pa":
-        return ds
+        return zeroed_at_start(ds, declare)
     if reference == "absolute":
-        return _absolute_to_gauge(ds, declare)
+        return zeroed_at_start(_absolute_to_gauge(ds, declare), declare)
     if check and reference is None:
         _check_gauge(ds, where, locate, declare)
-    return ds
+    return zeroed_at_start(ds, declare)

@@ -40,7 +40,7 @@ from pmabayes.data.dataset import (
 )
 from pmabayes.data.plausibility import _checked
 from pmabayes.data.text import _Table
-from pmabayes.data.units import _HERE, converted
+from pmabayes.data.units import _HERE, converted, signed
 
 #: how long a record must run without a gap for its initial state to be estimated
 _ESTIMATE_S = 1.0
@@ -212,7 +212,7 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
         time = time / rate
     columns = table.columns if "time_s" in v else {
         k: c for k, c in table.columns.items() if k != "time_s"}
-    u, x = v[table.input_name], v["position_m"]
+    u, x = v[table.input_name], signed(v["position_m"], metadata, declare)
     if _uniform(trial, time):
         run_ids, times, dt_s = _shared_grid(trial, time, where, first)
         n_trials, n_samples = times.shape

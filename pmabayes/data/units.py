@@ -94,7 +94,9 @@ def _said(record: dict[str, dict]) -> str:
     """The conversions of a record, for a message: ``pressure_psi (psi) x 6894.757 -> ...``."""
     return "; ".join(
         f"{r['from']} ({_SYMBOL[r['from'].split('_', 1)[1]]}) x {_fmt(r['factor'])} -> {si} "
-        f"({_SYMBOL[si.split('_', 1)[1]]})" for si, r in record.items())
+        f"({_SYMBOL[si.split('_', 1)[1]]})"
+        + (" (negated: the sidecar's position_sign is -1)" if r["factor"] < 0 else "")
+        for si, r in record.items())
 
 
 def _record(names: dict[str, str]) -> dict[str, dict]:
@@ -103,14 +105,44 @@ def _record(names: dict[str, str]) -> dict[str, dict]:
             if col != si}
 
 
+#: The sidecar key that says which way the file's positions run: 1 (the default: as
+#: pmabayes' ``x``, which grows as the pressure pushes) or -1 (the other way, e.g. a
+#: sensor whose negative is the muscle's contraction).
+POSITION_SIGN_KEY = "position_sign"
+
+
+def position_sign(metadata: dict, declare: str) -> int:
+    """The sidecar's ``"position_sign"`` (1 when not given), checked."""
+    sign = metadata.get(POSITION_SIGN_KEY, 1)
+    if isinstance(sign, bool) or sign not in (1, -1):
+        raise DataError(
+            f"{declare}: 'position_sign' is {sign!r}; it must be 1 (the file's positions run "
+            "as pmabayes' x, which grows as the pressure or force pushes) or -1 (they run the "
+            "other way: pmabayes negates them on reading).")
+    return int(sign)
+
+
+def signed(x: np.ndarray, metadata: dict, declare: str) -> np.ndarray:
+    """Positions in SI as pmabayes' ``x`` runs: negated where the sidecar's
+    ``"position_sign"`` is -1 (:func:`converted` says so and records it)."""
+    return -x if position_sign(metadata, declare) < 0 else x
+
+
 def converted(names: dict[str, str], where: str, metadata: dict, declare: str) -> dict:
     """Warn once for a file's unit conversions; the metadata with their record added.
 
     ``names`` maps each SI name to the column it was read from. The record, under
     ``"converted_units"`` (only when something was converted), maps the SI name to
-    ``{"from": column, "factor": f}``.
+    ``{"from": column, "factor": f}``. A sidecar's ``"position_sign": -1`` (positions
+    negated on reading, :func:`signed`) is a factor of -1 in the position's record, and
+    the key leaves the metadata: the data set holds positions as pmabayes' ``x`` runs,
+    so that a data set written back reads back the same.
     """
     record = _record(names)
+    if position_sign(metadata, declare) < 0 and "position_m" in names:
+        col = names["position_m"]
+        record["position_m"] = {"from": col, "factor": -UNITS[col][1]}
+        metadata = {k: v for k, v in metadata.items() if k != POSITION_SIGN_KEY}
     if not record:
         return metadata
     if "converted_units" in metadata:

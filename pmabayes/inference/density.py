@@ -175,7 +175,8 @@ class Posterior:
     def _layout(self, liks: list[Likelihood], names: list[str]) -> None:
         """The full parameter array: the first experiment's model's, then a column for
         each parameter of another experiment's model that it does not share (its own
-        offset, its own rig value); each other experiment's :attr:`Likelihood.columns`."""
+        offset, its own rig value); each other experiment's ``columns``
+        (:class:`~pmabayes.inference.likelihood.Likelihood`)."""
         first = liks[0].model
         template = list(first.theta(first.defaults)[0])
         slot = {self.identified[0].get(n, ("fixed", n, first.defaults[n])): j
@@ -275,6 +276,34 @@ class Posterior:
         cols = self.start_columns.get(experiment)
         return None if cols is None else np.atleast_2d(theta)[:, cols]
 
+    def experiment_point(self, experiment: int, values: dict
+                         ) -> tuple[dict, np.ndarray | None]:
+        """An experiment's model parameters and estimated start at a point given by name.
+
+        Parameters
+        ----------
+        experiment : int
+            Its index.
+        values : dict
+            Values of the identified parameters by their names (:attr:`names`; a MAP's
+            ``values``).
+
+        Returns
+        -------
+        own : dict
+            The experiment's model's free parameters under the model's names (its own
+            offset, its rig value's, as :attr:`identified` maps them).
+        start : numpy.ndarray or None
+            Its estimated start ``(3,)``, None where the start is declared.
+        """
+        ident = self.identified[experiment]
+        own = {n: float(values[ident[n]])
+               for n in self.likelihoods[experiment].model.free_names}
+        cols = self.start_columns.get(experiment)
+        start = None if cols is None else np.array([float(values[self.names[c]])
+                                                    for c in cols])
+        return own, start
+
     def simulate(self, theta: np.ndarray, experiment: int) -> np.ndarray:
         """One experiment's model output ``(batch, n_outputs)`` for identified values
         ``(batch, ndim)`` (the model's parameters and the experiment's start)."""
@@ -327,7 +356,7 @@ class Posterior:
         The model's, for one experiment or experiments that share every parameter;
         otherwise the first experiment's model's followed by the columns of the
         others' own parameters, of which each :class:`Likelihood` takes its own
-        (:attr:`Likelihood.columns`).
+        (``columns`` (:class:`~pmabayes.inference.likelihood.Likelihood`)).
         """
         theta = np.atleast_2d(theta)
         full = np.repeat(self._template[None, :], theta.shape[0], axis=0)

@@ -719,7 +719,10 @@ def check_dataset(tree: xr.DataTree, dataset: Dataset) -> None:
             f"{where}: position_m has shape {dataset.position_m.shape} (trials, samples), "
             f"the fit's has {obs.shape}"
         )
-    diff = float(np.max(np.abs(np.asarray(obs.values, dtype=float) - dataset.position_m)))
+    a, b = np.asarray(obs.values, dtype=float), dataset.position_m
+    if not np.array_equal(np.isnan(a), np.isnan(b)):  # samples not observed are NaN in both
+        raise DataError(f"{where}: the samples observed differ")
+    diff = float(np.max(np.abs(a - b), initial=0.0, where=~np.isnan(b)))
     if not diff <= 1e-12:
         raise DataError(f"{where}: position_m differs by up to {diff:.3g} m (tolerance 1e-12 m)")
     t = np.asarray(obs["time"].values, dtype=float)

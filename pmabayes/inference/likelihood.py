@@ -537,8 +537,7 @@ class Likelihood:
                 f"({model.rig.name}) expects {model.rig.input_name!r}; use a matching rig"
             )
         self.own_inputs = not bool(np.all(dataset.input == dataset.input[0]))
-        observed = dataset.observed & (dataset.time_s - dataset.time_s[0]
-                                       >= dataset.warmup_s)[None, :]
+        observed = dataset.counted
         empty = ~observed.any(axis=1)
         if empty.any():
             raise LikelihoodError(
@@ -1221,12 +1220,16 @@ def ljung_box_statistic(e: np.ndarray, *, max_lag: int = LJUNG_BOX_LAGS) -> floa
     """The Ljung-Box statistic ``n (n + 2) sum_k acf_k^2 / (n - k)``, ``k = 1..max_lag``.
 
     Chi-squared with ``max_lag`` degrees of freedom for a white series
-    (:func:`pmabayes.criticism.whiteness.ljung_box` adds its p-value).
+    (:func:`pmabayes.criticism.whiteness.ljung_box` adds its p-value). A series with
+    samples not observed (NaN: the innovations of a filter that predicts across gaps)
+    takes its ``n`` observed samples and, at each lag, the ``n_k`` pairs both observed:
+    ``(n + 2) / n sum_k n_k r_k^2`` with ``r_k`` the mean product over those pairs, the
+    same statistic when nothing is missing (``n_k = n - k``).
 
     Parameters
     ----------
     e : numpy.ndarray
-        The series.
+        The series (NaN where not observed).
     max_lag : int
         Number of lags.
 
@@ -1235,11 +1238,28 @@ def ljung_box_statistic(e: np.ndarray, *, max_lag: int = LJUNG_BOX_LAGS) -> floa
     float
     """
     e = np.asarray(e, float)
+    seen = np.isfinite(e)
+    if not seen.all():
+        return _ljung_box_observed(e, seen, max_lag)
     n = e.size
     a = (e - e.mean()) / e.std()
     lags = np.arange(1, max_lag + 1)
     acf = np.array([np.dot(a[k:n], a[0:n - k]) / n for k in lags])
     return float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
+
+
+def _ljung_box_observed(e: np.ndarray, seen: np.ndarray, max_lag: int) -> float:
+    """:func:`ljung_box_statistic` over the samples observed and the pairs both observed."""
+    n = int(seen.sum())
+    v = e[seen]
+    a = np.where(seen, (e - v.mean()) / v.std(), 0.0)
+    q = 0.0
+    for k in range(1, max_lag + 1):
+        pairs = int(np.count_nonzero(seen[k:] & seen[:-k]))
+        if pairs:
+            r = float(np.dot(a[k:], a[:-k])) / pairs
+            q += pairs * r * r
+    return float((n + 2.0) / n * q)
 
 
 def levinson(acov: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ from pmabayes.inference.likelihood import (
 from pmabayes.inference.noise import group_noise
 from pmabayes.inference.trials import check_trials
 from pmabayes.model.model import Model, ModelError, force_rig_priors
-from pmabayes.model.simulator import SimulationError, simulate_dataset
+from pmabayes.model.simulator import SimulationError
 
 __all__ = ["experiments", "build_posterior", "choose_substeps", "data_scaled_priors",
            "prior_median", "noise_groups", "SUBSTEP_CHOICES", "SUBSTEP_TOLERANCE"]
@@ -117,12 +117,18 @@ def choose_substeps(models: Sequence[Model], datasets: Sequence[Dataset]) -> dic
         ``chosen`` (int), ``requested`` (``"auto"``), ``tolerance_m`` per experiment
         and ``changes_m``: the largest RMS change on doubling, by substeps tried.
     """
-    tolerance = [SUBSTEP_TOLERANCE * float(np.std(ds.mean_position_m)) for ds in datasets]
-    runs = [(m, m.theta(prior_median(m)), ds) for m, ds in zip(models, datasets, strict=True)]
+    tolerance = [SUBSTEP_TOLERANCE * float(np.nanstd(ds.mean_position_m)) for ds in datasets]
+    # as the likelihood simulates: each trial on its own input, from an estimated start
+    runs = [(Likelihood(m, ds), m.theta(prior_median(m)))
+            for m, ds in zip(models, datasets, strict=True)]
 
     def outputs(k: int) -> list[np.ndarray]:
-        with np.errstate(all="ignore"):
-            return [simulate_dataset(m, th, ds, substeps=k)[0] for m, th, ds in runs]
+        out = []
+        for lik, th in runs:
+            lik.substeps = k
+            with np.errstate(all="ignore"):
+                out.append(lik.simulate(th)[0])
+        return out
 
     changes: dict[str, float] = {}
     chosen = SUBSTEP_CHOICES[-1]

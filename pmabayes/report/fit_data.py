@@ -9,6 +9,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import xarray as xr
 
+from pmabayes.criticism.observed import mean_of_observed, share_inside, trial_weights
 from pmabayes.data import DataError, Dataset
 from pmabayes.inference.fitfile import (
     FitFileError,
@@ -152,8 +153,17 @@ def predictive(tree: xr.DataTree, ci_prob: float, experiment: str | None = None
     obs = tree["observed_data"][f"position_m{tag}"].transpose(trial, time_)
     pp = tree["posterior_predictive"]
     q = (1.0 - ci_prob) / 2.0
-    band = _quantiles_over_samples(pp[f"position_m{tag}"], [q, 1.0 - q], time_dim=time_)
-    median = _quantiles_over_samples(pp[f"model_position_m{tag}"], [0.5], time_dim=time_)[0]
+    model = pp[f"model_position_m{tag}"]
+    if trial in model.dims:  # trials with their own inputs: each its own band and model
+        band = np.stack([_quantiles_over_samples(pp[f"position_m{tag}"].isel({trial: r}),
+                                                 [q, 1.0 - q], time_dim=time_)
+                         for r in range(model.sizes[trial])], axis=1)
+        median = np.stack([_quantiles_over_samples(model.isel({trial: r}), [0.5],
+                                                   time_dim=time_)[0]
+                           for r in range(model.sizes[trial])])
+    else:
+        band = _quantiles_over_samples(pp[f"position_m{tag}"], [q, 1.0 - q], time_dim=time_)
+        median = _quantiles_over_samples(model, [0.5], time_dim=time_)[0]
     data = np.asarray(obs.values, dtype=float)
     return {
         "time": np.asarray(obs[time_].values, dtype=float),
@@ -162,8 +172,35 @@ def predictive(tree: xr.DataTree, ci_prob: float, experiment: str | None = None
         "median": median,
         "low": band[0],
         "high": band[1],
-        "coverage": float(np.mean((data >= band[0]) & (data <= band[1]))),
+        "coverage": share_inside(data, band[0], band[1]),
     }
+
+
+def trial_mean_residual(pred: Mapping[str, np.ndarray]) -> tuple[np.ndarray, float]:
+    """The trial mean minus the median model's and its RMS, over the samples observed.
+
+    Parameters
+    ----------
+    pred : mapping
+        :func:`predictive`'s ``data`` and ``median`` (one row per trial where the trials
+        have their own inputs).
+
+    Returns
+    -------
+    residual_m : numpy.ndarray
+        ``(n_samples,)``, NaN where no trial is observed.
+    rms_m : float
+    """
+    data, med = pred["data"], pred["median"]
+    seen = np.isfinite(data)
+    if seen.all():
+        residual = data.mean(axis=0) - (med.mean(axis=0) if med.ndim == 2 else med)
+        return residual, float(np.sqrt(np.mean(residual**2)))
+    w = trial_weights(seen)
+    model = med if med.ndim == 1 else med.mean(axis=0) if w is None else np.sum(med * w, axis=0)
+    residual = mean_of_observed(data) - model
+    observed = seen.any(axis=0)
+    return residual, float(np.sqrt(np.mean(residual[observed] ** 2)))
 
 
 def check_experiment_data(tree: xr.DataTree, datasets) -> list[Dataset]:
@@ -197,17 +234,19 @@ def dataset_from_fit(tree: xr.DataTree, info: dict) -> Dataset:
     # without the stored input, zeros: the whitened residual does not depend on it
     u = (np.asarray(const[name].values, dtype=float)
          if const is not None and name in const.data_vars else np.zeros(obs.sizes["time"]))
+    position = np.asarray(obs.values, dtype=float)
+    seen = np.isfinite(position)  # samples not observed are NaN in the fit's data
     return Dataset(time_s=np.asarray(obs["time"].values, dtype=float),
-                   input=np.tile(u, (obs.sizes["trial"], 1)),
-                   position_m=np.asarray(obs.values, dtype=float),
-                   trial_ids=np.asarray(obs["trial"].values), input_name=name,
-                   metadata={"synthetic": bool(d.get("synthetic", False))},
-                   source=d.get("source"))
+                   input=u if u.ndim == 2 else np.tile(u, (obs.sizes["trial"], 1)),
+                   position_m=position, trial_ids=np.asarray(obs["trial"].values),
+                   input_name=name, metadata={"synthetic": bool(d.get("synthetic", False))},
+                   source=d.get("source"), observed=None if seen.all() else seen)
 
 
 def noise_floor(info: dict, dataset: Dataset | None) -> float | None:
     """The trial-mean noise floor: from the data when given, else from the fit."""
-    if dataset is not None and dataset.n_trials > 1:
-        return dataset.noise_floor_m
+    own = dataset is not None and not bool(np.all(dataset.input == dataset.input[0]))
+    if dataset is not None and dataset.n_trials > 1 and not own:
+        return dataset.noise_floor_m  # trials with their own inputs: the fit's, referred
     floor = (info.get("data") or {}).get("noise_floor_m")
     return float(floor) if floor is not None else None

@@ -31,6 +31,7 @@ from pmabayes.report.fit_data import (
     opt_float,
     predictive,
     source_name,
+    trial_mean_residual,
     units_of,
 )
 from pmabayes.report.markup import (
@@ -126,9 +127,9 @@ def write_report(
     pred = predictive(tree, ci_prob)
     adequacy = judge_fit(tree, info, dataset, pred, ci_prob)
     write_summary(rows, out_dir, adequacy=adequacy)
-    residual_m = pred["data"].mean(axis=0) - pred["median"]
+    residual_m, rms_m = trial_mean_residual(pred)
     quality = {"floor_m": noise_floor(info, dataset), "coverage": pred["coverage"],
-               "rms_median_m": float(np.sqrt(np.mean(residual_m**2)))}
+               "rms_median_m": rms_m}
     captions = _report_figures(tree, rows, pred, residual_m, quality, out_dir, ci_prob)
     body = [
         _meta_block(info, source_name(info, dataset)),
@@ -180,8 +181,7 @@ def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
     sections = []
     for exp, (name, adequacy) in zip(info["experiments"], verdicts, strict=True):
         pred = predictive(tree, ci_prob, name)
-        residual = pred["data"].mean(axis=0) - pred["median"]
-        rms = float(np.sqrt(np.mean(residual**2)))
+        residual, rms = trial_mean_residual(pred)
         floor = exp.get("noise_floor_m")
         plots.plot_predictive(pred, out_dir / f"ppc_{name}.png", ci_prob=ci_prob)
         bar.advance()

@@ -60,6 +60,7 @@ def estimate_discrepancy(
     verify: bool = True,
     command: str | None = None,
     effects=(),
+    start=None,
 ) -> Discrepancy:
     """Estimate the missing force from the data and propose a closed form for it.
 
@@ -86,13 +87,15 @@ def estimate_discrepancy(
         The data's path for the suggested command line.
     effects : iterable of str
         The diagnosed model's effects, for the suggested command line.
+    start : numpy.ndarray, optional
+        The experiment's estimated start ``(3,)`` at the MAP (None for a declared one).
 
     Returns
     -------
     Discrepancy
     """
-    problem = LinearProblem(likelihood, noise, values, simulation)
-    n = problem.n
+    problem = LinearProblem(likelihood, noise, values, simulation, start)
+    n = problem.n_counted
     e0 = float(problem.r_w @ problem.r_w)
     # the memory state's time constant, by the evidence
     fits = {}
@@ -130,7 +133,8 @@ def estimate_discrepancy(
         else:
             proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
                                 plugin_dir, verify, command)
-    after = _level(ratio_after, float(np.sqrt(np.mean((problem.resid - corr) ** 2))),
+    left = (problem.resid - corr)[problem.seen]
+    after = _level(ratio_after, float(np.sqrt(np.mean(left ** 2))),
                    energy_after)
     other = None if near and explained >= 0.5 else _other_cause(
         likelihood, noise, simulation, explained, after)

@@ -192,7 +192,7 @@ def _parameters(chosen: list) -> str:
                               1.25 * period, period, "period in position of the force"))
     brk = next((t.breakpoint_m for t, _ in chosen if t.breakpoint_m is not None), None)
     if brk is not None:
-        out.append(_parameter("x_break", "m", brk, 0.01, brk - 0.05, brk + 0.05, brk,
+        out.append(_parameter("x_break", "m", brk, 0.01, brk - 0.1, brk + 0.1, brk,
                               "position below which the spring acts"))
     return "".join(out)
 

@@ -12,6 +12,7 @@ from scipy.interpolate import BSpline
 
 from pmabayes.criticism.discrepancy.linalg import at_b
 from pmabayes.criticism.discrepancy.response import force_response, linearised_plant
+from pmabayes.criticism.observed import counted_samples, model_mean, residual
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.simulator import Simulation
 
@@ -85,10 +86,20 @@ def _second_difference(k: int) -> np.ndarray:
 
 
 class LinearProblem:
-    """The whitened linear problem around the MAP: residual, sensitivities, force blocks."""
+    """The whitened linear problem around the MAP: residual, sensitivities, force blocks.
 
-    def __init__(self, likelihood: Likelihood, noise, values: dict, sim: Simulation) -> None:
+    Samples where no trial is counted (gaps, a warm-up) have no innovation: their
+    whitened rows are zero, so they add nothing to the sums, and :attr:`n_counted` counts
+    the others. The model is simulated from the experiment's estimated ``start`` where it
+    has one, and trials on their own inputs enter through the model's trial mean.
+    """
+
+    def __init__(self, likelihood: Likelihood, noise, values: dict, sim: Simulation,
+                 start: np.ndarray | None = None) -> None:
         self.lik = likelihood
+        self.start = start
+        self.seen = counted_samples(likelihood)
+        self.n_counted = int(np.count_nonzero(self.seen))
         self._gram: dict = {}
         self._folds: list | None = None
         self._targets = None
@@ -101,7 +112,7 @@ class LinearProblem:
         self.n = self.x0.size
         self.r_trials = likelihood.n_trials
         self.plant = linearised_plant(self.model, values, sim, self.dataset.dt_s)
-        self.resid = likelihood.y_mean - self.x0
+        self.resid = residual(likelihood, self.x0)
         self.r_w = self.whiten(self.resid)
         self.r_w_col = self.r_w[:, None]  # kept: products with it are cached by its id
         self.j_raw, self.j_names = self._sensitivities()
@@ -150,7 +161,17 @@ class LinearProblem:
 
     def whiten(self, v: np.ndarray) -> np.ndarray:
         nz = self.noise
-        return self.lik.whiten(v, nz.sigma, nz.rho, nz.white)
+        w = self.lik.whiten(v, nz.sigma, nz.rho, nz.white)
+        return w if self.seen.all() else np.where(self.seen, w, 0.0)
+
+    def simulate(self, rows: np.ndarray, likelihood: Likelihood | None = None) -> np.ndarray:
+        """The model's trial mean ``(batch, n)`` for parameter rows, from the experiment's
+        start (of ``likelihood``'s model, the problem's by default)."""
+        lik = likelihood or self.lik
+        rows = np.atleast_2d(rows)
+        start = (None if self.start is None
+                 else np.broadcast_to(np.asarray(self.start, float), (rows.shape[0], 3)))
+        return model_mean(lik, lik.simulate(rows, start))
 
     def whiten_cols(self, cols: np.ndarray) -> np.ndarray:
         return np.stack([self.whiten(c) for c in cols.T], axis=1) if cols.shape[1] else cols
@@ -169,7 +190,7 @@ class LinearProblem:
             up[j] += h
             rows.append(up)
             steps.append(h)
-        x = self.lik.simulate(np.array(rows))
+        x = self.simulate(np.array(rows))
         cols = np.stack([(x[k + 1] - x[0]) / steps[k] for k in range(len(names))], axis=1)
         return cols, names
 

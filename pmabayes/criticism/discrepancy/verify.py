@@ -10,11 +10,11 @@ import numpy as np
 
 from pmabayes.criticism.discrepancy.linalg import at_b, spd_solve
 from pmabayes.criticism.discrepancy.problem import LinearProblem
+from pmabayes.criticism.observed import simulate_states
 from pmabayes.criticism.signature import residual_signature
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.effects import load_plugin
 from pmabayes.model.model import Model
-from pmabayes.model.simulator import simulate_dataset
 
 
 def verify_proposal(problem: LinearProblem, path: Path, chosen: list, n_iter: int = 12) -> dict:
@@ -46,27 +46,26 @@ def verify_proposal(problem: LinearProblem, path: Path, chosen: list, n_iter: in
     start = {k: v for k, v in problem.values.items() if k in model.parameter_names}
     # the coefficients; a period parameter after them starts at its default
     start.update({p.name: c for p, (_, c) in zip(eff.parameters, chosen, strict=False)})
-    values = _gauss_newton(lik, problem.noise, model, start, n_iter)
-    sim = simulate_dataset(model, values, problem.dataset, substeps=lik.substeps, states=True)
-    sig = residual_signature(lik, problem.noise, sim)
+    values = _gauss_newton(problem, lik, model, start, n_iter)
+    sim, trials = simulate_states(lik, model, values, problem.start, lik.substeps)
+    sig = residual_signature(lik, problem.noise, sim, model_trials_m=trials)
     return {"rms_m": sig.bands[-1].rms_m, "ratio": sig.ratio, "energy": sig.energy,
             "ljung_box_p": sig.ljung_box_p, "adequate": bool(sig.is_adequate()),
             "values": {p.name: values[p.name] for p in eff.parameters}}
 
 
-def _gauss_newton(lik: Likelihood, noise, model: Model, start: dict, n_iter: int) -> dict:
+def _gauss_newton(problem: LinearProblem, lik: Likelihood, model: Model, start: dict,
+                  n_iter: int) -> dict:
     """Levenberg-Marquardt on the whitened residual of the trial mean, within the bounds."""
     names = list(model.free_names)
     theta = model.theta(start)[0]
     idx = [model.index(n) for n in names]
     lo = np.array([model.parameter(n).bounds[0] for n in names])
     hi = np.array([model.parameter(n).bounds[1] for n in names])
-
-    def whiten(v):
-        return lik.whiten(v, noise.sigma, noise.rho, noise.white)
+    whiten = problem.whiten
 
     def cost(th):
-        x = lik.simulate(th[None])[0]
+        x = problem.simulate(th[None], lik)[0]
         r = whiten(lik.y_mean - x)
         return float(r @ r), r, x
 
@@ -80,7 +79,7 @@ def _gauss_newton(lik: Likelihood, noise, model: Model, start: dict, n_iter: int
         rows = np.repeat(theta[None], len(idx) + 1, axis=0)
         for k, j in enumerate(idx):
             rows[k + 1, j] += h[k]
-        xs = lik.simulate(rows)
+        xs = problem.simulate(rows, lik)
         jw = np.stack([whiten((xs[k + 1] - xs[0]) / h[k]) for k in range(len(idx))], axis=1)
         norms = np.linalg.norm(jw, axis=0)
         norms = np.where(norms > 0, norms, 1.0)

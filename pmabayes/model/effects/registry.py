@@ -49,13 +49,14 @@ def register_effect(effect: type[Effect], *, replace: bool = False) -> type[Effe
     # the same definition imported again (a reloaded plugin, a re-run notebook cell)
     redefined = old is not None and (old.__module__, old.__qualname__) == (
         effect.__module__, effect.__qualname__)
+    if _UNREGISTERED[0]:  # only tried (a proposal checked), so no name is taken
+        return effect
     if old is not None and old is not effect and not (replace or redefined):
         raise EffectError(
             f"an effect named {effect.name!r} is already registered ({old.__module__}."
             f"{old.__qualname__}); choose another name or pass replace=True"
         )
-    if not _UNREGISTERED[0]:
-        _REGISTRY[effect.name] = effect
+    _REGISTRY[effect.name] = effect
     return effect
 
 

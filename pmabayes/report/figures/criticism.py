@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from pmabayes.criticism.observed import mean_of_observed
 from pmabayes.data import Dataset
-from pmabayes.report.figures.common import REPORT_DPI, colormap, finish, zoom_slice
+from pmabayes.report.figures.common import REPORT_DPI, colormap, finish, shade_gaps, zoom_slice
 
 __all__ = [
     "plot_comparison",
@@ -52,6 +53,7 @@ def plot_comparison(
     mean = dataset.mean_position_m
     resid = mean - model_position_m
     floor = dataset.noise_floor_m
+    seen = dataset.counted.any(axis=0)
     fig = Figure(figsize=(11, 7.5), layout="constrained")
     grid = fig.add_gridspec(3, 3)
     ax_p = fig.add_subplot(grid[0, :2])
@@ -68,13 +70,15 @@ def plot_comparison(
     ax_x.plot(t, mean * 1e3, color="tab:blue", lw=1.0, label=f"trial mean (n={dataset.n_trials})")
     ax_x.plot(t, model_position_m * 1e3, color="tab:red", lw=0.9, ls="--", label=label)
     ax_x.set_ylabel("position x [mm]")
+    shade_gaps(ax_x, t, seen)
     ax_x.legend(loc="upper left", fontsize=8)
+    shade_gaps(ax_r, t, seen, label=False)
     ax_r.plot(t, resid * 1e6, color="k", lw=0.6)
     if np.isfinite(floor):
         ax_r.axhspan(-floor * 1e6, floor * 1e6, color="tab:green", alpha=0.25,
                      label=f"noise floor ±{floor * 1e6:.1f} µm")
         ax_r.legend(loc="upper left", fontsize=8)
-    rms = float(np.sqrt(np.mean(resid**2)))
+    rms = float(np.sqrt(np.mean(resid**2) if seen.all() else np.mean(resid[seen] ** 2)))
     ax_r.set_title(f"trial mean − {label}: RMS {rms * 1e6:.1f} µm", fontsize=9)
     ax_r.set_ylabel("residual [µm]")
     ax_r.set_xlabel("time [s]")
@@ -181,7 +185,8 @@ def plot_residual_signature(
     -------
     matplotlib.figure.Figure
     """
-    resid = (dataset.mean_position_m - simulation.position_m[0]) * 1e6
+    seen = dataset.counted.any(axis=0)
+    resid = np.where(seen, dataset.mean_position_m - simulation.position_m[0], np.nan) * 1e6
     floor = dataset.noise_floor_m * 1e6
     is_pressure = dataset.input_name == "pressure_pa"
     against = [
@@ -197,6 +202,7 @@ def plot_residual_signature(
     step = max(1, resid.size // 4000)
     for ax, (name, v) in zip(axes, against, strict=True):
         if name.startswith("time"):
+            shade_gaps(ax, v, seen, label=False)
             ax.plot(v, resid, color="k", lw=0.5)
         else:
             ax.scatter(v[::step], resid[::step], s=2, color="k", alpha=0.4, linewidths=0)
@@ -204,7 +210,7 @@ def plot_residual_signature(
         ax.axhline(0.0, color="tab:gray", lw=0.5)
         ax.set_xlabel(name)
     axes[0].set_ylabel("trial mean − model [µm]")
-    rms = float(np.sqrt(np.mean(resid**2)))
+    rms = float(np.sqrt(np.mean(resid**2) if seen.all() else np.mean(resid[seen] ** 2)))
     fig.suptitle(f"where {label} fails: residual (RMS {rms:.3g} µm) against the noise floor "
                  f"±{floor:.3g} µm (green)", fontsize=10)
     return finish(fig, path, 110)
@@ -347,6 +353,10 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
     e = experiment
     t, data, pred = e.time_s, e.position_m, e.prediction_m
     lo, hi = e.low_m, e.high_m
+    own = np.ndim(lo) == 2  # trials with their own inputs: each its own band
+    if own:  # the first trial's band is drawn
+        lo, hi = lo[0], hi[0]
+    seen = np.isfinite(data).any(axis=0)
     z = zoom_slice(t)
     pct = f"{100 * e.ci_prob:.4g}%"
     fig = Figure(figsize=(12, 6), layout="constrained")
@@ -354,9 +364,13 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
     alpha = float(np.clip(2.0 / e.n_trials, 0.15, 0.8))
     wide = (None if e.low_with_discrepancy_m is None
             else (e.low_with_discrepancy_m, e.high_with_discrepancy_m))
+    if wide is not None and own:
+        wide = (wide[0][0], wide[1][0])
     yard = {"linear": "tab:green", "play": "tab:purple"}
     for col, s in enumerate((slice(None), z)):
         top, bottom = axes[0, col], axes[1, col]
+        shade_gaps(top, t[s], seen[s])
+        shade_gaps(bottom, t[s], seen[s], label=False)
         if wide is not None:
             top.fill_between(t[s], wide[0][s] * 1e3, wide[1][s] * 1e3, color="tab:blue",
                              alpha=0.12, lw=0, label=f"{pct} band with the discrepancy")
@@ -380,7 +394,7 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
         for r in range(e.n_trials):
             bottom.plot(t[s], (data[r, s] - pred[s]) * 1e6, color="0.3", lw=0.4, alpha=alpha)
         if e.n_trials > 1:
-            bottom.plot(t[s], (data[:, s].mean(axis=0) - pred[s]) * 1e6, color="k", lw=0.8,
+            bottom.plot(t[s], (mean_of_observed(data[:, s]) - pred[s]) * 1e6, color="k", lw=0.8,
                         label="trial mean − prediction")
         bottom.axhline(0.0, color="tab:red", lw=0.7, ls="--")
         # the scale of the data and the bands: a far-off yardstick runs off the panel
@@ -404,6 +418,8 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
     axes[0, 0].set_title(
         f"{e.name}: RMSE {e.rmse_m * 1e6:.3g} µm ({floor}), NRMSE {e.nrmse:.3g}, "
         f"{100 * e.band_coverage:.1f}% of the samples inside the {pct} band"
-        + ("" if e.coverage is None else f", {100 * e.coverage:.1f}% with the discrepancy"),
+        + ("" if e.coverage is None else f", {100 * e.coverage:.1f}% with the discrepancy")
+        + (" (each trial has its own input and band: trial 1's shown)" if own else ""),
         fontsize=9, loc="left")
     return finish(fig, path, REPORT_DPI)
+

@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 
-from pmabayes.report.figures.common import REPORT_DPI, zoom_slice
+from pmabayes.report.figures.common import REPORT_DPI, shade_gaps, zoom_slice
 
 __all__ = ["plot_trace", "plot_rank", "plot_pair", "plot_predictive", "plot_residual"]
 
@@ -339,11 +339,13 @@ def plot_predictive(pred: Mapping[str, np.ndarray], path: str | Path, *, ci_prob
         row, col = divmod(r, pairs)
         ax = fig.add_subplot(grid[row, 2 * col])
         axz = fig.add_subplot(grid[row, 2 * col + 1])
+        lo_r, hi_r, med_r = (v[r] if v.ndim == 2 else v for v in (lo, hi, med))
         for a, s in ((ax, slice(None)), (axz, z)):
-            a.fill_between(t[s], lo[s] * 1e3, hi[s] * 1e3, color="tab:blue", alpha=0.35,
+            shade_gaps(a, t[s], np.isfinite(data[r, s]))
+            a.fill_between(t[s], lo_r[s] * 1e3, hi_r[s] * 1e3, color="tab:blue", alpha=0.35,
                            lw=0, label=f"{pct} predictive")
             a.plot(t[s], data[r, s] * 1e3, color="k", lw=0.5, label="data")
-            a.plot(t[s], med[s] * 1e3, color="tab:red", lw=0.7, ls="--",
+            a.plot(t[s], med_r[s] * 1e3, color="tab:red", lw=0.7, ls="--",
                    label="median model")
             a.tick_params(labelsize=7)
         ax.set_title(f"trial {pred['trials'][r]}", fontsize=8, loc="left")
@@ -354,11 +356,18 @@ def plot_predictive(pred: Mapping[str, np.ndarray], path: str | Path, *, ci_prob
     axr = fig.add_subplot(grid[nrows, : 2 * pairs - 1])
     axrz = fig.add_subplot(grid[nrows, 2 * pairs - 1])
     alpha = float(np.clip(2.0 / n_trial, 0.15, 0.6))
+    if med.ndim == 2:  # trials with their own inputs: the first trial's band on this scale
+        lo, hi = lo[0] - med[0], hi[0] - med[0]
+        resid = data - med
+        med = np.zeros_like(lo)
+    else:
+        resid = data - med
     for a, s in ((axr, slice(None)), (axrz, z)):
+        shade_gaps(a, t[s], np.isfinite(data[:, s]).any(axis=0))
         a.fill_between(t[s], (lo[s] - med[s]) * 1e6, (hi[s] - med[s]) * 1e6,
                        color="tab:blue", alpha=0.3, lw=0, label=f"{pct} predictive − median")
         for r in range(n_trial):
-            a.plot(t[s], (data[r, s] - med[s]) * 1e6, lw=0.4, alpha=alpha, color="0.2",
+            a.plot(t[s], resid[r, s] * 1e6, lw=0.4, alpha=alpha, color="0.2",
                    label="data − median model" if r == 0 else None)
         for edge in (lo, hi):  # band edges drawn over the data, so the band stays visible
             a.plot(t[s], (edge[s] - med[s]) * 1e6, color="tab:blue", lw=0.8)
@@ -398,6 +407,7 @@ def plot_residual(time_s: np.ndarray, residual_m: np.ndarray, rms_m: float,
     fig = Figure(figsize=(12, 3.4), layout="constrained")
     ax, axz = fig.subplots(1, 2, width_ratios=(3, 1), sharey=True)
     for a, s in ((ax, slice(None)), (axz, z)):
+        shade_gaps(a, t[s], np.isfinite(resid[s]))
         if noise_floor_m is not None and math.isfinite(noise_floor_m):
             a.axhspan(-noise_floor_m * 1e6, noise_floor_m * 1e6, color="tab:green", alpha=0.25,
                       label=f"trial-mean noise floor ±{noise_floor_m * 1e6:.3g} µm")
