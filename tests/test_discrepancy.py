@@ -115,7 +115,13 @@ def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
     path.write_text(plugin_source("proposed_zmem", terms, "z and memory"))
     eff = load_plugin(path, register=False).ProposedEffect
     assert eff.reads_z and eff.state == "v_lp_m_s"
-    q = np.array([0.004, 20.0])
+    # the time constant is a parameter the refit adjusts, its prior within its bounds
+    assert [p.name for p in eff.parameters] == ["c_zabsz", "c_vlp", "tau_memory"]
+    tp = eff.parameters[2]
+    assert tp.unit == "s" and tp.vary and tp.default == 0.4
+    assert tp.bounds[0] > 0.0 and tp.bounds[1] > 0.4
+    tp.check_prior()
+    q = np.array([0.004, 20.0, 0.4])
     z, sv = -30.0, 0.01
     f, fx, fv, fz, fs = eff.physics(q, 0.01, 0.02, 3e5, z, sv)
     assert f == pytest.approx(0.004 * z * abs(z) + 20.0 * sv)
@@ -129,9 +135,49 @@ def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
     assert ds1 == pytest.approx((1 - e) / h)
     two = eff.advance(q, eff.advance(q, sv, 0.0, v * h, h)[0], v * h, 2 * v * h, h)[0]
     assert two == pytest.approx(eff.advance(q, sv, 0.0, 2 * v * h, 2 * h)[0], rel=1e-12)
+    # the time constant is read from q: a slower memory moves less in a step
+    slow = eff.advance(np.array([0.004, 20.0, 2.0]), sv, 0.0, v * h, h)[0]
+    assert slow == pytest.approx(sv * math.exp(-h / 2.0) + (1 - math.exp(-h / 2.0)) * v)
     # and the simulator takes it
     x = pb.simulate(pb.Model([eff]), None, np.full(200, 2e5), dt_s=1e-3)
     assert np.all(np.isfinite(x))
+
+
+def test_the_loop_term_is_written_with_its_width_as_a_parameter(tmp_path):
+    """The Dahl-like loop state: towards +1 while extending, -1 while contracting, over
+    its width; the written effect's state matches the one the dictionary tabulates."""
+    from pmabayes.criticism.discrepancy import Term
+    from pmabayes.criticism.discrepancy.plugin import plugin_source
+    from pmabayes.criticism.discrepancy.problem import dahl_loop
+    from pmabayes.model.effects import load_plugin
+
+    term = Term("h_loop(width=2 mm)", "N", "a friction loop", "loop", "s", ds="1.0",
+                slug="hloop", loop_width_m=0.002)
+    path = tmp_path / "proposed_hloop.py"
+    path.write_text(plugin_source("proposed_hloop", [(term, 1.5)], "a loop"))
+    eff = load_plugin(path, register=False).ProposedEffect
+    assert eff.state == "h_loop" and not eff.reads_z
+    assert [p.name for p in eff.parameters] == ["c_hloop", "w_loop"]
+    eff.parameters[1].check_prior()
+    q = np.array([1.5, 0.003])
+    f, fx, fv, fz, fs = eff.physics(q, 0.01, 0.02, 3e5, 0.0, 0.4)
+    assert f == pytest.approx(1.5 * 0.4) and fs == pytest.approx(1.5)
+    # the state along a path, step by step, is the dictionary's series (width 3 mm)
+    x = 0.01 + 0.004 * np.sin(np.linspace(0.0, 12.0, 400))
+    s, out = 0.0, [0.0]
+    for k in range(x.size - 1):
+        s = eff.advance(q, s, x[k], x[k + 1], 1e-3)[0]
+        out.append(s)
+    assert np.allclose(out, dahl_loop(x, 0.003), atol=1e-12)
+    assert max(out) > 0.5 and min(out) < -0.5
+    # its derivative in the step's end point, by finite differences
+    h = 1e-9
+    ds = eff.advance(q, 0.2, 0.01, 0.0105, 1e-3)[1]
+    fd = (eff.advance(q, 0.2, 0.01, 0.0105 + h, 1e-3)[0]
+          - eff.advance(q, 0.2, 0.01, 0.0105 - h, 1e-3)[0]) / (2 * h)
+    assert ds == pytest.approx(fd, rel=1e-5)
+    xs = pb.simulate(pb.Model([eff]), None, np.full(200, 2e5), dt_s=1e-3)
+    assert np.all(np.isfinite(xs))
 
 
 def test_the_tabulated_shape_is_a_valid_effect(tmp_path):

@@ -23,6 +23,7 @@ from pmabayes.criticism.discrepancy.dictionary import (
 from pmabayes.criticism.discrepancy.linalg import a_b
 from pmabayes.criticism.discrepancy.plugin import describe_terms, effect_name, write_plugin
 from pmabayes.criticism.discrepancy.problem import (
+    LOOP_WIDTHS_M,
     MEMORY_TAUS_S,
     STATES,
     WRITABLE,
@@ -97,12 +98,17 @@ def estimate_discrepancy(
     problem = LinearProblem(likelihood, noise, values, simulation, start)
     n = problem.n_counted
     e0 = float(problem.r_w @ problem.r_w)
-    # the memory state's time constant, by the evidence
+    # the memory state's time constant, then the loop state's width, by the evidence
     fits = {}
+    width = LOOP_WIDTHS_M[len(LOOP_WIDTHS_M) // 2]
     for tau in MEMORY_TAUS_S:
-        fits[tau] = fit_blocks(problem, problem.blocks(tau))
-    tau = max(fits, key=lambda t: fits[t].log_evidence)
-    full = fits[tau]
+        fits[tau, width] = fit_blocks(problem, problem.blocks(tau, width))
+    tau = max(fits, key=lambda k: fits[k].log_evidence)[0]
+    for w in LOOP_WIDTHS_M:
+        if (tau, w) not in fits:
+            fits[tau, w] = fit_blocks(problem, problem.blocks(tau, w))
+    tau, width = max(fits, key=lambda k: fits[k].log_evidence)
+    full = fits[tau, width]
     blocks = full.blocks
     only_j = fit_blocks(problem, [], [])
     loo_full = loo_scores(problem, blocks, full.log_lambda)
@@ -121,17 +127,17 @@ def estimate_discrepancy(
     # without repeats there is no floor: near it means a whitened residual near pure noise
     near = bool(ratio_after <= 1.5) if math.isfinite(ratio_after) else \
         bool(energy_after <= 1.0 + ENERGY_TOLERANCE)
-    st = problem.states(tau)
+    st = problem.states(tau, width)
     proposal = None
     if gain > max(2.0 * gain_se, 2.0):
         if plugin_dir is False:  # checked, not kept
             with tempfile.TemporaryDirectory(prefix="pmabayes-proposal-") as tmp:
-                proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                proposal = _propose(problem, st, (tau, width), blocks, full, loo_full, gain, states,
                                     tmp, verify, command)
             if proposal is not None:
                 proposal = replace(proposal, plugin=None)
         else:
-            proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+            proposal = _propose(problem, st, (tau, width), blocks, full, loo_full, gain, states,
                                 plugin_dir, verify, command)
     left = (problem.resid - corr)[problem.seen]
     after = _level(ratio_after, float(np.sqrt(np.mean(left ** 2))),
@@ -145,6 +151,7 @@ def estimate_discrepancy(
     return Discrepancy(states=states, explained=explained, explained_rms=removed,
                        ratio_after=float(ratio_after),
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
+                       loop_width_m=float(width),
                        partial_dependence=pdep, proposal=proposal, near_floor=near,
                        other_cause=other, text=text, energy_after=float(energy_after))
 
@@ -237,9 +244,9 @@ class _Dictionary:
         return [(self.terms[j][0], float(w[k0 + i] / self.scale[j])) for i, j in enumerate(idx)]
 
 
-def _dictionary(problem: LinearProblem, st: dict, tau: float) -> _Dictionary:
+def _dictionary(problem: LinearProblem, st: dict, tau: float, width: float) -> _Dictionary:
     period = best_period(problem, st["position"])
-    terms = dictionary_terms(st, tau, period, best_hinges(problem, st["position"]))
+    terms = dictionary_terms(st, tau, period, best_hinges(problem, st["position"]), width)
     raw, white = problem.responses(np.stack([t[1] for t in terms], axis=1))
     scale = np.linalg.norm(white, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
@@ -254,6 +261,8 @@ def _scored_supports(problem: LinearProblem, dic: _Dictionary, loo_full: np.ndar
     supports = stlsq_path(a, problem.r_w, k0) | forward_path(problem.j_w, dic.white, problem.r_w)
     scored = []
     for support in sorted(supports, key=lambda t: (len(t), t)):
+        if {dic.terms[j][0].state for j in support} >= {"memory", "loop"}:
+            continue  # an effect has one state of its own: not both
         loo = loo_scores(problem, [], [], extra=(dic.white, dic.raw, list(support)))
         scored.append((*paired_difference(loo, loo_full), support))
     return scored
@@ -274,10 +283,11 @@ def _discard(proposal: Proposal, existing: set) -> None:
         Path(proposal.plugin).unlink(missing_ok=True)
 
 
-def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir, verify,
+def _propose(problem, st, scales, blocks, full, loo_full, gain, states, plugin_dir, verify,
              command):
-    """STLSQ over the dictionary, the threshold by LOO ELPD; else the tabulated shape."""
-    dic = _dictionary(problem, st, tau)
+    """STLSQ over the dictionary, the threshold by LOO ELPD; else the tabulated shape.
+    ``scales``: the memory's time constant and the loop's width."""
+    dic = _dictionary(problem, st, *scales)
     scored = _scored_supports(problem, dic, loo_full)
     best = _sparsest(scored)
     closed = None
@@ -390,6 +400,16 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
         told = [(replace(t, name=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.name),
                          words=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.words))
                  if t.breakpoint_m is not None else t, c) for t, c in told]
+    if verified is not None and "tau_memory" in verified["values"]:
+        tau = f"{verified['values']['tau_memory']:.3g}"  # the refitted time constant too
+        told = [(replace(t, name=re.sub(r"tau=[0-9.e+-]+ s", f"tau={tau} s", t.name),
+                         words=re.sub(r"over [0-9.e+-]+ s", f"over {tau} s", t.words))
+                 if t.memory_tau_s is not None else t, c) for t, c in told]
+    if verified is not None and "w_loop" in verified["values"]:
+        mm = f"{verified['values']['w_loop'] * 1e3:.3g} mm"  # the refitted width too
+        told = [(replace(t, name=re.sub(r"width=[0-9.e+-]+ mm", f"width={mm}", t.name),
+                         words=re.sub(r"over [0-9.e+-]+ mm", f"over {mm}", t.words))
+                 if t.loop_width_m is not None else t, c) for t, c in told]
     expression, description = describe_terms(told, kind)
     terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
               "words": t.words, "writable": t.writable} for t, c in told]

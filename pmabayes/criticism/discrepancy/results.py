@@ -136,6 +136,8 @@ class Discrepancy:
     energy_after : float
         Mean square of the whitened residual with the flexible force (linearised; 1 for
         pure noise).
+    loop_width_m : float
+        Width of the loop state (the travel over which it saturates), by the evidence.
     """
 
     states: list
@@ -151,6 +153,7 @@ class Discrepancy:
     text: str
     explained_rms: float | None = None
     energy_after: float = math.nan
+    loop_width_m: float = math.nan
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
@@ -160,6 +163,7 @@ class Discrepancy:
                 "energy_after": finite_or_none(self.energy_after),
                 "elpd_gain": self.elpd_gain,
                 "elpd_gain_se": self.elpd_gain_se, "memory_tau_s": self.memory_tau_s,
+                "loop_width_m": finite_or_none(self.loop_width_m),
                 "near_floor": self.near_floor, "other_cause": self.other_cause,
                 "proposal": None if self.proposal is None else self.proposal.to_dict(),
                 "text": self.text}
