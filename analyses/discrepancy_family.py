@@ -278,7 +278,7 @@ class SensorBacklash(Effect):
     __test__ = False
     name = "family_sensor_backlash"
     stage = "measurement"
-    parameters = (Parameter("b_play", "m", 5e-4, HalfNormal(2e-3), bounds=(0.0, 0.01),
+    parameters = (Parameter("b_play", "m", 5e-4, HalfNormal(1e-3), bounds=(0.0, 0.01),
                             null=0.0, description="width of the play"),)
     description = "Backlash of the position sensor (hidden)."
     physics = staticmethod(_backlash)
@@ -345,7 +345,7 @@ class MeasurementDelay(Effect):
     __test__ = False
     name = "family_measurement_delay"
     stage = "measurement"
-    parameters = (Parameter("d_meas", "s", 0.01, HalfNormal(0.05), bounds=(0.0, 0.1),
+    parameters = (Parameter("d_meas", "s", 0.01, HalfNormal(0.01), bounds=(0.0, 0.1),
                             null=0.0, description="delay of the reading"),)
     description = "A delay of the measurement (hidden)."
     physics = staticmethod(_delay)
@@ -368,7 +368,7 @@ class SensorLag(Effect):
     __test__ = False
     name = "family_sensor_lag"
     stage = "measurement"
-    parameters = (Parameter("tau_sensor", "s", 0.005, HalfNormal(0.05), bounds=(0.0, 0.1),
+    parameters = (Parameter("tau_sensor", "s", 0.005, HalfNormal(0.01), bounds=(0.0, 0.1),
                             null=0.0, description="the filter's time constant"),)
     description = "A first-order lag of the sensor (hidden)."
     physics = staticmethod(_sensor_lag)
