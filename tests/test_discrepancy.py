@@ -341,3 +341,58 @@ def test_a_periodic_proposal_carries_its_period_as_a_parameter(tmp_path):
     assert f == pytest.approx(2.0 * math.sin(2 * math.pi * 0.003 / 0.012))
     assert fx == pytest.approx(2.0 * 2 * math.pi / 0.012 * math.cos(2 * math.pi * 0.003 / 0.012))
     assert fv == 0.0
+
+
+# ---------------------------------------------------------------------------------
+# effects the step was not shaped on (analyses/discrepancy_family.py's family)
+
+
+def _family():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analyses"))
+    import discrepancy_family
+
+    return discrepancy_family
+
+
+def test_the_play_of_a_reading_is_the_familys_backlash():
+    """The reading errors' backlash column is the family's hidden sensor backlash."""
+    from pmabayes.criticism.discrepancy.reading import play
+
+    fam = _family()
+    x = 0.02 + 0.003 * np.sin(np.linspace(0.0, 20.0, 500)) ** 3
+    read = x[:, None].copy()
+    fam._backlash(np.array([[8e-4]]), np.arange(x.size) * 1e-3, read)
+    assert np.allclose(play(x, 4e-4), read[:, 0], atol=1e-15)
+    assert np.max(np.abs(play(x, 4e-4) - x)) == pytest.approx(4e-4, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_a_maxwell_element_is_proposed_as_a_memory_with_its_time_constant(tmp_path):
+    """150 N/m in series with a 2 s damper: the memory term's time constant is refitted
+    (the scanned ones stop at 1.6 s), and the model reaches the floor."""
+    fam = _family()
+    ds = fam.generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP,
+                                    effects={fam.MaxwellElement: {"k_mx": 150.0}})
+    d = diagnosis(ds, plugin_dir=tmp_path)
+    disc = d.discrepancy
+    assert disc is not None and disc.proposal is not None, d.verdict
+    v = disc.proposal.verified
+    assert "tau_memory" in v["values"], disc.proposal.expression
+    assert 1.0 < v["values"]["tau_memory"] < 4.0
+    assert v["ratio"] <= 1.5 and v["adequate"], d.verdict
+
+
+@pytest.mark.slow
+def test_backlash_of_the_sensor_is_called_not_a_force(tmp_path):
+    """A sensor's play is an error of the reading: no force is proposed for it."""
+    fam = _family()
+    ds = fam.generate_chirp_dataset(n_trials=4, seed=7, chirp=CHIRP,
+                                    effects={fam.SensorBacklash: {"b_play": 8e-4}})
+    d = diagnosis(ds, plugin_dir=tmp_path)
+    disc = d.discrepancy
+    assert disc is not None and disc.not_a_force, d.verdict
+    assert disc.proposal is None and not list(tmp_path.glob("*.py")), d.verdict
+    assert "backlash" in disc.text and "not a force" in disc.text

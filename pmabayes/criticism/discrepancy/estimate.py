@@ -31,6 +31,7 @@ from pmabayes.criticism.discrepancy.problem import (
     LinearProblem,
     bspline_design,
 )
+from pmabayes.criticism.discrepancy.reading import ReadingError, reading_error
 from pmabayes.criticism.discrepancy.regression import (
     PenalisedFit,
     correction,
@@ -129,7 +130,11 @@ def estimate_discrepancy(
         bool(energy_after <= 1.0 + ENERGY_TOLERANCE)
     st = problem.states(tau, width)
     proposal = None
-    if gain > max(2.0 * gain_se, 2.0):
+    # errors of the reading as good as any force: a force proposal would only imitate them
+    reading = reading_error(problem, loo_full, loo_none) if gain > max(2.0 * gain_se, 2.0) \
+        else None
+    not_force = reading is not None and reading.as_good
+    if gain > max(2.0 * gain_se, 2.0) and not not_force:
         if plugin_dir is False:  # checked, not kept
             with tempfile.TemporaryDirectory(prefix="pmabayes-proposal-") as tmp:
                 proposal = _propose(problem, st, (tau, width), blocks, full, loo_full, gain, states,
@@ -142,8 +147,11 @@ def estimate_discrepancy(
     left = (problem.resid - corr)[problem.seen]
     after = _level(ratio_after, float(np.sqrt(np.mean(left ** 2))),
                    energy_after)
-    other = None if near and explained >= 0.5 else _other_cause(
-        likelihood, noise, simulation, explained, after)
+    if not_force:
+        other = _reading_text(reading)
+    else:
+        other = None if near and explained >= 0.5 else _other_cause(
+            likelihood, noise, simulation, explained, after)
     text = _text(states, explained, removed, ratio_after, after, gain, gain_se, proposal,
                  other, command, tuple(effects),
                  "left-out stretches of the record" if problem.by_stretches
@@ -153,7 +161,8 @@ def estimate_discrepancy(
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
                        loop_width_m=float(width),
                        partial_dependence=pdep, proposal=proposal, near_floor=near,
-                       other_cause=other, text=text, energy_after=float(energy_after))
+                       other_cause=other, text=text, energy_after=float(energy_after),
+                       not_a_force=bool(not_force or other is not None))
 
 
 def _level(ratio: float, rms_m: float, energy: float) -> str:
@@ -416,6 +425,15 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
     return Proposal(effect=effect_name(chosen), expression=expression,
                     description=description, terms=terms, kind=kind, elpd_diff=float(d),
                     elpd_diff_se=float(se), plugin=plugin, verified=verified)
+
+
+def _reading_text(reading: ReadingError) -> str:
+    """The verdict when errors of the reading do as well as any force."""
+    return ("The missing piece is not a force of the states tried: an error of the "
+            f"position reading ({' and '.join(reading.terms)}) predicts the left-out data "
+            f"as well as a flexible force does (ΔELPD {reading.elpd_vs_force:+.1f} ± "
+            f"{reading.se:.1f} against it, {reading.elpd_gain:+.1f} over the model alone), "
+            "so no force is proposed: check the sensor and its mounting.")
 
 
 def _other_cause(lik, noise, sim, explained: float, after: str) -> str:
