@@ -333,24 +333,29 @@ def _propose(problem, st, scales, blocks, full, loo_full, gain, states, plugin_d
 def _closed_form(problem, dic: _Dictionary, closed: tuple, scored: list, series: dict,
                  existing: set, write) -> Proposal:
     """The closed form near the flexible estimate, written and refitted; when it has terms
-    in z or memory and its refit fails, the better of it and the best support in
-    (x, v, p) alone."""
+    in z or a state of its own and its refit fails, the best of it, the best support
+    without terms in z, and the best in (x, v, p) alone."""
     chosen, d, se, _ = closed
     prop = write(chosen, "closed form", d, se, series=series)
-    plain = [c for c in scored if all(dic.terms[j][0].state in WRITABLE for j in c[2])]
-    v = prop.verified
-    if (v is None or _good(v) or not plain
-            or all(t.state in WRITABLE for t, _ in chosen)):
-        return prop
-    # terms in z or memory trade against the base model's own parameters in the
-    # nonlinear refit: the best support in (x, v, p) alone is refitted too
-    d2, se2, support2 = max(plain, key=lambda c: c[0])
-    prop2 = write(dic.fit(problem, support2), "closed form", d2, se2, series=series)
-    v2 = prop2.verified
-    better = v2 is not None and _closeness(v2) > _closeness(v)
-    keep, drop = (prop2, prop) if better else (prop, prop2)
-    _discard(drop, existing)
-    return keep
+    # terms in z (or a state of its own) trade against the base model's own parameters
+    # in the nonlinear refit: simpler supports are refitted too, nearest the data kept
+    tried = set()
+    for allowed in (lambda t: t.state != "hysteresis", lambda t: t.state in WRITABLE):
+        v = prop.verified
+        if v is None or _good(v) or all(allowed(t) for t, _ in chosen):
+            break
+        plain = [c for c in scored if all(allowed(dic.terms[j][0]) for j in c[2])]
+        if not plain or max(plain, key=lambda c: c[0])[2] in tried:
+            continue
+        d2, se2, support2 = max(plain, key=lambda c: c[0])
+        tried.add(support2)
+        prop2 = write(dic.fit(problem, support2), "closed form", d2, se2, series=series)
+        v2 = prop2.verified
+        better = v2 is not None and _closeness(v2) > _closeness(v)
+        keep, drop = (prop2, prop) if better else (prop, prop2)
+        _discard(drop, existing)
+        prop = keep
+    return prop
 
 
 def _tabulated(problem: LinearProblem, blocks: list, full: PenalisedFit, top: str,
