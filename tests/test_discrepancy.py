@@ -373,6 +373,8 @@ def test_the_play_of_a_reading_is_the_familys_backlash():
 def test_a_maxwell_element_is_proposed_as_a_memory_with_its_time_constant(tmp_path):
     """150 N/m in series with a 2 s damper: the memory term's time constant is refitted
     (the scanned ones stop at 1.6 s), and the model reaches the floor."""
+    from pmabayes.criticism.discrepancy import MEMORY_TAUS_S
+
     fam = _family()
     ds = fam.generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP,
                                     effects={fam.MaxwellElement: {"k_mx": 150.0}})
@@ -381,7 +383,8 @@ def test_a_maxwell_element_is_proposed_as_a_memory_with_its_time_constant(tmp_pa
     assert disc is not None and disc.proposal is not None, d.verdict
     v = disc.proposal.verified
     assert "tau_memory" in v["values"], disc.proposal.expression
-    assert 1.0 < v["values"]["tau_memory"] < 4.0
+    tau = v["values"]["tau_memory"]  # refitted, not held at a scanned value
+    assert min(abs(tau / t - 1.0) for t in MEMORY_TAUS_S) > 0.05, tau
     assert v["ratio"] <= 1.5 and v["adequate"], d.verdict
 
 

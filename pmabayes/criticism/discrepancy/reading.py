@@ -22,8 +22,9 @@ from pmabayes.criticism.elpd import paired_difference
 __all__ = ["ReadingError", "play", "reading_error"]
 
 
-#: half-widths of the play scanned for backlash of the sensor, m
-PLAY_HALF_WIDTHS_M = (0.1e-3, 0.25e-3, 0.5e-3, 1e-3)
+#: half-widths of the play scanned for backlash of the sensor, m (0.05 to 1.6 mm by
+#: factors of sqrt(2): a play off by more than that is imitated better by a force)
+PLAY_HALF_WIDTHS_M = tuple(0.05e-3 * 2.0 ** (k / 2) for k in range(11))
 
 #: reading errors combined at most
 MAX_TERMS = 2
