@@ -39,7 +39,6 @@ Writes ``discrepancy_family.csv`` and ``discrepancy_family.md`` into ``--out``
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import sys
 import tempfile
@@ -49,12 +48,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pmabayes.criticism.diagnosis import diagnose
 from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.model.effects import Effect, get_effect
 from pmabayes.model.parameters import HalfNormal, Normal, Parameter
 from pmabayes.parallel import Runner
 from pmabayes.synthetic import Chirp, draw_plausible, generate_chirp_dataset
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from detection import diagnose_as_a_user, write_rows  # noqa: E402
 
 # ---------------------------------------------------------------------------------
 # the hidden forces (never registered)
@@ -444,16 +445,9 @@ def run_one(job: dict) -> dict:
     m = member(job["effect"])
     ds = dataset(m, job["size"], job["truth"], job["seed"], job["chirp"], job["n_trials"])
     start = time.perf_counter()
-    added: list[str] = []
-    first_ratio = math.nan
     with tempfile.TemporaryDirectory() as folder:
-        for _ in range(1 + MAX_LIBRARY_ROUNDS):
-            d = diagnose(ds, effects=added, settings=DiagnoseSettings(max_refits=3),
-                         seed=job["seed"], plugin_dir=folder)
-            first_ratio = first_ratio if added else d.experiments[0].signature.ratio
-            if d.missing is None or d.adequate or len(added) == MAX_LIBRARY_ROUNDS:
-                break
-            added.append(d.missing)
+        d, added, first_ratio = diagnose_as_a_user(ds, DiagnoseSettings(max_refits=3),
+                                                   job["seed"], folder, MAX_LIBRARY_ROUNDS)
     disc = d.discrepancy
     prop = None if disc is None else disc.proposal
     verified = None if prop is None else prop.verified
@@ -574,11 +568,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{r['first_ratio']:.3g}x at first, state {r['top_state'] or '-'}, "
                   f"proposal {r['proposal'] or '-'}; {outcome}; right {right}; "
                   f"{r['seconds']:.0f} s", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "discrepancy_family.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out / "discrepancy_family.csv", rows)
     lines = table(rows)
     (args.out / "discrepancy_family.md").write_text("\n".join(lines) + "\n")
     print(f"{len(rows)} data sets in {time.perf_counter() - start:.0f} s")
