@@ -397,12 +397,17 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
                 amps = [float(np.std(c * series[t.slug])) for t, c in told]
                 keep = [tc for tc, a in zip(told, amps, strict=True) if a >= 0.1 * max(amps)]
                 if len(keep) < len(told):
-                    if created:
-                        path.unlink()  # written by this run, and superseded
-                    chosen = keep
-                    path, created = write_plugin(chosen, kind, tables, plugin_dir)
-                    verified = verify_proposal(problem, path, chosen)
-                    told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+                    path2, created2 = write_plugin(keep, kind, tables, plugin_dir)
+                    v2 = verify_proposal(problem, path2, keep)
+                    # kept without the term only when that refits no worse (a loop's
+                    # small force can still carry its shape)
+                    if _closeness(v2) >= _closeness(verified):
+                        if created:
+                            path.unlink()  # written by this run, and superseded
+                        chosen, path, created, verified = keep, path2, created2, v2
+                        told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+                    elif created2:
+                        path2.unlink()
         plugin = str(path)
     if verified is not None and "L_period" in verified["values"]:
         mm = verified["values"]["L_period"] * 1e3  # the refitted period, in the words too
