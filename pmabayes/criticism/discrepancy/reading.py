@@ -54,8 +54,9 @@ class ReadingError:
     @property
     def as_good(self) -> bool:
         """Whether the reading errors predict left-out data as well as the flexible force
-        (within its noise) and clearly better than the model alone."""
-        return bool(self.elpd_vs_force > -max(2.0 * self.se, 2.0)
+        (within one standard error: a force in z two below was once called a reading
+        error) and clearly better than the model alone."""
+        return bool(self.elpd_vs_force > -max(self.se, 2.0)
                     and self.elpd_gain > max(2.0 * self.se, 2.0))
 
 
