@@ -139,20 +139,10 @@ def _run_discrepancy(job: dict) -> tuple[int, dict, float]:
     ds = generate_chirp_dataset(n_trials=job["n_trials"], seed=job["seed"], chirp=job["chirp"],
                                 params=job["truth"], effects=effects)
     start = time.perf_counter()
-    added: list[str] = []
-    first_ratio = float("nan")
     with tempfile.TemporaryDirectory() as folder:
-        # the user's loop: a library effect named missing is added and the data
-        # diagnosed again (a hidden effect may look partly like one in the library)
-        for _ in range(1 + MAX_LIBRARY_ROUNDS):
-            d = diagnose(ds, effects=added,
-                         settings=DiagnoseSettings(candidates=CANDIDATES,
-                                                   max_refits=job["max_refits"]),
-                         seed=job["seed"], plugin_dir=folder)
-            first_ratio = first_ratio if added else d.experiments[0].signature.ratio
-            if d.missing is None or d.adequate or len(added) == MAX_LIBRARY_ROUNDS:
-                break
-            added.append(d.missing)
+        d, added, first_ratio = diagnose_as_a_user(
+            ds, DiagnoseSettings(candidates=CANDIDATES, max_refits=job["max_refits"]),
+            job["seed"], folder, MAX_LIBRARY_ROUNDS)
     disc = d.discrepancy
     prop = None if disc is None else disc.proposal
     found = {"missing": "+".join(added + ([d.missing] if d.missing else [])),
@@ -199,11 +189,7 @@ def _discrepancy_study(args, chirp: Chirp, n_trials: int, n_null: int, n_outside
                   f"{d['ratio']:.3g}, state {d['top_state'] or '-'}, proposal "
                   f"{d['proposal'] or '-'}, refit ratio {d['verified_ratio']:.3g}, "
                   f"correct {correct}, {secs:.0f} s", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "discrepancy.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out / "discrepancy.csv", rows)
     null = [r for r in rows if r["effect"] == "none"]
     k_false = sum(r["proposal"] != "" for r in null)
     lines = ["| data sets | proposals | correct | rate (90% CI) |", "|---|---|---|---|"]
@@ -229,6 +215,32 @@ def _discrepancy_study(args, chirp: Chirp, n_trials: int, n_null: int, n_outside
     print(f"discrepancy_false_alarm_rate: {k_false / max(len(null), 1):.3f}")
     print(f"correct_proposal_rate: {k_ok / max(len(out), 1):.3f}")
     return 0
+
+
+def diagnose_as_a_user(ds, settings: DiagnoseSettings, seed: int, folder: str,
+                       rounds: int) -> tuple:
+    """The user's loop: a library effect named missing is added and the data diagnosed
+    again (a hidden effect may look partly like one in the library), ``rounds`` times
+    at most. The last diagnosis, the effects added, and the first one's ratio to the
+    floor."""
+    added: list[str] = []
+    first_ratio = float("nan")
+    for _ in range(1 + rounds):
+        d = diagnose(ds, effects=added, settings=settings, seed=seed, plugin_dir=folder)
+        first_ratio = first_ratio if added else d.experiments[0].signature.ratio
+        if d.missing is None or d.adequate or len(added) == rounds:
+            break
+        added.append(d.missing)
+    return d, added, first_ratio
+
+
+def write_rows(path: Path, rows: list[dict]) -> None:
+    """Rows as a CSV file, the first row's keys as its columns (its folder made)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def clopper_pearson(k: int, n: int, prob: float = 0.9) -> tuple[float, float]:
@@ -264,11 +276,7 @@ def _row(what: dict, data_seed: int, d: dict, secs: float, n_null: int) -> dict:
 
 def _write_tables(rows: list[dict], sweeps, out: Path) -> float:
     """Write detection.csv, null.md and detection.md, print the tables; the false-alarm rate."""
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "detection.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(out / "detection.csv", rows)
 
     null = [r for r in rows if r["effect"] == "none"]
     k_flag = sum(r["flagged"] for r in null)

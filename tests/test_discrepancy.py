@@ -115,7 +115,13 @@ def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
     path.write_text(plugin_source("proposed_zmem", terms, "z and memory"))
     eff = load_plugin(path, register=False).ProposedEffect
     assert eff.reads_z and eff.state == "v_lp_m_s"
-    q = np.array([0.004, 20.0])
+    # the time constant is a parameter the refit adjusts, its prior within its bounds
+    assert [p.name for p in eff.parameters] == ["c_zabsz", "c_vlp", "tau_memory"]
+    tp = eff.parameters[2]
+    assert tp.unit == "s" and tp.vary and tp.default == 0.4
+    assert tp.bounds[0] > 0.0 and tp.bounds[1] > 0.4
+    tp.check_prior()
+    q = np.array([0.004, 20.0, 0.4])
     z, sv = -30.0, 0.01
     f, fx, fv, fz, fs = eff.physics(q, 0.01, 0.02, 3e5, z, sv)
     assert f == pytest.approx(0.004 * z * abs(z) + 20.0 * sv)
@@ -129,9 +135,49 @@ def test_terms_in_z_and_memory_are_written_as_effects(tmp_path):
     assert ds1 == pytest.approx((1 - e) / h)
     two = eff.advance(q, eff.advance(q, sv, 0.0, v * h, h)[0], v * h, 2 * v * h, h)[0]
     assert two == pytest.approx(eff.advance(q, sv, 0.0, 2 * v * h, 2 * h)[0], rel=1e-12)
+    # the time constant is read from q: a slower memory moves less in a step
+    slow = eff.advance(np.array([0.004, 20.0, 2.0]), sv, 0.0, v * h, h)[0]
+    assert slow == pytest.approx(sv * math.exp(-h / 2.0) + (1 - math.exp(-h / 2.0)) * v)
     # and the simulator takes it
     x = pb.simulate(pb.Model([eff]), None, np.full(200, 2e5), dt_s=1e-3)
     assert np.all(np.isfinite(x))
+
+
+def test_the_loop_term_is_written_with_its_width_as_a_parameter(tmp_path):
+    """The Dahl-like loop state: towards +1 while extending, -1 while contracting, over
+    its width; the written effect's state matches the one the dictionary tabulates."""
+    from pmabayes.criticism.discrepancy import Term
+    from pmabayes.criticism.discrepancy.plugin import plugin_source
+    from pmabayes.criticism.discrepancy.problem import dahl_loop
+    from pmabayes.model.effects import load_plugin
+
+    term = Term("h_loop(width=2 mm)", "N", "a friction loop", "loop", "s", ds="1.0",
+                slug="hloop", loop_width_m=0.002)
+    path = tmp_path / "proposed_hloop.py"
+    path.write_text(plugin_source("proposed_hloop", [(term, 1.5)], "a loop"))
+    eff = load_plugin(path, register=False).ProposedEffect
+    assert eff.state == "h_loop" and not eff.reads_z
+    assert [p.name for p in eff.parameters] == ["c_hloop", "w_loop"]
+    eff.parameters[1].check_prior()
+    q = np.array([1.5, 0.003])
+    f, fx, fv, fz, fs = eff.physics(q, 0.01, 0.02, 3e5, 0.0, 0.4)
+    assert f == pytest.approx(1.5 * 0.4) and fs == pytest.approx(1.5)
+    # the state along a path, step by step, is the dictionary's series (width 3 mm)
+    x = 0.01 + 0.004 * np.sin(np.linspace(0.0, 12.0, 400))
+    s, out = 0.0, [0.0]
+    for k in range(x.size - 1):
+        s = eff.advance(q, s, x[k], x[k + 1], 1e-3)[0]
+        out.append(s)
+    assert np.allclose(out, dahl_loop(x, 0.003), atol=1e-12)
+    assert max(out) > 0.5 and min(out) < -0.5
+    # its derivative in the step's end point, by finite differences
+    h = 1e-9
+    ds = eff.advance(q, 0.2, 0.01, 0.0105, 1e-3)[1]
+    fd = (eff.advance(q, 0.2, 0.01, 0.0105 + h, 1e-3)[0]
+          - eff.advance(q, 0.2, 0.01, 0.0105 - h, 1e-3)[0]) / (2 * h)
+    assert ds == pytest.approx(fd, rel=1e-5)
+    xs = pb.simulate(pb.Model([eff]), None, np.full(200, 2e5), dt_s=1e-3)
+    assert np.all(np.isfinite(xs))
 
 
 def test_the_tabulated_shape_is_a_valid_effect(tmp_path):
@@ -295,3 +341,59 @@ def test_a_periodic_proposal_carries_its_period_as_a_parameter(tmp_path):
     assert f == pytest.approx(2.0 * math.sin(2 * math.pi * 0.003 / 0.012))
     assert fx == pytest.approx(2.0 * 2 * math.pi / 0.012 * math.cos(2 * math.pi * 0.003 / 0.012))
     assert fv == 0.0
+
+
+# ---------------------------------------------------------------------------------
+# effects the step was not shaped on (analyses/discrepancy_family.py's family)
+
+
+def _family():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analyses"))
+    import discrepancy_family
+
+    return discrepancy_family
+
+
+def test_the_play_of_a_reading_is_the_familys_backlash():
+    """The reading errors' backlash column is the family's hidden sensor backlash."""
+    from pmabayes.criticism.discrepancy.reading import play
+
+    fam = _family()
+    x = 0.02 + 0.003 * np.sin(np.linspace(0.0, 20.0, 500)) ** 3
+    read = x[:, None].copy()
+    fam._backlash(np.array([[8e-4]]), np.arange(x.size) * 1e-3, read)
+    assert np.allclose(play(x, 4e-4), read[:, 0], atol=1e-15)
+    assert np.max(np.abs(play(x, 4e-4) - x)) == pytest.approx(4e-4, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_a_maxwell_element_is_proposed_as_a_memory_with_its_time_constant(tmp_path):
+    """150 N/m in series with a 2 s damper: the memory term's time constant is refitted
+    (the scanned ones stop at 1.6 s), and the model reaches the floor (3.3x before the
+    refit's iterations were raised from 12 to 40)."""
+    fam = _family()
+    ds = fam.generate_chirp_dataset(n_trials=4, seed=5, chirp=CHIRP,
+                                    effects={fam.MaxwellElement: {"k_mx": 150.0}})
+    d = diagnosis(ds, plugin_dir=tmp_path)
+    disc = d.discrepancy
+    assert disc is not None and disc.proposal is not None, d.verdict
+    v = disc.proposal.verified
+    assert "tau_memory" in v["values"], disc.proposal.expression
+    assert 0.5 < v["values"]["tau_memory"] < 5.0  # about the damper's 2 s
+    assert v["ratio"] <= 1.5 and v["adequate"], d.verdict
+
+
+@pytest.mark.slow
+def test_backlash_of_the_sensor_is_called_not_a_force(tmp_path):
+    """A sensor's play is an error of the reading: no force is proposed for it."""
+    fam = _family()
+    ds = fam.generate_chirp_dataset(n_trials=4, seed=7, chirp=CHIRP,
+                                    effects={fam.SensorBacklash: {"b_play": 8e-4}})
+    d = diagnosis(ds, plugin_dir=tmp_path)
+    disc = d.discrepancy
+    assert disc is not None and disc.not_a_force, d.verdict
+    assert disc.proposal is None and not list(tmp_path.glob("*.py")), d.verdict
+    assert "backlash" in disc.text and "not a force" in disc.text

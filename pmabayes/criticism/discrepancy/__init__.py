@@ -18,8 +18,10 @@ trajectory (a small compiled linear time-varying simulation: mass, damping and
 stiffness with the force effects' derivatives, and the Bouc-Wen force's own
 linearisation ``dz' = kz dv + bz dz``). The basis ``phi_j`` is additive in the
 states: cubic B-splines in position, velocity, pressure and the hysteretic force
-``z``, the direction of motion ``sgn v``, and one slow memory state (the velocity
-low-passed with a time constant chosen by the evidence). Each spline block has a
+``z``, the direction of motion ``sgn v``, one slow memory state (the velocity
+low-passed with a time constant chosen by the evidence) and one loop state (Dahl's
+friction model, ``h' = (sgn x' - h) |x'| / width``: a second hysteresis loop, its
+width chosen by the evidence). Each spline block has a
 second-difference roughness penalty whose weight is chosen by the evidence (type-II
 maximum likelihood of the linear Gaussian model), so the flexible force does not
 absorb the noise. Everything is whitened by the likelihood's own noise model
@@ -40,13 +42,20 @@ a tabulated effect with one amplitude. The proposal is written as a ready user e
 (Gauss-Newton on the whitened residual, through the simulator).
 
 Terms in ``(x, v, p)`` are written as plain force effects; a term in ``z`` as a force
-effect that reads ``z`` (``reads_z``), and the memory term as one with a state of its
-own, the low-passed velocity, advanced exactly over each step.
+effect that reads ``z`` (``reads_z``), and the memory and loop terms as ones with a
+state of their own, advanced exactly over each step, whose time constant
+(``tau_memory``) or width (``w_loop``) is a parameter the refit adjusts.
+
+Before a force is proposed, errors of the position reading (a gain, a drift of its
+zero, a delay, backlash; :mod:`.reading`) are fitted in its place: when they predict
+left-out trials as well as the flexible force, the verdict says the missing piece is
+not a force and no force is proposed.
 
 The package's files: :mod:`.response` (the linearised model), :mod:`.linalg` (compiled
 linear algebra), :mod:`.problem` (the whitened linear problem and the force's blocks),
 :mod:`.regression` (penalised fits, evidence, leave-one-trial-out scores, STLSQ),
-:mod:`.dictionary` (the named terms), :mod:`.plugin` (the effect's file, from a
+:mod:`.dictionary` (the named terms), :mod:`.reading` (errors of the reading
+instead of a force), :mod:`.plugin` (the effect's file, from a
 template), :mod:`.verify` (the nonlinear refit with it), :mod:`.results` and
 :mod:`.estimate` (the estimate itself).
 """

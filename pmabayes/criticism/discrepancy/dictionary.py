@@ -50,6 +50,8 @@ class Term:
         expressions, a parameter of the effect like the period.
     memory_tau_s : float or None
         For the memory term, the time constant of its low-passed velocity ``s``.
+    loop_width_m : float or None
+        For the loop term, the travel over which its state ``s`` saturates.
     """
 
     name: str
@@ -65,6 +67,7 @@ class Term:
     dz: str = "0.0"
     ds: str = "0.0"
     memory_tau_s: float | None = None
+    loop_width_m: float | None = None
 
     @property
     def writable(self) -> bool:
@@ -81,7 +84,8 @@ def _f(value: float) -> str:
     return repr(float(f"{value:.6g}"))
 
 
-def dictionary_terms(st: dict, memory_tau_s: float, period_m: float | None, hinges: tuple) -> list:
+def dictionary_terms(st: dict, memory_tau_s: float, period_m: float | None, hinges: tuple,
+                     loop_width_m: float) -> list:
     """The named terms and their values along the trajectory."""
     x, v, p, z = st["position"], st["velocity"], st["pressure"], st["hysteresis"]
     mm = 1e3
@@ -113,6 +117,10 @@ def dictionary_terms(st: dict, memory_tau_s: float, period_m: float | None, hing
               f"a force remembering the velocity over {memory_tau_s:g} s (creep, "
               "viscoelastic memory)", "memory", "s", ds="1.0", slug="vlp",
               memory_tau_s=float(memory_tau_s)), st["memory"]),
+        (Term(f"h_loop(width={loop_width_m * mm:.3g} mm)", "N",
+              f"a friction loop saturating over {loop_width_m * mm:.3g} mm of travel after "
+              "each reversal (Dahl friction: a second hysteresis)", "loop", "s", ds="1.0",
+              slug="hloop", loop_width_m=float(loop_width_m)), st["loop"]),
     ]
     z_big = float(np.max(np.abs(z))) if z.size else 0.0
     if z.min() < -0.1 * z_big and z.max() > 0.1 * z_big:

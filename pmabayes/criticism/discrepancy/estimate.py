@@ -23,6 +23,7 @@ from pmabayes.criticism.discrepancy.dictionary import (
 from pmabayes.criticism.discrepancy.linalg import a_b
 from pmabayes.criticism.discrepancy.plugin import describe_terms, effect_name, write_plugin
 from pmabayes.criticism.discrepancy.problem import (
+    LOOP_WIDTHS_M,
     MEMORY_TAUS_S,
     STATES,
     WRITABLE,
@@ -30,6 +31,7 @@ from pmabayes.criticism.discrepancy.problem import (
     LinearProblem,
     bspline_design,
 )
+from pmabayes.criticism.discrepancy.reading import ReadingError, reading_error
 from pmabayes.criticism.discrepancy.regression import (
     PenalisedFit,
     correction,
@@ -97,12 +99,17 @@ def estimate_discrepancy(
     problem = LinearProblem(likelihood, noise, values, simulation, start)
     n = problem.n_counted
     e0 = float(problem.r_w @ problem.r_w)
-    # the memory state's time constant, by the evidence
+    # the memory state's time constant, then the loop state's width, by the evidence
     fits = {}
+    width = LOOP_WIDTHS_M[len(LOOP_WIDTHS_M) // 2]
     for tau in MEMORY_TAUS_S:
-        fits[tau] = fit_blocks(problem, problem.blocks(tau))
-    tau = max(fits, key=lambda t: fits[t].log_evidence)
-    full = fits[tau]
+        fits[tau, width] = fit_blocks(problem, problem.blocks(tau, width))
+    tau = max(fits, key=lambda k: fits[k].log_evidence)[0]
+    for w in LOOP_WIDTHS_M:
+        if (tau, w) not in fits:
+            fits[tau, w] = fit_blocks(problem, problem.blocks(tau, w))
+    tau, width = max(fits, key=lambda k: fits[k].log_evidence)
+    full = fits[tau, width]
     blocks = full.blocks
     only_j = fit_blocks(problem, [], [])
     loo_full = loo_scores(problem, blocks, full.log_lambda)
@@ -121,23 +128,30 @@ def estimate_discrepancy(
     # without repeats there is no floor: near it means a whitened residual near pure noise
     near = bool(ratio_after <= 1.5) if math.isfinite(ratio_after) else \
         bool(energy_after <= 1.0 + ENERGY_TOLERANCE)
-    st = problem.states(tau)
+    st = problem.states(tau, width)
     proposal = None
-    if gain > max(2.0 * gain_se, 2.0):
+    # errors of the reading as good as any force: a force proposal would only imitate them
+    reading = reading_error(problem, loo_full, loo_none) if gain > max(2.0 * gain_se, 2.0) \
+        else None
+    not_force = reading is not None and reading.as_good
+    if gain > max(2.0 * gain_se, 2.0) and not not_force:
         if plugin_dir is False:  # checked, not kept
             with tempfile.TemporaryDirectory(prefix="pmabayes-proposal-") as tmp:
-                proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+                proposal = _propose(problem, st, (tau, width), blocks, full, loo_full, gain, states,
                                     tmp, verify, command)
             if proposal is not None:
                 proposal = replace(proposal, plugin=None)
         else:
-            proposal = _propose(problem, st, tau, blocks, full, loo_full, gain, states,
+            proposal = _propose(problem, st, (tau, width), blocks, full, loo_full, gain, states,
                                 plugin_dir, verify, command)
     left = (problem.resid - corr)[problem.seen]
     after = _level(ratio_after, float(np.sqrt(np.mean(left ** 2))),
                    energy_after)
-    other = None if near and explained >= 0.5 else _other_cause(
-        likelihood, noise, simulation, explained, after)
+    if not_force:
+        other = _reading_text(reading)
+    else:
+        other = None if near and explained >= 0.5 else _other_cause(
+            likelihood, noise, simulation, explained, after)
     text = _text(states, explained, removed, ratio_after, after, gain, gain_se, proposal,
                  other, command, tuple(effects),
                  "left-out stretches of the record" if problem.by_stretches
@@ -145,8 +159,10 @@ def estimate_discrepancy(
     return Discrepancy(states=states, explained=explained, explained_rms=removed,
                        ratio_after=float(ratio_after),
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
+                       loop_width_m=float(width),
                        partial_dependence=pdep, proposal=proposal, near_floor=near,
-                       other_cause=other, text=text, energy_after=float(energy_after))
+                       other_cause=other, text=text, energy_after=float(energy_after),
+                       not_a_force=bool(not_force or other is not None))
 
 
 def _level(ratio: float, rms_m: float, energy: float) -> str:
@@ -237,9 +253,9 @@ class _Dictionary:
         return [(self.terms[j][0], float(w[k0 + i] / self.scale[j])) for i, j in enumerate(idx)]
 
 
-def _dictionary(problem: LinearProblem, st: dict, tau: float) -> _Dictionary:
+def _dictionary(problem: LinearProblem, st: dict, tau: float, width: float) -> _Dictionary:
     period = best_period(problem, st["position"])
-    terms = dictionary_terms(st, tau, period, best_hinges(problem, st["position"]))
+    terms = dictionary_terms(st, tau, period, best_hinges(problem, st["position"]), width)
     raw, white = problem.responses(np.stack([t[1] for t in terms], axis=1))
     scale = np.linalg.norm(white, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
@@ -254,6 +270,8 @@ def _scored_supports(problem: LinearProblem, dic: _Dictionary, loo_full: np.ndar
     supports = stlsq_path(a, problem.r_w, k0) | forward_path(problem.j_w, dic.white, problem.r_w)
     scored = []
     for support in sorted(supports, key=lambda t: (len(t), t)):
+        if {dic.terms[j][0].state for j in support} >= {"memory", "loop"}:
+            continue  # an effect has one state of its own: not both
         loo = loo_scores(problem, [], [], extra=(dic.white, dic.raw, list(support)))
         scored.append((*paired_difference(loo, loo_full), support))
     return scored
@@ -274,10 +292,11 @@ def _discard(proposal: Proposal, existing: set) -> None:
         Path(proposal.plugin).unlink(missing_ok=True)
 
 
-def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir, verify,
+def _propose(problem, st, scales, blocks, full, loo_full, gain, states, plugin_dir, verify,
              command):
-    """STLSQ over the dictionary, the threshold by LOO ELPD; else the tabulated shape."""
-    dic = _dictionary(problem, st, tau)
+    """STLSQ over the dictionary, the threshold by LOO ELPD; else the tabulated shape.
+    ``scales``: the memory's time constant and the loop's width."""
+    dic = _dictionary(problem, st, *scales)
     scored = _scored_supports(problem, dic, loo_full)
     best = _sparsest(scored)
     closed = None
@@ -314,24 +333,29 @@ def _propose(problem, st, tau, blocks, full, loo_full, gain, states, plugin_dir,
 def _closed_form(problem, dic: _Dictionary, closed: tuple, scored: list, series: dict,
                  existing: set, write) -> Proposal:
     """The closed form near the flexible estimate, written and refitted; when it has terms
-    in z or memory and its refit fails, the better of it and the best support in
-    (x, v, p) alone."""
+    in z or a state of its own and its refit fails, the best of it, the best support
+    without terms in z, and the best in (x, v, p) alone."""
     chosen, d, se, _ = closed
     prop = write(chosen, "closed form", d, se, series=series)
-    plain = [c for c in scored if all(dic.terms[j][0].state in WRITABLE for j in c[2])]
-    v = prop.verified
-    if (v is None or _good(v) or not plain
-            or all(t.state in WRITABLE for t, _ in chosen)):
-        return prop
-    # terms in z or memory trade against the base model's own parameters in the
-    # nonlinear refit: the best support in (x, v, p) alone is refitted too
-    d2, se2, support2 = max(plain, key=lambda c: c[0])
-    prop2 = write(dic.fit(problem, support2), "closed form", d2, se2, series=series)
-    v2 = prop2.verified
-    better = v2 is not None and _closeness(v2) > _closeness(v)
-    keep, drop = (prop2, prop) if better else (prop, prop2)
-    _discard(drop, existing)
-    return keep
+    # terms in z (or a state of its own) trade against the base model's own parameters
+    # in the nonlinear refit: simpler supports are refitted too, nearest the data kept
+    tried = set()
+    for allowed in (lambda t: t.state != "hysteresis", lambda t: t.state in WRITABLE):
+        v = prop.verified
+        if v is None or _good(v) or all(allowed(t) for t, _ in chosen):
+            break
+        plain = [c for c in scored if all(allowed(dic.terms[j][0]) for j in c[2])]
+        if not plain or max(plain, key=lambda c: c[0])[2] in tried:
+            continue
+        d2, se2, support2 = max(plain, key=lambda c: c[0])
+        tried.add(support2)
+        prop2 = write(dic.fit(problem, support2), "closed form", d2, se2, series=series)
+        v2 = prop2.verified
+        better = v2 is not None and _closeness(v2) > _closeness(v)
+        keep, drop = (prop2, prop) if better else (prop, prop2)
+        _discard(drop, existing)
+        prop = keep
+    return prop
 
 
 def _tabulated(problem: LinearProblem, blocks: list, full: PenalisedFit, top: str,
@@ -373,12 +397,17 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
                 amps = [float(np.std(c * series[t.slug])) for t, c in told]
                 keep = [tc for tc, a in zip(told, amps, strict=True) if a >= 0.1 * max(amps)]
                 if len(keep) < len(told):
-                    if created:
-                        path.unlink()  # written by this run, and superseded
-                    chosen = keep
-                    path, created = write_plugin(chosen, kind, tables, plugin_dir)
-                    verified = verify_proposal(problem, path, chosen)
-                    told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+                    path2, created2 = write_plugin(keep, kind, tables, plugin_dir)
+                    v2 = verify_proposal(problem, path2, keep)
+                    # kept without the term only when that refits no worse (a loop's
+                    # small force can still carry its shape)
+                    if _closeness(v2) >= _closeness(verified):
+                        if created:
+                            path.unlink()  # written by this run, and superseded
+                        chosen, path, created, verified = keep, path2, created2, v2
+                        told = [(t, verified["values"][f"c_{t.slug}"]) for t, _ in chosen]
+                    elif created2:
+                        path2.unlink()
         plugin = str(path)
     if verified is not None and "L_period" in verified["values"]:
         mm = verified["values"]["L_period"] * 1e3  # the refitted period, in the words too
@@ -390,12 +419,31 @@ def _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, t
         told = [(replace(t, name=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.name),
                          words=re.sub(r"-?[0-9.]+(e[+-]?[0-9]+)? mm", f"{mm:.3g} mm", t.words))
                  if t.breakpoint_m is not None else t, c) for t, c in told]
+    if verified is not None and "tau_memory" in verified["values"]:
+        tau = f"{verified['values']['tau_memory']:.3g}"  # the refitted time constant too
+        told = [(replace(t, name=re.sub(r"tau=[0-9.e+-]+ s", f"tau={tau} s", t.name),
+                         words=re.sub(r"over [0-9.e+-]+ s", f"over {tau} s", t.words))
+                 if t.memory_tau_s is not None else t, c) for t, c in told]
+    if verified is not None and "w_loop" in verified["values"]:
+        mm = f"{verified['values']['w_loop'] * 1e3:.3g} mm"  # the refitted width too
+        told = [(replace(t, name=re.sub(r"width=[0-9.e+-]+ mm", f"width={mm}", t.name),
+                         words=re.sub(r"over [0-9.e+-]+ mm", f"over {mm}", t.words))
+                 if t.loop_width_m is not None else t, c) for t, c in told]
     expression, description = describe_terms(told, kind)
     terms = [{"term": t.name, "unit": t.unit, "coefficient": c, "parameter": f"c_{t.slug}",
               "words": t.words, "writable": t.writable} for t, c in told]
     return Proposal(effect=effect_name(chosen), expression=expression,
                     description=description, terms=terms, kind=kind, elpd_diff=float(d),
                     elpd_diff_se=float(se), plugin=plugin, verified=verified)
+
+
+def _reading_text(reading: ReadingError) -> str:
+    """The verdict when errors of the reading do as well as any force."""
+    return ("The missing piece is not a force of the states tried: an error of the "
+            f"position reading ({' and '.join(reading.terms)}) predicts the left-out data "
+            f"as well as a flexible force does (ΔELPD {reading.elpd_vs_force:+.1f} ± "
+            f"{reading.se:.1f} against it, {reading.elpd_gain:+.1f} over the model alone), "
+            "so no force is proposed: check the sensor and its mounting.")
 
 
 def _other_cause(lik, noise, sim, explained: float, after: str) -> str:

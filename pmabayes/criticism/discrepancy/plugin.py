@@ -37,7 +37,7 @@ import math
 import numpy as np
 
 import pmabayes as pb
-$tables$memory
+$tables$state
 
 def _physics($arguments):
     """Force opposing extension, and its derivatives in $derivatives."""
@@ -67,16 +67,25 @@ _COEFS = np.array($coefs)
 """)
 
 #: the memory state: the low-passed velocity s' = (v - s) / tau, exact over a step of
-#: constant v
+#: constant v; tau is a parameter of the effect (the refit adjusts it)
 _MEMORY = Template('''
-
-_TAU_S = $tau
-
 
 def _advance(q, s, x0, x1, h):
     """The memory state over a step: exact for a constant velocity."""
-    e = math.exp(-h / _TAU_S)
+    e = math.exp(-h / $tau)
     return s * e + (1.0 - e) * (x1 - x0) / h, (1.0 - e) / h
+''')
+
+#: the loop state: Dahl's h' = (sgn x' - h) |x'| / width, exact over a straight step; the
+#: width is a parameter of the effect
+_LOOP = Template('''
+
+def _advance(q, s, x0, x1, h):
+    """The loop state over a step: exact for a straight travel."""
+    dx = x1 - x0
+    target = 1.0 if dx >= 0.0 else -1.0
+    e = math.exp(-abs(dx) / $width)
+    return target + (s - target) * e, -(s - target) * e * target / $width
 ''')
 
 #: the table evaluated inline: a compiled helper would be a second function the
@@ -99,7 +108,7 @@ _LOOKUP = Template("""    s = $symbol
 
 #: one parameter of the effect
 _PARAMETER = Template(
-    "        pb.Parameter($name, $unit, $default, pb.Normal($default, $sd), "
+    "        pb.Parameter($name, $unit, $default, $prior, "
     "bounds=($low, $high), null=$null,\n"
     "                     description=$description),\n")
 
@@ -128,19 +137,27 @@ def plugin_source(name: str, chosen: list, description: str, tables=None) -> str
     """
     reads_z = any(t.reads_z for t, _ in chosen)
     tau = next((t.memory_tau_s for t, _ in chosen if t.memory_tau_s is not None), None)
-    extended = reads_z or tau is not None  # the signature of effects that read z or s
+    width = next((t.loop_width_m for t, _ in chosen if t.loop_width_m is not None), None)
+    if tau is not None and width is not None:
+        raise ValueError("an effect has one state: a memory term and a loop term cannot be "
+                         "written in one effect")
+    stateful = tau is not None or width is not None
+    extended = reads_z or stateful  # the signature of effects that read z or s
     body = ["    f = 0.0", "    fx = 0.0", "    fv = 0.0"]
     body += ["    fz = 0.0", "    fs = 0.0"] if extended else []
     if tables is not None:
         body.append(_LOOKUP.substitute(symbol=_SYMBOL[chosen[0][0].state]))
     attributes = ["    reads_z = True"] if reads_z else []
-    if tau is not None:
-        attributes += ['    state = "v_lp_m_s"', "    advance = staticmethod(_advance)"]
+    if stateful:
+        attributes += [f'    state = "{"v_lp_m_s" if tau is not None else "h_loop"}"',
+                       "    advance = staticmethod(_advance)"]
+    extra = _extra_indices(chosen)[2]
     return _FILE.substitute(
         description=description, name=name, name_repr=repr(name),
         description_repr=repr(description),
         tables="" if tables is None else _tables(*tables),
-        memory="" if tau is None else _MEMORY.substitute(tau=repr(float(tau))),
+        state=(_MEMORY.substitute(tau=extra) if tau is not None else
+                _LOOP.substitute(width=extra) if width is not None else ""),
         arguments="q, x, v, p, z, s" if extended else "q, x, v, p",
         derivatives="x, v, z and s" if extended else "x and v",
         body="\n".join(body + _force_lines(chosen)),
@@ -155,15 +172,18 @@ def _tables(breaks, coefs) -> str:
         coefs=repr([[float(f"{c:.10g}") for c in row] for row in coefs]))
 
 
-def _extra_indices(chosen: list) -> tuple[str, str]:
-    """The period's and the breakpoint's entries of ``q``, after the coefficients."""
+def _extra_indices(chosen: list) -> tuple[str, str, str]:
+    """The period's, the breakpoint's and the state's constant's (the memory's time
+    constant or the loop's width) entries of ``q``, after the coefficients."""
     period = any(t.period_m is not None for t, _ in chosen)
-    return f"q[{len(chosen)}]", f"q[{len(chosen) + period}]"
+    brk = any(t.breakpoint_m is not None for t, _ in chosen)
+    n = len(chosen)
+    return f"q[{n}]", f"q[{n + period}]", f"q[{n + period + brk}]"
 
 
 def _force_lines(chosen: list) -> list[str]:
     """The force and its derivatives, a term at a time."""
-    per, brk = _extra_indices(chosen)
+    per, brk, _ = _extra_indices(chosen)
 
     def fill(expr: str) -> str:
         return expr.replace("{L}", per).replace("{B}", brk)
@@ -178,8 +198,9 @@ def _force_lines(chosen: list) -> list[str]:
 
 
 def _parameters(chosen: list) -> str:
-    """The effect's parameters: a coefficient per term, then the period and the
-    breakpoint of the terms that have them."""
+    """The effect's parameters: a coefficient per term, then the period, the
+    breakpoint and the state's scale (memory time constant or loop width) of the terms
+    that have them."""
     out = []
     for t, coef in chosen:
         sd = max(2.0 * abs(coef), 1e-12)
@@ -194,13 +215,25 @@ def _parameters(chosen: list) -> str:
     if brk is not None:
         out.append(_parameter("x_break", "m", brk, 0.01, brk - 0.1, brk + 0.1, brk,
                               "position below which the spring acts"))
+    tau = next((t.memory_tau_s for t, _ in chosen if t.memory_tau_s is not None), None)
+    if tau is not None:
+        # a scale within a factor 1000 either way: the prior's tails (6.9 sigma) inside
+        out.append(_parameter("tau_memory", "s", tau, 1.0, 1e-3 * tau, 1e3 * tau, tau,
+                              "time constant of the low-passed velocity", "LogNormal"))
+    width = next((t.loop_width_m for t, _ in chosen if t.loop_width_m is not None), None)
+    if width is not None:
+        out.append(_parameter("w_loop", "m", width, 1.0, 1e-3 * width, 1e3 * width, width,
+                              "travel over which the loop saturates", "LogNormal"))
     return "".join(out)
 
 
 def _parameter(name: str, unit: str, default: float, sd: float, low: float, high: float,
-               null: float, description: str) -> str:
+               null: float, description: str, prior: str = "Normal") -> str:
+    """One parameter's line: its prior ``Normal(default, sd)``, or ``LogNormal(default,
+    sd)`` (``sd`` then of the logarithm) for a time constant."""
     return _PARAMETER.substitute(name=repr(name), unit=repr(unit), default=repr(default),
-                                 sd=repr(sd), low=repr(low), high=repr(high), null=repr(null),
+                                 prior=f"pb.{prior}({default!r}, {sd!r})", low=repr(low),
+                                 high=repr(high), null=repr(null),
                                  description=repr(description))
 
 

@@ -22,15 +22,21 @@ __all__ = ["STATES"]
 #: the states the flexible force may depend on: name, unit, symbol
 STATES = (("position", "m", "x"), ("velocity", "m/s", "v"), ("pressure", "Pa", "p"),
           ("hysteresis", "N", "z"), ("direction", "1", "sgn v"),
-          ("memory", "m/s", "v_lp"))
+          ("memory", "m/s", "v_lp"), ("loop", "1", "h"))
 
 
 #: spline basis functions per state (position resolves detents of ~4 knot spacings)
-_N_BASIS = {"position": 64, "velocity": 16, "pressure": 12, "hysteresis": 12, "memory": 12}
+_N_BASIS = {"position": 64, "velocity": 16, "pressure": 12, "hysteresis": 12, "memory": 12,
+            "loop": 8}
 
 
 #: time constants scanned for the memory state (low-passed velocity), s
 MEMORY_TAUS_S = (0.1, 0.4, 1.6)
+
+
+#: widths scanned for the loop state (a second hysteresis loop, Dahl's friction model:
+#: it saturates over this much travel after each reversal), m
+LOOP_WIDTHS_M = (0.5e-3, 2e-3, 8e-3)
 
 
 #: states a force effect can be written in today (force-stage physics gets x, v, p)
@@ -63,6 +69,22 @@ def low_pass(v: np.ndarray, tau_s: float, dt_s: float) -> np.ndarray:
     for k in range(v.size):
         acc = a * acc + (1.0 - a) * v[k]
         out[k] = acc
+    return out
+
+
+def dahl_loop(x: np.ndarray, width_m: float) -> np.ndarray:
+    """The loop state: from 0, it runs towards +1 while the position rises and towards -1
+    while it falls, ``h' = (sgn x' - h) |x'| / width`` (Dahl's friction model, exact over
+    each step); rate-independent, so a function of the path alone."""
+    out = np.empty_like(x)
+    h = 0.0
+    out[0] = 0.0
+    decay = np.exp(-np.abs(np.diff(x)) / width_m)
+    rising = np.diff(x) >= 0.0
+    for k in range(decay.size):
+        target = 1.0 if rising[k] else -1.0
+        h = target + (h - target) * decay[k]
+        out[k + 1] = h
     return out
 
 
@@ -199,16 +221,20 @@ class LinearProblem:
         g = force_response(self.plant, forces.T).T
         return g, self.whiten_cols(g)
 
-    def states(self, memory_tau_s: float) -> dict:
+    def states(self, memory_tau_s: float, loop_width_m: float) -> dict:
+        """The states along the MAP trajectory, the memory and loop states with the
+        given time constant and width."""
         s = self.sim
         v = s.velocity_m_s[0]
         return {"position": s.true_position_m[0], "velocity": v, "pressure": s.pressure_pa[0],
                 "hysteresis": s.hysteresis_n[0], "direction": np.sign(v),
-                "memory": low_pass(v, memory_tau_s, self.dataset.dt_s)}
+                "memory": low_pass(v, memory_tau_s, self.dataset.dt_s),
+                "loop": dahl_loop(s.true_position_m[0], loop_width_m)}
 
-    def blocks(self, memory_tau_s: float) -> list[Block]:
+    def blocks(self, memory_tau_s: float, loop_width_m: float) -> list[Block]:
+        """Each state's block (its spline basis, penalty and responses)."""
         out = []
-        for name, series in self.states(memory_tau_s).items():
+        for name, series in self.states(memory_tau_s, loop_width_m).items():
             if name == "direction":
                 basis, pen, knots, grid = series[:, None].astype(float), np.eye(1), None, (-1, 1)
             else:

@@ -136,6 +136,13 @@ class Discrepancy:
     energy_after : float
         Mean square of the whitened residual with the flexible force (linearised; 1 for
         pure noise).
+    loop_width_m : float
+        Width of the loop state (the travel over which it saturates), by the evidence.
+    not_a_force : bool
+        Whether the verdict says the missing piece is not a force of the states tried:
+        errors of the position reading predict the left-out data as well as the flexible
+        force (then no force is proposed), or the flexible force leaves the model
+        above the floor (:attr:`other_cause`).
     """
 
     states: list
@@ -151,6 +158,8 @@ class Discrepancy:
     text: str
     explained_rms: float | None = None
     energy_after: float = math.nan
+    loop_width_m: float = math.nan
+    not_a_force: bool = False
 
     def to_dict(self) -> dict:
         """JSON-ready summary (the ``discrepancy`` key of ``pmabayes diagnose --json``)."""
@@ -160,6 +169,8 @@ class Discrepancy:
                 "energy_after": finite_or_none(self.energy_after),
                 "elpd_gain": self.elpd_gain,
                 "elpd_gain_se": self.elpd_gain_se, "memory_tau_s": self.memory_tau_s,
+                "loop_width_m": finite_or_none(self.loop_width_m),
                 "near_floor": self.near_floor, "other_cause": self.other_cause,
+                "not_a_force": self.not_a_force,
                 "proposal": None if self.proposal is None else self.proposal.to_dict(),
                 "text": self.text}
