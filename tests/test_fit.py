@@ -535,17 +535,15 @@ def test_an_indefinite_hessian_is_measured_again_along_its_eigenvectors():
 
 
 def test_map_of_a_record_whose_noise_sits_at_its_guard():
-    """A 3 s record bounds its noise's correlation time at a tenth of it (0.3 s), below
-    the generator's 3 s: the noise's mode lies on the bound, and the polish must start
-    inside it."""
-    noise = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=3.0)
+    """A 2 Hz chirp bounds its noise's correlation at 0.20, below the generator's
+    0.37: the noise's mode lies on the guard, and the polish must start inside it."""
+    noise = MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002)
     chirp = Chirp(duration_s=3.0, f0_hz=0.3, f1_hz=2.0, sample_rate_hz=500.0)
     ds = generate_chirp_dataset(n_trials=1, seed=2, chirp=chirp, noise=noise)
     lik = Likelihood(pb.Model(), ds)
-    assert lik.rho_max == pytest.approx(np.exp(-0.002 / 0.3), rel=1e-12)
+    assert lik.rho_max < 0.3
     post = Posterior(lik, None)
     result = find_map(post, rng=np.random.default_rng(0))
     assert np.isfinite(result.log_posterior)
-    gap = lik.rho_max - result.values["rho_noise"]
-    assert 0.0 <= gap < 0.01 * (1.0 - lik.rho_max)
+    assert 0.9 * lik.rho_max < result.values["rho_noise"] <= lik.rho_max
     assert np.all(np.linalg.eigvalsh(result.covariance_z) > 0)

@@ -284,7 +284,7 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
             ("periods", "deviations of the periods of a single periodic record from their "
                         "mean; posterior by Laplace approximation, independent draws"),
             ("record", "the record itself, jointly with the model (sampled), the disturbance's "
-                       "correlation time at most a tenth of the record"))
+                       "correlation time bounded far below the input's time scales"))
         if key in sources)
     noise = {"model": ("AR(1) disturbance plus white sensor noise per trial, stationary, "
                        "independent between trials"
