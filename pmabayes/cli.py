@@ -486,7 +486,9 @@ def _model_for(dataset, args: argparse.Namespace):
     """The model of a fitting command: the data's rig, the effects and priors asked for."""
     from pmabayes.model.model import Model
 
-    return Model.for_dataset(dataset, args.effects, priors=dict(args.prior))
+    fixed = _parse_assignments(getattr(args, "fix", []), "--fix")
+    return Model.for_dataset(dataset, args.effects, priors=dict(args.prior),
+                             fixed=fixed or None)
 
 
 def _fit_settings(args: argparse.Namespace):
@@ -1055,7 +1057,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
                                 "command again to resume (finished fits are skipped)")
     effects = tuple(args.effects)
     try:
-        result = fit_batch([BatchJob(d, effects, priors=dict(args.prior)) for d in args.data],
+        fixed = _parse_assignments(args.fix, "--fix") or None
+        result = fit_batch([BatchJob(d, effects, priors=dict(args.prior), fixed=fixed)
+                            for d in args.data],
                            out_dir=out, settings=_fit_settings(args), seed=args.seed,
                            processes=args.processes, dask=args.dask, restart=args.restart)
     except BatchError as err:
@@ -1127,6 +1131,9 @@ def _prior_option(p: argparse.ArgumentParser) -> None:
                    help="replace a parameter's prior, e.g. --prior 'K_e=LogNormal(5e4, 2)' "
                    "(Uniform(low, high), Normal(mu, sigma), LogNormal(median, sigma), "
                    "HalfNormal(sigma); repeatable); `pmabayes effects` lists the defaults")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="hold a parameter at a value instead of identifying it, e.g. "
+                   "--fix v_c=0.002 (repeatable)")
 
 
 def _exclude_option(p: argparse.ArgumentParser) -> None:

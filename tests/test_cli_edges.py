@@ -584,3 +584,35 @@ def test_the_ranking_says_what_orders_it(capsys):
                         "then the others, ordered by the score test's evidence):")
     assert [line.split()[0] for line in lines[1:]] == ["b", "a", "c", "d"]
     assert "ΔELPD   +120.0" in lines[1]
+
+
+def test_fix_holds_a_parameter_at_a_value(tmp_path, capsys):
+    """Issue 22 (item 8): the docs advise fixing a parameter (``v_c``), which only the
+    Python API could; ``--fix NAME=VALUE`` holds it on fit, run and diagnose."""
+    import warnings
+
+    from pmabayes.inference.fitfile import fit_info, load_fit
+
+    data = tmp_path / "s.csv"
+    assert main(["simulate", str(data), "--duration", "2", "--trials", "2", "--seed", "1",
+                 "--quiet"]) == 0
+    out = tmp_path / "f.nc"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # 300 steps do not converge, and need not here
+        assert main(["fit", str(data), "--out", str(out), "--fix", "p_dz=0", "--steps", "300",
+                     "--quiet"]) == 0
+    tree = load_fit(out)
+    assert fit_info(tree)["model"]["fixed"] == {"p_dz": 0.0}
+    assert "p_dz" not in tree["posterior"].data_vars
+    capsys.readouterr()
+    _one_line_error(capsys, main(["fit", str(data), "--out", str(tmp_path / "g.nc"),
+                                  "--fix", "nope=1"]), "'nope' is not a parameter")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["batch", str(data), "--out", str(tmp_path / "b"), "--fix", "p_dz=0",
+                     "--steps", "300", "--quiet", "--processes", "1"]) == 0
+    assert fit_info(load_fit(tmp_path / "b" / "s.nc"))["model"]["fixed"] == {"p_dz": 0.0}
+    for command in ("run", "diagnose"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert "--fix NAME=VALUE" in capsys.readouterr().out

@@ -86,12 +86,15 @@ class BatchJob:
         file's stem (the data set's ``source`` stem for a Dataset).
     priors : mapping of str to Prior, optional
         Overrides of the default priors, by parameter name.
+    fixed : mapping of str to float, optional
+        Parameters held at these values, by name.
     """
 
     data: str | Path | Dataset
     effects: tuple[str, ...] = ()
     name: str | None = None
     priors: Mapping[str, Prior] | None = None
+    fixed: Mapping[str, float] | None = None
 
     def resolved_name(self) -> str:
         """The data set's name: ``name``, else the stem of its file.
@@ -478,11 +481,12 @@ def _prepare(jobs: list[BatchJob], names: list[str], out_dir: Path, settings: Fi
         rec = {"name": name, "data": job.where, "status": None, "seed": s,
                "effects": list(job.effects),
                "priors": {k: str(v) for k, v in (job.priors or {}).items()},
-               "fit_file": str(path)}
+               "fixed": dict(job.fixed or {}), "fit_file": str(path)}
         records[name] = rec
         try:
             dataset = job.data if isinstance(job.data, Dataset) else load(job.data)
-            model = Model.for_dataset(dataset, job.effects, priors=job.priors)
+            model = Model.for_dataset(dataset, job.effects, priors=job.priors,
+                                      fixed=job.fixed or None)
         except (*_DATA_ERRORS, OSError) as exc:
             rec.update(_failure(exc), fit_file=None)
             continue
