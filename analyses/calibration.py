@@ -67,6 +67,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import math
 import sys
 import time
 from dataclasses import replace
@@ -227,6 +228,11 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
     tree = fit(ds, Model(), seed=data_seed,
                settings=replace(job["settings"], noise_model=job.get("noise_model", "auto")))
     info = fit_info(tree)
+    check = info["experiments"][0].get("metadata", {}).get("disturbance_check")
+    if check is not None:  # a record whose noise sat at the fast bound (settle_disturbance)
+        slow = check["rms_slow_m"]
+        extra["disturbance_kept"] = check["kept"]
+        extra["slow_rms_ratio"] = math.nan if slow is None else slow / check["rms_fast_m"]
     hdi = az.hdi(tree, prob=0.9)
     rows = []
     for name in PARAMS:
@@ -238,7 +244,7 @@ def _calibrate_one(job: dict) -> tuple[list[dict], float]:
                      "z": float((truth[name] - draws.mean()) / draws.std()),
                      "converged": info["convergence"]["converged"],
                      "noise_model": info["experiments"][0]["noise_model"]["model"], **extra})
-        if extra:
+        if job.get("measured_inputs"):
             rows[-1]["noise_floor_referred_m"] = info["experiments"][0]["noise_floor_m"]
     if job.get("judge"):
         verdict = _judge(tree, ds, data_seed)
@@ -360,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     spread = z_spread(rows)
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / f"{stem}_fits.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         writer.writeheader()
         writer.writerows(rows)
     with open(args.out / f"{stem}.csv", "w", newline="") as fh:
@@ -380,6 +386,12 @@ def main(argv: list[str] | None = None) -> int:
               f"median {np.median(ratio):.3f}, range {ratio.min():.3f}-{ratio.max():.3f}")
     n_conv = len({r["dataset"] for r in rows if r["converged"]})
     print(f"{n} data sets, {n_conv} converged, {time.perf_counter() - start:.0f} s")
+    checked = {r["dataset"]: r for r in rows if "disturbance_kept" in r}
+    if checked:
+        ratios = [r["slow_rms_ratio"] for r in checked.values()]
+        kept = sum(r["disturbance_kept"] == "slow" for r in checked.values())
+        print(f"noise at the fast bound in {len(checked)}/{n} records; slow disturbance kept "
+              f"in {kept}; model RMS error slow/fast {min(ratios):.4f}-{max(ratios):.4f}")
     if args.diagnose:
         print(judged_line(rows))
     print(f"coverage_min: {min(cov.values()):.3f}")

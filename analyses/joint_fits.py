@@ -22,7 +22,8 @@ it, that count is the false alarm rate on experiments that agree.
 Usage::
 
     python analyses/joint_fits.py [--datasets 10] [--seed 0] [--disagree]
-                                  [--factor 3] [--noise {fast,default}] [--out DIR]
+                                  [--factor 3] [--noise {fast,default}]
+                                  [--design {short,cli}] [--paper-values] [--out DIR]
 
 Writes ``joint_fits[_disagree][_default].csv`` into ``--out`` (default
 ``paper/tables``) and prints one line per data set, then the fractions.
@@ -43,13 +44,17 @@ from pmabayes.data import Dataset
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import _noise_start, _polish_from, find_map
-from pmabayes.model.model import Rig
+from pmabayes.model.model import PAPER_VALUES, Rig
 from pmabayes.synthetic import Chirp, MeasurementNoise, draw_plausible, generate_chirp_dataset
 
 #: the experiments' measurement, by ``--noise``
 NOISES = {"fast": MeasurementNoise(disturbance_std_m=20e-6, disturbance_corr_time_s=0.002),
           "default": MeasurementNoise()}
 CHIRP = Chirp(duration_s=4.0, f0_hz=0.2, f1_hz=3.0, sample_rate_hz=500.0)
+#: the experiments' designs, by ``--design``: ``short`` (the chirp above, 3 trials, the
+#: sine at 500 Hz) or ``cli`` (``pmabayes simulate``'s default chirp, 15 s at 1 kHz and
+#: 10 trials, and the sine at 1 kHz, as a user of the command line would make them)
+DESIGNS = {"short": (CHIRP, 3, 500.0), "cli": (Chirp(), 10, 1000.0)}
 #: the log posterior below the oracle's at which a MAP is in another basin
 BASIN_TOLERANCE = 1.0
 
@@ -70,16 +75,17 @@ def loaded_sine(truth: dict, seed: int, noise: MeasurementNoise, *, n_trials: in
 
 
 def experiments(truth: dict, seed: int, factor: float | None,
-                noise: MeasurementNoise) -> list[Dataset]:
+                noise: MeasurementNoise, design: str = "short") -> list[Dataset]:
     """The chirp and the loaded sine of one data set (the sine's ``K_e`` times
-    ``factor`` when given)."""
-    chirp = generate_chirp_dataset(n_trials=3, seed=seed, chirp=CHIRP, noise=noise,
-                                   params=truth)
+    ``factor`` when given), of a design of :data:`DESIGNS`."""
+    chirp_design, n_trials, rate_hz = DESIGNS[design]
+    chirp = generate_chirp_dataset(n_trials=n_trials, seed=seed, chirp=chirp_design,
+                                   noise=noise, params=truth)
     chirp = Dataset(time_s=chirp.time_s, input=chirp.input, position_m=chirp.position_m,
                     trial_ids=chirp.trial_ids, metadata=chirp.metadata,
                     source="chirp_unloaded.csv")
     other = truth if factor is None else {**truth, "K_e": truth["K_e"] * factor}
-    return [chirp, loaded_sine(other, seed + 1, noise)]
+    return [chirp, loaded_sine(other, seed + 1, noise, rate_hz=rate_hz)]
 
 
 def oracle(posterior, truth: dict) -> float:
@@ -94,15 +100,18 @@ def oracle(posterior, truth: dict) -> float:
     return float(posterior.log_prob_z(z_map[None])[0])
 
 
-def study_one(k: int, seed: int, factor: float | None, noise: MeasurementNoise) -> dict:
+def study_one(k: int, seed: int, factor: float | None, noise: MeasurementNoise,
+              design: str = "short", paper_values: bool = False) -> dict:
     """One data set's row: log posteriors before, after and of the oracle, the loaded
     experiment's RMS at each MAP, and the agreement verdict."""
     rng = np.random.default_rng([seed, k])
     truth = draw_plausible(rng)
     data_seed = int(rng.integers(2**31))
+    if paper_values:  # drawn all the same, so that the data seeds stay those of the draws
+        truth = dict(PAPER_VALUES)
     row = {"dataset": k, "seed": data_seed, **{f"true_{n}": v for n, v in truth.items()}}
     for which, own in (("before", False), ("after", True)):
-        post = build_posterior(Model(), experiments(truth, data_seed, factor, noise))
+        post = build_posterior(Model(), experiments(truth, data_seed, factor, noise, design))
         try:
             result = find_map(post, rng=np.random.default_rng(data_seed), own_starts=own)
         except FitError as err:  # the joint model fits so badly that the fit refuses it
@@ -139,6 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--factor", type=float, default=3.0)
     parser.add_argument("--noise", choices=tuple(NOISES), default="fast",
                         help="the measurement: 20 um of 2 ms (fast) or 60 um of 0.1 s")
+    parser.add_argument("--design", choices=tuple(DESIGNS), default="short",
+                        help="the experiments: short records (short) or the command "
+                        "line's default chirp (cli)")
+    parser.add_argument("--paper-values", action="store_true",
+                        help="every data set of the paper's plant instead of drawn ones")
     parser.add_argument("--out", type=Path, default=Path("paper/tables"))
     args = parser.parse_args(argv)
     if args.datasets < 1:
@@ -147,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for k in range(args.datasets):
         start = time.perf_counter()
-        row = study_one(k, args.seed, factor, NOISES[args.noise])
+        row = study_one(k, args.seed, factor, NOISES[args.noise], args.design,
+                        args.paper_values)
         rows.append(row)
         basin = ("" if factor is not None else
                  f"right basin before={row['right_before']} after={row['right_after']}, ")
@@ -158,7 +173,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{row['start']}), {time.perf_counter() - start:.0f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     stem = "joint_fits" + ("_disagree" if args.disagree else "") + (
-        "" if args.noise == "fast" else f"_{args.noise}")
+        "" if args.noise == "fast" else f"_{args.noise}") + (
+        "" if args.design == "short" else f"_{args.design}") + (
+        "_paper" if args.paper_values else "")
     path = args.out / f"{stem}.csv"
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)),

@@ -21,9 +21,13 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy
 
 __all__ = ["fingerprint", "source_text", "local_cores", "Progress", "show_progress",
-           "progress_shown", "finite_or_none"]
+           "progress_shown", "finite_or_none", "side_stream"]
 
 
 def _feed(h, part) -> None:
@@ -55,6 +59,33 @@ def finite_or_none(value) -> float | None:
     """
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+def side_stream(rng: numpy.random.Generator, key: int) -> numpy.random.Generator:
+    """A generator independent of ``rng`` that leaves ``rng`` as it was.
+
+    ``rng.spawn`` advances the count of children its seed sequence has spawned, so a
+    step added to a pipeline would change every later spawn's stream, and with it
+    results that do not depend on that step. This child of the same entropy, keyed by
+    ``key``, does not: the same ``rng`` and ``key`` give the same stream.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The caller's generator (made from a seed sequence, as ``default_rng`` makes it).
+    key : int
+        Which side stream (non-negative; distinct per purpose).
+
+    Returns
+    -------
+    numpy.random.Generator
+    """
+    import numpy as np  # not at the top: the CLI's start does not need numpy
+
+    seq = rng.bit_generator.seed_seq
+    return np.random.default_rng(np.random.SeedSequence(
+        seq.entropy, spawn_key=(*seq.spawn_key, 2**32 + int(key)),
+        pool_size=seq.pool_size))
 
 
 def fingerprint(*parts, length: int = 16) -> str:

@@ -212,6 +212,27 @@ def test_resumed_run_equals_uninterrupted(small_data, tmp_path):
         fit(small_data, pb.Model(), seed=6, chains_dir=tmp_path / "c", settings=never)
 
 
+def test_a_side_stream_leaves_its_parent_as_it_was():
+    """A step added to a pipeline takes a side stream: the parent's later spawns and
+    draws (and so every result that does not depend on the step) stay the same."""
+    from pmabayes.util import side_stream
+
+    def fresh():
+        return np.random.default_rng(7)
+
+    side = side_stream(fresh(), 1).random(4)
+    assert np.array_equal(side, side_stream(fresh(), 1).random(4))  # same key, same stream
+    assert not np.array_equal(side, side_stream(fresh(), 2).random(4))
+    assert not np.array_equal(side, fresh().spawn(1)[0].random(4))
+    used = fresh()
+    side_stream(used, 1).random(10)
+    assert np.array_equal(used.spawn(1)[0].random(3), fresh().spawn(1)[0].random(3))
+    assert np.array_equal(used.random(3), fresh().random(3))
+    spawned = fresh()
+    spawned.spawn(1)  # what a spawn would have done: the next child differs
+    assert not np.array_equal(spawned.spawn(1)[0].random(3), fresh().spawn(1)[0].random(3))
+
+
 @pytest.mark.slow
 def test_not_converged_says_so_and_still_returns(small_data):
     with pytest.warns(RuntimeWarning, match="did NOT converge"):

@@ -1,12 +1,13 @@
 """The AR(1) likelihood of repeated trials."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 import pmabayes as pb
-from pmabayes.data import Dataset
+from pmabayes.data import DataError, Dataset
 from pmabayes.inference.likelihood import Likelihood, LikelihoodError, slow_disturbance_note
 from pmabayes.synthetic import Chirp, generate_chirp_dataset
 
@@ -144,3 +145,37 @@ def test_a_record_without_repeats_gets_a_bounded_noise_model():
     lik2 = Likelihood(pb.Model(), make(np.vstack([ds.position_m, ds.position_m + 1e-6]),
                                        inputs=np.vstack([u, u])))
     assert lik2.noise_parameters()[1].bounds[1] > 0.999
+
+
+def test_a_records_declared_or_settled_disturbance_bound_and_its_words():
+    """Issue 23: a lab declares its disturbance's correlation time (``disturbance_max_s``),
+    or the fit's check (:func:`settle_disturbance`) keeps a slow one; the bound follows,
+    and the verdict says which and why."""
+    t = np.arange(2000) * 1e-3
+    u = 2e5 + 1e5 * np.sin(2 * np.pi * 2.0 * t)
+    ds = make((0.01 + 1e-3 * np.sin(2 * np.pi * 2.0 * t))[None], inputs=u[None])
+    declared = dataclasses.replace(ds, metadata={**ds.metadata, "disturbance_max_s": 0.2})
+    lik = Likelihood(pb.Model(), declared)
+    assert lik.rho_max == pytest.approx(math.exp(-1e-3 / 0.2), rel=1e-12)
+    assert lik.rho_max > lik.rho_flat
+    assert lik.noise_parameters()[1].bounds[1] == lik.rho_max
+    assert "disturbance_max_s = 0.2 s" in slow_disturbance_note(lik, lik.rho_max)
+    assert slow_disturbance_note(lik, 0.5) == ""
+    for bad in (0, -1.0, True, "slow", math.inf):
+        with pytest.raises(DataError, match="disturbance_max_s"):
+            dataclasses.replace(ds, metadata={**ds.metadata, "disturbance_max_s": bad})
+    check = {"bound_s": 0.2, "rms_fast_m": 50e-6, "rms_slow_m": 50.5e-6,
+             "ljung_box_p_slow": 0.3, "ratio_allowed": 1.1, "kept": "slow"}
+    kept = Likelihood(pb.Model(), dataclasses.replace(ds, metadata={
+        **ds.metadata, "disturbance_max_s": 0.2, "disturbance_check": check}))
+    note = slow_disturbance_note(kept, 0.99)
+    assert "is slow" in note and "50.5 um against 50 um" in note
+    assert "would look the same on one record" in note
+    for change, words in (({"rms_slow_m": 80e-6}, "takes in misfit"),
+                          ({"rms_slow_m": None}, "refused"),
+                          ({"ljung_box_p_slow": 1e-5}, "left the residual coloured")):
+        fast = Likelihood(pb.Model(), dataclasses.replace(ds, metadata={
+            **ds.metadata, "disturbance_check": {**check, "kept": "fast", **change}}))
+        assert fast.rho_max == fast.rho_flat
+        text = slow_disturbance_note(fast, fast.rho_flat)
+        assert words in text and "kept fast" in text, text

@@ -20,12 +20,13 @@ from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.criticism.signature import residual_signature
 from pmabayes.inference.density import Posterior
+from pmabayes.inference.disturbance import settle_disturbance
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.inference.noise import NoiseEstimate, group_noise
 from pmabayes.inference.search import find_map
 from pmabayes.model.model import Model
 from pmabayes.model.simulator import Simulation
-from pmabayes.util import Progress
+from pmabayes.util import Progress, side_stream
 
 __all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "near_twins",
            "physical_values"]
@@ -176,6 +177,10 @@ def fit_base(models: list, datasets: list, names: list, s: DiagnoseSettings,
     noise_and_choice = [group_noise([lik], s.noise_model) for lik in liks]
     posterior, best = _fit_map(liks, [n for n, _ in noise_and_choice], names, rng,
                                [c for _, c in noise_and_choice], refer=True)
+    # as the fit: a record's disturbance slow where that leaves the fit as it was; the
+    # refits and score tests then share its bound through the data sets' metadata
+    posterior, best = settle_disturbance(posterior, best, rng=side_stream(rng, 1))
+    liks = posterior.likelihoods
     # as the fit: a record from rest's noise from its periods' residual at the MAP
     repeat_noise = list(posterior.group_noise)
     values = dict(best.values)

@@ -54,7 +54,7 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
                  "time_origin_s", "position_reference", "steady_state_tol_m",
                  "max_warmup_periods", "warmup_s", "position_sign", "position_zero_s",
-                 "position_zero")
+                 "position_zero", "disturbance_max_s", "disturbance_check")
 
 
 class DataError(ValueError):
@@ -254,6 +254,14 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{where}: metadata 'warmup_s' is {warmup!r}; it must be a number of seconds, at "
             "least 0: the samples in the record's first warmup_s seconds are left out of the "
             "likelihood (they still drive the simulation). Fix it, or remove it.")
+    slow = metadata.get("disturbance_max_s")
+    if slow is not None and (isinstance(slow, bool) or not isinstance(slow, numbers.Real)
+                             or not math.isfinite(slow) or slow <= 0):
+        raise DataError(
+            f"{where}: metadata 'disturbance_max_s' is {slow!r}; it must be a number of "
+            "seconds above 0: the longest correlation time the disturbance of a record "
+            "without repeats may have (as the rig's repeated records show it). Fix it, or "
+            "remove it to let the fit choose.")
     if steady and period is None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "

@@ -7,9 +7,11 @@ one experiment and for several.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 import arviz as az
@@ -30,6 +32,8 @@ __all__ = [
     "experiment_records",
     "experiment_names",
     "experiment_datasets",
+    "as_fitted",
+    "FIT_METADATA",
     "experiment_models",
     "noise_models",
     "FitFileError",
@@ -475,6 +479,36 @@ def _experiments_of(tree: xr.DataTree) -> list[dict]:
     return [{"name": experiment_names([d.get("source")])[0], "source": d.get("source"),
              "rig": (info.get("model") or {}).get("rig"), "input_name": d.get("input_name"),
              "metadata": {"synthetic": bool(d.get("synthetic", False))}}]
+
+
+#: Metadata a fit adds to its data sets (a record's disturbance:
+#: :func:`pmabayes.inference.disturbance.settle_disturbance`); a data set given beside a
+#: fit takes them from the fit, so that its likelihood is the fit's.
+FIT_METADATA: tuple[str, ...] = ("disturbance_max_s", "disturbance_check")
+
+
+def as_fitted(tree: xr.DataTree, datasets: Sequence[Dataset]) -> list[Dataset]:
+    """Data sets given beside a fit, with the metadata the fit added to them.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+    datasets : sequence of Dataset
+        Its experiments' data, in its order (as read from their files).
+
+    Returns
+    -------
+    list of Dataset
+        Each with the fit's :data:`FIT_METADATA` keys over its own (unchanged where the
+        fit added none).
+    """
+    out = []
+    for exp, ds in zip(_experiments_of(tree), datasets, strict=False):
+        stored = {k: v for k, v in (exp.get("metadata") or {}).items() if k in FIT_METADATA}
+        out.append(dataclasses.replace(ds, metadata={**ds.metadata, **stored}) if stored
+                   else ds)
+    return out + list(datasets[len(out):])
 
 
 def experiment_datasets(tree: xr.DataTree) -> list[Dataset]:

@@ -32,7 +32,7 @@ __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "J
            "MAX_AR_ORDER", "LJUNG_BOX_LAGS", "ljung_box_statistic", "levinson", "ArNoise",
            "ar_noise_from_repeats", "NoiseChoice", "check_noise_model_name",
            "ar1_whiteness_of_repeats", "choose_noise_model", "NOISE_PER_AMPLITUDE", "span",
-           "START_WINDOW_S", "slow_disturbance_note"]
+           "START_WINDOW_S", "slow_disturbance_note", "at_fast_bound"]
 
 #: The noise model's parameters, identified with every fit.
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
@@ -458,6 +458,26 @@ def _repeat_mask(dataset: Dataset, observed: np.ndarray | None) -> np.ndarray | 
     return observed[:1]
 
 
+def at_fast_bound(likelihood: Likelihood, rho: float) -> bool:
+    """Whether a record's noise sits at its fast bound.
+
+    Parameters
+    ----------
+    likelihood : Likelihood
+        The record's.
+    rho : float
+        The identified noise's lag-one correlation.
+
+    Returns
+    -------
+    bool
+        True for a record without repeats whose ``rho`` is within 1% of
+        ``1 - rho_flat`` of :attr:`Likelihood.rho_flat`; False for data with repeats.
+    """
+    flat = likelihood.rho_flat
+    return likelihood.noise_source == "record" and flat - float(rho) <= 0.01 * (1.0 - flat)
+
+
 def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
     """What a record without repeats cannot tell, when its disturbance is slow.
 
@@ -471,22 +491,62 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
     Returns
     -------
     str
-        A sentence (no final full stop) when the record has no repeats and ``rho``
-        sits at :attr:`Likelihood.rho_flat` (within 1% of ``1 - rho_flat``); an empty
-        string otherwise.
+        A sentence (no final full stop) for a record without repeats whose noise was
+        allowed to be slow (its metadata's ``disturbance_check``, written by
+        :func:`pmabayes.inference.disturbance.settle_disturbance`, or a declared
+        ``disturbance_max_s``), or whose noise sits at the fast bound; an empty string
+        otherwise.
     """
-    flat = likelihood.rho_flat
-    if likelihood.noise_source != "record" or flat - float(rho) > 0.01 * (1.0 - flat):
+    if likelihood.noise_source != "record":
         return ""
-    tau_flat = -likelihood.dataset.dt_s / math.log(flat)
+    meta = likelihood.dataset.metadata
+    check = meta.get("disturbance_check")
+    dt = likelihood.dataset.dt_s
+    tau_flat = -dt / math.log(likelihood.rho_flat)
     f_in = max(likelihood.input_frequency_hz,
                likelihood.dataset.sample_rate_hz / likelihood.n_samples)
-    return (f"the disturbance identified with the model sits at its bound, a correlation "
-            f"time of {tau_flat * 1e3:.2g} ms (flat up to {GUARD_FACTOR:g} times the "
-            f"input's {f_in:.3g} Hz): a slower disturbance would reach into the input's "
-            "time scales, and one record cannot tell it from slow physics the model lacks, "
-            "so the noise is kept fast and such a disturbance shows as misfit. Repeat the "
-            "record, or make it periodic, to separate them")
+    fast = (f"a correlation time of {tau_flat * 1e3:.2g} ms (flat up to {GUARD_FACTOR:g} "
+            f"times the input's {f_in:.3g} Hz)")
+    if check is not None and check.get("kept") == "slow":
+        tau = -dt / math.log(min(max(float(rho), 1e-12), 0.999999))
+        return (f"the record's disturbance is slow: a correlation time of {tau * 1e3:.3g} ms, "
+                f"beyond the fast bound's {tau_flat * 1e3:.2g} ms, allowed because it leaves "
+                f"the model's own error as it was ({check['rms_slow_m'] * 1e6:.4g} um against "
+                f"{check['rms_fast_m'] * 1e6:.4g} um with a fast one, at most "
+                f"{check['ratio_allowed']:g}x allowed) and the residual white under it "
+                f"(Ljung-Box p = {check['ljung_box_p_slow']:.2g}). Slow physics the model lacks that "
+                "leaves the fit as it was would look the same on one record: repeat the "
+                "record, or make it periodic, to tell them apart")
+    if check is not None:
+        slow_rms, p = check.get("rms_slow_m"), check.get("ljung_box_p_slow")
+        if slow_rms is None:
+            what = "its fit was refused: it takes in misfit"
+        elif slow_rms > check["ratio_allowed"] * check["rms_fast_m"]:
+            what = (f"it left the model's own error at {slow_rms * 1e6:.4g} um against "
+                    f"{check['rms_fast_m'] * 1e6:.4g} um: it takes in misfit")
+        else:
+            p_words = "< 1e-15" if p < 1e-15 else f"= {p:.2g}"
+            what = (f"it left the residual coloured (Ljung-Box p {p_words}): it explains "
+                    "nothing the fast one does not")
+        return (f"the disturbance identified with the model sits at its fast bound, {fast}. "
+                f"A slow one (up to {check['bound_s']:.3g} s) was tried and {what}, so the "
+                "noise is kept fast and the slow residual shows as misfit (slow physics the "
+                "model lacks, or a disturbance one record cannot tell from it). Repeat the "
+                "record, or make it periodic, to separate them")
+    declared = meta.get("disturbance_max_s")
+    if declared is not None:
+        bound = likelihood.rho_max
+        if bound - float(rho) > 0.01 * (1.0 - bound):
+            return ""
+        return (f"the disturbance identified with the model sits at the bound the data "
+                f"declare (disturbance_max_s = {declared:g} s): a slower one shows as misfit")
+    if not at_fast_bound(likelihood, rho):
+        return ""
+    return (f"the disturbance identified with the model sits at its bound, {fast}: a "
+            "slower disturbance would reach into the input's time scales, and one record "
+            "cannot tell it from slow physics the model lacks, so the noise is kept fast and "
+            "such a disturbance shows as misfit. Repeat the record, or make it periodic, to "
+            "separate them")
 
 
 class LikelihoodError(ValueError):
@@ -837,15 +897,17 @@ class Likelihood:
     def rho_max(self) -> float:
         """Largest lag-one correlation the noise of a record without repeats may have.
 
-        :attr:`rho_flat`: the disturbance's spectrum is flat up to
-        :data:`GUARD_FACTOR` times the input's upper frequency, so that the misfit of
-        slow physics stays in the residual, where the adequacy check sees it. A bound at
-        a tenth of the record was tried (issue 23) and let the noise take in a real
-        record's misfit: the cavatappi muscle's 300 g record, whose MAP left 553 µm,
-        was left at 2.92 mm and refused. Returned for any noise source; used for
-        ``"record"``.
+        The data's metadata ``disturbance_max_s`` where given (declared by a lab, or
+        kept by :func:`pmabayes.inference.disturbance.settle_disturbance`); else
+        :attr:`rho_flat`: the disturbance's spectrum flat up to :data:`GUARD_FACTOR`
+        times the input's upper frequency, so that the misfit of slow physics stays in
+        the residual, where the adequacy check sees it. Returned for any noise source;
+        used for ``"record"``.
         """
-        return self.rho_flat
+        declared = self.dataset.metadata.get("disturbance_max_s")
+        if declared is None:
+            return self.rho_flat
+        return float(min(math.exp(-self.dataset.dt_s / float(declared)), 0.999999))
 
     def noise_parameters(self) -> tuple[Parameter, ...]:
         """The noise parameters with their priors for this experiment.
@@ -854,8 +916,8 @@ class Likelihood:
         force-input rig (:data:`NOISE_PER_AMPLITUDE`), except for a record without
         repeats (``noise_source == "record"``): there ``rho_noise`` is bounded by
         :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), a correlation
-        time far below the input's time scales; a noise that sits at that bound is
-        said in the verdicts (:func:`slow_disturbance_note`).
+        time far below the input's time scales unless the data allow a slower one; a
+        noise at that bound is said in the verdicts (:func:`slow_disturbance_note`).
 
         Returns
         -------
@@ -873,8 +935,9 @@ class Likelihood:
         r = self.rho_max
         bounded = Parameter(
             "rho_noise", "1", 0.0, Uniform(-r, r), bounds=(-r, r),
-            description=(f"lag-one autocorrelation of the disturbance, at most {r:.4g} (its "
-                         "correlation time far below the input's time scales)"),
+            description=(f"lag-one autocorrelation of the disturbance, at most {r:.6g} (a "
+                         "correlation time of "
+                         f"{-self.dataset.dt_s / math.log(r) * 1e3:.3g} ms)"),
             latex=r"\rho",
         )
         return (sig, bounded, white)

@@ -32,6 +32,7 @@ import xarray as xr
 
 from pmabayes.data import Dataset
 from pmabayes.inference.density import Posterior
+from pmabayes.inference.disturbance import settle_disturbance, with_disturbance
 from pmabayes.inference.errors import ConvergenceWarning, DisagreementWarning, FitError
 from pmabayes.inference.fitfile import fit_tree, set_fit_info
 from pmabayes.inference.likelihood import check_noise_model_name
@@ -41,7 +42,7 @@ from pmabayes.inference.search import MapResult, disagreement_text, find_map
 from pmabayes.inference.trials import check_trials
 from pmabayes.model.model import Model
 from pmabayes.parallel import Runner
-from pmabayes.util import Progress, fingerprint, local_cores, show_progress
+from pmabayes.util import Progress, fingerprint, local_cores, show_progress, side_stream
 
 __all__ = ["FitSettings", "fit"]
 
@@ -607,7 +608,8 @@ def _fit(datasets, model: Model, seed, settings: FitSettings, chains_dir, restar
                          _fingerprint(posterior, settings, seed))
         if restart:
             chains.clear()
-        map_result, t_map, resumed = _map_or_resume(chains, posterior, s_map, say, start)
+        posterior, map_result, t_map, resumed = _map_or_resume(chains, posterior, s_map, say,
+                                                               start)
         initials = _initial_walkers(posterior, map_result, ens_seeds, settings.n_walkers)
         t_sample = time.perf_counter()
         n_proc = settings.processes or min(settings.n_ensembles, local_cores())
@@ -643,16 +645,28 @@ def _check_settings(settings: FitSettings, posterior: Posterior) -> None:
 
 
 def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSequence,
-                   say: Progress, start: float) -> tuple[MapResult, float, bool]:
-    """The stamped MAP of resumable chains, or a fresh MAP that starts new ones."""
+                   say: Progress, start: float
+                   ) -> tuple[Posterior, MapResult, float, bool]:
+    """The stamped MAP of resumable chains, or a fresh MAP that starts new ones; with the
+    posterior they sample (a record's disturbance settled:
+    :func:`~pmabayes.inference.disturbance.settle_disturbance`)."""
     saved = chains.saved_map()
     if saved is not None:
         say.say(f"resuming the chains in {chains.folder}")
+        if saved[0].disturbance is not None:  # the bounds the chains were run with
+            posterior = with_disturbance(posterior, saved[0].disturbance)
         if saved[0].period_reference_z is not None:  # the noise the chains were run with
             refer_periods(posterior, saved[0].period_reference_z)
-        return (*saved, True)
+        return (posterior, *saved, True)
     say.say("global search and MAP ...")
-    map_result = find_map(posterior, rng=np.random.default_rng(seed))
+    rng = np.random.default_rng(seed)
+    map_result = find_map(posterior, rng=rng)
+    settled, map_result = settle_disturbance(posterior, map_result, rng=side_stream(rng, 1))
+    if settled is not posterior:
+        map_result.disturbance = [
+            {k: lik.dataset.metadata[k] for k in ("disturbance_max_s", "disturbance_check")
+             if k in lik.dataset.metadata} or None for lik in settled.likelihoods]
+        posterior = settled
     t_map = time.perf_counter() - start
     say.say(f"MAP in {t_map:.1f} s: RMS cost {map_result.rms_cost_m * 1e6:.1f} um "
             f"(global search {map_result.global_rms_cost_m * 1e6:.1f} um)")
@@ -673,7 +687,7 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
                         f"differences removed): {choice.describe()}")
                 check_trials(lik.referred_trials(), warn=True)
     chains.start(map_result, t_map)
-    return map_result, t_map, False
+    return posterior, map_result, t_map, False
 
 
 def _initial_walkers(posterior: Posterior, map_result: MapResult, ens_seeds: list[int],

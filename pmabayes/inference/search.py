@@ -12,6 +12,7 @@ parameter set (:func:`experiments_agreement`).
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +26,7 @@ from pmabayes.inference.likelihood import LEVEL_ADEQUATE, JointLikelihood, Likel
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
 from pmabayes.util import Progress
 
-__all__ = ["MapResult", "find_map", "experiments_agreement", "disagreement_text"]
+__all__ = ["MapResult", "find_map", "polish_map", "experiments_agreement", "disagreement_text"]
 
 
 @dataclass
@@ -59,6 +60,10 @@ class MapResult:
         For several experiments, whether they agree on one parameter set
         (:func:`experiments_agreement`) and which start the MAP came from; None for
         one experiment, or where the own optima were not searched.
+    disturbance : list of dict or None
+        Per experiment, the metadata a record's slow-disturbance check added
+        (:func:`pmabayes.inference.disturbance.settle_disturbance`), or None; None
+        where no check ran. A resumed fit rebuilds its posterior from it.
     """
 
     values: dict
@@ -70,6 +75,7 @@ class MapResult:
     covariance_z: np.ndarray
     period_reference_z: np.ndarray | None = None
     agreement: dict | None = None
+    disturbance: list | None = None
 
     def record(self) -> dict:
         """Everything, JSON-ready (arrays as lists), for the chains folder's stamp."""
@@ -206,6 +212,61 @@ def find_map(
     if own_starts and posterior.n_experiments > 1:
         own = _own_optima(posterior, rng.spawn(1)[0], popsize, maxiter)
         z_map, cov_z, best_start = _best_of_starts(posterior, z_map, cov_z, own, scale)
+    return _finish(posterior, z_map, cov_z, scale, rng, refer=refer,
+                   global_point=(z_global, global_cost),
+                   agreement_of=(own, best_start) if own else None)
+
+
+def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Generator,
+               refer: bool = True) -> MapResult:
+    """The MAP polished from a given point instead of a global search.
+
+    For a posterior that differs from one already searched only where the search
+    does not look (a sampled noise's bounds; :mod:`pmabayes.inference.disturbance`):
+    the polish, the noise learnt again at it (``refer``) and the fit's quality check
+    run as in :func:`find_map`.
+
+    Parameters
+    ----------
+    posterior : Posterior
+        The target.
+    theta : numpy.ndarray
+        The start, natural units, one value per ``posterior.names``; its global-search
+        record in the result.
+    rng : numpy.random.Generator
+        Seeds the plausible box (the polish's scale) and the climb out of a saddle.
+    refer : bool
+        As :func:`find_map`'s.
+
+    Returns
+    -------
+    MapResult
+
+    Raises
+    ------
+    FitError
+        As :func:`find_map`.
+    """
+    box = posterior.plausible_box(rng, posterior.names)
+    scale = box[:, 1] - box[:, 0]
+    # a sampled noise starts at its mode given the start's model (as after the search):
+    # from where another bound held it, a polish can stay there
+    z0 = _noise_start(posterior, posterior.to_unconstrained(
+        np.asarray(theta, dtype=float)[None])[0])
+    _, ll, x = posterior.evaluate(np.asarray(theta, dtype=float)[None])
+    cost = (float(posterior.likelihood.rms_cost(np.atleast_2d(x[0]))[0]) if x is not None
+            else math.inf)
+    z_map, cov_z = _polish_from(posterior, z0, scale)
+    return _finish(posterior, z_map, cov_z, scale, rng, refer=refer,
+                   global_point=(z0, cost), agreement_of=None)
+
+
+def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: np.ndarray,
+            rng: np.random.Generator, *, refer: bool, global_point: tuple,
+            agreement_of: tuple | None) -> MapResult:
+    """A polished MAP's noise learnt again, its climb out of saddles, its quality check
+    and its record (:func:`find_map`, :func:`polish_map`)."""
+    z_global, global_cost = global_point
     # the periods of a record from rest still hold the model's shakedown: the noise
     # is learnt again from the residual's periods, and the MAP polished again, until
     # the MAP settles (a first MAP under the inflated noise misses the drift)
@@ -224,7 +285,8 @@ def find_map(
     if x is None or not np.isfinite(ll[0]):
         raise FitError(_no_map_message(posterior, theta_map[0]))
     agreement = None
-    if own:
+    if agreement_of is not None:
+        own, best_start = agreement_of
         agreement = {**experiments_agreement(posterior, z_map, own), "start": best_start}
     try:
         cost = _check_fit_quality(posterior.likelihood, x[0])

@@ -226,21 +226,9 @@ def check_experiment_data(tree: xr.DataTree, datasets) -> list[Dataset]:
 
 
 def dataset_from_fit(tree: xr.DataTree, info: dict) -> Dataset:
-    """The trials of a fit as a Dataset (the input only where the fit stores it)."""
-    obs = tree["observed_data"]["position_m"].transpose("trial", "time")
-    d = info.get("data") or {}
-    name = d.get("input_name") or "pressure_pa"
-    const = tree["constant_data"] if "constant_data" in tree.children else None
-    # without the stored input, zeros: the whitened residual does not depend on it
-    u = (np.asarray(const[name].values, dtype=float)
-         if const is not None and name in const.data_vars else np.zeros(obs.sizes["time"]))
-    position = np.asarray(obs.values, dtype=float)
-    seen = np.isfinite(position)  # samples not observed are NaN in the fit's data
-    return Dataset(time_s=np.asarray(obs["time"].values, dtype=float),
-                   input=u if u.ndim == 2 else np.tile(u, (obs.sizes["trial"], 1)),
-                   position_m=position, trial_ids=np.asarray(obs["trial"].values),
-                   input_name=name, metadata={"synthetic": bool(d.get("synthetic", False))},
-                   source=d.get("source"), observed=None if seen.all() else seen)
+    """The trials of a fit of one experiment as a Dataset, with its metadata (the input
+    only where the fit stores it; :func:`~pmabayes.inference.fitfile.experiment_datasets`)."""
+    return experiment_datasets(tree)[0]
 
 
 def noise_floor(info: dict, dataset: Dataset | None) -> float | None:

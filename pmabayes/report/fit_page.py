@@ -20,6 +20,7 @@ import xarray as xr
 from pmabayes.criticism.adequacy import Adequacy
 from pmabayes.data import Dataset
 from pmabayes.inference.fitfile import check_dataset
+from pmabayes.inference.search import disagreement_text
 from pmabayes.inference.trials import check_trials
 from pmabayes.report.fit_data import (
     check_ci_prob,
@@ -215,6 +216,7 @@ def _write_experiments_report(tree: xr.DataTree, info: dict, out_dir: Path,
     body = [
         _meta_block(info, source),
         *[f"<p><strong>{html.escape(n)}</strong></p>{_adequacy_box(a)}" for n, a in verdicts],
+        *_agreement_section(info),
         _banner(info.get("convergence") or {}),
         _synthetic_note_of(info),
         *_parameter_section(rows, info, ci_prob),
@@ -292,6 +294,30 @@ def _adequacy_box(adequacy: Adequacy) -> str:
         out.append(f'<p class="next">Next: <code>{html.escape(adequacy.next_step)}</code> '
                    "finds what the model is missing.</p>")
     return "".join(out) + "</div>"
+
+
+def _agreement_section(info: dict) -> list[str]:
+    """Whether the experiments agree on one parameter set
+    (:func:`~pmabayes.inference.search.experiments_agreement`), with each one's RMS cost
+    alone and at the joint MAP; nothing for a fit that did not test it."""
+    agreement = (info.get("map") or {}).get("agreement")
+    if not agreement:
+        return []
+    text = disagreement_text(agreement)
+    p = agreement.get("p_value")
+    test = (f"likelihood ratio {agreement['statistic']:.3g} on {agreement['df']} degrees of "
+            f"freedom, p = {p:.2g}" if p is not None else "no parameter beyond the joint's")
+    if text:
+        box = (f'<div class="verdict bad" id="agreement"><strong>THE EXPERIMENTS DISAGREE'
+               f"</strong>: {html.escape(text[0].upper() + text[1:])}.</div>")
+    else:
+        box = ('<div class="verdict ok" id="agreement"><strong>The experiments agree on one '
+               f"parameter set</strong> ({html.escape(test)}; MAP from the "
+               f"{html.escape(str(agreement.get('start', 'joint search')))}).</div>")
+    rows = [[name, um(e.get("rms_cost_own_m")), um(e.get("rms_cost_joint_m"))]
+            for name, e in (agreement.get("experiments") or {}).items()]
+    return ["<h2>Do the experiments agree?</h2>", box,
+            html_table(["experiment", "RMS cost, its own MAP", "RMS cost, the joint MAP"], rows)]
 
 
 def _synthetic_note_of(info: dict) -> str:

@@ -14,6 +14,7 @@ from pmabayes.criticism.adequacy import Adequacy, check_adequacy
 from pmabayes.data import Dataset
 from pmabayes.inference.fitfile import (
     FitFileError,
+    as_fitted,
     check_dataset,
     experiment_models,
     model_from_fit,
@@ -115,6 +116,7 @@ def experiment_adequacy(tree: xr.DataTree, *, datasets: Sequence[Dataset] | None
     ci_prob = check_ci_prob(ci_prob)
     info = check_tree(tree, ["observed_data", "posterior_predictive"])
     exps = info.get("experiments") or [{"name": source_name(info, None)}]
+    datasets = as_fitted(tree, datasets) if datasets else datasets
     if len(exps) == 1:
         ds = datasets[0] if datasets else None
         return [(exps[0]["name"], fit_adequacy(tree, dataset=ds, ci_prob=ci_prob))]
@@ -140,7 +142,7 @@ def experiment_adequacy(tree: xr.DataTree, *, datasets: Sequence[Dataset] | None
 
 def judge_fit(tree: xr.DataTree, info: dict, dataset: Dataset | None, pred: Mapping,
               ci_prob: float) -> Adequacy:
-    data = dataset if dataset is not None else dataset_from_fit(tree, info)
+    data = as_fitted(tree, [dataset])[0] if dataset is not None else dataset_from_fit(tree, info)
     try:
         model = model_from_fit(tree)
     except (ModelError, EffectError, TypeError):  # an unregistered user effect, an odd rig

@@ -311,8 +311,20 @@ def _propose(problem, st, scales, blocks, full, loo_full, gain, states, plugin_d
     def write(chosen, kind, d, se, **kw) -> Proposal:
         return _write_proposal(problem, chosen, kind, d, se, plugin_dir, verify, command, **kw)
 
+    top = states[0].state if states else None
     if closed is not None and closed[3]:
-        return _closed_form(problem, dic, closed, scored, series, existing, write)
+        prop = _closed_form(problem, dic, closed, scored, series, existing, write)
+        if not verify or _good(prop.verified) or top not in WRITABLE:
+            return prop
+        # a closed form near the linearised estimate can still refit far from the floor
+        # (a force whose shape no term has, a bump): the tabulated shape is refitted too,
+        # and the nonlinear refit decides
+        tab = _tabulated(problem, blocks, full, top, loo_full, write)
+        better = tab.verified is not None and (prop.verified is None or _closeness(
+            tab.verified) > _closeness(prop.verified))
+        keep, drop = (tab, prop) if better else (prop, tab)
+        _discard(drop, existing)
+        return keep
     if closed is not None and verify and all(t.writable for t, _ in closed[0]):
         # the linearisation may be what keeps it from the flexible estimate (a steep
         # force, a period slightly off): the nonlinear refit decides
@@ -322,7 +334,6 @@ def _propose(problem, st, scales, blocks, full, loo_full, gain, states, plugin_d
             return prop
         _discard(prop, existing)
     # no closed form near the flexible estimate: the flexible shape itself, tabulated
-    top = states[0].state if states else None
     if top in WRITABLE:
         return _tabulated(problem, blocks, full, top, loo_full, write)
     if closed is not None:
