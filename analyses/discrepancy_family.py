@@ -12,9 +12,10 @@ and asks of each diagnosis what a user would:
   adding it with ``--plugin`` does)?
 * a **sensor or timing error** (seven: backlash of the position sensor, a gain error,
   a drift of its zero in time, a delay of the measurement, a first-order lag of the
-  sensor, a quadratic calibration error, a slip of its mounting): does the diagnosis say that the missing piece is not a force (a
-  measurement or pressure effect of the library named, or the discrepancy's verdict
-  "not a force of the states tried"), without a force proposal that claims it?
+  sensor, a quadratic calibration error, a slip of its mounting): does the diagnosis
+  say that the missing piece is not a force (a measurement or pressure effect of the
+  library named, or the discrepancy's verdict "not a force of the states tried"),
+  without a force proposal that claims it?
 
 Each data set draws its muscle from :data:`pmabayes.synthetic.PLAUSIBLE_REGION` and
 the effect's size log-uniformly in its range, with its own seed. As a user would, a

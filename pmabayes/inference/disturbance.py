@@ -61,10 +61,14 @@ __all__ = ["RECORD_CORRELATION_FRACTION", "SLOW_RMS_RATIO", "settle_disturbance"
 RECORD_CORRELATION_FRACTION: float = 0.1
 
 #: The slow noise is kept where the model's RMS error at its MAP is at most this
-#: multiple of the fast noise's: on synthetic records of a correct model with a 100
-#: or 300 ms disturbance the ratio stays near one (docs, calibration study), and on a
-#: real record whose slow residual is missing physics it was 5.3.
-SLOW_RMS_RATIO: float = 1.1
+#: multiple of the fast noise's. Measured: on synthetic records of a correct model the
+#: ratio was 1.0003-1.016 with a 100 ms disturbance (15 records) and 1.004-1.097 with
+#: a 300 ms one (16), where the fast fit had taken part of the disturbance into its
+#: parameters; on real records whose slow residual is missing physics it was 1.21 to
+#: 2.15 (the cavatappi muscle, an RC column). 1.15 lies between (their geometric
+#: middle); the margins are about 5% each way, and the whiteness test is the second
+#: guard (docs: identification guide, calibration study).
+SLOW_RMS_RATIO: float = 1.15
 
 
 def _pinned_groups(posterior: Posterior, theta: np.ndarray) -> list[int]:

@@ -474,8 +474,12 @@ def at_fast_bound(likelihood: Likelihood, rho: float) -> bool:
         True for a record without repeats whose ``rho`` is within 1% of
         ``1 - rho_flat`` of :attr:`Likelihood.rho_flat`; False for data with repeats.
     """
-    flat = likelihood.rho_flat
-    return likelihood.noise_source == "record" and flat - float(rho) <= 0.01 * (1.0 - flat)
+    return likelihood.noise_source == "record" and _at_bound(likelihood.rho_flat, rho)
+
+
+def _at_bound(bound: float, rho: float) -> bool:
+    """``rho`` within 1% of ``1 - bound`` of ``bound``."""
+    return bound - float(rho) <= 0.01 * (1.0 - bound)
 
 
 def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
@@ -514,9 +518,9 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
                 f"the model's own error as it was ({check['rms_slow_m'] * 1e6:.4g} um against "
                 f"{check['rms_fast_m'] * 1e6:.4g} um with a fast one, at most "
                 f"{check['ratio_allowed']:g}x allowed) and the residual white under it "
-                f"(Ljung-Box p = {check['ljung_box_p_slow']:.2g}). Slow physics the model lacks that "
-                "leaves the fit as it was would look the same on one record: repeat the "
-                "record, or make it periodic, to tell them apart")
+                f"(Ljung-Box p = {check['ljung_box_p_slow']:.2g}). Slow physics the model "
+                "lacks that leaves the fit as it was would look the same on one record: "
+                "repeat the record, or make it periodic, to tell them apart")
     if check is not None:
         slow_rms, p = check.get("rms_slow_m"), check.get("ljung_box_p_slow")
         if slow_rms is None:
@@ -535,8 +539,7 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
                 "record, or make it periodic, to separate them")
     declared = meta.get("disturbance_max_s")
     if declared is not None:
-        bound = likelihood.rho_max
-        if bound - float(rho) > 0.01 * (1.0 - bound):
+        if not _at_bound(likelihood.rho_max, rho):
             return ""
         return (f"the disturbance identified with the model sits at the bound the data "
                 f"declare (disturbance_max_s = {declared:g} s): a slower one shows as misfit")
