@@ -308,8 +308,10 @@ def _agreement_section(info: dict) -> list[str]:
     test = (f"likelihood ratio {agreement['statistic']:.3g} on {agreement['df']} degrees of "
             f"freedom, p = {p:.2g}" if p is not None else "no parameter beyond the joint's")
     if text:
+        reason = text.split(": ", 1)[1] if text.startswith("the experiments disagree: ") \
+            else text
         box = (f'<div class="verdict bad" id="agreement"><strong>THE EXPERIMENTS DISAGREE'
-               f"</strong>: {html.escape(text[0].upper() + text[1:])}.</div>")
+               f"</strong>: {html.escape(reason)}.</div>")
     else:
         box = ('<div class="verdict ok" id="agreement"><strong>The experiments agree on one '
                f"parameter set</strong> ({html.escape(test)}; MAP from the "
