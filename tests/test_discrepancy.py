@@ -397,3 +397,20 @@ def test_backlash_of_the_sensor_is_called_not_a_force(tmp_path):
     assert disc is not None and disc.not_a_force, d.verdict
     assert disc.proposal is None and not list(tmp_path.glob("*.py")), d.verdict
     assert "backlash" in disc.text and "not a force" in disc.text
+
+
+@pytest.mark.slow
+def test_a_refit_whose_polish_overflows_leaves_the_diagnosis_standing():
+    """The family's second Maxwell data set at its default size (8 s chirps, 6 trials):
+    a candidate's refit (stribeck_friction) stepped across its support's edge, its
+    polish overflowed to a point that is not a number, and the whole diagnosis ended
+    in a FitError (the first run of the study's default size). The polish now keeps
+    its last finite point, and the diagnosis goes on to the proposal."""
+    fam = _family()
+    jobs = fam._jobs([fam.member("family_maxwell")], 2,
+                     fam.Chirp(duration_s=8.0, f0_hz=0.3, f1_hz=3.0), 6,
+                     np.random.default_rng(0))
+    job = jobs[1]
+    assert job["seed"] == 1910160579  # the data set of that run
+    r = fam.run_one(job)
+    assert r["verified_ratio"] <= fam.WITHIN_FLOOR, r

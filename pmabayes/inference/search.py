@@ -594,6 +594,11 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
     for _ in range(3):  # restart: the first pass also learns the curvature's scale
         res = minimize(fun_and_grad, u, jac=True, method="L-BFGS-B",
                        options={"maxiter": 2000, "ftol": 1e-15, "gtol": 1e-9})
+        # a step across the support's edge (gradients of 1e300 stand-ins) can overflow
+        # to a point that is not a number: the last finite point is kept, never a worse
+        if not (np.all(np.isfinite(res.x)) and float(neg_logpost(res.x[None])[0])
+                <= float(neg_logpost(u[None])[0])):
+            break
         if np.allclose(res.x, u, rtol=0, atol=1e-12):
             break
         u = res.x
@@ -605,6 +610,8 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
         try:
             step = -np.linalg.solve(hess, g0)
         except np.linalg.LinAlgError:
+            break
+        if not np.all(np.isfinite(step)):
             break
         t = 1.0
         while t > 1e-4 and float(neg_logpost((u + t * step)[None])[0]) > f0:
