@@ -254,14 +254,10 @@ def _check_declarations(metadata: dict, where: str) -> None:
             f"{where}: metadata 'warmup_s' is {warmup!r}; it must be a number of seconds, at "
             "least 0: the samples in the record's first warmup_s seconds are left out of the "
             "likelihood (they still drive the simulation). Fix it, or remove it.")
-    slow = metadata.get("disturbance_max_s")
-    if slow is not None and (isinstance(slow, bool) or not isinstance(slow, numbers.Real)
-                             or not math.isfinite(slow) or slow <= 0):
-        raise DataError(
-            f"{where}: metadata 'disturbance_max_s' is {slow!r}; it must be a number of "
-            "seconds above 0: the longest correlation time the disturbance of a record "
-            "without repeats may have (as the rig's repeated records show it). Fix it, or "
-            "remove it to let the fit choose.")
+    _positive_seconds(metadata, "disturbance_max_s", where,
+                      "the longest correlation time the disturbance of a record without "
+                      "repeats may have (as the rig's repeated records show it). Fix it, or "
+                      "remove it to let the fit choose.")
     if steady and period is None:
         raise DataError(
             f"{where}: metadata 'starts_in_steady_state' is true but no 'period_samples' is "
@@ -283,15 +279,21 @@ def _check_declarations(metadata: dict, where: str) -> None:
 
 def _max_gap_s(metadata: dict, where: str) -> float | None:
     """The metadata's ``max_gap_s`` (None when not declared), checked."""
-    gap = metadata.get("max_gap_s")
-    if gap is not None and (isinstance(gap, bool) or not isinstance(gap, numbers.Real)
-                            or not math.isfinite(gap) or gap <= 0):
-        raise DataError(
-            f"{where}: metadata 'max_gap_s' is {gap!r}; it must be a positive number of "
-            "seconds: a gap in the clock longer than it starts a new segment "
-            "(pmabayes.data.load_segments). Fix it, or remove it to keep every gap as "
-            "missing samples of one record.")
-    return None if gap is None else float(gap)
+    return _positive_seconds(metadata, "max_gap_s", where,
+                             "a gap in the clock longer than it starts a new segment "
+                             "(pmabayes.data.load_segments). Fix it, or remove it to keep "
+                             "every gap as missing samples of one record.")
+
+
+def _positive_seconds(metadata: dict, key: str, where: str, meaning: str) -> float | None:
+    """The metadata's ``key``, a positive number of seconds (None when not declared),
+    checked; ``meaning`` ends the message of a bad one."""
+    value = metadata.get(key)
+    if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                              or not math.isfinite(value) or value <= 0):
+        raise DataError(f"{where}: metadata '{key}' is {value!r}; it must be a positive "
+                        f"number of seconds: {meaning}")
+    return None if value is None else float(value)
 
 
 def _check_period(metadata: dict, n_samples: int, where: str) -> None:

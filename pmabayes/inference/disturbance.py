@@ -120,22 +120,20 @@ def with_disturbance(posterior: Posterior, metadata: list[dict | None]) -> Poste
     return out
 
 
-def _rms_each(posterior: Posterior, values: dict, members: list[int]) -> list[float]:
+def _rms_and_whiteness(posterior: Posterior, values: dict, members: list[int]
+                       ) -> tuple[list[float], list[float]]:
+    """Each record's RMS cost at the MAP ``values``, and the Ljung-Box p of its
+    innovations under its noise there (one simulation each)."""
     theta = np.array([[values[n] for n in posterior.names]])
-    return [float(posterior.likelihoods[e].rms_cost(posterior.simulate(theta, e))[0])
-            for e in members]
-
-
-def _whiteness_each(posterior: Posterior, values: dict, members: list[int]) -> list[float]:
-    """Each record's Ljung-Box p of its innovations under its noise at the MAP."""
-    theta = np.array([[values[n] for n in posterior.names]])
-    out = []
+    rms, white = [], []
     for e in members:
         lik = posterior.likelihoods[e]
+        x = posterior.simulate(theta, e)
+        rms.append(float(lik.rms_cost(x)[0]))
         noise = (float(np.asarray(v).reshape(-1)[0]) for v in posterior.noise_of(e, theta))
-        innov = lik.innovations(posterior.simulate(theta, e)[0], *noise)
-        out.append(float(chi2.sf(ljung_box_statistic(innov), LJUNG_BOX_LAGS)))
-    return out
+        innov = lik.innovations(x[0], *noise)
+        white.append(float(chi2.sf(ljung_box_statistic(innov), LJUNG_BOX_LAGS)))
+    return rms, white
 
 
 def settle_disturbance(posterior: Posterior, map_result: MapResult, *,
@@ -173,11 +171,10 @@ def settle_disturbance(posterior: Posterior, map_result: MapResult, *,
                                         else None for e in range(posterior.n_experiments)])
     Progress().say("the record's disturbance sits at its fast bound: polishing the MAP "
                    "again with a slow one allowed")
-    fast_rms = _rms_each(posterior, map_result.values, members)
+    fast_rms = _rms_and_whiteness(posterior, map_result.values, members)[0]
     try:
         slow_map = polish_map(slow, theta[0], rng=rng, refer=refer)
-        slow_rms = _rms_each(slow, slow_map.values, members)
-        white = _whiteness_each(slow, slow_map.values, members)
+        slow_rms, white = _rms_and_whiteness(slow, slow_map.values, members)
         refused = None
     except FitError as err:
         slow_map, refused = None, str(err)
