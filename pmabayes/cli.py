@@ -503,8 +503,27 @@ def _fit_settings(args: argparse.Namespace):
                        tie_segments=not getattr(args, "own_segment_noise", False))
 
 
-def _floor_text(floor_m) -> str:
-    return "no repeats" if floor_m is None else f"noise floor {floor_m * 1e6:.1f} um"
+def _floor_text(floor_m, rms_m: float | None = None) -> str:
+    """``noise floor X um``, with the digits that tell it from ``rms_m`` beside it."""
+    if floor_m is None:
+        return "no repeats"
+    from pmabayes.util import format_together
+
+    floor = format_together(floor_m * 1e6, *([] if rms_m is None else [rms_m * 1e6]))[0]
+    return f"noise floor {floor} um"
+
+
+def _nan(record: dict) -> float:
+    """A fit record's noise floor, NaN where it has none (None in the file)."""
+    floor = record.get("noise_floor_m")
+    return math.nan if floor is None else floor
+
+
+def _um(*values_m: float) -> list[str]:
+    """Lengths in µm side by side, with the digits that show their ratio."""
+    from pmabayes.util import format_together
+
+    return format_together(*(v * 1e6 for v in values_m))
 
 
 def _print_adequacy(tree, datasets) -> None:
@@ -590,8 +609,9 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
     conv = info["convergence"]
     data_text = " ".join(str(d) for d in args.data)
     print(f"fit: {data_text} with {' + '.join(['base', *model.effect_names])}: "
-          f"MAP RMS cost {info['map']['rms_cost_m'] * 1e6:.1f} um "
-          + (f"({_floor_text(info['data']['noise_floor_m'])}); " if len(datasets) == 1
+          f"MAP RMS cost {_um(info['map']['rms_cost_m'], _nan(info['data']))[0]} um "
+          + (f"({_floor_text(info['data']['noise_floor_m'], info['map']['rms_cost_m'])}); "
+             if len(datasets) == 1
              else f"(combined over {len(datasets)} experiments); ")
           + f"{conv['n_steps']} steps x {conv['n_ensembles']} ensembles x "
           f"{conv['n_walkers']} walkers in {info['timings_s']['total']:.1f} s")
@@ -607,8 +627,9 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
         for exp in info["experiments"]:
             print(f"  experiment {exp['name']} ({exp['source']}): {exp['n_trials']} trial(s) x "
                   f"{exp['n_samples']} samples on the {Rig.from_dict(exp['rig']).name} rig, "
-                  f"RMS cost {exp['rms_cost_m'] * 1e6:.1f} um "
-                  f"({_floor_text(exp['noise_floor_m'])}), noise {exp['noise']} "
+                  f"RMS cost {_um(exp['rms_cost_m'], _nan(exp))[0]} um "
+                  f"({_floor_text(exp['noise_floor_m'], exp['rms_cost_m'])}), noise "
+                  f"{exp['noise']} "
                   f"from the {exp['noise_source']}")
     if not conv["converged"]:
         print("!" * 78 + "\nNOT CONVERGED: " + "; ".join(conv["messages"])
@@ -724,14 +745,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _print_ranking(ranking: Sequence, limit: int = 5) -> None:
     """The candidates in the order of the diagnosis, said: the refitted ones first, by
     their leave-one-trial-out ELPD, then the others by their score-test evidence."""
+    from pmabayes.criticism.prose import elpd_short
+
     refitted = [f for f in ranking if f.refit is not None]
     print(f"candidates ({len(refitted)} refitted, ordered by their leave-one-trial-out ELPD "
           "gain; then the others, ordered by the score test's evidence):"
           if refitted else "candidates, ordered by the score test's evidence:")
     for f in ranking[:limit]:
         est = ", ".join(f"{k}={v:.4g}" for k, v in f.estimate.items())
-        gain = (f"ΔELPD {f.refit.elpd_diff:+8.1f}  " if f.refit is not None
-                else " " * 16 if refitted else "")
+        gain = (f"ΔELPD {elpd_short(f.refit):>16s}  " if f.refit is not None
+                else " " * 24 if refitted else "")
         print(f"  {f.effect:<22s} {gain}evidence {f.evidence:10.4g}  "
               f"{'significant' if f.significant else 'n.s.':<11s}  {est}")
     if len(ranking) > limit:
@@ -769,10 +792,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     print(f"model: {label}")
     for e in result.experiments:
         prefix = f"[{e.name}] " if len(result.experiments) > 1 else ""
-        floor = (f"noise floor {e.noise_floor_m * 1e6:.1f} um"
-                 if math.isfinite(e.noise_floor_m)
+        rms_um, floor_um = _um(e.rms_m, e.noise_floor_m)
+        floor = (f"noise floor {floor_um} um" if math.isfinite(e.noise_floor_m)
                  else "no noise floor: a single record without repeats")
-        print(f"{prefix}RMS error of the trial mean: {e.rms_m * 1e6:.1f} um ({floor}); "
+        print(f"{prefix}RMS error of the trial mean: {rms_um} um ({floor}); "
               f"adequate: {'yes' if e.adequate else 'no'}")
     if len(result.experiments) > 1:
         print(f"adequate in every experiment: {'yes' if result.adequate else 'no'}")
@@ -1448,7 +1471,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.showwarning = _one_line_warnings(args.command)
         try:
             _load_plugins([*args.plugin, *args.plugin_after])
-            return args.func(args)
+            from pmabayes.model.simulator import collect_steady_state_misses
+
+            # members without a periodic steady state: counted, said once at the end
+            with collect_steady_state_misses():
+                return args.func(args)
         except KeyboardInterrupt:
             print(f"\npmabayes {args.command}: {_interrupted(args)}", file=sys.stderr)
             return 130

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     import numpy
 
 __all__ = ["fingerprint", "source_text", "local_cores", "Progress", "show_progress",
-           "progress_shown", "finite_or_none", "side_stream"]
+           "progress_shown", "finite_or_none", "side_stream", "format_together"]
 
 
 def _feed(h, part) -> None:
@@ -59,6 +59,41 @@ def finite_or_none(value) -> float | None:
     """
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+def format_together(*values: float, digits: int = 3, most: int = 8) -> list[str]:
+    """Numbers printed side by side, with the significant digits that show their ratio.
+
+    Each is printed to ``digits`` significant digits, more where two that differ by
+    more than 0.1% would print the same (``1e+03`` twice for 1004 and 998 at one
+    digit), up to ``most``. Values that are not finite print as ``nan``/``inf``.
+
+    Parameters
+    ----------
+    *values : float
+        The numbers, already in the unit they are printed in.
+    digits : int
+        Fewest significant digits.
+    most : int
+        Most significant digits.
+
+    Returns
+    -------
+    list of str
+        One per value, in order.
+    """
+    nums = [float(v) for v in values]
+
+    def clash(n: int) -> bool:
+        text = [f"{v:.{n}g}" for v in nums]
+        return any(text[i] == text[j] and math.isfinite(a) and math.isfinite(b)
+                   and abs(a - b) > 1e-3 * max(abs(a), abs(b))
+                   for i, a in enumerate(nums) for j, b in enumerate(nums) if i < j)
+
+    n = max(int(digits), 1)
+    while n < most and clash(n):
+        n += 1
+    return [f"{v:.{n}g}" for v in nums]
 
 
 def side_stream(rng: numpy.random.Generator, key: int) -> numpy.random.Generator:

@@ -89,6 +89,72 @@ def test_nrmse_skips_unobserved_samples_and_the_sentence_says_who_wins():
     assert "Prandtl" not in text
 
 
+# ----------------------------------------------------------------------------- narx
+
+
+def _narx_plant(u: np.ndarray, warmup: int = 300) -> np.ndarray:
+    """A polynomial NARX system of lags 2, degree 2, started in steady state at ``u[0]``
+    (held for ``warmup`` samples first): one the NARX yardstick can represent."""
+    v = np.concatenate([np.full(warmup, u[0]), u])
+    y = np.zeros(v.size)
+    for k in range(2, v.size):
+        y[k] = (0.6 * y[k - 1] - 0.2 * y[k - 2] + 0.3 * v[k - 1] + 0.1 * v[k - 1] ** 2
+                - 0.3 * y[k - 1] * v[k - 1])
+    return 1e-3 * y[warmup:]
+
+
+def test_the_narx_yardstick_finds_a_polynomial_narx_system():
+    pytest.importorskip("sysidentpy")
+    rng = np.random.default_rng(4)
+    u = rng.uniform(-1.0, 1.0, 900)
+    b = fit_baselines(_record(u, _narx_plant(u), rate_hz=100.0, sigma_m=1e-7))
+    narx = b.fitted["narx"]
+    d = narx.to_dict()
+    # the plant's own terms (the constant: the scaled variables' means), none other
+    assert set(d["terms"]) == {"1", "y(k-1)", "y(k-2)", "u(k-1)", "u(k-1)*u(k-1)",
+                               "u(k-1)*y(k-1)"}, d["terms"]
+    assert d["degree"] == 2 and d["lag_y"] >= 2 and d["n_terms"] == 6
+    assert d["grid_dt_s"] == pytest.approx(0.01) and not d["load_input"]
+    u2 = rng.uniform(-1.0, 1.0, 600)
+    s = b.scores(_record(u2, _narx_plant(u2), rate_hz=100.0, seed=3, sigma_m=1e-7))
+    assert s["narx"]["nrmse"] < 0.01 < s["linear"]["nrmse"], s
+    assert s["narx"]["order_text"] == f"lags {d['lag_y']}/{d['lag_u']}, degree 2, 6 terms"
+
+
+def test_the_narx_yardstick_is_left_out_cleanly_without_sysidentpy(monkeypatch):
+    import sys
+
+    for name in ["sysidentpy", *(m for m in sys.modules if m.startswith("sysidentpy."))]:
+        monkeypatch.setitem(sys.modules, name, None)  # importing it fails
+    u = _multisine(0, 2000)
+    b = fit_baselines(_record(u, _second_order(u, RATE_HZ)))
+    assert set(b.fitted) == {"linear", "play"}
+    assert "pip install pmabayes[narx]" in b.left_out["narx"]
+    assert b.lines() == [b.left_out["narx"]]
+    assert b.to_dict()["left_out"] == {"narx": b.left_out["narx"]}
+
+
+def test_a_record_too_short_for_the_narx_leaves_it_out_naming_the_file():
+    pytest.importorskip("sysidentpy")
+    u = _multisine(0, 40)
+    b = fit_baselines(_record(u, _second_order(u, RATE_HZ), source="short.csv"))
+    line = b.left_out["narx"]
+    assert line.startswith("narx yardstick left out: short.csv (40 samples)")
+    assert "longer records" in line and "linear" in b.fitted
+
+
+def test_a_diverging_narx_prediction_is_infinite_with_its_reason():
+    """The plant's yardstick driven far outside its training range: its quadratic terms
+    run away, and the scores say so instead of failing."""
+    pytest.importorskip("sysidentpy")
+    rng = np.random.default_rng(4)
+    u = rng.uniform(-1.0, 1.0, 900)
+    b = fit_baselines(_record(u, _narx_plant(u), rate_hz=100.0, sigma_m=1e-7))
+    s = b.scores(_record(np.full(300, 40.0), np.zeros(300), rate_hz=100.0, source="far.csv"))
+    assert s["narx"]["nrmse"] == math.inf and "diverges" in s["narx"]["failed"]
+    assert "far.csv" in s["narx"]["failed"] and math.isfinite(s["linear"]["nrmse"])
+
+
 # ----------------------------------------------------------------------------- discrepancy
 
 
@@ -145,6 +211,13 @@ def test_validate_reports_baselines_and_a_band_with_the_discrepancy():
         assert j["baselines"]["linear"]["order"] in range(1, 5)
         assert j["baselines"]["play"]["n_operators"] >= 1
         assert {"nrmse", "rmse_m"} <= set(j["baselines"]["linear"])
+        # the NARX beside them where SysIdentPy is installed, left out (and said) where not
+        if "narx" in d["baselines"]["fitted"]:
+            assert {"nrmse", "rmse_m", "lag_y", "n_terms"} <= set(j["baselines"]["narx"])
+            assert "narx yardstick (lags" in e.summary()
+        else:
+            assert "pip install pmabayes[narx]" in d["baselines"]["left_out"]["narx"]
+            assert v.lines()[-1] == d["baselines"]["left_out"]["narx"]
         assert len(j["predictive_band"]["linear_m"]) == e.n_samples
         assert len(j["predictive_band"]["high_with_discrepancy_m"]) == e.n_samples
 

@@ -571,7 +571,8 @@ def test_the_ranking_says_what_orders_it(capsys):
     import pmabayes.cli as cli
 
     def finding(effect, evidence, elpd_diff=None):
-        refit = None if elpd_diff is None else SimpleNamespace(elpd_diff=elpd_diff)
+        refit = None if elpd_diff is None else SimpleNamespace(elpd_diff=elpd_diff,
+                                                               elpd_diff_se=5.0, failed=None)
         return SimpleNamespace(effect=effect, evidence=evidence, significant=True,
                                estimate={"k": 1.0}, refit=refit)
 
@@ -583,7 +584,7 @@ def test_the_ranking_says_what_orders_it(capsys):
     assert lines[0] == ("candidates (2 refitted, ordered by their leave-one-trial-out ELPD gain; "
                         "then the others, ordered by the score test's evidence):")
     assert [line.split()[0] for line in lines[1:]] == ["b", "a", "c", "d"]
-    assert "ΔELPD   +120.0" in lines[1]
+    assert "ΔELPD     +120.0 ± 5.0" in lines[1]
 
 
 def test_fix_holds_a_parameter_at_a_value(tmp_path, capsys):

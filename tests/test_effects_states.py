@@ -240,8 +240,10 @@ def _bad(**attrs):
 
 
 @pytest.mark.parametrize(("attrs", "message"), [
-    ({"stage": "pressure", "reads_z": True}, "only a force effect may set reads_z or state"),
-    ({"stage": "measurement", "state": "s"}, "only a force effect may set reads_z or state"),
+    ({"stage": "pressure", "reads_z": True}, "only a force effect may set reads_z"),
+    ({"stage": "hysteresis", "reads_z": True}, "only a force effect may set reads_z"),
+    ({"stage": "measurement", "state": "s"}, "only a force or a hysteresis effect may set "
+                                             "state"),
     ({"state": "u_bad"}, "must set `advance = staticmethod"),
     ({"advance": staticmethod(_user_creep_advance)}, "`advance` is for an effect with a state"),
     ({"state": "not a name", "advance": staticmethod(_user_creep_advance)},

@@ -301,3 +301,17 @@ def test_noiseless_held_out_data_are_judged_by_the_model_only_band(fit_tree):
     wrong = validate(fit_tree, lagged, n_draws=200, seed=0).experiments[0]
     assert wrong.model_band_coverage < 0.2
     assert json.loads(json.dumps(right.to_dict()))["model_band_coverage"] > 0.8
+
+
+def test_validate_gives_the_adequacy_verdict_fit_and_diagnose_use(fit_tree, held_out_sets):
+    """The held-out verdict by the one adequacy rule, in the object and in the JSON: the
+    right model is adequate on held-out data, a model missing a 45 ms lag is not."""
+    right = validate(fit_tree, held_out_sets[0], n_draws=100, seed=0).experiments[0]
+    lagged = held_out(sine_pa(1.0), source="lagged.csv", effects={"regulator_lag": 0.045})
+    wrong = validate(fit_tree, lagged, n_draws=100, seed=0)
+    assert right.adequacy is not None and right.adequacy.adequate is True
+    assert right.adequacy.floor_m == pytest.approx(right.noise_floor_m, rel=1e-6)
+    e = json.loads(json.dumps(wrong.to_dict(arrays=False), allow_nan=False))["experiments"][0]
+    assert e["adequacy"]["adequate"] is False
+    assert e["adequacy"]["verdict"].startswith("MODEL INADEQUATE")
+    assert e["adequacy"]["rms_m"] == pytest.approx(e["rmse_m"], rel=1e-6)

@@ -19,7 +19,9 @@ Each file owns one idea:
 ``diagnosis``      ``diagnose``, a short sequence of the steps above
 ``discrepancy``    the missing force estimated from the data (a package)
 ``compare``        fits of the same data side by side
-``baselines``      yardsticks: a linear output-error and a Prandtl-Ishlinskii model
+``yardsticks``     the yardsticks, one class each: linear output-error, Prandtl-Ishlinskii,
+                   polynomial NARX (a package)
+``baselines``      the yardsticks fitted to training data and scored on an experiment
 ``inadequacy``     the model's discrepancy learnt from its training residual
 ``validation``     predictions of held-out experiments
 =================  ==================================================================

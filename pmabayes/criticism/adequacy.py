@@ -233,7 +233,8 @@ def check_adequacy(
     if likelihood.own_inputs and x.ndim == 2 and x.shape[0] == likelihood.n_trials:
         trials, x = x, model_mean(likelihood, x.reshape(1, -1))[0]
     x = x.reshape(-1)
-    if likelihood.dataset.n_trials >= 2:
+    if likelihood.dataset.n_trials >= 2 or likelihood.noise_source == "periods":
+        # the floor as diagnose takes it: of the trials, or of a periodic record's periods
         overall = band_errors(likelihood.dataset, x, bands_hz=(), model_trials_m=trials)[-1]
     else:  # a single record: its error, and no floor without repeats
         r = residual(likelihood, x)

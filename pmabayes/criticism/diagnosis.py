@@ -23,6 +23,12 @@ import numpy as np
 from pmabayes.criticism.bands import input_bands
 from pmabayes.criticism.baselines import fit_baselines, nrmse, yardstick_text
 from pmabayes.criticism.discrepancy import Discrepancy, estimate_discrepancy
+from pmabayes.criticism.experiments import (
+    agreement_change,
+    experiment_conditions_table,
+    moving_parameters,
+    trend_text,
+)
 from pmabayes.criticism.observed import observed_mean
 from pmabayes.criticism.plausibility import implausible
 from pmabayes.criticism.prose import (
@@ -36,6 +42,8 @@ from pmabayes.criticism.refits import (
     fit_base,
     missing_effect,
     near_twins,
+    partial_effect,
+    ranking_key,
     refit_significant,
 )
 from pmabayes.criticism.results import Diagnosis, ExperimentDiagnosis, Finding
@@ -45,6 +53,7 @@ from pmabayes.data import Dataset
 from pmabayes.inference.posterior import choose_substeps, data_scaled_priors
 from pmabayes.inference.posterior import experiments as checked_experiments
 from pmabayes.model.effects import get_effect
+from pmabayes.model.linearise import LinearisationError
 from pmabayes.model.model import Model
 from pmabayes.util import Progress, show_progress
 
@@ -93,11 +102,12 @@ def _findings(ranked: list, refits: dict, base: BaseFit, ci_prob: float) -> list
             explained=explained, refit=refit, implausible=odd,
             explanation=text + (f" Implausible, not a finding: {odd}." if odd else ""),
         ))
-    # refitted candidates first, by how well they predict left-out trials; those left out
-    # of the score tests last
+    # refitted candidates first, by how well they predict left-out data (ranking_key, the
+    # order the verdict and the missing effect use too); those left out of the score tests
+    # last
     findings.sort(key=lambda f: (f.left_out is not None, f.refit is None,
-                                 -(f.refit.elpd if f.refit else
-                                   (0.0 if f.left_out is not None else f.evidence))))
+                                 *(ranking_key(f.refit) if f.refit else
+                                   (False, 0.0 if f.left_out is not None else -f.evidence))))
     return findings
 
 
@@ -145,12 +155,19 @@ def diagnose(
     5. The missing effect is the refitted candidate with the best ELPD among
        those that account for the misfit and predict left-out trials better than
        the diagnosed model by more than two standard errors of the ELPD
-       difference. Accounting for the misfit means: the refit is adequate, or it
-       removes at least ``settings.min_explained`` of the excess residual alone or
-       together with the candidate that the refit's own score test finds next
-       (so that two missing effects of similar size are found one after the
-       other). If none qualifies, nothing is named: a misfit above the floor is
-       reported as unexplained instead of naming the least bad candidate. When
+       difference (a refit whose search failed, ending below the model it holds,
+       or with implausible estimates, never qualifies). Accounting for the misfit
+       means: the refit is adequate, or it removes at least
+       ``settings.min_explained`` of the excess residual alone or together with the
+       candidate that the refit's own score test finds next (so that two missing
+       effects of similar size are found one after the other). It needs a noise
+       floor in every experiment: without one the shares and the adequacy are
+       under noise identified with each model and say nothing of the misfit. When
+       none qualifies but a refit predicts held-out data better by more than two
+       standard errors, the best such refit is the diagnosis' ``partial`` step: the
+       verdict says that it helps in part and to add it and diagnose again. If
+       none does, nothing is named: a misfit above the floor is reported as
+       unexplained instead of naming the least bad candidate. When
        another qualifying refit's ELPD is within two standard errors of the
        named one's (paired over the trials), the verdict says that the two cannot
        be told apart by these data (near twins, such as a regulator lag and a
@@ -175,7 +192,10 @@ def diagnose(
     identified with the model (with the bound of
     :meth:`pmabayes.inference.likelihood.Likelihood.noise_parameters`), and the
     verdict says that it is judged by its whitened residual alone, and, where its
-    disturbance is slow, that one record cannot tell it from slow missing physics.
+    disturbance is slow, that one record cannot tell it from slow missing physics. Its
+    ELPD leaves out one of ten contiguous stretches of the record at a time, given the
+    rest (:meth:`~pmabayes.inference.likelihood.Likelihood.stretch_pointwise`), so that
+    a refit's ΔELPD has a standard error.
 
     Parameters
     ----------
@@ -239,20 +259,77 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     experiments = _experiment_diagnoses(base, s, _yardsticks(base))
     adequate = all(e.adequate for e in experiments)
     missing = missing_effect(refits, s)
+    partial = None if adequate else partial_effect(refits, missing)
     verdict = verdict_text(label, models[0].effect_names, experiments, adequate, missing,
-                           refits, findings, s.min_explained, near_twins(refits, missing, s))
+                           refits, findings, s.min_explained, near_twins(refits, missing, s),
+                           partial)
     found, found_in, words = None, None, ""
     if s.discrepancy and not adequate and missing is None:
         found, found_in, words = _discrepancy_step(base, experiments, plugin_dir, say)
-    verdict += words + _yardstick_words(experiments)
+    agreement = _agreement(base, refits)
+    verdict += words + _yardstick_words(experiments) + agreement_words(agreement)
     say.say("diagnosis done: " + ("adequate" if adequate else f"{missing} is missing"
-                                  if missing else "not adequate"))
+                                  if missing else f"{partial} helps in part" if partial
+                                  else "not adequate"))
     return Diagnosis(
         experiments=experiments, values=base.values, adequate=adequate, missing=missing,
         ranking=findings, elpd=base.elpd, verdict=verdict,
         settings=_record(s, seed, findings, base), discrepancy=found,
-        discrepancy_experiment=found_in,
+        discrepancy_experiment=found_in, partial=partial, agreement=agreement,
     )
+
+
+def _agreement(base: BaseFit, refits: dict) -> dict | None:
+    """Experiments that disagree as evidence: the test, each one's own estimates, the
+    parameters that move with the declared conditions, and each candidate's test."""
+    if base.agreement is None:
+        return None
+    conditions = experiment_conditions_table([lik.dataset for lik in base.likelihoods])
+    moving = moving_parameters(base.agreement, conditions)
+    return {**{k: base.agreement[k] for k in ("agree", "statistic", "df", "p_value", "level")},
+            "experiments": {n: e.get("values_own", {})
+                            for n, e in base.agreement["experiments"].items()},
+            "conditions": conditions, "moving": moving, "trend": trend_text(moving),
+            "candidates": agreement_change(base.agreement, list(refits.values()))}
+
+
+def agreement_words(agreement: dict | None) -> str:
+    """The verdict's sentences on experiments that disagree: what moves between them,
+    with what, and which candidate makes them agree (or that none does).
+
+    Parameters
+    ----------
+    agreement : dict or None
+        :class:`~pmabayes.criticism.results.Diagnosis`'s ``agreement``.
+
+    Returns
+    -------
+    str
+        Empty where the experiments agree or there is one.
+    """
+    if not agreement or agreement.get("agree") is not False:
+        return ""
+    words = (f" The experiments disagree: one parameter set does not fit them all "
+             f"(likelihood ratio {agreement['statistic']:.4g} on {agreement['df']} degrees of "
+             f"freedom, p = {agreement['p_value']:.2g}); the report shows each one's own "
+             "estimates side by side.")
+    if agreement["trend"]:
+        words += f" Between them {agreement['trend']}."
+    elif agreement["moving"]:
+        words += " No parameter moves in step with a declared condition (declare the "\
+                 "experiments' conditions in their sidecars, \"conditions\": {\"load_kg\": ...})."
+    agreeing = [c for c in agreement["candidates"] if c["agree"]]
+    if agreeing:
+        c = agreeing[0]
+        words += (f" With {c['effect']} they agree (likelihood ratio {c['statistic'][0]:.4g} "
+                  f"-> {c['statistic'][1]:.4g}, p = {c['p_value']:.2g}).")
+    elif agreement["candidates"]:
+        best = agreement["candidates"][0]
+        words += (" No refitted candidate makes them agree (the closest, "
+                  f"{best['effect']}: likelihood ratio {best['statistic'][0]:.4g} -> "
+                  f"{best['statistic'][1]:.4g}): the model lacks what differs between "
+                  "them.")
+    return words
 
 
 def _checked(settings: DiagnoseSettings | None) -> DiagnoseSettings:
@@ -319,11 +396,15 @@ def _discrepancy_step(base: BaseFit, experiments: tuple, plugin_dir, say: Progre
     say.say(f"estimating the missing force from {base.names[k]} (discrepancy; the experiment "
             "furthest above its floor)" if several else
             "estimating the missing force from the data (discrepancy)")
-    found = estimate_discrepancy(
-        base.likelihoods[k], base.noises[k], base.points[k][0], base.simulations[k],
-        plugin_dir=plugin_dir,
-        command=" ".join(str(e.dataset.source or "DATA") for e in experiments),
-        effects=experiments[0].model.effect_names, start=base.points[k][1])
+    try:
+        found = estimate_discrepancy(
+            base.likelihoods[k], base.noises[k], base.points[k][0], base.simulations[k],
+            plugin_dir=plugin_dir,
+            command=" ".join(str(e.dataset.source or "DATA") for e in experiments),
+            effects=experiments[0].model.effect_names, start=base.points[k][1])
+    except LinearisationError as exc:
+        say.say(f"discrepancy step skipped: {exc}")
+        return None, None, f" The missing force was not estimated from the data: {exc}."
     words = (f" The missing force was estimated from {base.names[k]}, the experiment furthest "
              "above its floor; the command below checks the proposal on all of them."
              if several else "")

@@ -14,6 +14,11 @@ __all__ = ["paired_difference", "laplace_loo", "loo_table"]
 #: Fewest usable draws for PSIS-LOO (its Pareto tail needs at least 5 of them).
 _MIN_LOO_DRAWS = 25
 
+#: Contiguous stretches a single record is cut into for its leave-one-out ELPD: with
+#: one trial, leaving it out predicts the record from nothing, and its one term has no
+#: spread to give a standard error.
+LOO_STRETCHES = 10
+
 
 def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """The ELPD of one model minus another's, paired over the left-out trials.
@@ -28,9 +33,13 @@ def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     difference : float
         ``sum(a - b)``.
     se : float
-        Its standard error from the per-trial differences, ``sqrt(n var(a - b))``.
+        Its standard error from the per-trial differences, ``sqrt(n var(a - b))``; NaN
+        with fewer than two (one difference has no spread to estimate it from, and
+        ``0`` would claim a certainty the data do not give).
     """
-    d = a - b
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    if d.size < 2:
+        return float(d.sum()), math.nan
     return float(d.sum()), float(math.sqrt(d.size * np.var(d)))
 
 
@@ -56,10 +65,13 @@ def laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, c
     Returns
     -------
     elpd : float
-        Leave-one-trial-out ELPD over every trial of every experiment; NaN when fewer
-        than 25 draws are inside the support with a finite likelihood.
+        Leave-one-trial-out ELPD over every trial of every experiment (an experiment of
+        a single record: one of its :data:`LOO_STRETCHES` contiguous stretches at a time,
+        given the rest, :meth:`~pmabayes.inference.likelihood.Likelihood.stretch_pointwise`,
+        where its noise model allows); NaN when fewer than 25 draws are inside the support
+        with a finite likelihood.
     elpd_i : numpy.ndarray
-        Its per-trial terms (NaN then too).
+        Its per-trial (per-stretch) terms (NaN then too).
     interval : dict
         ``(low, high)`` of each of ``names`` (NaN then too).
     """
@@ -81,7 +93,9 @@ def laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, c
             if g not in group_draws:
                 group_draws[g] = posterior.group_noise[g].draws(rng, theta.shape[0])
             noise = group_draws[g]
-        parts.append(lik.pointwise(x, *noise))
+        # a single record: leave out a stretch of it at a time, given the rest
+        stretches = lik.stretch_pointwise(x, *noise, LOO_STRETCHES)
+        parts.append(lik.pointwise(x, *noise) if stretches is None else stretches)
     pointwise = np.concatenate(parts, axis=1)
     ok = np.all(np.isfinite(pointwise), axis=1)
     tail = (1.0 - ci_prob) / 2.0

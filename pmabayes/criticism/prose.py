@@ -12,6 +12,7 @@ import numpy as np
 
 from pmabayes.criticism.bands import band_label, band_rms
 from pmabayes.criticism.signature import Signature
+from pmabayes.util import format_together
 
 if TYPE_CHECKING:  # for annotations: results imports the discrepancy, which uses this
     from pmabayes.criticism.results import Refit
@@ -82,7 +83,7 @@ def _after_text(signatures: Sequence[Signature], names: Sequence[str]) -> str:
     def one(sig: Signature) -> str:
         floor = (f"{sig.ratio:.3g}x the floor" if math.isfinite(sig.bands[-1].floor_m)
                  else "no floor")
-        return f"{sig.bands[-1].rms_m * 1e6:.4g} µm ({floor})"
+        return f"{format_together(sig.bands[-1].rms_m * 1e6, digits=4)[0]} µm ({floor})"
 
     if len(signatures) == 1:
         return one(signatures[0])
@@ -113,37 +114,107 @@ def explanation_text(eff, evidence: float, p_value: float, significant: bool,
             lo, hi = refit.interval[p.name]
             parts.append(f"{p.name} = {refit.values[p.name]:.4g} {p.unit} "
                          f"({ci_prob:.0%} interval {lo:.4g} to {hi:.4g})")
+    if getattr(refit, "failed", None):
+        return text + f" Added and refitted: {elpd_text(refit)}." + contribution
     text += (f" Added and refitted, it takes {', '.join(parts)}; the RMS error falls to "
              f"{_after_text(refit.signatures, names)}: it {_refit_removed(refit)}; and the "
-             f"leave-one-trial-out {_elpd_text(refit, 'changes by')}.")
+             f"held-out (leave-one-out) {elpd_text(refit, 'changes by')}.")
     return text + contribution
 
 
-def _elpd_text(refit, verb: str = "") -> str:
-    """``ΔELPD +d ± se`` of a refit, or that it could not be estimated (PSIS-LOO over
-    the refit's Laplace draws gave no finite value, e.g. when its draws do not
-    simulate)."""
-    if not (math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)):
+def se_note(refit) -> str | None:
+    """Why a refit's ΔELPD has no standard error, or None when it has one.
+
+    Parameters
+    ----------
+    refit : Refit
+        The refit.
+
+    Returns
+    -------
+    str or None
+    """
+    if math.isfinite(refit.elpd_diff_se) or not math.isfinite(refit.elpd_diff):
+        return None
+    return ("one left-out unit (a single record whose noise model cannot leave out "
+            "stretches of it): no spread to estimate a standard error from")
+
+
+def elpd_text(refit, verb: str = "") -> str:
+    """``ΔELPD +d ± se`` of a refit; ``± n/a`` with the reason where the standard error
+    cannot be estimated; that the refit failed (its numbers are not the effect's), or
+    that its ELPD could not be estimated (PSIS-LOO over the refit's Laplace draws gave
+    no finite value, e.g. when its draws do not simulate).
+
+    Parameters
+    ----------
+    refit : Refit
+        The refit.
+    verb : str
+        ``"changes by"`` gives ``ELPD changes by +d ± se``; empty, ``ΔELPD +d ± se``.
+
+    Returns
+    -------
+    str
+    """
+    failed = getattr(refit, "failed", None)
+    if failed:
+        return f"refit failed ({failed}), so no ΔELPD is given"
+    if not math.isfinite(refit.elpd_diff):
         return "ΔELPD not estimable: PSIS-LOO over the refit's Laplace draws gave no finite value"
     head = f"ELPD {verb} " if verb else "ΔELPD "
+    note = se_note(refit)
+    if note:
+        return f"{head}{refit.elpd_diff:+.1f} ± n/a ({note})"
     return f"{head}{refit.elpd_diff:+.1f} ± {refit.elpd_diff_se:.1f}"
+
+
+
+
+def elpd_short(refit) -> str:
+    """A refit's ΔELPD for a table cell: ``+d ± se``, ``+d ± n/a`` (no standard error),
+    ``refit failed`` or ``not estimable`` (the words of :func:`elpd_text`, shortened).
+
+    Parameters
+    ----------
+    refit : Refit
+        The refit.
+
+    Returns
+    -------
+    str
+    """
+    if getattr(refit, "failed", None):
+        return "refit failed"
+    if not math.isfinite(refit.elpd_diff):
+        return "not estimable"
+    se = f"{refit.elpd_diff_se:.1f}" if math.isfinite(refit.elpd_diff_se) else "n/a"
+    return f"{refit.elpd_diff:+.1f} ± {se}"
 
 
 def _sig_text(signature: Signature) -> str:
     overall = signature.bands[-1]
-    floor = (f"against a floor of {overall.floor_m * 1e6:.4g} µm"
-             if math.isfinite(overall.floor_m) else "with no noise floor (no repeats)")
-    return (f"RMS error {overall.rms_m * 1e6:.4g} µm {floor}; whitened residual energy "
+    if math.isfinite(overall.floor_m):
+        rms, floor_um = format_together(overall.rms_m * 1e6, overall.floor_m * 1e6, digits=4)
+        floor = f"against a floor of {floor_um} µm"
+    else:
+        rms, floor = format_together(overall.rms_m * 1e6, digits=4)[0], \
+            "with no noise floor (no repeats)"
+    return (f"RMS error {rms} µm {floor}; whitened residual energy "
             f"{signature.energy:.3g} (p = {signature.energy_p:.2g}), Ljung-Box "
             f"p = {signature.ljung_box_p:.2g}")
 
 
 def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
                  missing: str | None, refits: dict, findings: list, min_explained: float,
-                 twins: list | None = None) -> str:
-    """The diagnosis' conclusion in words: what is missing (or that nothing is, or that
-    nothing in the library explains the misfit), where the misfit shows, and the next
-    command."""
+                 twins: list | None = None, partial: str | None = None) -> str:
+    """The diagnosis' conclusion in words: what is missing (or the best partial step, or
+    that nothing is, or that nothing in the library explains the misfit), where the
+    misfit shows, and the next command.
+
+    ``findings`` are in the order the ranking shows them (refits by ELPD gain): the
+    verdict's "top-ranked" refit is the first of them, as in the list.
+    """
     names = [e.name for e in experiments]
     if len(experiments) == 1:
         sig = _sig_text(experiments[0].signature)
@@ -157,14 +228,16 @@ def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
         where = (f" The misfit shows in {', '.join(bad)}"
                  + (f"; {', '.join(good)} {'is' if len(good) == 1 else 'are'} consistent with "
                     "the noise." if good else "."))
+    floors = all(math.isfinite(e.signature.bands[-1].floor_m) for e in experiments)
     text = _verdict_core(name, effects, sig, adequate, missing, refits, findings,
-                         min_explained, names, twins)
+                         min_explained, names, twins, partial, floors)
     return text + where + (f" {notes}" if notes else "")
 
 
 def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,
                   refits: dict, findings: list, min_explained: float, names: list,
-                  twins: list | None = None) -> str:
+                  twins: list | None = None, partial: str | None = None,
+                  floors: bool = True) -> str:
     if missing is not None:
         r = refits[missing]
         tied = [t[0] for t in twins or ()]
@@ -187,31 +260,52 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
     if adequate and not significant:
         return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}) "
                 "and no candidate effect is significantly missing.")
+    above = "above the noise floor" if floors else "not consistent with the noise"
     if not significant:
-        return (f"{name}: the residual is above the noise floor ({sig}), but no effect in "
+        return (f"{name}: the residual is {above} ({sig}), but no effect in "
                 "the library is significantly missing; something outside the library is. "
                 "See the residual signature figures, and register an effect that describes "
                 "it.")
     if adequate:
         named = ", ".join(f"{f.effect} (p = {f.p_value:.2g}" + (
-            f", refit {_elpd_text(f.refit)})"
+            f", refit {elpd_text(f.refit)})"
             if f.refit else ")") for f in significant)
         return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}). "
                 f"The score test flags {named}, but no refit predicts left-out trials "
                 "clearly better, so nothing is named; with a family-wise level of 5%, this "
                 "is what a false alarm looks like.")
-    best = (max(refits.values(), key=lambda r: max(r.explained, r.explained_with_next))
-            if refits else None)
+    if partial is not None:
+        return _partial_text(name, effects, sig, refits[partial], names, floors, above,
+                             min_explained)
+    top = next((f.refit for f in findings if f.refit is not None), None)
     detail = ""
-    if best is not None:
-        # the rule is on the whitened residual's energy: its number, named as such
-        detail = (f" the best refit ({best.effect}) removes only {best.explained:.0%} of the "
-                  "whitened residual's excess energy")
-        floors = all(math.isfinite(sig.bands[-1].floor_m) for sig in best.signatures)
-        if best.next_effect and floors:  # without a floor the look-ahead is no evidence
-            detail += f" ({best.explained_with_next:.0%} with {best.next_effect} after it)"
-        detail += (f", and at least {min_explained:.0%} is required "
-                   f"({_elpd_text(best)})")
-    return (f"{name}: the residual is above the noise "
-            f"floor ({sig}); candidates are significant but none explains the misfit:"
-            f"{detail}. Something outside the library is missing; no candidate is named.")
+    if top is not None:
+        # the list's first, in the list's order: never called "best" (it may predict worse)
+        detail = f": the top-ranked refit, {top.effect}, has {elpd_text(top)}"
+        if top.failed is None and top.implausible:
+            detail += f", and its estimates are implausible ({top.implausible})"
+        elif top.failed is None and floors:
+            detail += f"; it {_refit_removed(top)}"
+    return (f"{name}: the residual is {above} ({sig}); candidates are significant but no "
+            "refit predicts held-out data clearly better (ΔELPD above two standard errors, "
+            f"plausible estimates, a search that succeeded){detail}. Something outside the "
+            "library is missing; no candidate is named.")
+
+
+def _partial_text(name: str, effects: tuple, sig: str, r: Refit, names: list, floors: bool,
+                  above: str, min_explained: float) -> str:
+    """The verdict that names a partial step: a refit that clearly predicts held-out data
+    better without accounting for all of the misfit (or, without a floor, with no way
+    to tell whether it does)."""
+    why = (f"no candidate accounts for the misfit (at least {min_explained:.0%} of its "
+           "excess, or an adequate model)" if floors else
+           "with no noise floor these data cannot tell whether a candidate accounts for "
+           "all of the misfit")
+    removes = f" and {_refit_removed(r)}" if floors else ""
+    return (f"{name}: the residual is {above} ({sig}); {why}, but {r.effect} adds a partial "
+            f"improvement: adding it lowers the RMS error to {_after_text(r.signatures, names)}"
+            f"{removes}, and predicts held-out data better ({elpd_text(r)}, above two "
+            f"standard errors). Next: add it (--effects {','.join([*effects, r.effect])}) "
+            "and diagnose again; "
+            + ("it is a step, not all that is missing." if floors else
+               "what it leaves shows there."))

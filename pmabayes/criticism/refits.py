@@ -28,8 +28,8 @@ from pmabayes.model.model import Model
 from pmabayes.model.simulator import Simulation
 from pmabayes.util import Progress, side_stream
 
-__all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "near_twins",
-           "physical_values"]
+__all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "partial_effect",
+           "near_twins", "improves", "ranking_key", "refit_failure", "physical_values"]
 
 
 def physical_values(model: Model, values: dict) -> dict:
@@ -110,6 +110,12 @@ class BaseFit:
     trial_models : list
         Each experiment's per-trial model positions where its trials have their own
         inputs, else None.
+    log_likelihood : float
+        The log-likelihood at the MAP, over every experiment: a refit, which holds the
+        model (its effect at its null), reaches at least this where its search succeeds.
+    agreement : dict or None
+        With several experiments, whether they agree on one parameter set, with each
+        one's own estimates (:func:`pmabayes.inference.search.experiments_agreement`).
     """
 
     likelihoods: list
@@ -124,6 +130,8 @@ class BaseFit:
     elpd_i: np.ndarray
     points: list = field(default_factory=list)
     trial_models: list = field(default_factory=list)
+    log_likelihood: float = math.nan
+    agreement: dict | None = None
 
     @property
     def excess(self) -> float:
@@ -193,7 +201,47 @@ def fit_base(models: list, datasets: list, names: list, s: DiagnoseSettings,
                   for lik, noise, (sim, trials) in zip(liks, noises, runs, strict=True)]
     elpd, elpd_i, _ = laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
     return BaseFit(liks, names, repeat_noise, list(posterior.noise_choices), noises, values,
-                   sims, signatures, elpd, elpd_i, points, [trials for _, trials in runs])
+                   sims, signatures, elpd, elpd_i, points, [trials for _, trials in runs],
+                   _map_log_likelihood(posterior, best), best.agreement)
+
+
+def _map_log_likelihood(posterior: Posterior, best) -> float:
+    """The log-likelihood of a posterior at its MAP (over every experiment)."""
+    _, ll, _ = posterior.evaluate(posterior.to_natural(np.asarray(best.z)[None]),
+                                  return_x=False)
+    return float(ll[0])
+
+
+def refit_failure(base_log_likelihood: float, log_likelihood: float, effect: str
+                  ) -> str | None:
+    """Why a refit's numbers are not the effect's, or None when its search succeeded.
+
+    The refit holds the diagnosed model (its effect at its null), so its MAP fits at
+    least as well; a search that ends lower has failed (lost in its larger space), and
+    its ELPD and errors would be read as the effect's.
+
+    Parameters
+    ----------
+    base_log_likelihood : float
+        The diagnosed model's log-likelihood at its MAP.
+    log_likelihood : float
+        The refit's at its MAP.
+    effect : str
+        The added effect.
+
+    Returns
+    -------
+    str or None
+    """
+    if not math.isfinite(base_log_likelihood):
+        return None  # nothing to hold it against
+    if not math.isfinite(log_likelihood):
+        return "its MAP does not simulate"
+    gap = base_log_likelihood - log_likelihood
+    if gap > max(1.0, 1e-6 * abs(base_log_likelihood)):
+        return (f"its search ended at a log-likelihood {gap:.4g} below the model without "
+                f"{effect}, which the refit holds (at the effect's null)")
+    return None
 
 
 def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Generator) -> Refit:
@@ -250,6 +298,9 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
         elpd_i=e_elpd_i,
         implausible=implausible(ext, ext_map.values, tested,
                                 [lik.dataset for lik in base.likelihoods], refit=True),
+        failed=refit_failure(base.log_likelihood, _map_log_likelihood(ext_post, ext_map),
+                             effect),
+        agreement=ext_map.agreement,
     )
 
 
@@ -283,20 +334,65 @@ def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
     return refits
 
 
+def improves(refit: Refit) -> bool:
+    """Whether a refit clearly predicts held-out data better than the model without it.
+
+    Its ELPD (leaving out trials, or stretches of a single record) rises by more than
+    two standard errors of the paired difference, a real one (not NaN); the refit's
+    search did not fail (:attr:`~pmabayes.criticism.results.Refit.failed`) and its
+    estimates are physics (:mod:`~pmabayes.criticism.plausibility`).
+
+    Parameters
+    ----------
+    refit : Refit
+        The refit.
+
+    Returns
+    -------
+    bool
+    """
+    return bool(refit.failed is None and refit.implausible is None
+                and math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)
+                and refit.elpd_diff > 2.0 * refit.elpd_diff_se)
+
+
+def ranking_key(refit: Refit) -> tuple:
+    """The order of refits wherever they are ranked (the list, the verdict, the missing
+    one): by ELPD gain, a failed or not estimable one last.
+
+    Parameters
+    ----------
+    refit : Refit
+        One refitted candidate.
+
+    Returns
+    -------
+    tuple
+        A sort key: smaller ranks first.
+    """
+    usable = refit.failed is None and math.isfinite(refit.elpd_diff)
+    return (not usable, -refit.elpd_diff if usable else 0.0)
+
+
+def _floors(refits: dict) -> bool:
+    """Whether every experiment has a noise floor (else none of the shares means much)."""
+    return all(math.isfinite(sig.bands[-1].floor_m) for r in refits.values()
+               for sig in r.signatures)
+
+
 def _explaining(refits: dict, s: DiagnoseSettings) -> list[Refit]:
-    """The refits that account for the misfit and predict left-out trials better, with
-    estimates that are physics (:mod:`~pmabayes.criticism.plausibility`). Where an
-    experiment has no floor (a record without repeats), a refit must remove the excess
-    itself: its noise is identified with each model and takes in what the model leaves,
-    so neither its adequacy nor the look-ahead's first-order share (measured against
-    that noise) is evidence there."""
-    floors = all(math.isfinite(sig.bands[-1].floor_m) for r in refits.values()
-                 for sig in r.signatures)
-    return [r for r in refits.values()
-            if ((max(r.explained, r.explained_with_next) >= s.min_explained
-                 or s.all_adequate(r.signatures)) if floors
-                else r.explained >= s.min_explained)
-            and r.elpd_diff > 2.0 * r.elpd_diff_se and r.implausible is None]
+    """The refits that predict held-out data clearly better (:func:`improves`) and
+    account for the misfit: the refit is adequate, or it removes at least
+    ``min_explained`` of the excess alone or with the candidate its own score test finds
+    next. Only where every experiment has a floor: without one (a record without
+    repeats) the noise is identified with each model and takes in what the model
+    leaves, so neither the share nor the adequacy says that the misfit is accounted for
+    (:func:`partial_effect` names the best step there)."""
+    if not _floors(refits):
+        return []
+    return [r for r in refits.values() if improves(r)
+            and (max(r.explained, r.explained_with_next) >= s.min_explained
+                 or s.all_adequate(r.signatures))]
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:
@@ -314,7 +410,29 @@ def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:
     str or None
     """
     explaining = _explaining(refits, s)
-    return max(explaining, key=lambda r: r.elpd).effect if explaining else None
+    return min(explaining, key=ranking_key).effect if explaining else None
+
+
+def partial_effect(refits: dict, missing: str | None = None) -> str | None:
+    """The best partial step when nothing is named missing: the top-ranked refit that
+    clearly predicts held-out data better (:func:`improves`) without accounting for all
+    of the misfit (or, without a floor, without a way to tell whether it does).
+
+    Parameters
+    ----------
+    refits : dict
+        Effect name to refit.
+    missing : str, optional
+        The effect named missing; then there is no partial step (None).
+
+    Returns
+    -------
+    str or None
+    """
+    if missing is not None:
+        return None
+    helping = [r for r in refits.values() if improves(r)]
+    return min(helping, key=ranking_key).effect if helping else None
 
 
 def near_twins(refits: dict, missing: str | None, s: DiagnoseSettings

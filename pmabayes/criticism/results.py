@@ -16,6 +16,7 @@ from pmabayes.criticism.bands import (
 )
 from pmabayes.criticism.discrepancy import Discrepancy
 from pmabayes.criticism.observed import observed_mean, shared_input
+from pmabayes.criticism.prose import se_note
 from pmabayes.criticism.scores import significance_threshold
 from pmabayes.criticism.signature import Signature
 from pmabayes.criticism.whiteness import (
@@ -84,6 +85,14 @@ class Refit:
         Why the refit's estimates are not physics (outside their plausible range, or
         run to a bound: :func:`pmabayes.criticism.plausibility.implausible`); such a
         refit is never named missing. None when they are plausible.
+    failed : str or None
+        Why the refit's search failed (its MAP fits worse than the model without the
+        effect, which it holds: :func:`pmabayes.criticism.refits.refit_failure`); its
+        ELPD and errors are then not the effect's, and it is never named. None when it
+        succeeded.
+    agreement : dict or None
+        With several experiments, whether they agree on one parameter set once the
+        effect is added (:func:`pmabayes.inference.search.experiments_agreement`).
 
     Notes
     -----
@@ -108,12 +117,16 @@ class Refit:
     explained_rms: float | None = None
     adequate: bool = False
     implausible: str | None = None
+    failed: str | None = None
+    agreement: dict | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary: ``rms_m`` (pooled), ``explained`` (whitened energy),
-        ``explained_rms`` (mean square above the floor), ``adequate``, ``elpd_diff``,
-        ``elpd_diff_se``, ``implausible`` and ``experiments``, one ``{"rms_m", "noise_ratio",
-        "ljung_box_p", "energy"}`` each.
+        ``explained_rms`` (mean square above the floor), ``adequate``, ``elpd_diff``
+        and ``elpd_diff_se`` (None where not estimable: the standard error of one
+        left-out unit), ``elpd_diff_se_note`` (why it is None, else None), ``implausible``,
+        ``failed`` and ``experiments``, one ``{"rms_m", "noise_ratio", "ljung_box_p",
+        "energy"}`` each.
 
         Returns
         -------
@@ -121,8 +134,10 @@ class Refit:
         """
         return {"rms_m": self.rms_m, "explained": self.explained,
                 "explained_rms": self.explained_rms, "adequate": self.adequate,
-                "elpd_diff": self.elpd_diff, "elpd_diff_se": self.elpd_diff_se,
-                "implausible": self.implausible,
+                "elpd_diff": finite_or_none(self.elpd_diff),
+                "elpd_diff_se": finite_or_none(self.elpd_diff_se),
+                "elpd_diff_se_note": se_note(self),
+                "implausible": self.implausible, "failed": self.failed,
                 "experiments": [{"rms_m": sig.bands[-1].rms_m,
                                  "noise_ratio": finite_or_none(sig.ratio),
                                  "ljung_box_p": sig.ljung_box_p, "energy": sig.energy}
@@ -230,9 +245,9 @@ class ExperimentDiagnosis:
         The adequacy rule on this experiment's whitened residual.
     baselines : dict
         The yardsticks fitted to the diagnosis' data, on this experiment
-        (:meth:`pmabayes.criticism.baselines.Baselines.scores`): ``"linear"`` and
-        ``"play"``, each with its in-sample ``rmse_m`` and ``nrmse``; empty when they
-        could not be fitted.
+        (:meth:`pmabayes.criticism.baselines.Baselines.scores`): ``"linear"``,
+        ``"play"`` and ``"narx"`` (those fitted), each with its in-sample ``rmse_m`` and
+        ``nrmse``; empty when they could not be fitted.
     """
 
     name: str
@@ -353,7 +368,8 @@ class Diagnosis:
         others by score statistic.
     elpd : float
         Leave-one-trial-out ELPD of the model (PSIS-LOO over Laplace draws), over
-        every trial of every experiment.
+        every trial of every experiment (a single record's: one of its stretches at a
+        time, :func:`pmabayes.criticism.elpd.laplace_loo`).
     verdict : str
         The conclusion in words; with several experiments it names those whose
         residual shows the misfit.
@@ -368,6 +384,20 @@ class Diagnosis:
     discrepancy_experiment : str or None
         The experiment the discrepancy was estimated on (the inadequate one furthest
         above its floor); None without a discrepancy.
+    partial : str or None
+        When nothing is named ``missing``: the best partial step, the top-ranked refit
+        that predicts held-out data clearly better (ΔELPD above two standard errors)
+        without accounting for all of the misfit, or, on a record without a noise floor,
+        without a way to tell whether it does
+        (:func:`pmabayes.criticism.refits.partial_effect`); the verdict says to add it
+        and diagnose again. None otherwise.
+    agreement : dict or None
+        With several experiments: whether they agree on one parameter set (the
+        likelihood-ratio test's ``agree``, ``statistic``, ``df``, ``p_value``), each
+        one's own estimates (``experiments``), the declared ``conditions`` that
+        differ, the parameters that ``moving`` between them and the ``trend`` in
+        words (:mod:`pmabayes.criticism.experiments`), and each refitted candidate's
+        test (``candidates``). None for one experiment.
     """
 
     experiments: tuple
@@ -380,6 +410,8 @@ class Diagnosis:
     settings: dict
     discrepancy: Discrepancy | None = None
     discrepancy_experiment: str | None = None
+    partial: str | None = None
+    agreement: dict | None = None
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -428,8 +460,9 @@ class Diagnosis:
             ``rms_m``, ``noise_floor_m``
                 Pooled over the experiments (the floor None when one has no
                 repeats).
-            ``adequate``, ``missing``, ``verdict``, ``elpd_loo``
-                As the fields ``adequate``, ``missing``, ``verdict``, ``elpd``.
+            ``adequate``, ``missing``, ``partial``, ``verdict``, ``elpd_loo``
+                As the fields ``adequate``, ``missing``, ``partial``, ``verdict``,
+                ``elpd``.
             ``ranking``
                 One :meth:`Finding.to_dict` per candidate.
             ``values``
@@ -444,6 +477,8 @@ class Diagnosis:
                 noise, error against the floor, whiteness, signature and bands.
             ``misfit_experiments``
                 The names of those that are not adequate.
+            ``agreement``
+                As the field (None for one experiment).
         """
         exps = self.experiments
         return {
@@ -454,6 +489,7 @@ class Diagnosis:
             "noise_floor_m": finite_or_none(self.noise_floor_m),
             "adequate": self.adequate,
             "missing": self.missing,
+            "partial": self.partial,
             "verdict": self.verdict,
             "ranking": [f.to_dict() for f in self.ranking],
             "values": dict(self.values),
@@ -464,6 +500,7 @@ class Diagnosis:
                              "experiment": self.discrepancy_experiment}),
             "experiments": [e.to_dict() for e in exps],
             "misfit_experiments": self.misfit_experiments,
+            "agreement": self.agreement,
         }
 
 

@@ -14,6 +14,7 @@ from scipy import stats
 from pmabayes.criticism.observed import model_mean
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.effects import registered_effects
+from pmabayes.model.model import ModelError
 from pmabayes.util import Progress
 
 __all__ = ["EffectEvidence", "rank_effects", "significance_threshold"]
@@ -206,7 +207,10 @@ def _score_test(likelihoods: list, noises: list, points: list, starts: list,
                 name: str) -> EffectEvidence:
     """The score test of one candidate effect over the experiments (``significant`` is set
     by the caller): their scores and informations add."""
-    exts = [lik.model.with_effects(name) for lik in likelihoods]
+    try:
+        exts = [lik.model.with_effects(name) for lik in likelihoods]
+    except ModelError as err:  # e.g. a second hysteresis law: it cannot join this model
+        return _left_out(name, [], f"cannot be added to this model: {err}")
     ext = exts[0]  # the parameters are shared; only the rigs differ
     eff = ext.effects[-1]
     # a parameter without a null (a shape, such as a damping ratio) is not identified

@@ -40,7 +40,9 @@ Held-out data whose start is declared ``"estimate"`` (a record that starts mid-l
 have it estimated from the record itself, as MATLAB's ``compare`` does with estimated
 initial conditions: for each posterior draw, the position, velocity and hysteretic
 force at the first sample (:func:`pmabayes.simulate`'s ``initial_values``) that fit
-the first ``start_fraction`` of the record (5% by default) best in least squares. The
+the first ``start_fraction`` of the record (5% by default) best in least squares, the
+velocity bounded by the record's own largest speed. A draw whose simulation from the
+start's prior means is not finite keeps those means, and is counted and said. The
 numbers above are over the whole record; ``start`` says how much of it the start
 used, and ``rmse_after_start_m`` is the error over the rest alone.
 
@@ -62,10 +64,12 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import xarray as xr
 
+from pmabayes.criticism.adequacy import Adequacy, check_adequacy
 from pmabayes.criticism.bands import band_errors
 from pmabayes.criticism.baselines import Baselines, fit_baselines, nrmse, yardstick_text
 from pmabayes.criticism.inadequacy import Inadequacy, ResidualRecord, learn_inadequacy
@@ -177,13 +181,21 @@ class ExperimentValidation:
         added (:mod:`~pmabayes.criticism.inadequacy`).
     baselines : dict
         The yardsticks on this experiment (:meth:`pmabayes.criticism.baselines.Baselines.scores`
-        with their predictions): ``"linear"`` and ``"play"``; empty when they could not
-        be fitted.
+        with their predictions): ``"linear"``, ``"play"`` and ``"narx"`` (those fitted);
+        empty when they could not be fitted.
     start : dict
         The held-out record's start: ``initial_state``, and for ``"estimate"`` how it
         was estimated (``samples`` and ``seconds`` of the record used, ``fraction``,
-        ``rmse_after_start_m``: the error of the trial mean after them, and the
-        draws' median start).
+        ``rmse_after_start_m``: the error of the trial mean after them, the
+        draws' median start, ``v0_bound_m_s``: the bound of the start velocity, the
+        record's largest speed, and ``v0_at_bound`` the draws that reached it, and
+        ``not_estimated``: the draws whose start could not be estimated, their
+        simulation from the start's prior means not being finite, which start there).
+    adequacy : Adequacy or None
+        The adequacy verdict on these held-out data, by the one rule ``fit`` and
+        ``diagnose`` use (:func:`pmabayes.criticism.adequacy.check_adequacy`): the
+        prediction's residual whitened with the fit's noise (its draws' medians). None
+        when it could not be judged (the reason in ``notes``).
     """
 
     name: str
@@ -216,6 +228,7 @@ class ExperimentValidation:
     low_with_discrepancy_m: np.ndarray | None = None
     high_with_discrepancy_m: np.ndarray | None = None
     baselines: dict = field(default_factory=dict)
+    adequacy: Adequacy | None = None
 
     @property
     def n_trials(self) -> int:
@@ -243,7 +256,7 @@ class ExperimentValidation:
         synth = ", synthetic" if self.synthetic else ""
         with_d = ("" if self.coverage is None else
                   f" ({100 * self.coverage:.1f}% with the model's discrepancy)")
-        yard = "".join(f"; {name} yardstick NRMSE {b['nrmse']:.3g}"
+        yard = "".join(f"; {name} yardstick ({b.get('order_text', '')}) NRMSE {b['nrmse']:.3g}"
                        for name, b in self.baselines.items())
         return (f"{self.name}: {self.n_trials} trial(s) x {self.n_samples} samples"
                 f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um "
@@ -255,6 +268,12 @@ class ExperimentValidation:
                    f"({100 * self.start['fraction']:.3g}% of the record, "
                    f"{self.start['seconds']:.3g} s), RMSE after them "
                    f"{self.start['rmse_after_start_m'] * 1e6:.3g} um"
+                   + (f"; the start of {self.start['not_estimated']} draw(s) could not be "
+                      "estimated (not finite): they start from its prior means"
+                      if self.start.get("not_estimated") else "")
+                   + (f"; the start velocity of {self.start['v0_at_bound']} draw(s) at its "
+                      f"bound {self.start['v0_bound_m_s']:.3g} m/s (the record's largest "
+                      "speed)" if self.start.get("v0_at_bound") else "")
                    if self.start.get("initial_state") == "estimate" else ""))
 
     def to_dict(self, *, arrays: bool = True) -> dict:
@@ -273,12 +292,17 @@ class ExperimentValidation:
             ``max_error_m``, ``noise_floor_m``, ``ratio_to_floor``,
             ``band_coverage``, ``coverage`` (with the discrepancy),
             ``coverage_parameters_only``, ``ci_prob``, ``n_draws``, ``band_errors``,
-            ``noise``, ``notes``, ``baselines`` (``linear`` and ``play``, each with
-            ``rmse_m``, ``nrmse`` and its description) and, with ``arrays``,
+            ``noise``, ``notes``, ``baselines`` (``linear``, ``play`` and ``narx``
+            where fitted, each with ``rmse_m``, ``nrmse``, ``order_text`` and its
+            description; ``failed`` with the reason where its free run diverges, its
+            errors then null),
+            ``adequacy`` (:meth:`pmabayes.criticism.adequacy.Adequacy.to_dict` with
+            ``verdict``, its words; None when it could not be judged) and, with
+            ``arrays``,
             ``predictive_band`` (``time_s``, ``prediction_m``, ``low_m``, ``high_m``,
             ``model_low_m``, ``model_high_m``, ``low_with_discrepancy_m``,
             ``high_with_discrepancy_m`` and each yardstick's prediction,
-            ``linear_m`` and ``play_m``).
+            ``linear_m``, ``play_m``, ``narx_m``).
         """
         out = {
             "name": self.name, "source": self.source, "synthetic": self.synthetic,
@@ -305,6 +329,8 @@ class ExperimentValidation:
             "baselines": {n: {k: _json_float(v) if isinstance(v, float) else v
                               for k, v in b.items() if k != "prediction_m"}
                           for n, b in self.baselines.items()},
+            "adequacy": None if self.adequacy is None else {
+                **self.adequacy.to_dict(), "verdict": " ".join(self.adequacy.lines())},
         }
         if arrays:
             out["predictive_band"] = {
@@ -365,16 +391,16 @@ class Validation:
         dict
             ``fit``, ``effects``, ``settings``, ``definitions``, ``discrepancy``
             (:meth:`~pmabayes.criticism.inadequacy.Inadequacy.to_dict`, or None),
-            ``baselines`` (``trained_on``, ``seconds``; or None) and ``experiments``
+            ``baselines`` (``trained_on``, ``seconds``, ``fitted``: each yardstick's
+            orders, ``left_out``: each one not fitted, with the reason; or None) and
+            ``experiments``
             (:meth:`ExperimentValidation.to_dict` of each).
         """
         return {
             "fit": self.fit_source, "effects": list(self.effects),
             "settings": dict(self.settings), "definitions": dict(DEFINITIONS),
             "discrepancy": None if self.discrepancy is None else self.discrepancy.to_dict(),
-            "baselines": None if self.baselines is None else {
-                "trained_on": list(self.baselines.trained_on),
-                "seconds": self.baselines.seconds},
+            "baselines": None if self.baselines is None else self.baselines.to_dict(),
             "experiments": [e.to_dict(arrays=arrays) for e in self.experiments],
         }
 
@@ -384,8 +410,10 @@ class Validation:
         Returns
         -------
         list of str
+            One per experiment, then one per yardstick left out (why, and the fix).
         """
-        return [e.summary() for e in self.experiments]
+        return ([e.summary() for e in self.experiments]
+                + ([] if self.baselines is None else self.baselines.lines()))
 
 
 #: The numbers' definitions, as the JSON states them.
@@ -408,9 +436,11 @@ DEFINITIONS = {
                                 "band without the discrepancy (band_coverage over the "
                                 "observed samples)",
     "baselines": "yardsticks fitted to the fit's training data in seconds, predicting the "
-                 "same held-out input: a linear output-error model (order chosen on the "
-                 "training data) and a Prandtl-Ishlinskii model of play operators; their "
-                 "rmse_m and nrmse as the physics' (see pmabayes.criticism.baselines)",
+                 "same held-out input by free-run simulation: a linear output-error model, "
+                 "a Prandtl-Ishlinskii model of play operators and a polynomial NARX model "
+                 "(SysIdentPy's FROLS; left out without it), each of an order chosen on the "
+                 "training data; their rmse_m and nrmse as the physics' (see "
+                 "pmabayes.criticism.baselines)",
 }
 
 
@@ -679,34 +709,67 @@ def _band_errors(ds: Dataset, prediction: np.ndarray, notes: list,
 START_FRACTION = 0.05
 
 
+@dataclass(frozen=True)
+class _Starts:
+    """Each draw's estimated start and what the estimate could not do."""
+
+    values: np.ndarray  # (draws, 3): x0_m, v0_m_s, z0_offset_n
+    samples: int  # the first samples of the record the start was fitted to
+    speed_bound_m_s: float  # |v0| is kept below it
+    at_bound: int  # draws whose v0 ended within 1% of that bound
+    not_estimated: int  # draws simulated non-finite from the prior means: kept there
+
+
+def _speed_bound(ds: Dataset, v_prior: float, v_spread: float) -> float:
+    """The largest start velocity the record allows: its own largest speed (the trial
+    mean's differences), or the start's prior mean and spread if larger."""
+    y, t = ds.mean_position_m, ds.time_s
+    with np.errstate(invalid="ignore"):
+        speed = np.abs(np.diff(y)) / np.diff(t)
+    seen = speed[np.isfinite(speed)]
+    return max(float(seen.max()) if seen.size else 0.0, abs(v_prior) + v_spread, 1e-12)
+
+
 def _estimated_starts(model: Model, theta: np.ndarray, ds: Dataset, fraction: float,
-                      substeps: int) -> tuple[np.ndarray, int]:
-    """Each draw's start ``(draws, 3)`` fitted to the first ``fraction`` of the record,
-    and how many samples that is.
+                      substeps: int) -> _Starts:
+    """Each draw's start ``(draws, 3)`` fitted to the first ``fraction`` of the record.
 
     Levenberg-Marquardt on all draws at once, in coordinates scaled by the start's
     prior spreads, from its prior means
     (:meth:`pmabayes.inference.likelihood.Likelihood.start_parameters`), with
     forward-difference Jacobians; it stops when no draw's step moves by more than
-    1e-6 of a spread, after at most 50 steps.
+    1e-6 of a spread, after at most 50 steps. The velocity is bounded by the record's
+    own largest speed (:func:`_speed_bound`; as ``V tanh(w)``), so that a few samples of
+    a misfit cannot ask for a start faster than anything the record does. A draw whose
+    simulation from the prior means is not finite cannot be estimated: it keeps the
+    prior means, and is counted (its bands then drop it if it fails on the record too).
+    A step that is not finite is not taken.
     """
     n = min(ds.n_samples, max(int(round(fraction * ds.n_samples)), 10))
     prior = Likelihood(model, ds).start_parameters()
     s0 = np.array([p.default for p in prior])
     scale = np.array([p.prior.sigma for p in prior])
+    bound = _speed_bound(ds, s0[1], scale[1])
     y = ds.mean_position_m[:n]
     seen = np.isfinite(y)
     batch = theta.shape[0]
     run = dict(time_s=ds.time_s[:n], substeps=substeps, initial_state="estimate",
                between_samples=ds.input_between_samples)
 
+    def start_of(q: np.ndarray) -> np.ndarray:
+        s = s0 + q * scale
+        s[:, 1] = bound * np.tanh(q[:, 1])  # q[:, 1] is w, the bounded velocity's
+        return s
+
     def residual(q: np.ndarray, th: np.ndarray) -> np.ndarray:
-        x = simulate(model, th, ds.input[0, :n], initial_values=s0 + q * scale, **run)
+        x = simulate(model, th, ds.input[0, :n], initial_values=start_of(q), **run)
         return (y - x)[:, seen]
 
     q = np.zeros((batch, 3))
+    q[:, 1] = np.arctanh(s0[1] / bound)  # |s0[1]| < bound
     r = residual(q, theta)
     cost = np.sum(r * r, axis=1)
+    lost = ~np.isfinite(cost)  # never better: these keep the prior means
     lam = np.full(batch, 1e-3)
     h = 1e-4
     tiled = np.tile(theta, (4, 1))
@@ -718,17 +781,21 @@ def _estimated_starts(model: Model, theta: np.ndarray, ds: Dataset, fraction: fl
         g = np.einsum("bkj,bk->bj", jac, rs[0])
         damped = a + lam[:, None, None] * (np.eye(3) * np.diagonal(a, axis1=1, axis2=2)[:, None]
                                             + 1e-12 * np.eye(3))
+        bad = ~(np.isfinite(damped).all(axis=(1, 2)) & np.isfinite(g).all(axis=1))
+        damped[bad], g[bad] = np.eye(3), 0.0  # a Jacobian that is not finite: no step
         step = np.linalg.solve(damped, g[:, :, None])[:, :, 0]
+        step[~np.isfinite(step).all(axis=1)] = 0.0
         r_new = residual(q + step, theta)
         new = np.sum(r_new * r_new, axis=1)
-        better = np.isfinite(new) & (new < cost)
+        better = np.isfinite(new) & (new < cost) & ~bad
         q[better] += step[better]
         cost[better] = new[better]
         lam = np.where(better, lam / 3.0, lam * 4.0)
         done = np.where(better, np.max(np.abs(step), axis=1) < 1e-6, lam > 1e8)
         if done.all():
             break
-    return s0 + q * scale, n
+    at_bound = int(np.count_nonzero(~lost & (np.abs(np.tanh(q[:, 1])) > 0.99)))
+    return _Starts(start_of(q), n, bound, at_bound, int(np.count_nonzero(lost)))
 
 
 #: Posterior draws simulated on the training data for its residual (evenly spaced over
@@ -829,6 +896,7 @@ def _with_training(training: _Training, ds: Dataset, y: np.ndarray, q: float,
                    coverage=share_inside(data, low, high))
     if training.baselines is not None:
         out["baselines"] = training.baselines.scores(ds, arrays=True)
+        notes.extend(b["failed"] for b in out["baselines"].values() if "failed" in b)
         text = yardstick_text(physics, out["baselines"], where="on these held-out data")
         if text:
             notes.append(text)
@@ -855,12 +923,20 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                          for n in model.free_names})
     starts, start = None, {"initial_state": ds.initial_state}
     if ds.initial_state == "estimate":
-        starts, n_start = _estimated_starts(model, theta, ds, start_fraction, substeps)
+        est = _estimated_starts(model, theta, ds, start_fraction, substeps)
+        starts, n_start = est.values, est.samples
         start.update(samples=n_start, fraction=n_start / ds.n_samples,
                      seconds=float(ds.time_s[n_start - 1] - ds.time_s[0]),
                      **{f"{k}_median": float(v) for k, v in
                         zip(("x0_m", "v0_m_s", "z0_offset_n"), np.median(starts, axis=0),
-                            strict=True)})
+                            strict=True)},
+                     v0_bound_m_s=est.speed_bound_m_s, v0_at_bound=est.at_bound,
+                     not_estimated=est.not_estimated)
+        if est.not_estimated:
+            warnings.warn(f"{where}: the start of {est.not_estimated} of {pick.size} posterior "
+                          "draws could not be estimated (their simulation from the start's "
+                          f"prior means is not finite over the first {n_start} samples): they "
+                          "start from those prior means", DataWarning, stacklevel=3)
     own = not bool(np.all(ds.input == ds.input[0]))
     # trials with their own inputs: each draw on each trial's input, (draws, trials, n)
     x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts,
@@ -886,6 +962,15 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                      f"samples ({100 * start['fraction']:.3g}% of the record, "
                      f"{start['seconds']:.3g} s; start_fraction); the numbers are over the "
                      "whole record, rmse_after_start_m over the rest")
+        if start["not_estimated"]:
+            notes.append(f"the start of {start['not_estimated']} of {pick.size} draws could not "
+                         "be estimated (their simulation from the start's prior means is not "
+                         "finite): they start from those prior means (not_estimated)")
+        if start["v0_at_bound"]:
+            notes.append(f"the start velocity of {start['v0_at_bound']} of {pick.size} draws "
+                         f"reached its bound, {start['v0_bound_m_s']:.3g} m/s (the record's "
+                         "largest speed): the first samples ask for a start the record does not "
+                         "allow, a sign of misfit there (v0_at_bound)")
     if fit_dt is not None and abs(ds.dt_s - fit_dt) > 1e-9 * fit_dt:
         ratio = ds.dt_s / fit_dt
         rho = np.sign(rho) * np.abs(rho) ** ratio
@@ -927,6 +1012,8 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
         notes.append("the noise floor is the spread of the trials' residuals from the "
                      "posterior-mean prediction on each one's input")
     extra = _with_training(training, ds, y, q, {"rmse_m": rmse, "nrmse": normalised}, notes)
+    adequacy = _adequacy(model, ds, x.mean(axis=0) if own else prediction,
+                         (sigma, rho, white), coverage, ci_prob, notes)
     return ExperimentValidation(
         name=Path(ds.source).stem if ds.source else "data set",
         source=ds.source, synthetic=bool(ds.metadata.get("synthetic", False)),
@@ -944,7 +1031,22 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                **{f"{n}_median": float(np.median(v))
                   for n, v in zip(NOISE_NAMES, (sigma, rho, white), strict=True)}},
         n_draws=int(x.shape[0]), ci_prob=ci_prob, notes=notes, start=start,
-        coverage_parameters_only=share_inside(data, low, high), **extra)
+        coverage_parameters_only=share_inside(data, low, high), adequacy=adequacy, **extra)
+
+
+def _adequacy(model: Model, ds: Dataset, prediction: np.ndarray, noise: tuple,
+              coverage: float, ci_prob: float, notes: list) -> Adequacy | None:
+    """The adequacy verdict on held-out data (the one rule of ``fit`` and ``diagnose``),
+    the prediction's residual whitened with the fit's noise (its draws' medians); None,
+    with the reason in ``notes``, when it cannot be judged."""
+    sigma, rho, white = (float(np.median(v)) for v in noise)
+    try:
+        return check_adequacy(Likelihood(model, ds), prediction,
+                              SimpleNamespace(sigma=sigma, rho=rho, white=white),
+                              coverage=coverage, ci_prob=ci_prob)
+    except (ValueError, np.linalg.LinAlgError) as err:
+        notes.append(f"the adequacy verdict could not be judged on these data: {err}")
+        return None
 
 
 def validate(

@@ -67,6 +67,7 @@ from pmabayes.data.dataset import (
     DataWarning,
     check_same_input_kind,
     check_time_grid,
+    experiment_conditions,
 )
 from pmabayes.data.files import (
     load,
@@ -94,6 +95,7 @@ __all__ = [
     "UNITS",
     "check_same_input_kind",
     "check_time_grid",
+    "experiment_conditions",
     "load",
     "load_segments",
     "read_columns",

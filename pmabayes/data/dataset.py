@@ -22,7 +22,7 @@ import xarray as xr
 from numpy.typing import ArrayLike
 
 __all__ = ["INPUT_NAMES", "BETWEEN_SAMPLES", "METADATA_KEYS", "DataError", "DataWarning",
-           "Dataset", "check_same_input_kind", "check_time_grid"]
+           "Dataset", "check_same_input_kind", "check_time_grid", "experiment_conditions"]
 
 INPUT_NAMES: tuple[str, ...] = ("pressure_pa", "force_n")
 """Allowed names of the input column: commanded gauge pressure (Pa) or force (N)."""
@@ -54,7 +54,7 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
                  "time_origin_s", "position_reference", "steady_state_tol_m",
                  "max_warmup_periods", "warmup_s", "position_sign", "position_zero_s",
-                 "position_zero", "disturbance_max_s", "disturbance_check")
+                 "position_zero", "disturbance_max_s", "disturbance_check", "conditions")
 
 
 class DataError(ValueError):
@@ -275,6 +275,52 @@ def _check_declarations(metadata: dict, where: str) -> None:
             "sidecar gives -1). A data set made in Python holds positions as pmabayes' x runs "
             "(growing as the pressure pushes): negate them yourself and leave the key out.")
     _max_gap_s(metadata, where)
+    experiment_conditions(metadata, where)
+
+
+def experiment_conditions(metadata: dict, where: str = "the data") -> dict[str, float]:
+    """The experiment's declared conditions: the sidecar's ``"conditions"``, checked.
+
+    An object of named numbers (``{"load_kg": 0.3, "order": 2, "supply_pa": 6e5}``)
+    that says how this experiment differed from the others fitted with it. The
+    joint fit's criticism (:mod:`pmabayes.criticism.experiments`) relates the
+    parameters that move between experiments to them; a name ending in a unit
+    suffix (``_kg``, ``_pa``, ``_s``) is read in that unit.
+
+    Parameters
+    ----------
+    metadata : dict
+        A data set's metadata.
+    where : str
+        The file, for messages.
+
+    Returns
+    -------
+    dict of str to float
+        Empty where none are declared.
+
+    Raises
+    ------
+    DataError
+        If ``"conditions"`` is not an object of finite numbers.
+    """
+    conditions = metadata.get("conditions")
+    if conditions is None:
+        return {}
+    if not isinstance(conditions, dict):
+        raise DataError(
+            f"{where}: metadata 'conditions' is {conditions!r}; it must be an object of "
+            'named numbers, e.g. "conditions": {"load_kg": 0.3, "order": 2}.')
+    out = {}
+    for key, value in conditions.items():
+        if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                or not math.isfinite(value)):
+            raise DataError(
+                f"{where}: metadata 'conditions' gives {key!r} as {value!r}; each condition "
+                f'must be a finite number in SI units (e.g. "{key}": 0.3); put words in '
+                "'description' instead.")
+        out[str(key)] = float(value)
+    return out
 
 
 def _max_gap_s(metadata: dict, where: str) -> float | None:

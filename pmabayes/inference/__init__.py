@@ -18,6 +18,7 @@ from pmabayes.inference.errors import (
     ConvergenceWarning,
     DisagreementWarning,
     FitError,
+    PoorFitWarning,
 )
 from pmabayes.inference.fitfile import (
     FitFileError,
@@ -87,6 +88,7 @@ __all__ = [
     "FitError",
     "ConvergenceWarning",
     "DisagreementWarning",
+    "PoorFitWarning",
     "NOISE_PARAMETERS",
     "NOISE_SOURCES",
     "GUARD_FACTOR",

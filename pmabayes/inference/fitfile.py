@@ -366,8 +366,9 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``noise_model``
         (:meth:`pmabayes.inference.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
-        ``noise_floor_m`` (None without repeated trials; of the trials' residuals at
-        the MAP for trials with their own inputs), ``synthetic`` and
+        ``noise_floor_m`` (None without repeats; of the trials' residuals at
+        the MAP for trials with their own inputs; of a periodic record's periods,
+        :attr:`pmabayes.inference.likelihood.Likelihood.periods_noise_floor_m`), ``synthetic`` and
         ``metadata`` (the data set's, to rebuild it).
     """
     noise_map = noise_map or {}
@@ -413,7 +414,10 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
 def _noise_floor(lik: Likelihood) -> float:
     """The data's noise floor: of the trials, or of their residuals at the MAP where
     the trials have their own inputs (the raw trials' spread holds the model's response
-    to the inputs' differences)."""
+    to the inputs' differences); of a periodic record, of its periods (as ``diagnose``
+    and the adequacy verdict take it)."""
+    if lik.noise_source == "periods":
+        return lik.periods_noise_floor_m
     return lik.referred_noise_floor_m if lik.trials_referred else lik.dataset.noise_floor_m
 
 

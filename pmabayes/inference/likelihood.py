@@ -740,6 +740,20 @@ class Likelihood:
         var = float(np.mean(np.sum(d * d, axis=0) / (self.n_repeats - 1)))
         return math.sqrt(var / self.n_repeats)
 
+    @property
+    def periods_noise_floor_m(self) -> float:
+        """The noise floor of a single periodic record, from the periods its noise is
+        learnt from (referred to the model once :meth:`refer_periods_to` ran): the root
+        of the mean over the period's samples of their deviations' variance, not divided
+        (the record is one series). The overall floor of
+        :func:`pmabayes.criticism.bands.band_errors` on the same periods; NaN when the
+        noise does not come from periods.
+        """
+        if self.noise_source != "periods" or self.n_repeats < 2:
+            return math.nan
+        d = self._d if self._contrast_obs is None else self._d[:, self._contrast_obs[0]]
+        return math.sqrt(float(np.mean(np.sum(d * d, axis=0) / (self.n_repeats - 1))))
+
     def refer_periods_to(self, model_position_m: np.ndarray) -> None:
         """Take the noise from the repeats of the residual, data minus model.
 
@@ -1113,6 +1127,31 @@ class Likelihood:
         return _kalman_innovations(np.where(seen, v, 0.0), math.sqrt(self.n_trials),
                                    float(sigma), float(rho), float(white), seen)
 
+    def whiten_contrasts(self, sigma: float, rho: float, white: float) -> list[np.ndarray]:
+        """The repeats' contrasts (:attr:`contrasts`) whitened by AR(1) + white.
+
+        Each is a series of the noise alone on the repeats' own grid: the trials'
+        (``n_samples``), or one period for the periods of a single record. The filter
+        takes the samples observed in every repeat, as
+        :meth:`deviation_log_likelihood` does, and predicts across the others (NaN
+        there).
+
+        Parameters
+        ----------
+        sigma, rho, white : float
+            Noise parameters.
+
+        Returns
+        -------
+        list of numpy.ndarray
+            One whitened series per contrast (none without repeats).
+        """
+        length = self._contrasts.shape[1]
+        seen = (np.ones(length, dtype=bool) if self._contrast_obs is None
+                else np.ascontiguousarray(self._contrast_obs[0]))
+        return [_kalman_innovations(np.ascontiguousarray(c), 1.0, float(sigma), float(rho),
+                                    float(white), seen) for c in self._contrasts]
+
     def innovations(self, x: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
         """Standardised innovations of the trial mean's residual under the noise model.
 
@@ -1159,6 +1198,46 @@ class Likelihood:
                                                                           dtype=bool)
             return _masked_loglik(self._trials, self._by_trial(x), 1.0, *pars, obs)
         return _noise_loglik(self._trials, x, 1.0, *pars)
+
+    def stretch_pointwise(self, x: np.ndarray, sigma, rho, white, n_stretches: int
+                          ) -> np.ndarray | None:
+        """Log-likelihood of each of ``n_stretches`` contiguous stretches of a single record
+        given the rest of it, ``(batch, n_stretches)``: the units of a leave-one-out
+        estimate where there is only one trial to leave out.
+
+        ``log p(y_k | y_-k) = log p(y) - log p(y_-k)``, exact under the noise model: the
+        Kalman filter takes the stretch left out as not observed and predicts across it.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Model positions ``(batch, n_outputs)``.
+        sigma, rho, white : array_like
+            Noise parameters, scalars or ``(batch,)``.
+        n_stretches : int
+            Number of stretches (2 or more).
+
+        Returns
+        -------
+        numpy.ndarray or None
+            None for two or more trials (leave out trials instead) or under the AR(p)
+            noise of :meth:`use_ar_noise`, whose filter does not take samples not observed.
+        """
+        if self.n_trials != 1 or self.ar_noise is not None or n_stretches < 2:
+            return None
+        x = np.atleast_2d(x)
+        pars = self._params(sigma, rho, white, x.shape[0])
+        obs = (np.ones((1, self.n_samples), dtype=bool) if self.observed is None
+               else np.asarray(self.observed, dtype=bool))
+        x3 = self._by_trial(x)
+        whole = _masked_loglik(self._trials, x3, 1.0, *pars, obs)[:, 0]
+        edges = np.linspace(0, self.n_samples, n_stretches + 1).astype(int)
+        out = np.empty((x.shape[0], n_stretches))
+        for k in range(n_stretches):
+            rest = obs.copy()
+            rest[:, edges[k]:edges[k + 1]] = False
+            out[:, k] = whole - _masked_loglik(self._trials, x3, 1.0, *pars, rest)[:, 0]
+        return out
 
 
 #: Seconds at the start of a record whose samples set the priors of an estimated start
@@ -1766,24 +1845,22 @@ def ar1_whiteness_of_repeats(likelihoods, sigma: float, rho: float, white: float
         Pooled over the contrasts (:data:`LJUNG_BOX_LAGS` lags each); NaN without
         repeats.
     energy : float
-        Mean square of the whitened contrasts.
+        Mean square of the whitened contrasts (over the samples they observe).
     innovations : list of numpy.ndarray
-        The whitened contrasts.
+        The whitened contrasts (:meth:`Likelihood.whiten_contrasts`), each on its
+        repeats' grid: the trials', or one period of a periodic record.
     """
     from scipy import stats
 
     liks = [likelihoods] if isinstance(likelihoods, Likelihood) else list(likelihoods)
-    innov = []
-    for lik in liks:
-        # whiten() takes the trial mean's residual and scales it by sqrt(R)
-        innov += [lik.whiten(c / math.sqrt(lik.n_trials), sigma, rho, white)
-                  for c in lik.contrasts]
+    innov = [e for lik in liks for e in lik.whiten_contrasts(sigma, rho, white)]
     if not innov:
         return math.nan, math.nan, innov
     q = sum(ljung_box_statistic(e) for e in innov)
     p = float(stats.chi2.sf(q, LJUNG_BOX_LAGS * len(innov)))
-    # experiments of different lengths: the mean over every whitened sample
-    return p, float(np.mean(np.square(np.concatenate(innov)))), innov
+    # experiments of different lengths: the mean over every whitened sample observed
+    every = np.concatenate(innov)
+    return p, float(np.mean(np.square(every[np.isfinite(every)]))), innov
 
 
 def choose_noise_model(likelihoods, sigma: float, rho: float, white: float,

@@ -188,11 +188,12 @@ def data_scaled_priors(model: Model, datasets: Sequence[Dataset]) -> tuple[Model
         raise FitError(f"{datasets[0].source or 'the data'}: the force or the position never "
                        "changes, so the data give no scale for the oscillator's priors; "
                        "check the input and position columns")
-    scaled = force_rig_priors(compliance, amplitude, model.rig.moving_mass_kg)
+    scaled = force_rig_priors(compliance, amplitude, model.rig.moving_mass_kg, model.effects)
     out = model.with_default_priors(scaled)
     chosen = model.chosen_priors()
     return out, {"compliance_m_per_n": compliance, "amplitude_m": amplitude,
-                 "priors": {n: str(p) for n, p in scaled.items() if n not in chosen},
+                 "priors": {n: str(p) for n, p in scaled.items()
+                            if n not in chosen and n in out.parameter_names},
                  "rule": "force-input rig: alpha and K_e around half the inverse static "
                          "compliance, beta and gamma from the motion's amplitude, d around "
                          "sqrt(mass / compliance); the noise's scale from the amplitude"}

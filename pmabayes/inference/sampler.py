@@ -33,7 +33,12 @@ import xarray as xr
 from pmabayes.data import Dataset
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.disturbance import settle_disturbance, with_disturbance
-from pmabayes.inference.errors import ConvergenceWarning, DisagreementWarning, FitError
+from pmabayes.inference.errors import (
+    ConvergenceWarning,
+    DisagreementWarning,
+    FitError,
+    PoorFitWarning,
+)
 from pmabayes.inference.fitfile import fit_tree, set_fit_info
 from pmabayes.inference.likelihood import check_noise_model_name
 from pmabayes.inference.noise import refer_periods
@@ -578,7 +583,12 @@ def fit(
     DisagreementWarning
         When several experiments disagree: their own MAPs are not compatible with one
         shared parameter set (the fit's ``map`` record holds the test,
-        :func:`pmabayes.inference.search.experiments_agreement`).
+        :func:`pmabayes.inference.search.experiments_agreement`). The fit goes on:
+        :func:`pmabayes.diagnose` shows which parameters move between them.
+    PoorFitWarning
+        When the best fit misses more than a quarter of the motion, or ends worse
+        than the static line the model contains (the fit's ``map`` record holds the
+        numbers, :func:`pmabayes.inference.search.fit_quality`). The fit goes on.
     """
     settings = FitSettings() if settings is None else settings
     with show_progress("fit", settings.progress):
@@ -675,6 +685,8 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
         text = disagreement_text(map_result.agreement)
         if text:
             warnings.warn(text[0].upper() + text[1:] + ".", DisagreementWarning, stacklevel=4)
+    if map_result.quality is not None and map_result.quality["text"]:
+        warnings.warn(map_result.quality["text"], PoorFitWarning, stacklevel=4)
     if map_result.period_reference_z is not None:
         for name, lik, choice in zip(posterior.experiment_names, posterior.likelihoods,
                                      posterior.noise_choices, strict=True):

@@ -24,9 +24,12 @@ from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import _fd_hessian, _laplace_covariance, _scaled_hessian
 from pmabayes.inference.likelihood import LEVEL_ADEQUATE, JointLikelihood, Likelihood, span
 from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
+from pmabayes.model.nested import static_line_values
+from pmabayes.model.simulator import position_reference
 from pmabayes.util import Progress
 
-__all__ = ["MapResult", "find_map", "polish_map", "experiments_agreement", "disagreement_text"]
+__all__ = ["MapResult", "find_map", "polish_map", "experiments_agreement", "disagreement_text",
+           "fit_quality", "static_lines", "POOR_FIT_SHARE"]
 
 
 @dataclass
@@ -64,6 +67,11 @@ class MapResult:
         Per experiment, the metadata a record's slow-disturbance check added
         (:func:`pmabayes.inference.disturbance.settle_disturbance`), or None; None
         where no check ran. A resumed fit rebuilds its posterior from it.
+    quality : dict or None
+        How well the MAP describes the data beside the nested yardsticks
+        (:func:`fit_quality`): its RMS cost, the motion, the RMS cost of the best
+        static line and of the mean alone, whether the search started from the line's
+        nested model, and the words a poor fit is reported with.
     """
 
     values: dict
@@ -76,6 +84,7 @@ class MapResult:
     period_reference_z: np.ndarray | None = None
     agreement: dict | None = None
     disturbance: list | None = None
+    quality: dict | None = None
 
     def record(self) -> dict:
         """Everything, JSON-ready (arrays as lists), for the chains folder's stamp."""
@@ -102,6 +111,8 @@ class MapResult:
                                  "rms_cost_m": self.global_rms_cost_m}}
         if self.agreement is not None:
             out["agreement"] = self.agreement
+        if self.quality is not None:
+            out["quality"] = self.quality
         return out
 
 
@@ -144,6 +155,12 @@ def find_map(
     (:func:`refer_periods`), and the MAP polished again under that noise, until a
     pass moves the MAP by less than 1% of its sd (at most six passes).
 
+    The base model contains the linear lags that draw the best static line of
+    position on input (:mod:`pmabayes.model.nested`); where one of them explains the
+    data better than the search's optimum, the polish starts from it instead. A
+    search whose population agrees at once on a model that explains no more than the
+    data's mean is run again over a box three times as wide.
+
     With several experiments, the joint search's optimum can lie in another basin
     than each experiment's own (a loaded rig's sine and an unloaded chirp traded
     ``K_e`` against ``alpha``). So each experiment's own MAP is found first (its data
@@ -179,9 +196,10 @@ def find_map(
     ------
     FitError
         If no parameter set in the plausible region gives a finite simulation, or
-        the best model still explains the data so badly that the data cannot be
-        what the model describes (wrong units, wrong rig, wrong column); for
-        experiments that disagree (:func:`disagreement_text`), the error says so.
+        the data show a sign or a scale that no model of this kind explains
+        (:func:`fit_quality`). A poor fit, and experiments that disagree
+        (:func:`disagreement_text`), are not errors: the result records them
+        (``quality``, ``agreement``) and :func:`pmabayes.fit` warns.
     """
     box = posterior.plausible_box(rng, posterior.names)
     # the search's cost does not depend on a sampled noise: searched over the model's
@@ -203,6 +221,9 @@ def find_map(
     say.say("polishing the MAP (L-BFGS-B, then Newton steps for the Laplace covariance)")
     if other_cost < (1.0 - _OTHER_BASIN) * global_cost:
         z_model, global_cost = z_other, other_cost
+    # the base physics contains the static line (a linear lag): a search that ends worse
+    # than it has failed, so the polish starts from the line's nested model instead
+    z_model, global_cost, nested = _nested_start(posterior, box, z_model, global_cost)
     z_global = _noise_start(posterior, np.concatenate([z_model,
                                                        _default_noise_z(posterior, n_model)]))
     # optimise in coordinates scaled to the plausible box
@@ -214,7 +235,7 @@ def find_map(
         z_map, cov_z, best_start = _best_of_starts(posterior, z_map, cov_z, own, scale)
     return _finish(posterior, z_map, cov_z, scale, rng, refer=refer,
                    global_point=(z_global, global_cost),
-                   agreement_of=(own, best_start) if own else None)
+                   agreement_of=(own, best_start) if own else None, nested_start=nested)
 
 
 def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Generator,
@@ -263,7 +284,7 @@ def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Genera
 
 def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: np.ndarray,
             rng: np.random.Generator, *, refer: bool, global_point: tuple,
-            agreement_of: tuple | None) -> MapResult:
+            agreement_of: tuple | None, nested_start: bool = False) -> MapResult:
     """A polished MAP's noise learnt again, its climb out of saddles, its quality check
     and its record (:func:`find_map`, :func:`polish_map`)."""
     z_global, global_cost = global_point
@@ -288,13 +309,8 @@ def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: n
     if agreement_of is not None:
         own, best_start = agreement_of
         agreement = {**experiments_agreement(posterior, z_map, own), "start": best_start}
-    try:
-        cost = _check_fit_quality(posterior.likelihood, x[0])
-    except FitError as err:  # each alone fits: what fails is their sharing one model
-        text = disagreement_text(agreement) if agreement is not None else ""
-        if not text:
-            raise
-        raise FitError(text[0].upper() + text[1:] + f". ({err})") from err
+    quality = fit_quality(posterior.likelihood, x[0], nested_start=nested_start)
+    cost = quality["rms_cost_m"]
     values = dict(zip(posterior.names, map(float, theta_map[0]), strict=True))
     values.update(posterior.noise_values(theta_map[0]))
     return MapResult(
@@ -308,6 +324,7 @@ def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: n
         covariance_z=cov_z,
         period_reference_z=reference,
         agreement=agreement,
+        quality=quality,
     )
 
 
@@ -386,8 +403,9 @@ def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
     dict
         ``agree`` (bool, or None where the own fits have no parameter beyond the
         joint's), ``statistic``, ``df``, ``p_value``, ``level``, and per experiment
-        (by name) ``log_likelihood_own``, ``log_likelihood_joint`` and
-        ``rms_cost_own_m``, ``rms_cost_joint_m``.
+        (by name) ``log_likelihood_own``, ``log_likelihood_joint``,
+        ``rms_cost_own_m``, ``rms_cost_joint_m`` and ``values_own`` (the experiment's
+        own MAP of its model's free parameters).
     """
     theta = posterior.to_natural(z_map[None])
     per: dict[str, dict] = {}
@@ -403,7 +421,9 @@ def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
         df += alone.ndim
         per[name] = {"log_likelihood_own": float(ll_own[0]), "log_likelihood_joint": ll,
                      "rms_cost_own_m": float(lik.rms_cost(x_own)[0]),
-                     "rms_cost_joint_m": float(lik.rms_cost(x)[0])}
+                     "rms_cost_joint_m": float(lik.rms_cost(x)[0]),
+                     "values_own": {n: float(result.values[n]) for n in lik.model.free_names
+                                    if n in result.values}}
     stat = 2.0 * gain
     p = float(chi2.sf(stat, df)) if df > 0 else None
     return {"agree": None if p is None else bool(p >= LEVEL_ADEQUATE), "statistic": stat,
@@ -432,8 +452,9 @@ def disagreement_text(agreement: dict) -> str:
             f"{agreement['df']} degrees of freedom, p = {agreement['p_value']:.2g}). "
             f"{worst} loses most: RMS {w['rms_cost_joint_m'] * 1e6:.3g} um at the joint MAP "
             f"against {w['rms_cost_own_m'] * 1e6:.3g} um alone. The joint posterior averages "
-            "them into a model that is none of theirs: fit them separately, or find what "
-            "differs between them (the rig's values, a parameter that is not shared)")
+            "them into a model that is none of theirs: `pmabayes diagnose` of the same "
+            "experiments shows which parameters move between them and tests the effects "
+            "that could make them agree")
 
 
 def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray
@@ -527,6 +548,15 @@ _REFER_SETTLED = 0.01
 _OTHER_BASIN = 0.01
 
 
+#: A search that ends within this many generations has agreed at once
+#: (:func:`_global_search`) ...
+_AT_ONCE = 3
+#: ... and one whose cost is at least this share of the mean's explains nothing.
+_EXPLAINS_NOTHING = 0.9
+#: How many times as wide the box of a search run again is.
+_WIDEN = 3.0
+
+
 def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generator,
                    popsize: int, maxiter: int, say: Progress, which: str
                    ) -> tuple[np.ndarray, float]:
@@ -554,12 +584,27 @@ def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generat
                    f"{min(100 * r.convergence, 100):.0f}% of the way to agreeing (done at "
                    "100%)")
 
-    best = differential_evolution(
-        lambda zt: rms(np.atleast_2d(zt.T)), bounds=list(map(tuple, box)),
-        popsize=popsize, maxiter=maxiter, tol=_DE_TOL, seed=rng, polish=False,
-        vectorized=True, updating="deferred", init="latinhypercube", strategy=_DE_STRATEGY,
-        callback=show if say.enabled else None,
-    )
+    def search(bounds: np.ndarray):
+        return differential_evolution(
+            lambda zt: rms(np.atleast_2d(zt.T)), bounds=list(map(tuple, bounds)),
+            popsize=popsize, maxiter=maxiter, tol=_DE_TOL, seed=rng, polish=False,
+            vectorized=True, updating="deferred", init="latinhypercube",
+            strategy=_DE_STRATEGY, callback=show if say.enabled else None)
+
+    best = search(box)
+    flat = static_lines(lik, slope=False)
+    if (flat is not None and best.nit <= _AT_ONCE
+            and best.fun >= _EXPLAINS_NOTHING * float(lik.rms_cost(flat[2])[0])):
+        # a population that agrees at once on a model no better than the data's mean
+        # has seen one flat cost (every member's motion far too small or too large),
+        # not a basin: the search is run again over a wider box
+        centre, half = box.mean(axis=1), (box[:, 1] - box[:, 0]) / 2
+        say.say(f"global search {which}: the population agreed at generation {best.nit} on "
+                "a model that explains no more than the data's mean; searching again over "
+                f"a box {_WIDEN:g} times as wide")
+        wide = search(np.column_stack([centre - _WIDEN * half, centre + _WIDEN * half]))
+        if wide.fun < best.fun:
+            best = wide
     global_cost = float(best.fun)
     if global_cost >= 1.0:
         raise FitError("no parameter set in the prior's plausible region gives a finite "
@@ -638,22 +683,222 @@ def _no_map_message(posterior: Posterior, theta: np.ndarray) -> str:
             "scale (--prior NAME=SPEC; `pmabayes effects` lists the defaults).")
 
 
-def _check_fit_quality(lik: Likelihood | JointLikelihood, x: np.ndarray) -> float:
-    """The RMS cost of the MAP's output ``x``, refused when the data cannot be this model's.
+def _parts(lik: Likelihood | JointLikelihood) -> list[Likelihood]:
+    return list(lik.likelihoods) if isinstance(lik, JointLikelihood) else [lik]
 
-    For several experiments, each is judged on its own part of ``x``, and the
-    combined cost (:meth:`JointLikelihood.rms_cost`) is returned.
+
+def static_lines(lik: Likelihood | JointLikelihood, *, slope: bool = True
+                 ) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """The best static line of position on input, one slope shared by the experiments
+    and an offset for each, fitted by least squares to the observed trial means.
+
+    Parameters
+    ----------
+    lik : Likelihood or JointLikelihood
+        The data.
+    slope : bool
+        False fits the offsets alone: each experiment's mean, the yardstick that
+        explains nothing.
+
+    Returns
+    -------
+    tuple or None
+        The slope (m per unit of input), the offsets ``(n_experiments,)`` and the
+        line's positions as the model's output has them ``(1, n_outputs)``; None
+        where trials have their own inputs (no one input to draw a line on).
     """
-    parts = (zip(lik.likelihoods, lik.split(x), strict=True) if isinstance(lik, JointLikelihood)
-             else [(lik, x)])
-    for one, xe in parts:
-        cost = float(one.rms_cost(xe)[0])
-        if not np.isfinite(cost) or cost > 0.25 * span(one.y_mean):
+    parts = _parts(lik)
+    if any(p.own_inputs for p in parts):
+        return None
+    n = len(parts)
+    rows, ys = [], []
+    for e, p in enumerate(parts):
+        seen = np.isfinite(p.y_mean)
+        design = np.zeros((int(seen.sum()), n + 1))
+        design[:, 0] = p.input[seen] if slope else 0.0
+        design[:, 1 + e] = 1.0
+        rows.append(design)
+        ys.append(p.y_mean[seen])
+    coef = np.linalg.lstsq(np.vstack(rows), np.concatenate(ys), rcond=None)[0]
+    b = float(coef[0]) if slope else 0.0
+    x = np.concatenate([coef[1 + e] + b * p.input for e, p in enumerate(parts)])
+    return b, coef[1:], x[None]
+
+
+#: Time constants, as multiples of the record's duration, of the nested linear lags
+#: the search also starts from (:func:`_nested_start`).
+_NESTED_TAUS = (1e-3, 1e-2, 1e-1)
+
+
+def _nested_points(posterior: Posterior, theta: np.ndarray, line: tuple) -> np.ndarray:
+    """Natural points ``(k, ndim)``: ``theta`` with the base model set to the linear
+    lags nested in it that draw the static ``line`` (:func:`static_line_values`)."""
+    b, offsets, _ = line
+    out = []
+    for tau_share in _NESTED_TAUS:
+        for share in (0.5, 0.9):
+            point = theta.copy()
+            for e, lik in enumerate(posterior.likelihoods):
+                ident = posterior.identified[e]
+                area_name = ident.get("rig_area_m2")
+                area = (float(point[posterior.names.index(area_name)]) if area_name
+                        else lik.model.rig.area_m2)
+                duration = float(lik.dataset.time_s[-1] - lik.dataset.time_s[0])
+                values = static_line_values(
+                    lik.model, b, float(offsets[e]), float(np.min(lik.input)), area_m2=area,
+                    tau_s=tau_share * max(duration, 1e-9), alpha_share=share,
+                    relative=position_reference(lik.dataset) == "start")
+                for name, value in values.items():
+                    if name in ident:
+                        point[posterior.names.index(ident[name])] = value
+            out.append(point)
+    return np.array(out)
+
+
+def _nested_start(posterior: Posterior, box: np.ndarray, z_model: np.ndarray,
+                  cost: float) -> tuple[np.ndarray, float, bool]:
+    """The search's optimum, or the best linear model nested in the base physics where
+    that explains the data better (the search then failed to find what the model
+    contains): its model coordinates, its RMS cost, and whether it was taken.
+
+    A value outside the plausible box (``beta = 0`` on a log scale, a dead zone below
+    zero) is put at the box's edge: the polish goes on from there.
+    """
+    line = static_lines(posterior.likelihood)
+    if line is None or not line[0] > 0:
+        return z_model, cost, False
+    n_model = posterior.n_model
+    rest = _default_noise_z(posterior, n_model)
+    theta = posterior.to_natural(np.concatenate([z_model, rest])[None])[0]
+    points = _nested_points(posterior, theta, line)
+    edges = posterior.to_natural(np.column_stack([
+        np.concatenate([box[:n_model, j], rest]) for j in (0, 1)]).T)
+    lo, hi = edges.min(axis=0), edges.max(axis=0)
+    points[:, :n_model] = np.clip(points[:, :n_model], lo[:n_model], hi[:n_model])
+    z = posterior.to_unconstrained(points)
+    z[:, n_model:] = rest
+    theta = posterior.to_natural(z)
+    ok = np.isfinite(posterior.log_prior(theta))
+    if not ok.any():
+        return z_model, cost, False
+    costs = np.full(z.shape[0], np.inf)
+    with np.errstate(all="ignore"):
+        costs[ok] = posterior.likelihood.rms_cost(posterior.output(theta[ok]))
+    k = int(np.argmin(np.where(np.isfinite(costs), costs, np.inf)))
+    if not costs[k] < cost:
+        return z_model, cost, False
+    return z[k, :n_model], float(costs[k]), True
+
+
+#: A fit whose RMS cost is above this share of the data's own RMS spread about its
+#: mean (explaining under 75% of its variance) is reported as poor.
+POOR_FIT_SHARE = 0.5
+#: A fit whose RMS cost is above this share of the motion (largest minus smallest
+#: position) is checked for a wrong sign or scale (:func:`_refuse_wrong_data`).
+_WRONG_DATA_SHARE = 0.25
+
+
+def fit_quality(lik: Likelihood | JointLikelihood, x: np.ndarray, *,
+                nested_start: bool = False) -> dict:
+    """How well a MAP describes the data, beside the nested yardsticks; refused only
+    where the data cannot be this kind of model's at all.
+
+    A poor fit is evidence for :func:`pmabayes.criticism.diagnosis.diagnose`, not a
+    reason to stop: it is measured and said. What is refused is what no model of
+    this kind can explain, and a user's file can: a simulation that is not finite;
+    a position that falls as the input rises (a sign: the model's rises); a motion
+    of metres (a scale off by 10^3).
+
+    Parameters
+    ----------
+    lik : Likelihood or JointLikelihood
+        The data.
+    x : numpy.ndarray
+        The MAP's positions, as the model's output has them.
+    nested_start : bool
+        The search had started from the best nested linear model
+        (:func:`find_map`), since its own optimum was worse.
+
+    Returns
+    -------
+    dict
+        ``rms_cost_m``, ``motion_m``, ``share`` (cost over the data's RMS spread about
+        its mean; a quarter of the motion without one input), ``poor`` (share above
+        :data:`POOR_FIT_SHARE`), ``static_line_rms_m`` and ``mean_rms_m`` (the
+        nested yardsticks; None without one input), ``search_failure`` (the MAP is
+        worse than the static line), ``nested_start`` and ``text`` (the words of a
+        poor fit or a failed search; empty otherwise).
+
+    Raises
+    ------
+    FitError
+        If the simulation is not finite, or the data show a sign or scale error.
+    """
+    x = np.atleast_2d(x)
+    parts = _parts(lik)
+    xs = lik.split(x[0]) if isinstance(lik, JointLikelihood) else [x[0]]
+    for one, xe in zip(parts, xs, strict=True):
+        _refuse_wrong_data(one, float(one.rms_cost(np.atleast_2d(xe))[0]))
+    cost = float(lik.rms_cost(x)[0])
+    motion = float(np.mean([span(p.y_mean) for p in parts]))
+    line, flat = static_lines(lik), static_lines(lik, slope=False)
+    line_rms = None if line is None else float(lik.rms_cost(line[2])[0])
+    mean_rms = None if flat is None else float(lik.rms_cost(flat[2])[0])
+    spread = mean_rms if mean_rms is not None else motion / 4.0
+    share = cost / spread if spread > 0 else math.inf
+    failure = line_rms is not None and cost > line_rms * (1.0 + 1e-6)
+    where = " and ".join(str(p.dataset.source or "the data") for p in parts)
+    text = ""
+    if share > POOR_FIT_SHARE:
+        text = (f"{where}: the best fit leaves an RMS error of {cost * 1e3:.3g} mm, "
+                f"{100 * share:.0f}% of the data's own spread about its mean "
+                f"({spread * 1e3:.3g} mm, on a motion of {motion * 1e3:.3g} mm)"
+                + (f"; a static line of position on input leaves {line_rms * 1e3:.3g} mm"
+                   if line_rms is not None else "")
+                + ". The model misses much of the motion: `pmabayes diagnose` says where and "
+                "what may be missing.")
+    if failure:
+        text += ((" " if text else f"{where}: ")
+                 + f"The search ended worse than the static line ({cost * 1e3:.3g} against "
+                 f"{line_rms * 1e3:.3g} mm), which the model contains (beta = gamma = 0): a "
+                 "search failure, not a verdict on the data. Widen the priors or give a "
+                 "start near the line (--prior).")
+    return {"rms_cost_m": cost, "motion_m": motion, "share": share,
+            "poor": bool(share > POOR_FIT_SHARE), "static_line_rms_m": line_rms,
+            "mean_rms_m": mean_rms, "search_failure": bool(failure),
+            "nested_start": bool(nested_start), "text": text}
+
+
+#: A motion larger than this is no actuator's this model describes: a unit is wrong.
+_LARGEST_MOTION_M = 1.0
+
+
+def _refuse_wrong_data(one: Likelihood, cost: float) -> None:
+    """Refuse a record whose fit shows a wrong sign or scale, not a wrong model."""
+    where = one.dataset.source or "the data"
+    motion = span(one.y_mean)
+    if not np.isfinite(cost):
+        raise FitError(f"{where}: the model's simulation at the best fit is not finite; check "
+                       "the units (positions in m, pressure in Pa) and the rig (masses, "
+                       "gravity direction).")
+    if cost <= _WRONG_DATA_SHARE * motion:
+        return
+    if motion > _LARGEST_MOTION_M:
+        raise FitError(
+            f"{where}: the positions span {motion:.3g} m, more than any actuator this model "
+            "describes moves, and the best fit misses most of it: a scale off by 10^3? "
+            "Name the column with its unit (position_mm) or map it in the sidecar's "
+            '"columns" ({"Position": "position_mm"}).')
+    line = static_lines(one)
+    if line is not None and line[0] < 0:
+        flat = static_lines(one, slope=False)
+        line_rms, mean_rms = float(one.rms_cost(line[2])[0]), float(one.rms_cost(flat[2])[0])
+        if line_rms < 0.8 * mean_rms:
             raise FitError(
-                f"{one.dataset.source or 'the data'}: the best fit leaves an RMS error of "
-                f"{cost * 1e3:.3g} mm on a motion of {span(one.y_mean) * 1e3:.3g} mm, so the "
-                "data cannot be what this model describes. Check the units (positions in m, "
-                "pressure in Pa), that the input column is the commanded input, and the rig "
-                "(masses, gravity direction)."
-            )
-    return float(lik.rms_cost(np.atleast_2d(x))[0])
+                f"{where}: the position falls as the input rises (a static line of position "
+                f"on input, slope {line[0]:.3g} m per unit, leaves {line_rms * 1e3:.3g} mm "
+                f"against {mean_rms * 1e3:.3g} mm for the mean), while the model's rises "
+                f"with it, so the best fit leaves {cost * 1e3:.3g} mm on a motion of "
+                f"{motion * 1e3:.3g} mm. If the file counts contraction as positive, declare "
+                '"position_sign": -1 in its sidecar; check that the input column is the '
+                "commanded input.")

@@ -313,7 +313,7 @@ def _rig_parameter(key: str, prior: Prior) -> Parameter:
 
 
 def force_rig_priors(compliance_m_per_n: float, amplitude_m: float,
-                     moving_mass_kg: float) -> dict[str, Prior]:
+                     moving_mass_kg: float, effects: Iterable = ()) -> dict[str, Prior]:
     """Default priors of a force-input rig, on the scale of its data.
 
     A force-driven oscillator can be anything from a 2 kg benchmark to a concrete
@@ -321,8 +321,9 @@ def force_rig_priors(compliance_m_per_n: float, amplitude_m: float,
     ``c`` (a linear fit of position on force), each of ``alpha`` and ``K_e`` around
     half of ``1 / c``; ``beta`` and ``gamma`` (1/m) from the motion's amplitude, so
     that the hysteretic force saturates within the motion; the damping around
-    ``sqrt(m / c)`` (a damping ratio of 1/2). The same data with the force in other
-    units then give the same fit.
+    ``sqrt(m / c)`` (a damping ratio of 1/2). Each effect puts its own parameters on
+    the data's scale (:meth:`pmabayes.model.effects.Effect.force_rig_priors`). The same
+    data with the force in other units then give the same fit.
 
     Parameters
     ----------
@@ -332,21 +333,27 @@ def force_rig_priors(compliance_m_per_n: float, amplitude_m: float,
         Half the position's range, > 0.
     moving_mass_kg : float
         The rig's moving mass.
+    effects : iterable of Effect classes
+        The model's effects, whose parameters' priors are scaled too.
 
     Returns
     -------
     dict
-        Priors of ``alpha``, ``beta``, ``gamma``, ``d`` and ``K_e``.
+        Priors of ``alpha``, ``beta``, ``gamma``, ``d``, ``K_e`` and the effects'
+        parameters that scale with the data.
     """
     stiffness = 1.0 / compliance_m_per_n
     per_m = 1.0 / amplitude_m
-    return {
+    out = {
         "alpha": LogNormal(0.5 * stiffness, 2.0),
         "beta": HalfNormal(5.0 * per_m),
         "gamma": Normal(0.0, 5.0 * per_m),
         "d": LogNormal(math.sqrt(moving_mass_kg * stiffness), 2.5),
         "K_e": LogNormal(0.5 * stiffness, 2.0),
     }
+    for effect in effects:
+        out.update(effect.force_rig_priors(stiffness, amplitude_m, moving_mass_kg))
+    return out
 
 
 class Model:

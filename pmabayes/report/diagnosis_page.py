@@ -7,6 +7,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
+from pmabayes.criticism.prose import elpd_short
 from pmabayes.report.markup import (
     BAND_HEADER,
     band_rows,
@@ -140,8 +141,7 @@ def _ranking_section(d, several: bool) -> list[str]:
                      f"{f.explained:.0%}",
                      "—" if f.refit is None or f.refit.explained_rms is None
                      else f"{f.refit.explained_rms:.0%}",
-                     f"{f.refit.elpd_diff:+.1f} ± {f.refit.elpd_diff_se:.1f}" if f.refit
-                     else "—"]
+                     elpd_short(f.refit) if f.refit else "—"]
                     for f in d.ranking], num_from=1),
     ]
     return out + [f"<h3>{html.escape(f.effect)}</h3><p>{html.escape(f.explanation)}</p>"
@@ -198,7 +198,7 @@ def _experiment_figures(e, label: str, out_dir: Path, suffix: str = "") -> dict[
                   "up to the total), with the noise floor (black): the error a perfect model "
                   "would have, from the spectrum of the deviations between the trials."),
         "signature": (plots.plot_residual_signature(ds, e.simulation, e.frequency_hz,
-                                                    label=label),
+                                                    label=label, floor_m=e.noise_floor_m),
                       "Where the model fails: the residual against time, frequency, velocity, "
                       "pressure and position."),
         "whiteness": (plots.plot_whiteness(e.whiteness_curves()),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
+from pmabayes.criticism.yardsticks import REGISTRY
 from pmabayes.report.markup import (
     BAND_HEADER,
     band_rows,
@@ -40,6 +41,8 @@ def write_validation(validation, out_dir: str | Path) -> Path:
     settings = v.settings
     pct = f"{100 * settings['ci_prob']:.4g}%"
     model = " + ".join(["base", *v.effects])
+    # the yardsticks fitted (linear, play, narx where SysIdentPy is installed)
+    yards = [n for n in REGISTRY if any(n in e.baselines for e in v.experiments)]
     body = [
         f'<p class="meta">fit: <code>{html.escape(str(v.fit_source or "(in memory)"))}</code>'
         f" · model: {html.escape(model)} · {len(v.experiments)} held-out experiment(s) · "
@@ -63,15 +66,14 @@ def write_validation(validation, out_dir: str | Path) -> Path:
         f"<p>{html.escape(_discrepancy_words(v, pct))} {html.escape(_yardstick_words(v))}"
         "</p>",
         html_table(["experiment", "rig", "noise from", "trials", "samples", "RMSE [µm]",
-                "noise floor [µm]", "RMSE / floor", "NRMSE", "NRMSE linear yardstick",
-                "NRMSE play yardstick", f"inside the {pct} band",
+                "noise floor [µm]", "RMSE / floor", "NRMSE",
+                *(f"NRMSE {n} yardstick" for n in yards), f"inside the {pct} band",
                 f"inside the {pct} band with the discrepancy",
                 "trial mean inside the model-only band"],
                [[e.name, e.rig.get("name"), e.noise["from"], e.n_trials, e.n_samples,
                  e.rmse_m * 1e6, None if e.noise_floor_m is None else e.noise_floor_m * 1e6,
                  e.ratio_to_floor, e.nrmse,
-                 *(e.baselines[n]["nrmse"] if n in e.baselines else None
-                   for n in ("linear", "play")),
+                 *(e.baselines[n]["nrmse"] if n in e.baselines else None for n in yards),
                  f"{100 * e.band_coverage:.1f}%",
                  "—" if e.coverage is None else f"{100 * e.coverage:.1f}%",
                  f"{100 * e.model_band_coverage:.1f}%"]
@@ -92,7 +94,8 @@ def write_validation(validation, out_dir: str | Path) -> Path:
                          f"{e.name}: measured trials (grey), the {pct} predictive band "
                          "(blue), the band with the model's discrepancy (light blue), the "
                          "posterior-mean prediction (red) and the yardsticks' predictions "
-                         "(dotted: linear output-error green, Prandtl-Ishlinskii purple); "
+                         "(dotted: linear output-error green, Prandtl-Ishlinskii purple, "
+                         "polynomial NARX orange); "
                          "bottom: the same less the prediction, with the trial mean "
                          "(black)."))
     return write_page(out_dir, "pmabayes validation on held-out experiments", body)
@@ -120,9 +123,12 @@ def _yardstick_words(v) -> str:
     b = v.baselines
     if b is None:
         return "The yardsticks could not be fitted to the training data."
-    return (f"The yardsticks, fitted to the fit's training data in {b.seconds:.2g} s: a "
-            f"linear output-error model of order {b.linear.order} "
-            f"({b.linear.n_parameters} parameters) and a Prandtl-Ishlinskii model of "
-            f"{b.play.n_operators} play operator(s) ({b.play.n_parameters} parameters); a "
-            "physics model that predicts no better than they do has not earned its "
-            "parameters.")
+    fitted = [REGISTRY[n].describe(f.to_dict()) for n, f in b.fitted.items()]
+    left = "".join(f" The {n} yardstick was left out: {reason.split(': ', 1)[-1]}."
+                   for n, reason in b.left_out.items())
+    if not fitted:
+        return "No yardstick could be fitted to the training data." + left
+    return (f"The yardsticks, fitted to the fit's training data in {b.seconds:.2g} s: "
+            + ", ".join(fitted[:-1]) + (" and " if len(fitted) > 1 else "") + fitted[-1]
+            + "; a physics model that predicts no better than they do has not earned its "
+            "parameters." + left)

@@ -48,6 +48,7 @@ from pmabayes.criticism.prose import removed_text
 from pmabayes.criticism.signature import residual_signature
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.simulator import Simulation
+from pmabayes.util import format_together
 
 __all__ = ["estimate_discrepancy"]
 
@@ -155,7 +156,7 @@ def estimate_discrepancy(
     text = _text(states, explained, removed, ratio_after, after, gain, gain_se, proposal,
                  other, command, tuple(effects),
                  "left-out stretches of the record" if problem.by_stretches
-                 else "left-out trials")
+                 else "left-out trials", before.rms_m)
     return Discrepancy(states=states, explained=explained, explained_rms=removed,
                        ratio_after=float(ratio_after),
                        elpd_gain=gain, elpd_gain_se=gain_se, memory_tau_s=float(tau),
@@ -479,8 +480,16 @@ def _other_cause(lik, noise, sim, explained: float, after: str) -> str:
     return text
 
 
+def _worse(verified: dict | None, rms_before_m: float) -> bool:
+    """Whether a proposal's own refit leaves the model no better than without it (its RMS
+    error no lower than the diagnosed model's): then it is not advised."""
+    return (verified is not None and math.isfinite(rms_before_m)
+            and not verified["rms_m"] < rms_before_m)
+
+
 def _text(states, explained, removed, ratio_after, after, gain, gain_se, proposal, other,
-          command, effects, held_out: str = "left-out trials") -> str:
+          command, effects, held_out: str = "left-out trials",
+          rms_before_m: float = math.nan) -> str:
     needed = [s for s in states if s.needed]
     if not needed and not gain > max(2.0 * gain_se, 2.0):
         return (f"A flexible force in the states does not predict {held_out} better "
@@ -500,7 +509,15 @@ def _text(states, explained, removed, ratio_after, after, gain, gain_se, proposa
                       if math.isfinite(v["ratio"]) else "")
             text += (f" Refitted with it, the model reaches "
                      f"{_level(v['ratio'], v['rms_m'], v['energy'])}{judged}.")
-        if proposal.plugin:
+        if _worse(v, rms_before_m):
+            rms_v, rms_b = format_together(v["rms_m"] * 1e6, rms_before_m * 1e6)
+            # never advise adding what its own refit shows makes the model worse
+            text += (f" That is no better than without it (RMS error {rms_v} µm against "
+                     f"{rms_b} µm): the linearised estimate does not hold once refitted, so "
+                     "it is not advised"
+                     + (f"; its file is kept for inspection only ({proposal.plugin})."
+                        if proposal.plugin else "."))
+        elif proposal.plugin:
             data = command or "DATA"
             names = ",".join([*effects, proposal.effect])
             text += (f" To add it: pmabayes --plugin {proposal.plugin} diagnose {data} "

@@ -15,13 +15,15 @@ from pmabayes.model.effects.base import STAGES, Effect, EffectError
 from pmabayes.model.effects.force import (
     CoulombFriction,
     CubicStiffness,
+    ForceLengthMap,
+    LengthStiffness,
     MaxwellCreep,
     McKibbenForce,
     PressureHysteresis,
     PressureStiffness,
     StribeckFriction,
 )
-from pmabayes.model.effects.hysteresis import BoucWenExponent
+from pmabayes.model.effects.hysteresis import BoucWenBaberNoori, BoucWenExponent
 from pmabayes.model.effects.measurement import PositionOffset
 from pmabayes.model.effects.pressure import (
     RegulatorLag,
@@ -42,7 +44,8 @@ from pmabayes.model.effects.registry import (
 BUILTIN: tuple[type[Effect], ...] = (
     RegulatorLag, TransportDelay, CoulombFriction, CubicStiffness, PressureStiffness,
     PositionOffset, StribeckFriction, McKibbenForce, RegulatorSecondOrder,
-    PressureHysteresis, MaxwellCreep, BoucWenExponent,
+    PressureHysteresis, MaxwellCreep, BoucWenExponent, ForceLengthMap, LengthStiffness,
+    BoucWenBaberNoori,
 )
 for _effect in BUILTIN:
     register_effect(_effect)
@@ -74,4 +77,7 @@ __all__ = [
     "MaxwellCreep",
     "PositionOffset",
     "BoucWenExponent",
+    "ForceLengthMap",
+    "LengthStiffness",
+    "BoucWenBaberNoori",
 ]

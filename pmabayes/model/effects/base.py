@@ -52,12 +52,15 @@ class Effect:
         Optional, force effects only: the force depends on the hysteretic force
         ``z``; ``physics`` then has the extended signature (module docstring).
     state : str or None
-        Optional, force effects only: the name of the effect's one internal state
-        (starting at 0 at rest); ``physics`` then has the extended signature and
-        ``advance`` must be set.
+        Optional, force and hysteresis effects: the name of the effect's one internal
+        state (starting at 0 at rest); ``physics`` then has the extended signature
+        and ``advance`` must be set.
     advance : callable or None
-        With ``state``: the state's exact change over one step, ``advance(q, state,
-        x0_m, x1_m, h_s) -> (new_state, dnew_state_dx1)``. Compiled like ``physics``.
+        With ``state``: for a force effect the state's exact change over one step,
+        ``advance(q, state, x0_m, x1_m, h_s) -> (new_state, dnew_state_dx1)``; for a
+        hysteresis effect its change while ``z`` runs from ``z0_n`` to ``z1_n`` over
+        the displacement ``dx_m``, ``advance(q, state, z0_n, z1_n, dx_m) ->
+        new_state``. Compiled like ``physics``.
 
     Notes
     -----
@@ -153,7 +156,9 @@ class Effect:
     ...     advance = staticmethod(creep_advance)
 
     A hysteresis effect returns the factor ``g(|z|)`` of the Bouc-Wen nonlinear
-    term, here one that softens the saturation of large ``z``:
+    term (with a state, the factors of ``alpha`` and of that term: see
+    :class:`~pmabayes.model.effects.BoucWenBaberNoori`), here one that softens the
+    saturation of large ``z``:
 
     >>> def soft(q, z_abs):
     ...     return 1.0 / (1.0 + z_abs / q[0])
@@ -209,6 +214,32 @@ class Effect:
                                   "staticmethod(function)`; see pmabayes.model.effects")
             cls.inverse = staticmethod(_compiled(inv))
         _check_extended(cls, where)
+
+    @classmethod
+    def force_rig_priors(cls, stiffness_n_m: float, amplitude_m: float,
+                         moving_mass_kg: float) -> dict:
+        """Priors of the effect's parameters on a force-input rig, on its data's scale.
+
+        A force-driven oscillator can be anything from a benchmark's 2 kg to a
+        concrete column, so an effect whose default priors are the muscle's says
+        here how they scale (:func:`pmabayes.model.model.force_rig_priors`). The
+        default keeps the declared priors.
+
+        Parameters
+        ----------
+        stiffness_n_m : float
+            The data's static stiffness (inverse compliance of position on force).
+        amplitude_m : float
+            Half the position's range.
+        moving_mass_kg : float
+            The rig's moving mass.
+
+        Returns
+        -------
+        dict
+            Parameter name to :class:`~pmabayes.model.parameters.Prior`.
+        """
+        return {}
 
     @classmethod
     def history_s(cls, q: np.ndarray) -> np.ndarray:
@@ -322,9 +353,12 @@ def _check_extended(cls: type[Effect], where: str) -> None:
     """Validate ``reads_z``, ``state`` and ``advance`` (see the module docstring)."""
     if not isinstance(cls.reads_z, bool | np.bool_):
         raise EffectError(f"{where}: reads_z must be True or False, got {cls.reads_z!r}")
-    if cls.stage != "force" and (cls.reads_z or cls.state is not None):
-        raise EffectError(f"{where}: only a force effect may set reads_z or state (this one "
-                          f"is a {cls.stage} effect); see pmabayes.model.effects")
+    if cls.stage != "force" and cls.reads_z:
+        raise EffectError(f"{where}: only a force effect may set reads_z (this one is a "
+                          f"{cls.stage} effect); see pmabayes.model.effects")
+    if cls.stage not in ("force", "hysteresis") and cls.state is not None:
+        raise EffectError(f"{where}: only a force or a hysteresis effect may set state (this "
+                          f"one is a {cls.stage} effect); see pmabayes.model.effects")
     adv = cls.__dict__.get("advance")
     if isinstance(adv, staticmethod):
         adv = adv.__func__
@@ -337,10 +371,12 @@ def _check_extended(cls: type[Effect], where: str) -> None:
         raise EffectError(f"{where}: state must be the state's name, a Python identifier, "
                           f"got {cls.state!r}")
     if adv is None or not callable(adv):
+        signature = ("advance(q, state, z0_n, z1_n, dx_m) -> new_state"
+                     if cls.stage == "hysteresis" else
+                     "advance(q, state, x0_m, x1_m, h_s) -> (new_state, dnew_state_dx1)")
         raise EffectError(
             f"{where}: an effect with state {cls.state!r} must set `advance = "
-            "staticmethod(function)`, advance(q, state, x0_m, x1_m, h_s) -> (new_state, "
-            "dnew_state_dx1); see pmabayes.model.effects")
+            f"staticmethod(function)`, {signature}; see pmabayes.model.effects")
     cls.advance = staticmethod(_compiled(adv))
 
 

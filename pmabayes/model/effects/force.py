@@ -20,6 +20,8 @@ __all__ = [
     "McKibbenForce",
     "PressureHysteresis",
     "MaxwellCreep",
+    "ForceLengthMap",
+    "LengthStiffness",
 ]
 
 
@@ -295,3 +297,103 @@ class MaxwellCreep(Effect):
     )
     physics = staticmethod(_maxwell_creep)
     advance = staticmethod(_maxwell_creep_advance)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _force_length_map(q, x, v, p):
+    # the push lost per unit pressure, a quadratic in the absolute strain u = x / l_fl
+    u = x / q[2]
+    return p * u * (q[0] + q[1] * u), p * (q[0] + 2.0 * q[1] * u) / q[2], 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _length_stiffness(q, x, v, p, z, s):
+    # tangent stiffness K_e + K_L x, and the hysteretic force z (1 + kappa_L x)
+    return (0.5 * q[0] * x * x + q[1] * x * z, q[0] * x + q[1] * z, 0.0, q[1] * x, 0.0)
+
+
+class ForceLengthMap(Effect):
+    """The static force-length-pressure map of the muscle, in its absolute length."""
+
+    name = "force_length_map"
+    stage = "force"
+    parameters = (
+        Parameter(
+            "a1_fl", "m^2", 2e-5, Normal(0.0, 1e-4), null=0.0,
+            description="effective area lost per unit of absolute strain x / l_fl: the "
+            "push is p (A - a1_fl u - a2_fl u^2); Tondu-Lopez's 2 k A'",
+            latex=r"a_{1}",
+        ),
+        Parameter(
+            "a2_fl", "m^2", -1e-5, Normal(0.0, 1e-4), null=0.0,
+            description="effective area lost per squared strain (the map's curvature); "
+            "Tondu-Lopez's -k^2 A', Chou-Hannaford's +a1_fl / 2 for an extending braid",
+            latex=r"a_{2}",
+        ),
+        Parameter(
+            "l_fl", "m", 0.17, LogNormal(0.17, 0.5), bounds=(0.0, math.inf), vary=False,
+            description="the muscle's length at x = 0 (unloaded, unpressurised): the "
+            "strain's reference (the paper's 170 mm; set it to your muscle's)",
+            latex=r"l_\mathrm{fl}",
+        ),
+    )
+    description = (
+        "The force of a fluidic muscle depends on its length as well as its pressure: "
+        "Tondu and Lopez's F = A' p [(1 - k eps)^2 - b] for a contracting muscle (IEEE "
+        "Control Syst. Mag. 20(2), 2000), Chou and Hannaford's for a braid. Written about "
+        "the model's x = 0 (the unloaded length l_fl, so u = x / l_fl is the absolute "
+        "strain, positive in the direction the pressure drives), the push A p loses p "
+        "(a1_fl u + a2_fl u^2), a smooth quadratic that holds both laws. Each experiment "
+        "starts at rest where the map balances its own dead load (the rig's moving mass, "
+        "gravity known), so a heavier load sits at another strain, where the force per "
+        "pressure and the pressure's stiffness p (a1_fl + 2 a2_fl u) / l_fl differ: the "
+        "same pressure moves each load by a different amount although each record is "
+        "zeroed at its start. In the residual: a gain error that grows with pressure "
+        "and changes sign and size with the load (the experiments disagree on K_e and "
+        "A), curving with position at the pressure peaks; on one load its linear part "
+        "is pressure_stiffness's p x signature."
+    )
+    physics = staticmethod(_force_length_map)
+
+
+class LengthStiffness(Effect):
+    """Stiffness and hysteresis that change with the absolute length (the operating point)."""
+
+    name = "length_stiffness"
+    stage = "force"
+    reads_z = True
+    parameters = (
+        Parameter(
+            "K_L", "N/m^2", 2e3, Normal(0.0, 1e4), null=0.0,
+            description="growth of the tangent stiffness with the absolute position: K = "
+            "K_e + K_L x (force K_e x + K_L x^2 / 2)",
+            latex=r"K_L",
+        ),
+        Parameter(
+            "kappa_L", "1/m", 2.0, Normal(0.0, 10.0), null=0.0,
+            description="growth of the hysteretic force with the absolute position: z "
+            "(1 + kappa_L x)",
+            latex=r"\kappa_L",
+        ),
+    )
+    description = (
+        "The stiffness and the hysteresis of the muscle change with its operating point: "
+        "a coiled or braided tube stiffens as it is stretched, and its internal friction "
+        "changes with the strain. The tangent stiffness becomes K_e + K_L x and the "
+        "hysteretic force z (1 + kappa_L x), with x the absolute position (from the "
+        "unloaded length). A dead load sets the operating point: under m g the muscle "
+        "rests near x = -m g / K_e, so each load sees its own stiffness and loop width "
+        "although each record is zeroed at its start; the pressure's part of the same "
+        "dependence is pressure_stiffness and pressure_hysteresis. In the residual: "
+        "error proportional to x^2 and to x z, so a fit of several loads together "
+        "leaves the light loads' motion too small and the heavy loads' too large (or the "
+        "reverse), and fitted one load at a time K_e and alpha move with the load."
+    )
+    physics = staticmethod(_length_stiffness)
+
+    @classmethod
+    def force_rig_priors(cls, stiffness_n_m, amplitude_m, moving_mass_kg):
+        """``K_L`` around the stiffness per amplitude, ``kappa_L`` around one per
+        amplitude: a change of order one over the motion."""
+        return {"K_L": Normal(0.0, stiffness_n_m / amplitude_m),
+                "kappa_L": Normal(0.0, 1.0 / amplitude_m)}

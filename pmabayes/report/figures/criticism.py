@@ -12,8 +12,10 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from pmabayes.criticism.observed import mean_of_observed
+from pmabayes.criticism.yardsticks import REGISTRY
 from pmabayes.data import Dataset
 from pmabayes.report.figures.common import REPORT_DPI, colormap, finish, shade_gaps, zoom_slice
+from pmabayes.util import format_together
 
 __all__ = [
     "plot_comparison",
@@ -76,7 +78,7 @@ def plot_comparison(
     ax_r.plot(t, resid * 1e6, color="k", lw=0.6)
     if np.isfinite(floor):
         ax_r.axhspan(-floor * 1e6, floor * 1e6, color="tab:green", alpha=0.25,
-                     label=f"noise floor ±{floor * 1e6:.1f} µm")
+                     label=f"noise floor ±{format_together(floor * 1e6)[0]} µm")
         ax_r.legend(loc="upper left", fontsize=8)
     rms = float(np.sqrt(np.mean(resid**2) if seen.all() else np.mean(resid[seen] ** 2)))
     ax_r.set_title(f"trial mean − {label}: RMS {rms * 1e6:.1f} µm", fontsize=9)
@@ -163,6 +165,7 @@ def plot_residual_signature(
     *,
     label: str = "model",
     path: str | Path | None = None,
+    floor_m: float | None = None,
 ) -> Figure:
     """The trial-mean residual against time, frequency, velocity, pressure and position.
 
@@ -180,6 +183,11 @@ def plot_residual_signature(
         Name of the model in the title.
     path : str or Path, optional
         Where to save the figure.
+    floor_m : float, optional
+        The noise floor to draw (a diagnosis' own, which a periodic record takes from
+        its periods); the trials' spread (:attr:`pmabayes.data.Dataset.noise_floor_m`)
+        by default. Not drawn, nor named in the title, when it is not finite (a record
+        without repeats).
 
     Returns
     -------
@@ -187,7 +195,7 @@ def plot_residual_signature(
     """
     seen = dataset.counted.any(axis=0)
     resid = np.where(seen, dataset.mean_position_m - simulation.position_m[0], np.nan) * 1e6
-    floor = dataset.noise_floor_m * 1e6
+    floor = (dataset.noise_floor_m if floor_m is None else float(floor_m)) * 1e6
     is_pressure = dataset.input_name == "pressure_pa"
     against = [
         ("time [s]", dataset.time_s),
@@ -206,13 +214,19 @@ def plot_residual_signature(
             ax.plot(v, resid, color="k", lw=0.5)
         else:
             ax.scatter(v[::step], resid[::step], s=2, color="k", alpha=0.4, linewidths=0)
-        ax.axhspan(-floor, floor, color="tab:green", alpha=0.3)
+        if math.isfinite(floor):
+            ax.axhspan(-floor, floor, color="tab:green", alpha=0.3)
         ax.axhline(0.0, color="tab:gray", lw=0.5)
         ax.set_xlabel(name)
     axes[0].set_ylabel("trial mean − model [µm]")
     rms = float(np.sqrt(np.mean(resid**2) if seen.all() else np.mean(resid[seen] ** 2)))
-    fig.suptitle(f"where {label} fails: residual (RMS {rms:.3g} µm) against the noise floor "
-                 f"±{floor:.3g} µm (green)", fontsize=10)
+    if math.isfinite(floor):
+        rms_text, floor_text = format_together(rms, floor)
+        against_floor = f"against the noise floor ±{floor_text} µm (green)"
+    else:
+        rms_text, against_floor = format_together(rms)[0], "(no noise floor: no repeats)"
+    fig.suptitle(f"where {label} fails: residual (RMS {rms_text} µm) {against_floor}",
+                 fontsize=10)
     return finish(fig, path, 110)
 
 
@@ -366,7 +380,7 @@ def plot_validation(experiment, *, path: str | Path | None = None) -> Figure:
             else (e.low_with_discrepancy_m, e.high_with_discrepancy_m))
     if wide is not None and own:
         wide = (wide[0][0], wide[1][0])
-    yard = {"linear": "tab:green", "play": "tab:purple"}
+    yard = {name: kind.colour for name, kind in REGISTRY.items()}
     for col, s in enumerate((slice(None), z)):
         top, bottom = axes[0, col], axes[1, col]
         shade_gaps(top, t[s], seen[s])
