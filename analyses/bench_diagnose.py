@@ -9,8 +9,8 @@ loaded from the cache by a warm-up diagnosis on short data before the clock star
 the proposal's own kernel (a new effect) is compiled inside the timed run the first
 time, as it would be for a user.
 
-``--single-record`` times what a user with one measured file meets (issue 22: "a fit
-of one 11,000-sample file took 12 minutes and diagnose 14"): one 11 s record at 1 kHz
+``--single-record`` times what a user with one measured file meets (a user reported "a
+fit of one 11,000-sample file took 12 minutes and diagnose 14"): one 11 s record at 1 kHz
 (``generate_chirp_dataset(n_trials=1, chirp=Chirp(duration_s=11))``) with the hidden
 drag, diagnosed with every registered candidate (``--hidden lag`` hides a 45 ms
 regulator lag instead). Its noise is identified with the model, and the discrepancy

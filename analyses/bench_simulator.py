@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = {"base": pmabayes_us(Model(), pressure, dt_s)}
     for name in sorted(registered_effects()):
         rows[name] = pmabayes_us(Model([name]), pressure, dt_s)
-    # issue 12, part 1 (states): the effects that read z, carry a state or change the
+    # the effects that read z, carry a state or change the
     # hysteresis law are timed one by one above; here all three in one kernel
     rows["z, state and law"] = pmabayes_us(
         Model(["pressure_hysteresis", "maxwell_creep", "bouc_wen_exponent"]), pressure, dt_s)

@@ -68,7 +68,8 @@ TRUE = {"K_e": 5e4, "d": 10.0, "alpha": 5e4, "beta": 800.0, "gamma": -1100.0}
 #: factor of 5 of the truth, log-sd 2 (90% of the prior mass within a factor of 27)
 PRIORS = {"K_e": "LogNormal(1e4, 2)", "alpha": "LogNormal(1e4, 2)", "d": "LogNormal(30, 2)",
           "beta": "HalfNormal(3000)", "gamma": "Normal(0, 3000)"}
-#: published test RMS errors (m), as quoted in issue 11 of pmabayes
+#: published test RMS errors (m), quoted second-hand, as they were given when this
+#: benchmark was set for pmabayes (the sweep's were not given)
 PUBLISHED = [
     ("best black-box model (Schoukens, ECC 2021)", 7.53e-6, None),
     ("polynomial nonlinear state-space model", 1.34e-5, None),

@@ -1,5 +1,5 @@
 """Honest bands when the model is wrong: the band with the learnt discrepancy, over many
-independent synthetic data sets (issue 22).
+independent synthetic data sets.
 
 Each data set is a muscle of its own, drawn from ``pmabayes.synthetic.PLAUSIBLE_REGION``
 with its own seed, measured as the generator measures (AR(1) disturbance, encoder

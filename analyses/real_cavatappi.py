@@ -1,5 +1,5 @@
 """The user's loop on real measurements: the cavatappi muscle of Higueras-Ruiz, Shafer and
-Feigenbaum (Science Robotics 2021), five dead loads, read as the lab logged them (issue 22).
+Feigenbaum (Science Robotics 2021), five dead loads, read as the lab logged them.
 
 The data stay in ``../shared/external/real/cavatappi`` beside the checkout (read-only,
 never copied into the repository). For each file this writes, into ``--out``, a symbolic
@@ -26,8 +26,8 @@ Then it runs pmabayes' own commands, as a user would:
 It prints, per model and held-out load, the NRMSE of pmabayes and of the two yardsticks
 ``validate`` fits on the same training data (a linear output-error model and a
 Prandtl-Ishlinskii play model), and the coverage of the 90% predictive band with the
-model's discrepancy (and without it, the parameters and the noise only). The issue's
-targets: NRMSE below both yardsticks, coverage 80-97%.
+model's discrepancy (and without it, the parameters and the noise only). The targets:
+NRMSE below both yardsticks, coverage 80-97%.
 
 Usage::
 
@@ -57,39 +57,43 @@ AREA_PRIOR = "LogNormal(1e-5, 1.5)"
 QUICK_CANDIDATES = "maxwell_creep,pressure_hysteresis"
 
 
-def sidecar(load_g: int) -> dict:
+def sidecar(load_g: int, sample: int = 1) -> dict:
     """The JSON sidecar of one file: what the file cannot say about itself."""
     return {
-        "description": f"cavatappi muscle, sample 1, {load_g} g dead weight (Higueras-Ruiz, "
-                       "Shafer & Feigenbaum, Science Robotics 2021)",
+        "description": f"cavatappi muscle, sample {sample}, {load_g} g dead weight "
+                       "(Higueras-Ruiz, Shafer & Feigenbaum, Science Robotics 2021)",
         "columns": {"2": "time_s", "4": "pressure_psi", "5": "position_mm"},
         "position_sign": -1,
         "position_zero_s": 0.02,
         "position_reference": "start",
         "initial_state": "rest",
-        "rig": {"name": f"sample1_{load_g}g", "moving_mass_kg": load_g / 1000.0,
+        "conditions": {"load_kg": load_g / 1000.0},
+        "rig": {"name": f"sample{sample}_{load_g}g", "moving_mass_kg": load_g / 1000.0,
                 "gravity_sign": 1, "area_m2": AREA_PRIOR},
     }
 
 
-def declare(out: Path) -> dict[int, Path]:
-    """Link each file into ``out`` and write its sidecar there; the data file per load."""
+def declare(out: Path, sample: int = 1) -> dict[int, Path]:
+    """Link each file of a sample into ``out`` and write its sidecar there; the data file
+    per load."""
     folder = real_folder("cavatappi", "real_cavatappi.py")
     paths = {}
-    for load_g in TRAIN_G + HELD_OUT_G:
-        name = f"sample1_{load_g}g"
+    for load_g in sorted(TRAIN_G + HELD_OUT_G):
+        name = f"sample{sample}_{load_g}g"
         link = out / f"{name}.csv"
         if link.is_symlink() or link.exists():
             link.unlink()
         link.symlink_to(folder / f"{name}.csv")
-        link.with_suffix(".json").write_text(json.dumps(sidecar(load_g), indent=1) + "\n")
+        link.with_suffix(".json").write_text(json.dumps(sidecar(load_g, sample), indent=1)
+                                             + "\n")
         paths[load_g] = link
     return paths
 
 
 def named_effect(diagnosis: dict, tried: list[str]) -> str | None:
-    """The effect ``diagnose`` says is missing (its JSON's ``missing``), if a new one."""
-    missing = diagnosis.get("missing")
+    """The effect ``diagnose`` says to add (its JSON's ``missing``, else its partial
+    step ``partial``), if a new one."""
+    missing = diagnosis.get("missing") or diagnosis.get("partial")
     return None if diagnosis.get("adequate") or missing in tried else missing
 
 
@@ -102,6 +106,7 @@ def rows_of(validation: dict, model: str) -> list[dict]:
             "model": model, "held_out": e["name"], "nrmse": e["nrmse"],
             "linear_nrmse": (base.get("linear") or {}).get("nrmse"),
             "play_nrmse": (base.get("play") or {}).get("nrmse"),
+            "narx_nrmse": (base.get("narx") or {}).get("nrmse"),
             "coverage": e.get("coverage"),
             "coverage_parameters_only": e.get("coverage_parameters_only"),
             "rmse_um": None if e["rmse_m"] is None else 1e6 * e["rmse_m"],
@@ -182,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     seed = ["--seed", str(args.seed)]
     quiet = ["--quiet"]
 
-    if not args.quick:  # the loads together first, as the issue asks
+    if not args.quick:  # the loads together first, as a lab would try first
         refused = pmabayes("fit", *train, "--out", str(out / "fit_joint.nc"), "--restart",
                            *steps, "--walkers", "48", *seed, *quiet, refusal_ok=True)[1]
         if refused is None:

@@ -1,5 +1,5 @@
 """Real measurements as force-input rigs: the reinforced-concrete columns of Ortiz, Alvarez
-and Bedoya-Ruiz (Computers & Structures 2015), fitted in kN and in N (issue 22).
+and Bedoya-Ruiz (Computers & Structures 2015), fitted in kN and in N.
 
 The data stay in ``../shared/external/real/rc_columns`` beside the checkout (read-only,
 never copied into the repository). Each specimen keeps its load (kN) and displacement

@@ -1,7 +1,7 @@
-"""The issue's two single records with a slow disturbance, fitted as a user would.
+"""Two single records with a slow disturbance, fitted as a user would.
 
-Issue 23 found that one record without repeats whose disturbance is slow pinned the
-noise at its bound, the correct model was called inadequate and no interval covered
+One record without repeats whose disturbance is slow once pinned the noise at its
+bound, the correct model was called inadequate and no interval covered
 the truth: an 8 s chirp with the package's default disturbance (60 um, 0.1 s;
 ``pmabayes simulate single.csv --duration 8 --trials 1 --seed 23``) and a 60 s chirp
 with a 0.3 s one (max |z| 12). This script fits both with the defaults of
@@ -34,7 +34,7 @@ from pmabayes.model.model import PAPER_VALUES
 from pmabayes.report.verdicts import fit_adequacy
 from pmabayes.synthetic import Chirp, MeasurementNoise, generate_chirp_dataset
 
-#: the issue's records: chirp length (s) and the disturbance's correlation time (s)
+#: the two records: chirp length (s) and the disturbance's correlation time (s)
 RECORDS = {"8s": (8.0, 0.1), "60s": (60.0, 0.3)}
 
 

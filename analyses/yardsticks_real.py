@@ -11,8 +11,7 @@ Usage::
 
     python analyses/yardsticks_real.py [--out DIR]
 
-A few seconds per record; the NARX yardstick needs ``pip install pmabayes[narx]`` and is
-reported as left out without it.
+A few seconds per record.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ when first used (PEP 562), so that ``import pmabayes`` and the command line's
 
 import importlib
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 #: each public name and the module it is imported from when first used
 _LAZY = {

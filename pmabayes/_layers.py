@@ -18,10 +18,16 @@ LAYERS: dict[str, tuple[int, str]] = {
                     "with their parent"),
     "data": (1, "data sets and their checks: CSV, NetCDF and MATLAB files, sidecars, "
                 "units, clocks"),
-    "model": (2, "parameters and priors, the physical effects, the model on its rig, and "
-                 "the batched compiled simulator"),
+    "model": (2, "parameters and priors, the physical effects, the model on its rig, the "
+                 "Bouc-Wen law, its linearisation, and the batched compiled simulator (code "
+                 "generation, kernels, API)"),
+    "effects": (2, "the old import path of model/effects, kept so that older plugins "
+                   "load; it warns once and will be removed"),
     "inference": (3, "likelihood and noise, checks of repeated trials, the posterior "
                      "density, the fit file, the sampler (MAP and emcee) and batches"),
+    "outputs": (3, "the rules of outputs, for the command line and the API alike: every "
+                   "output path checked before any work, never over a file pmabayes did "
+                   "not make, pages written whole"),
     "synthetic": (4, "synthetic data: chirps, measurement noise and hidden effects for "
                      "studies and tests"),
     "criticism": (5, "residuals and adequacy, score tests and refits, the verdict, the "
@@ -29,7 +35,8 @@ LAYERS: dict[str, tuple[int, str]] = {
     "control": (6, "PID and computed-torque tracking, robustness sweeps over posterior "
                    "samples, and the paper's Fig. 5"),
     "report": (7, "figures (drawn from results passed in) and HTML pages"),
-    "cli": (8, "the command line, a thin layer over the Python API"),
+    "cli": (8, "the command line over the Python API: main and the parser, the shared "
+               "options, one module per group of commands, the one ending"),
 }
 
 #: ``import pmabayes`` (the top level) brings the model layer

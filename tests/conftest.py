@@ -56,6 +56,18 @@ def _in_own_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
 
 
+@pytest.fixture(autouse=True)
+def _effect_registry_restored() -> object:
+    """Effects a test registers are forgotten after it: the library's candidates (and
+    so every ranking) do not depend on which tests ran before."""
+    from pmabayes.model.effects import registry
+
+    before = dict(registry._REGISTRY)
+    yield
+    registry._REGISTRY.clear()
+    registry._REGISTRY.update(before)
+
+
 def _chirp_pressure(t: np.ndarray) -> np.ndarray:
     """0.1 -> 3 Hz linear chirp around 0.2 MPa."""
     f0, f1, span = 0.1, 3.0, t[-1] - t[0]

@@ -104,7 +104,6 @@ def _narx_plant(u: np.ndarray, warmup: int = 300) -> np.ndarray:
 
 
 def test_the_narx_yardstick_finds_a_polynomial_narx_system():
-    pytest.importorskip("sysidentpy")
     rng = np.random.default_rng(4)
     u = rng.uniform(-1.0, 1.0, 900)
     b = fit_baselines(_record(u, _narx_plant(u), rate_hz=100.0, sigma_m=1e-7))
@@ -121,21 +120,18 @@ def test_the_narx_yardstick_finds_a_polynomial_narx_system():
     assert s["narx"]["order_text"] == f"lags {d['lag_y']}/{d['lag_u']}, degree 2, 6 terms"
 
 
-def test_the_narx_yardstick_is_left_out_cleanly_without_sysidentpy(monkeypatch):
+def test_the_narx_yardstick_needs_no_sysidentpy(monkeypatch):
+    """Its FROLS is built in: with SysIdentPy not importable it is fitted all the same."""
     import sys
 
     for name in ["sysidentpy", *(m for m in sys.modules if m.startswith("sysidentpy."))]:
         monkeypatch.setitem(sys.modules, name, None)  # importing it fails
     u = _multisine(0, 2000)
     b = fit_baselines(_record(u, _second_order(u, RATE_HZ)))
-    assert set(b.fitted) == {"linear", "play"}
-    assert "pip install pmabayes[narx]" in b.left_out["narx"]
-    assert b.lines() == [b.left_out["narx"]]
-    assert b.to_dict()["left_out"] == {"narx": b.left_out["narx"]}
+    assert set(b.fitted) == {"linear", "play", "narx"} and b.left_out == {}
 
 
 def test_a_record_too_short_for_the_narx_leaves_it_out_naming_the_file():
-    pytest.importorskip("sysidentpy")
     u = _multisine(0, 40)
     b = fit_baselines(_record(u, _second_order(u, RATE_HZ), source="short.csv"))
     line = b.left_out["narx"]
@@ -146,7 +142,6 @@ def test_a_record_too_short_for_the_narx_leaves_it_out_naming_the_file():
 def test_a_diverging_narx_prediction_is_infinite_with_its_reason():
     """The plant's yardstick driven far outside its training range: its quadratic terms
     run away, and the scores say so instead of failing."""
-    pytest.importorskip("sysidentpy")
     rng = np.random.default_rng(4)
     u = rng.uniform(-1.0, 1.0, 900)
     b = fit_baselines(_record(u, _narx_plant(u), rate_hz=100.0, sigma_m=1e-7))
@@ -191,7 +186,7 @@ def trained_on(effects=None):
 
 
 def test_validate_reports_baselines_and_a_band_with_the_discrepancy():
-    """Fails before issue 22: no yardsticks, and a wrong model's band held a few percent.
+    """Fails on the code without yardsticks, where a wrong model's band held a few percent.
     The held-out inputs are chirps of other sweeps and sizes than the training one: a
     stationary discrepancy describes inputs of the training input's kind (the study
     ``analyses/discrepancy_bands.py`` fits for real)."""
@@ -211,13 +206,10 @@ def test_validate_reports_baselines_and_a_band_with_the_discrepancy():
         assert j["baselines"]["linear"]["order"] in range(1, 5)
         assert j["baselines"]["play"]["n_operators"] >= 1
         assert {"nrmse", "rmse_m"} <= set(j["baselines"]["linear"])
-        # the NARX beside them where SysIdentPy is installed, left out (and said) where not
-        if "narx" in d["baselines"]["fitted"]:
-            assert {"nrmse", "rmse_m", "lag_y", "n_terms"} <= set(j["baselines"]["narx"])
-            assert "narx yardstick (lags" in e.summary()
-        else:
-            assert "pip install pmabayes[narx]" in d["baselines"]["left_out"]["narx"]
-            assert v.lines()[-1] == d["baselines"]["left_out"]["narx"]
+        # and the NARX beside them
+        assert "narx" in d["baselines"]["fitted"]
+        assert {"nrmse", "rmse_m", "lag_y", "n_terms"} <= set(j["baselines"]["narx"])
+        assert "narx yardstick (lags" in e.summary()
         assert len(j["predictive_band"]["linear_m"]) == e.n_samples
         assert len(j["predictive_band"]["high_with_discrepancy_m"]) == e.n_samples
 
@@ -249,7 +241,8 @@ def test_the_study_a_wrong_models_band_holds_with_its_discrepancy():
     """One data set of ``analyses/discrepancy_bands.py``, fitted for real (MAP and emcee):
     the base model fitted on a lagged muscle's chirp predicts another chirp with a band
     that holds a few percent without the discrepancy and 80-97% with it; the same muscle
-    without the lag learns no discrepancy and keeps its band. Fails before issue 22."""
+    without the lag learns no discrepancy and keeps its band. Fails on the code without
+    the learnt discrepancy."""
     import sys
     from pathlib import Path
 

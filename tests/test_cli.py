@@ -238,7 +238,7 @@ def test_compare_two_fits(offset_data, tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- failures a
-# new user hit (issue 10): one clear line for bad input, a traceback for a bug, no debris
+# new user hit: one clear line for bad input, a traceback for a bug, no debris
 
 
 def test_a_bug_keeps_its_traceback_and_bad_input_is_one_line(tmp_path, monkeypatch, capsys):
@@ -387,7 +387,7 @@ def test_warnings_print_one_line_without_source(small_data, tmp_path, monkeypatc
         warnings.warn("invalid value encountered in divide", RuntimeWarning, stacklevel=1)
         return 0
 
-    monkeypatch.setattr(cli, "_cmd_effects", noisy)
+    monkeypatch.setattr(cli.data, "_cmd_effects", noisy)  # where the command lives
     assert main(["effects"]) == 0
     err = capsys.readouterr().err
     assert err == "pmabayes effects: RuntimeWarning: invalid value encountered in divide\n"

@@ -1,6 +1,6 @@
-"""The edges a new user hit (issue 21): no data lost, no work lost, never silent, time
-units checked, and a command line that is quick and consistent. Each test names its
-item of the issue; the fast ones stop the command before any real work."""
+"""The edges a new user hit: no data lost, no work lost, never silent, time units
+checked, and a command line that is quick and consistent. Each test names the edge it
+guards; the fast ones stop the command before any real work."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import pmabayes as pb
 from pmabayes.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -424,7 +425,7 @@ def test_excess_removed_agrees_with_the_rms_errors():
 
 
 def test_without_a_floor_the_energy_share_says_it_can_exceed_the_rms_fall():
-    """Fails before the cavatappi loop (issue 22), where "removes 99% of the whitened
+    """Fails before the cavatappi loop, where "removes 99% of the whitened
     residual's excess energy" stood beside an RMS error that fell by 10%."""
     from pmabayes.criticism.prose import removed_text
 
@@ -479,7 +480,7 @@ def test_import_pmabayes_is_lazy_and_complete():
     out = _python("import sys, pmabayes as pb; lazy = 'numpy' not in sys.modules; "
                   "print(lazy, pb.Model.__name__, pb.fit.__module__, all(hasattr(pb, n) for n "
                   "in pb.__all__), pb.__version__)")
-    assert out.split() == ["True", "Model", "pmabayes.inference.sampler", "True", "0.1.0"]
+    assert out.split() == ["True", "Model", "pmabayes.inference.sampler", "True", pb.__version__]
 
 
 def test_the_parsers_literals_are_the_package_constants():
@@ -500,7 +501,7 @@ def test_the_parsers_literals_are_the_package_constants():
 def test_version(capsys):
     with pytest.raises(SystemExit) as info:
         main(["--version"])
-    assert info.value.code == 0 and capsys.readouterr().out == "pmabayes 0.1.0\n"
+    assert info.value.code == 0 and capsys.readouterr().out == f"pmabayes {pb.__version__}\n"
 
 
 def test_batch_offers_only_what_works(capsys):
@@ -588,7 +589,7 @@ def test_the_ranking_says_what_orders_it(capsys):
 
 
 def test_fix_holds_a_parameter_at_a_value(tmp_path, capsys):
-    """Issue 22 (item 8): the docs advise fixing a parameter (``v_c``), which only the
+    """The docs advise fixing a parameter (``v_c``), which only the
     Python API could; ``--fix NAME=VALUE`` holds it on fit, run and diagnose."""
     import warnings
 

@@ -449,7 +449,9 @@ def test_an_effect_outside_the_library_is_flagged_but_not_attributed():
     d = diagnosis(ds)
     assert not d.adequate and d.rms_m > 5 * d.noise_floor_m
     assert d.missing is None
-    assert "no candidate is named" in d.verdict
+    # a library effect that helps in part may be offered as a step, never as the cause
+    assert ("no candidate is named" in d.verdict
+            or f"{d.partial} adds a partial improvement" in d.verdict), d.verdict
 
 
 @pytest.mark.slow

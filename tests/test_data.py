@@ -401,7 +401,7 @@ def test_missing_header(tmp_path: Path) -> None:
     [
         ("trial,time_s,pressure,position_m", r"'pressure' looks like 'pressure_pa'"),
         ("trial,time,pressure_pa,position_m", r"'time' looks like 'time_s'.*ing column 'time_s'"),
-        ("Trial,time_s,pressure_pa,position_m", r"'Trial' looks like 'trial'"),
+        ("Trials,time_s,pressure_pa,position_m", r"'Trials' looks like 'trial'"),
         ("trial,time_s,force,position_m", r"'force' looks like 'force_n'"),
         ("trial,time_s,pressure_pa,position_cm",
          r"pmabayes does not know the unit 'cm' of position; it reads position_m, position_mm, "

@@ -1,4 +1,4 @@
-"""The PMA's own physics in the effect library (issue 12, part 1).
+"""The PMA's own physics in the effect library.
 
 ``stribeck_friction`` and ``mckibben_force`` (force stage) and
 ``regulator_second_order`` (pressure stage): their physics against finite differences,

@@ -1,4 +1,4 @@
-"""Effects that read z, carry a state, or change the hysteresis law (issue 12).
+"""Effects that read z, carry a state, or change the hysteresis law.
 
 ``pressure_hysteresis`` (a force reading ``z``), ``maxwell_creep`` (a force with an
 internal state) and ``bouc_wen_exponent`` (the ``hysteresis`` stage): their

@@ -98,7 +98,7 @@ def test_the_disagreement_verdict_names_the_experiment_that_loses_most():
 
 
 def test_the_report_of_a_joint_fit_says_whether_its_experiments_agree():
-    """Issue 23: the disagreement verdict was only a warning and a JSON entry; the report
+    """The disagreement verdict was only a warning and a JSON entry; the report
     of a joint fit now shows it, with each experiment's cost alone and jointly."""
     from pmabayes.report.fit_page import _agreement_section
 
@@ -349,7 +349,7 @@ def test_an_adequate_verdict_says_what_one_record_cannot_tell():
 
 @pytest.mark.slow
 def test_a_single_record_with_the_default_slow_disturbance_is_adequate_and_covered():
-    """Issue 23: one 8 s chirp record with the default disturbance (60 um, 0.1 s). A
+    """One 8 s chirp record with the default disturbance (60 um, 0.1 s). A
     bound at the input's band pinned the noise there, the fit was called inadequate
     and no interval covered the truth (this test failed so before the record's
     disturbance check). The slow noise leaves the physics' fit as it was, so it is

@@ -472,7 +472,7 @@ def test_global_search_stops_when_its_population_agrees(small_data, monkeypatch)
 def test_default_walkers_suffice_for_every_built_in_effect():
     """Fewer walkers make fits faster; the default still allows the base model with
     the six effects of the first library (and a single record's sampled noise with
-    three of them). The PMA library's near twins (issue 12) are alternatives to
+    three of them). The PMA library's near twins are alternatives to
     these, not additions; a model with more parameters passes n_walkers."""
     from pmabayes.model.effects import registered_effects
 

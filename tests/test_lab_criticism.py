@@ -1,4 +1,4 @@
-"""The criticism of lab records (issue 22): samples not observed (gaps, a warm-up),
+"""The criticism of lab records: samples not observed (gaps, a warm-up),
 trials with their own measured inputs and estimated starts are judged by the same
 statistics as complete records, over the samples observed, never invented ones.
 

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import pmabayes
 import pmabayes.model.effects as effects_module
 from pmabayes._layers import LAYERS, TOP_LEVEL_RANK
@@ -204,6 +206,7 @@ def _submodules(package):
             yield from _submodules(module)
 
 
+@pytest.mark.filterwarnings("ignore:pmabayes.effects is the old path:FutureWarning")
 def test_no_name_of_a_package_hides_one_of_its_modules():
     """``from pmabayes.criticism.whiteness import whiteness`` in a package's
     ``__init__`` would make ``pmabayes.criticism.whiteness`` the function, not the

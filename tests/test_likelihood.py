@@ -148,8 +148,8 @@ def test_a_record_without_repeats_gets_a_bounded_noise_model():
 
 
 def test_a_records_declared_or_settled_disturbance_bound_and_its_words():
-    """Issue 23: a lab declares its disturbance's correlation time (``disturbance_max_s``),
-    or the fit's check (:func:`settle_disturbance`) keeps a slow one; the bound follows,
+    """A lab declares its disturbance's correlation time (``disturbance_max_s``), or
+    the fit's check (:func:`settle_disturbance`) keeps a slow one; the bound follows,
     and the verdict says which and why."""
     t = np.arange(2000) * 1e-3
     u = 2e5 + 1e5 * np.sin(2 * np.pi * 2.0 * t)

@@ -2,7 +2,7 @@
 effect, whatever its signature, through one interface, and the discrepancy step's linear
 response built on it."""
 
-import re
+import ast
 from pathlib import Path
 
 import numpy as np
@@ -18,16 +18,54 @@ FORCE_EFFECTS = sorted(n for n in pb.registered_effects() if get_effect(n).stage
 CHIRP = Chirp(duration_s=5.0, f0_hz=0.3, f1_hz=3.0)
 
 
-def test_nothing_outside_the_model_layer_calls_an_effects_physics():
+def effect_calls(paths, root: Path = ROOT) -> list[str]:
+    """Places in ``paths`` that reach an effect's ``physics`` or ``advance``: any
+    ``.physics``, an ``.advance`` taken as a value or called with an effect's arguments
+    (``q, state, x0, x1, h``: two or more; a progress bar's ``advance(n)`` takes one),
+    and ``getattr`` of either name."""
+    found = []
+    for path in paths:
+        tree = ast.parse(path.read_text())
+        called = {id(n.func): len(n.args) + len(n.keywords) for n in ast.walk(tree)
+                  if isinstance(n, ast.Call)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr == "physics":
+                hit = True
+            elif isinstance(node, ast.Attribute) and node.attr == "advance":
+                hit = called.get(id(node), 2) >= 2
+            elif isinstance(node, ast.Call) and getattr(node.func, "id", None) == "getattr":
+                hit = any(isinstance(a, ast.Constant) and a.value in ("physics", "advance")
+                          for a in node.args[1:2])
+            else:
+                hit = False
+            if hit:
+                found.append(f"{path.relative_to(root)}:{node.lineno}")
+    return found
+
+
+def test_nothing_outside_the_model_layer_calls_an_effects_physics_or_advance():
     """Effects have several signatures (plain, reading z, with a state): only the model
-    layer (simulator, linearisation) knows them, so no other source calls ``physics``."""
-    calls = re.compile(r"\.physics\(")
+    layer (code generation, linearisation, ``Effect.force_n``) knows them, so no other
+    source reaches ``physics`` or ``advance``."""
     model = ROOT / "pmabayes" / "model"
-    found = [f"{path.relative_to(ROOT)}:{i}"
-             for folder in ("pmabayes", "analyses") for path in (ROOT / folder).rglob("*.py")
-             if model not in path.parents
-             for i, line in enumerate(path.read_text().splitlines(), 1) if calls.search(line)]
-    assert not found, f"call the model layer (pmabayes.model.linearise) instead: {found}"
+    paths = [path for folder in ("pmabayes", "analyses") for path in (ROOT / folder).rglob("*.py")
+             if model not in path.parents]
+    found = effect_calls(paths)
+    assert not found, ("ask the model layer (pmabayes.model.linearise, Effect.force_n) "
+                       f"instead: {found}")
+
+
+def test_the_effect_call_check_can_fail(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("f = eff.physics\n"
+                   "r = eff.advance(q, s, x0, x1, h)\n"
+                   "bar.advance()\n"
+                   "bar.advance(3)\n"
+                   "g = eff.advance\n"
+                   "h = getattr(eff, 'physics')\n")
+    found = effect_calls([bad], root=tmp_path)
+    assert sorted(found, key=lambda s: int(s.split(":")[1])) == [
+        "bad.py:1", "bad.py:2", "bad.py:5", "bad.py:6"]
 
 
 def trajectory(n=60, dt=1e-3):

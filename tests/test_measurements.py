@@ -1,4 +1,4 @@
-"""Real measurements (issue 22): gaps as missing samples in the likelihood, a record's
+"""Real measurements: gaps as missing samples in the likelihood, a record's
 segments as experiments of one rig, trials with their own measured inputs, a start
 that is estimated (a record that starts mid-loop), and a declared warm-up."""
 

@@ -1,6 +1,6 @@
 """Priors own the support, force rigs' priors follow the data, rig values as priors,
 position references and per-experiment offsets, automatic substeps and the periodic
-steady state (issue 22)."""
+steady state."""
 
 from __future__ import annotations
 
@@ -261,8 +261,8 @@ def test_warmup_settings_come_from_the_sidecar_and_the_caller():
 
 @pytest.mark.slow
 def test_diagnose_chooses_substeps_and_scales_a_force_rigs_priors_as_fit_does():
-    """Fails before issue 22's last step, where diagnose simulated a force rig with one
-    substep and the muscle's priors (its settings held ``substeps: 1``)."""
+    """Fails on the code where diagnose simulated a force rig with one substep and the
+    muscle's priors (its settings held ``substeps: 1``)."""
     from pmabayes.criticism.diagnosis import diagnose
     from pmabayes.criticism.settings import DiagnoseSettings
 

@@ -1,4 +1,4 @@
-"""The user's loop on data like real measurements (issue 22): a force-input record whose
+"""The user's loop on data like real measurements: a force-input record whose
 candidates cannot all act on it, estimates outside their physical range, a record without
 repeats for the data-driven discrepancy, and the fit summary's MAP and paper columns.
 Everything here is synthetic.
@@ -36,8 +36,8 @@ def force_record(n_trials: int = 3, duration_s: float = 3.0):
 
 
 def test_a_force_effect_that_cannot_act_is_left_out_with_its_reason():
-    """Fails before issue 22: numpy.linalg.LinAlgError (mckibben_force's sensitivity is
-    zero on a force below its fixed p_mck)."""
+    """Fails on the code that raised numpy.linalg.LinAlgError here (mckibben_force's
+    sensitivity is zero on a force below its fixed p_mck)."""
     ds = force_record()
     model = Model(rig=Rig.force_oscillator(2.0))
     lik = Likelihood(model, ds)
@@ -53,7 +53,7 @@ def test_a_force_effect_that_cannot_act_is_left_out_with_its_reason():
 
 
 def test_diagnose_runs_on_a_force_record_with_the_default_candidates():
-    """Fails before issue 22 (the LinAlgError escaped diagnose on every force record)."""
+    """Fails on the code where the LinAlgError escaped diagnose on every force record."""
     d = diagnose(force_record(), settings=DiagnoseSettings(max_refits=0), seed=0)
     out = json.loads(json.dumps(d.to_dict(), allow_nan=False))
     rows = {r["effect"]: r for r in out["ranking"]}
@@ -116,7 +116,7 @@ def test_one_step_estimates_outside_their_range_are_called_implausible():
 
 @pytest.mark.slow
 def test_the_discrepancy_step_runs_on_a_record_without_repeats():
-    """Fails before issue 22, where cubic_stiffness was named missing though its refit
+    """Fails on the code where cubic_stiffness was named missing though its refit
     removed 0% of the excess (the refit's own noise took the rest in, and its adequacy
     counted), and the discrepancy step refused a record without repeats. A single 6 s
     record with a quadratic drag that no library holds; its noise is identified with

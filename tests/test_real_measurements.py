@@ -1,4 +1,4 @@
-"""The proof on real measurements (issue 22): the bugs the real records found, each with a
+"""The proof on real measurements: the bugs the real records found, each with a
 fast test, and the two analyses run end to end on ``../shared/external/real`` (slow;
 skipped when that folder is not beside the checkout).
 """

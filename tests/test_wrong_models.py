@@ -227,3 +227,34 @@ def test_diagnose_goes_on_where_experiments_disagree_and_names_what_moves():
     assert k_e["follows"]["condition"] in ("load_kg", "moving_mass_kg")
     assert 2.0 < k_e["factor"] < 4.5
     assert "The experiments disagree" in result.verdict and "K_e rises with" in result.verdict
+
+
+def test_an_elpd_whose_unit_has_no_spread_is_estimated_not_a_crash():
+    """ArviZ's PSIS raises where every draw gives a unit one log likelihood (seen on the
+    real loaded muscle's joint fit); that unit's term is then its plain estimate."""
+    import arviz as az
+
+    from pmabayes.criticism.elpd import psis_loo
+
+    rng = np.random.default_rng(0)
+    ll = rng.normal(size=(200, 5)) * 0.1 - 3.0
+    tree = az.from_dict({"posterior": {"t": np.zeros((1, 200))},
+                         "log_likelihood": {"y": ll[None]}}, dims={"y": ["unit"]})
+    elpd, elpd_i = psis_loo(ll)
+    assert elpd == pytest.approx(float(az.loo(tree, var_name="y").elpd))
+    ll[:, 2] = -7.0
+    elpd, elpd_i = psis_loo(ll)
+    assert elpd_i[2] == pytest.approx(-7.0) and np.all(np.isfinite(elpd_i))
+
+
+def test_a_parameter_one_experiment_cannot_identify_does_not_move():
+    from pmabayes.criticism.experiments import moving_parameters
+
+    agreement = _agreement([400.0, 610.0, 850.0], [20.0, 21.0, 20.5])
+    sd = {"load0": 0.05, "load1": 0.05, "load2": 0.05}
+    for n, e in agreement["experiments"].items():
+        e["z_own"] = {"K_e": [float(np.log(e["values_own"]["K_e"])), sd[n]]}
+    assert [m["parameter"] for m in moving_parameters(agreement, {})] == ["K_e"]
+    for e in agreement["experiments"].values():
+        e["z_own"]["K_e"][1] = 1.0  # as wide as the move itself: it wanders, not moves
+    assert moving_parameters(agreement, {}) == []

@@ -106,7 +106,7 @@ def _effect_force(effect, values: dict, sim, v: np.ndarray) -> np.ndarray:
     positions and pressures (its partial dependence on velocity)."""
     q = np.array([values[p.name] for p in effect.parameters], dtype=float)
     x, p = sim.true_position_m[0], sim.pressure_pa[0]
-    f = effect.physics
+    f = effect.force_n  # whatever the effect's signature (z and a state at rest)
     return np.array([np.mean([f(q, xi, g, pi)[0] for xi, pi in zip(x, p, strict=True)])
                      for g in v])
 

@@ -4,6 +4,9 @@
   build time from :data:`pmabayes._layers.LAYERS` (rank, folder, job) and the
   files in each folder, so the code, ``tests/test_layout.py`` and the docs cannot
   disagree.
+* ``sidecar-keys``, a directive: the sidecar reference (every key pmabayes reads, its
+  type, unit, default and page), generated from :mod:`pmabayes.data.keys` and the
+  rig's :data:`pmabayes.model.model.RIG_KEYS`.
 * :func:`reexports`: for each package, the public names it imports from its
   modules (the reference documents each object once, in the module that defines
   it; a package page lists what it re-exports).
@@ -306,7 +309,8 @@ class CliHelp(SphinxDirective):
     has_content = False
 
     def run(self) -> list[nodes.Node]:
-        self.env.note_dependency(str(PACKAGE_DIR / "cli.py"))
+        for path in sorted((PACKAGE_DIR / "cli").glob("*.py")):
+            self.env.note_dependency(str(path))
         top = _cli_help([])
         commands = re.findall(r"^    ([a-z][a-z_-]*)(?:\s|$)", top, flags=re.MULTILINE)
         if not commands:
@@ -321,9 +325,72 @@ class CliHelp(SphinxDirective):
         return out
 
 
+def _inline(text: str) -> list[nodes.Node]:
+    """Text with ``code`` between backticks, as nodes."""
+    return [nodes.literal(text=part) if i % 2 else nodes.Text(part)
+            for i, part in enumerate(text.split("`")) if part]
+
+
+class SidecarKeys(SphinxDirective):
+    """``sidecar-keys``: the sidecar reference, generated from the code that reads the
+    sidecar: :data:`pmabayes.data.keys.SIDECAR_KEYS` (every key of
+    :data:`pmabayes.data.METADATA_KEYS`) or, with the option ``:rig:``,
+    :data:`pmabayes.model.model.RIG_KEYS` (the keys of a ``"rig"``)."""
+
+    has_content = False
+    option_spec = {"rig": lambda arg: True}
+
+    def run(self) -> list[nodes.Node]:
+        from pmabayes.data.keys import SIDECAR_KEYS
+        from pmabayes.model.model import RIG_KEYS
+
+        self.env.note_dependency(str(PACKAGE_DIR / "data" / "keys.py"))
+        self.env.note_dependency(str(PACKAGE_DIR / "model" / "model.py"))
+        keys = RIG_KEYS if "rig" in self.options else SIDECAR_KEYS
+        header = ("key", "type", "unit", "default", "meaning", "explained in")
+        table = nodes.table(classes=["pmabayes-sidecar"])
+        group = nodes.tgroup(cols=len(header))
+        table += group
+        for width in (16, 14, 6, 14, 40, 10):
+            group += nodes.colspec(colwidth=width)
+        head = nodes.thead()
+        group += head
+        head += self._row([[nodes.Text(h)] for h in header])
+        body = nodes.tbody()
+        group += body
+        for key, doc in keys.items():
+            meaning = doc.meaning + (" Written by pmabayes, not declared." if doc.written
+                                     else "")
+            body += self._row([[nodes.literal(text=key)], _inline(doc.type),
+                               _inline(doc.unit), _inline(doc.default), _inline(meaning),
+                               [self._doc_ref(doc.page)]])
+        return [table]
+
+    @staticmethod
+    def _row(cells: list[list[nodes.Node]]) -> nodes.row:
+        row = nodes.row()
+        for cell in cells:
+            entry = nodes.entry()
+            para = nodes.paragraph()
+            para.extend(cell)
+            entry += para
+            row += entry
+        return row
+
+    @staticmethod
+    def _doc_ref(page: str) -> nodes.Node:
+        from sphinx.addnodes import pending_xref
+
+        ref = pending_xref("", refdomain="std", reftype="doc", reftarget=f"/{page}",
+                           refexplicit=False, refwarn=True)
+        ref += nodes.inline(text=page)
+        return ref
+
+
 def setup(app):
-    """Register the directive and the reference handler."""
+    """Register the directives and the reference handler."""
     app.add_directive("layers-table", LayersTable)
+    app.add_directive("sidecar-keys", SidecarKeys)
     app.add_directive("cli-help", CliHelp)
     app.connect("missing-reference", _resolve)
     app.connect("autodoc-process-docstring", _escape_bars)

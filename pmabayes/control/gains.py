@@ -34,6 +34,9 @@ from pmabayes.control.operating import (
     _reference_mean,
     _theta1,
 )
+from pmabayes.model import boucwen as _boucwen
+from pmabayes.model import codegen as _codegen
+from pmabayes.model import kernels as _kernels
 from pmabayes.model import simulator as _simulator
 from pmabayes.model.effects import delay_effect
 from pmabayes.model.model import Model, Rig
@@ -352,7 +355,7 @@ _RULE_VERSION = "6"  # bump when tune_gains' rule or its defaults change
 # the modules whose code the rule runs: the cache key holds their source
 _RULE_MODULES = ("pmabayes.control.operating", "pmabayes.control.kernel",
                  "pmabayes.control.metrics", "pmabayes.control.gains", _simulator.__name__,
-                 Model.__module__)
+                 _codegen.__name__, _kernels.__name__, _boucwen.__name__, Model.__module__)
 
 
 def _gains_cache_path(model: Model, theta: np.ndarray, timing: Timing,

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from pmabayes.model import boucwen
+from pmabayes.model.boucwen import BoucWenColumns
 from pmabayes.model.model import Model, Rig
 
 #: The paper's reference mean, in its own (unstated) origin.
@@ -49,13 +51,7 @@ def _inverse_pressure(model: Model | None, params, frequency_hz: float, amplitud
     om = 2 * np.pi * frequency_hz
     phase = np.arange(2 * n + 1) * (2 * np.pi / n)
     s, c = np.sin(phase), np.cos(phase)
-    z = np.zeros(phase.size)
-    dxs = amplitude_m * np.diff(s)
-    for k, dx in enumerate(dxs):  # midpoint rule for dz/dx = alpha - (beta sgn + gamma)|z|
-        for corrector in (False, True):  # Euler predictor, then the midpoint
-            zm = 0.5 * (z[k] + z[k + 1]) if corrector else z[k]
-            sgn = 1.0 if dx * zm >= 0.0 else -1.0
-            z[k + 1] = z[k] + dx * (v["alpha"] - (v["beta"] * sgn + v["gamma"]) * abs(zm))
+    z = boucwen.along(amplitude_m * np.diff(s), *BoucWenColumns.of(model).law(theta))
     sl = slice(n, 2 * n)
     z = z[sl]
     vel = amplitude_m * om * c[sl]
@@ -256,7 +252,7 @@ def _value(model: Model, theta: np.ndarray, name: str, default: float = 0.0) -> 
 def _initial_pressure(model: Model, theta: np.ndarray, x_m: float) -> np.ndarray:
     """Pressure holding ``model`` at rest at ``x_m`` with ``z = 0``."""
     rig = model.rig
-    base = rig.gravity_force_n + theta[:, model.index("K_e")] * x_m
+    base = rig.gravity_force_n + theta[:, BoucWenColumns.of(model).k_e] * x_m
     force = [(e, s) for e, s in model.effect_slices() if e.stage == "force"]
     n = theta.shape[0]
     return _pressure_with_forces([theta[:, s] for _, s in force], [e for e, _ in force],

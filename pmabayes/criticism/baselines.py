@@ -12,9 +12,9 @@ earned its parameters. :func:`fit_baselines` fits every yardstick of
     A Prandtl-Ishlinskii model: the input and 1, 2, 4 or 8 play operators
     (:mod:`~pmabayes.criticism.yardsticks.play`).
 ``narx``
-    A polynomial NARX model of degree 2 with lags 1 to 4, its terms chosen by
-    SysIdentPy's FROLS (:mod:`~pmabayes.criticism.yardsticks.narx`); left out, with one
-    line saying so, where SysIdentPy is not installed (``pip install pmabayes[narx]``).
+    A polynomial NARX model of degree 2 with lags 1 to 4, its terms chosen by forward
+    regression with orthogonal least squares (FROLS, built in;
+    :mod:`~pmabayes.criticism.yardsticks.narx`).
 
 Each chooses its order on the training data alone: each candidate is fitted on the
 first :data:`TRAIN_SHARE` of every training record and scored on the rest (simulated
@@ -70,8 +70,8 @@ class Baselines:
     trained_on : list of str
         The training experiments' sources (or names).
     left_out : dict
-        Name to the one line saying why it was not fitted (SysIdentPy missing, records
-        too short for it).
+        Name to the one line saying why it was not fitted (records too short for it, every
+        candidate's free run diverging).
     """
 
     fitted: dict
@@ -164,8 +164,8 @@ def fit_baselines(datasets: Dataset | Sequence[Dataset]) -> Baselines:
     Returns
     -------
     Baselines
-        A yardstick that cannot be fitted here (SysIdentPy missing, records too short for
-        it) is in ``left_out`` with the reason, not an error.
+        A yardstick that cannot be fitted here (records too short for it, every
+        candidate's free run diverging) is in ``left_out`` with the reason, not an error.
 
     Raises
     ------

@@ -55,6 +55,7 @@ from pmabayes.inference.posterior import experiments as checked_experiments
 from pmabayes.model.effects import get_effect
 from pmabayes.model.linearise import LinearisationError
 from pmabayes.model.model import Model
+from pmabayes.outputs import check_folder_for_new_files
 from pmabayes.util import Progress, show_progress
 
 __all__ = ["diagnose"]
@@ -122,7 +123,7 @@ def _experiments(datasets, model: Model | None, effects: Iterable[str]
         models = [m.with_effects(*[e for e in effects if e not in m.effect_names])
                   for m in models]
     # a force-input rig's default priors on its data's scale, as the fit's: the muscle's
-    # left the RC column chiu (185 kN, 1360 kg) with no finite simulation (issue 22)
+    # left the RC column chiu (185 kN, 1360 kg) with no finite simulation
     models = [data_scaled_priors(m, dss)[0] for m in models]
     return dss, models, names
 
@@ -175,7 +176,7 @@ def diagnose(
     6. Then, with ``settings.discrepancy``, the missing force is estimated from the data
        (:func:`pmabayes.criticism.discrepancy.estimate_discrepancy`): the states it
        depends on, with their evidence, and a closed form written as a ready user effect
-       (a ``.py`` file for ``--plugin``, in ``plugin_dir``).
+       (a ``.py`` file for ``--plugin``, kept in ``plugin_dir`` when one is given).
 
     Several experiments (a sequence of data sets, each with its own input, rig
     and trials, as :func:`pmabayes.inference.sampler.fit` takes them) are diagnosed
@@ -217,9 +218,11 @@ def diagnose(
         Print what is being done to stderr, every stage's progress included
         (:func:`pmabayes.util.show_progress`).
     plugin_dir : str or Path or False, optional
-        Where the proposed effect's ``.py`` file is written (the current folder by
-        default; an existing file is never overwritten). False: it is checked in a
-        temporary folder and not kept.
+        The folder where the proposed effect's ``.py`` file is kept (created if
+        missing; a file there is never overwritten: a numbered name is chosen). It is
+        checked before any work (:func:`pmabayes.outputs.check_folder_for_new_files`).
+        None or False (the default): the file is checked in a temporary folder and not
+        kept; nothing is written anywhere else.
 
     Returns
     -------
@@ -232,7 +235,11 @@ def diagnose(
     ValueError
         On no data, or experiments of different input kinds
         (:class:`pmabayes.data.DataError`, naming the files).
+    pmabayes.outputs.OutputError
+        If ``plugin_dir`` is a file or cannot be written in (before any work).
     """
+    if plugin_dir is not None and plugin_dir is not False:
+        check_folder_for_new_files(plugin_dir, "plugin_dir")
     with show_progress("diagnose", progress):
         return _diagnose(datasets, model, effects, _checked(settings), seed, plugin_dir)
 

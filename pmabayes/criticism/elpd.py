@@ -8,8 +8,9 @@ import math
 import warnings
 
 import numpy as np
+from scipy.special import logsumexp
 
-__all__ = ["paired_difference", "laplace_loo", "loo_table"]
+__all__ = ["paired_difference", "laplace_loo", "psis_loo", "loo_table"]
 
 #: Fewest usable draws for PSIS-LOO (its Pareto tail needs at least 5 of them).
 _MIN_LOO_DRAWS = 25
@@ -75,8 +76,6 @@ def laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, c
     interval : dict
         ``(low, high)`` of each of ``names`` (NaN then too).
     """
-    import arviz as az
-
     z = rng.multivariate_normal(map_result.z, map_result.covariance_z, size=n_draws,
                                 method="eigh")
     theta = posterior.to_natural(z)
@@ -104,18 +103,59 @@ def laplace_loo(posterior, map_result, rng: np.random.Generator, n_draws: int, c
         # reported as null) rather than a crash, as on the RC column chiu's base model
         interval = {n: (float("nan"), float("nan")) for n in names}
         return float("nan"), np.full(pointwise.shape[1], np.nan), interval
-    tree = az.from_dict({"posterior": {"theta": theta[ok][None, :, 0]},
-                         "log_likelihood": {"position_m": pointwise[ok][None]}},
-                        dims={"position_m": ["trial"]})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # Pareto k is reported in the summary instead
-        loo = az.loo(tree, var_name="position_m")
     interval = {}
     for n in names:
         j = posterior.names.index(n)
         lo, hi = np.quantile(theta[ok][:, j], [tail, 1.0 - tail])
         interval[n] = (float(lo), float(hi))
-    return float(loo.elpd), np.asarray(loo.elpd_i).reshape(-1), interval
+    return (*psis_loo(pointwise[ok], theta[ok][:, 0]), interval)
+
+
+def psis_loo(pointwise: np.ndarray, draws: np.ndarray | None = None
+             ) -> tuple[float, np.ndarray]:
+    """The leave-one-unit-out ELPD of draws' pointwise log likelihoods, by PSIS.
+
+    Where Pareto smoothing cannot run (ArviZ raises when a unit's tail of importance
+    ratios has no spread: every draw gives that unit one log likelihood, as on a loaded
+    muscle's record whose stretch the draws all fit alike), each unit's term is the
+    plain importance-sampling estimate ``log S - logsumexp(-ll_i)``, exact for a unit
+    whose log likelihood does not vary.
+
+    Parameters
+    ----------
+    pointwise : numpy.ndarray
+        ``(draws, units)`` finite log likelihoods.
+    draws : numpy.ndarray, optional
+        One parameter's draws ``(draws,)``, the posterior group ArviZ asks for (zeros
+        by default).
+
+    Returns
+    -------
+    elpd : float
+    elpd_i : numpy.ndarray
+        Per unit.
+
+    Examples
+    --------
+    >>> ll = np.tile([-1.0, -2.0], (40, 1))
+    >>> elpd, elpd_i = psis_loo(ll)
+    >>> round(elpd, 6), elpd_i.round(6).tolist()
+    (-3.0, [-1.0, -2.0])
+    """
+    import arviz as az
+
+    draws = np.zeros(pointwise.shape[0]) if draws is None else draws
+    tree = az.from_dict({"posterior": {"theta": draws[None]},
+                         "log_likelihood": {"position_m": pointwise[None]}},
+                        dims={"position_m": ["trial"]})
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pareto k is reported in the summary instead
+            loo = az.loo(tree, var_name="position_m")
+        return float(loo.elpd), np.asarray(loo.elpd_i).reshape(-1)
+    except ValueError:
+        elpd_i = math.log(pointwise.shape[0]) - logsumexp(-pointwise, axis=0)
+        return float(elpd_i.sum()), elpd_i
 
 
 def loo_table(fits: list, labels: list) -> tuple[dict, list]:

@@ -71,6 +71,22 @@ def _rank_correlation(a: Sequence[float], b: Sequence[float]) -> float:
     return float(np.corrcoef(ra, rb)[0, 1])
 
 
+#: Two experiments' own estimates are apart when they differ by more than this many
+#: standard errors of their difference (Laplace, in the sampler's coordinates).
+APART_SE = 3.0
+
+
+def _apart(per: dict, names: list, param: str) -> bool:
+    """Whether some two experiments' own estimates of ``param`` differ beyond
+    :data:`APART_SE` standard errors (True where the uncertainties are not recorded):
+    a parameter one experiment cannot identify wanders without moving."""
+    points = [per[n].get("z_own", {}).get(param) for n in names]
+    if any(p is None for p in points):
+        return True
+    return any(abs(a[0] - b[0]) > APART_SE * math.hypot(a[1], b[1])
+               for i, a in enumerate(points) for b in points[i + 1:])
+
+
 def moving_parameters(agreement: dict, conditions: dict[str, list[float]]) -> list[dict]:
     """The parameters whose own estimates move between experiments, largest move first.
 
@@ -86,8 +102,10 @@ def moving_parameters(agreement: dict, conditions: dict[str, list[float]]) -> li
     -------
     list of dict
         ``parameter``, ``values`` (per experiment), ``factor`` (largest over smallest
-        magnitude), and ``follows``: the condition it follows best (``condition``,
-        ``correlation``, ``low``, ``high``: the conditions at the two ends), or None.
+        magnitude; only parameters whose own estimates differ beyond their
+        uncertainty, :data:`APART_SE`), and ``follows``: the condition it follows best
+        (``condition``, ``correlation``, ``low``, ``high``: the conditions at the two
+        ends), or None.
     """
     per = agreement.get("experiments") or {}
     names = list(per)
@@ -101,7 +119,7 @@ def moving_parameters(agreement: dict, conditions: dict[str, list[float]]) -> li
         if not np.all(np.isfinite(mags)) or mags.min() <= 0:
             continue
         factor = float(mags.max() / mags.min())
-        if factor < MOVES_FACTOR:
+        if factor < MOVES_FACTOR or not _apart(per, names, param):
             continue
         follows = None
         for cond, levels in conditions.items():
@@ -143,15 +161,20 @@ def trend_text(moving: list[dict], most: int = 3) -> str:
     for m in moving[:most]:
         f = m["follows"]
         if f is None:
-            parts.append(f"{m['parameter']} moves by x{m['factor']:.2g} with no declared "
-                         "condition it follows")
+            parts.append(f"{m['parameter']} moves by x{_times(m['factor'])} with no "
+                         "declared condition it follows")
             continue
         ratio = abs(f["at_high"] / f["at_low"]) if f["at_low"] else math.inf
         way = "rises" if abs(f["at_high"]) > abs(f["at_low"]) else "falls"
         parts.append(f"{m['parameter']} {way} with {f['condition']}, about "
-                     f"x{max(ratio, 1 / ratio):.2g} from {f['low']:.3g} to {f['high']:.3g} "
+                     f"x{_times(max(ratio, 1 / ratio))} from {f['low']:.3g} to {f['high']:.3g} "
                      f"({f['at_low']:.3g} to {f['at_high']:.3g})")
     return "; ".join(parts)
+
+
+def _times(factor: float) -> str:
+    """A factor with two significant digits, never in exponent form."""
+    return f"{factor:.2g}" if factor < 100 else f"{factor:.0f}"
 
 
 def agreement_change(base: dict | None, refits: Sequence) -> list[dict]:

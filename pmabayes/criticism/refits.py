@@ -250,7 +250,7 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
     ext_liks = [Likelihood(lik.model.with_effects(effect), lik.dataset, substeps=s.substeps)
                 for lik in base.likelihoods]
     for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
-        ext.use_ar_noise(lik.ar_noise)
+        ext.use_noise(lik.noise)
     ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng,
                                  base.noise_choices, refer=False)
     ext = ext_liks[0].model
@@ -384,15 +384,27 @@ def _explaining(refits: dict, s: DiagnoseSettings) -> list[Refit]:
     """The refits that predict held-out data clearly better (:func:`improves`) and
     account for the misfit: the refit is adequate, or it removes at least
     ``min_explained`` of the excess alone or with the candidate its own score test finds
-    next. Only where every experiment has a floor: without one (a record without
+    next; where the ΔELPD has no standard error, a positive one
+    (:func:`_gains_without_se`), as the floor judges the share. Only where every
+    experiment has a floor: without one (a record without
     repeats) the noise is identified with each model and takes in what the model
     leaves, so neither the share nor the adequacy says that the misfit is accounted for
     (:func:`partial_effect` names the best step there)."""
     if not _floors(refits):
         return []
-    return [r for r in refits.values() if improves(r)
+    return [r for r in refits.values() if (improves(r) or _gains_without_se(r))
             and (max(r.explained, r.explained_with_next) >= s.min_explained
                  or s.all_adequate(r.signatures))]
+
+
+def _gains_without_se(refit: Refit) -> bool:
+    """A refit whose ΔELPD is positive but has no standard error (one left-out unit: a
+    single periodic record, whose noise from its periods cannot leave a stretch out).
+    With a noise floor, the floor then judges it: :func:`_explaining` also asks that it
+    account for the misfit."""
+    return bool(refit.failed is None and refit.implausible is None
+                and math.isfinite(refit.elpd_diff) and not math.isfinite(refit.elpd_diff_se)
+                and refit.elpd_diff > 0.0)
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:

@@ -85,6 +85,7 @@ from pmabayes.inference.fitfile import (
     noise_models,
 )
 from pmabayes.inference.likelihood import Likelihood, measurement_noise
+from pmabayes.inference.trials import keep_trials
 from pmabayes.model.effects import EffectError
 from pmabayes.model.model import RIG_PREFIX, Model, ModelError, Rig
 from pmabayes.model.simulator import simulate, simulate_dataset
@@ -438,9 +439,9 @@ DEFINITIONS = {
     "baselines": "yardsticks fitted to the fit's training data in seconds, predicting the "
                  "same held-out input by free-run simulation: a linear output-error model, "
                  "a Prandtl-Ishlinskii model of play operators and a polynomial NARX model "
-                 "(SysIdentPy's FROLS; left out without it), each of an order chosen on the "
-                 "training data; their rmse_m and nrmse as the physics' (see "
-                 "pmabayes.criticism.baselines)",
+                 "(terms chosen by forward regression with orthogonal least squares), each "
+                 "of an order chosen on the training data; their rmse_m and nrmse as the "
+                 "physics' (see pmabayes.criticism.baselines)",
 }
 
 
@@ -903,6 +904,48 @@ def _with_training(training: _Training, ds: Dataset, y: np.ndarray, q: float,
     return out
 
 
+def _fitted_trials(tree: xr.DataTree) -> dict[str, set[int]]:
+    """The trial ids a fit was fitted on, by the resolved path of their file (a fit
+    made before its file recorded them: from its stored data and their sources)."""
+    out: dict[str, set[int]] = {}
+    rebuilt: list[Dataset] | None = None
+    for k, exp in enumerate(fit_info(tree).get("experiments") or []):
+        path, ids = exp.get("source_path"), exp.get("trial_ids")
+        if ids is None or (path is None and exp.get("source")):
+            try:
+                rebuilt = experiment_datasets(tree) if rebuilt is None else rebuilt
+            except (DataError, KeyError, ValueError):
+                return out  # no data stored to tell: nothing to refuse
+            ds = rebuilt[k]
+            ids = [int(i) for i in ds.trial_ids] if ids is None else ids
+            path = path or (ds.source_file and os.path.realpath(ds.source_file))
+        if path:
+            out.setdefault(path, set()).update(int(i) for i in ids)
+    return out
+
+
+def _refuse_fitted(ds: Dataset, fitted: dict[str, set[int]], fit_where: str) -> None:
+    """A trial the fit was fitted on is not held out: refused, naming it and the fix."""
+    if not ds.source_file:
+        return
+    ids = fitted.get(os.path.realpath(ds.source_file))
+    have = [int(i) for i in ds.trial_ids]
+    both = [i for i in have if ids and i in ids]
+    if not both:
+        return
+    left = [i for i in have if i not in both]
+    fix = (f"validate on the trials it left out: trials={left} (on the command line: "
+           f"--trials {','.join(map(str, left))})" if left else
+           "hold trials out when fitting (pmabayes.fit(data, trials=[...])) and validate on "
+           "the others (validate(fit, data, trials=[...]))")
+    raise ValidationError(
+        f"{ds.source_file}: trial{'s' if len(both) > 1 else ''} {', '.join(map(str, both))} "
+        f"{'were' if len(both) > 1 else 'was'} fitted ({fit_where} was made from trials "
+        f"{', '.join(map(str, sorted(ids)))} of this file), so "
+        f"{'they are' if len(both) > 1 else 'it is'} not held out and the numbers would "
+        f"measure the fit, not a prediction; {fix}")
+
+
 def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_from: str | None,
          substeps: int, rng: np.random.Generator, tree: xr.DataTree,
          training: _Training, start_fraction: float = START_FRACTION) -> ExperimentValidation:
@@ -1060,6 +1103,7 @@ def validate(
     noise_from: str | None = None,
     substeps: int | None = None,
     start_fraction: float = START_FRACTION,
+    trials: Sequence[int] | None = None,
 ) -> Validation:
     """Predict held-out experiments with a fit's posterior and compare with their data.
 
@@ -1091,6 +1135,10 @@ def validate(
         For a held-out data set whose start is declared ``"estimate"``: the first part
         of its record (a fraction, :data:`START_FRACTION`) from which each draw's start
         is estimated (see the module's docstring).
+    trials : sequence of int, optional
+        Validate only these trials (ids, as in the file's ``trial`` column) of the
+        data, which must come from one file: the trials a fit held out of it
+        (:func:`pmabayes.fit` with ``trials=``). All of them by default.
 
     Returns
     -------
@@ -1102,7 +1150,10 @@ def validate(
     ValidationError
         For a data set the fit cannot predict (a different input kind, a rig whose
         parameters the fit lacks, trials with different inputs), a fit without
-        noise draws, or bad settings.
+        noise draws, or bad settings; and for a trial the fit was fitted on (the same
+        file and trial id, as the fit file records them), which is not held out.
+    DataError
+        When ``trials`` names an id the data do not hold, or data of several files.
     """
     if not (isinstance(n_draws, int | np.integer) and not isinstance(n_draws, bool)
             and n_draws >= 2):
@@ -1125,6 +1176,11 @@ def validate(
     for d in datasets:
         if not isinstance(d, Dataset):
             raise TypeError(f"datasets must be Datasets or paths, got {type(d).__name__}")
+    if trials is not None:
+        datasets = keep_trials(datasets, trials)
+    fitted = _fitted_trials(tree)
+    for d in datasets:
+        _refuse_fitted(d, fitted, fit_path or "the fit")
     fit = _read_fit(tree, fit_path or "the fit")
     if substeps is None:
         substeps = int(fit_info(tree).get("substeps", 1))

@@ -15,6 +15,7 @@ import numbers
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -711,6 +712,21 @@ class Dataset:
         them as not observed (an unknown start's transient, a sensor settling).
         """
         return float(self.metadata.get("warmup_s", 0.0))
+
+    @property
+    def source_file(self) -> str | None:
+        """The file the data were read from: :attr:`source`, less a segment's ``#i``
+        (``dir/stem#2.csv`` is a segment of ``dir/stem.csv``); None without a source.
+
+        Trial ids, and what is said once about a file, belong to the file.
+        """
+        if self.source is None:
+            return None
+        seg = self.metadata.get("segment")
+        if isinstance(seg, dict) and isinstance(seg.get("name"), str) and "#" in seg["name"]:
+            path = Path(self.source)
+            return str(path.with_name(seg["name"].rpartition("#")[0] + path.suffix))
+        return self.source
 
     @property
     def n_trials(self) -> int:

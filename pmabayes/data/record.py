@@ -202,7 +202,7 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
     if table.read_columns is not None:
         del meta["columns"]  # a directive for reading this file, not for what is written
         meta["read_columns"] = table.read_columns
-    meta = converted(table.columns, where, meta, declare)
+    meta = converted(table.columns, where, meta, declare, table.headers)
     rate = _positive_rate(metadata)
     starts, ends, run_ids = _check_blocks(trial, where, first)
     if "time_s" in v:

@@ -1,8 +1,11 @@
-"""The JSON sidecar beside a data file: where it is and how it is read (one object, UTF-8)."""
+"""The JSON sidecar beside a data file: where it is and how it is read (one object, UTF-8);
+and what is said about a file once per process (:func:`say_once`)."""
 
 from __future__ import annotations
 
 import json
+import os
+import warnings
 from pathlib import Path
 
 from pmabayes.data.dataset import (
@@ -35,3 +38,40 @@ def _read_sidecar(sidecar: Path) -> dict:
             'object; wrap the metadata in {...} (e.g. {"description": "..."}).'
         )
     return meta
+
+
+#: What has been said, this process: (the file, what) pairs (:func:`say_once`).
+_SAID: set[tuple[str, str]] = set()
+
+
+def say_once(file: str, what: str, warning: Warning, skip: tuple[str, ...] = ()) -> bool:
+    """Warn ``warning`` once per process for a file and a subject.
+
+    A file read again by the same process (a command's second reading, a notebook's
+    second cell) says nothing new, so it is said the first time only.
+
+    Parameters
+    ----------
+    file : str
+        The file the warning is about; its resolved path is the key, so that
+        ``data/a.csv`` and ``./data/a.csv`` are one file.
+    what : str
+        What is said (e.g. the conversion), the key's second part: something new
+        about the same file is said.
+    warning : Warning
+        The warning.
+    skip : tuple of str
+        Folders whose frames the warning skips (``skip_file_prefixes``), so that it
+        points at the caller's line.
+
+    Returns
+    -------
+    bool
+        Whether it was said now.
+    """
+    key = (os.path.realpath(file), what)
+    if key in _SAID:
+        return False
+    _SAID.add(key)
+    warnings.warn(warning, skip_file_prefixes=skip)
+    return True

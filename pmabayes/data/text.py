@@ -3,36 +3,43 @@ columns, or a headerless file whose columns a sidecar's ``"columns"`` map names.
 
 Column names carry their unit (:data:`pmabayes.data.units.UNITS`): ``time_ms``,
 ``pressure_psi``, ``position_mm`` are read and converted to ``time_s``,
-``pressure_pa``, ``position_m``. A headerless file (comma- or whitespace-separated,
-one value a line included) is read only through ``"columns"``, which names columns
-by number from 1, e.g. ``{"columns": {"3": "time_s", "4": "pressure_psi", "5":
-"position_mm"}}``; columns it does not name are not read, and a first line that is
-not numbers (the lab's own header) is skipped. :func:`read_columns` reads named
-columns of any such file, for records whose signals are in separate files.
+``pressure_pa``, ``position_m``; a header may write them as people do
+(``Time (s)``, ``Pressure (psi)``, ``Position [mm]``, ``Trial``: case and spaces free,
+:func:`pmabayes.data.units.header_name`). A header pmabayes does not recognise is
+refused with a sidecar ``"columns"`` map for it as the alternative. A headerless file
+(comma- or whitespace-separated, one value a line included) is read only through
+``"columns"``, which names columns by number from 1, e.g. ``{"columns": {"3":
+"time_s", "4": "pressure_psi", "5": "position_mm"}}`` (and ``"trial"`` for a column of
+trial ids); columns it does not name are not read, and a first line that is not
+numbers (the lab's own header) is skipped. :func:`read_columns` reads named columns of
+any such file, for records whose signals are in separate files.
 """
 
 from __future__ import annotations
 
 import decimal
 import difflib
+import json
 import math
 import os
-import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from pmabayes.data.dataset import INPUT_NAMES, DataError, DataWarning
+from pmabayes.data.sidecar import say_once
 from pmabayes.data.units import (
     _HERE,
     UNITS,
     _record,
     _said,
+    header_name,
     quantity,
     role_problems,
     to_si,
+    unit_guess,
     unknown_unit,
 )
 
@@ -58,6 +65,7 @@ class _Table:
     first_line: int  # the file's line of row 0
     printed_step: Callable[[], float | None]  # the time column's printed precision, in s
     read_columns: dict[str, str] | None = None  # a headerless file's "columns" map
+    headers: dict[str, str] = field(default_factory=dict)  # name -> the header's own text
 
 
 def _is_number(text: str) -> bool:
@@ -124,40 +132,67 @@ def _printed_step(rows: list[str], column: int, delimiter: str | None = ",") -> 
 # ----------------------------------------------------------------------------- with a header
 
 
+def _canonical(text: str) -> str:
+    """The name pmabayes reads for a header field (``Pressure (psi)`` -> ``pressure_psi``),
+    or the field itself where it is not one (named as it is in messages)."""
+    name = header_name(text)
+    if name is not None and (name in UNITS or name == "trial" or quantity(name)):
+        return name
+    return text.strip()
+
+
+def _columns_example(raw: list[str], names: list[str], roles: list[str]) -> str:
+    """A sidecar ``"columns"`` map for this header: each column recognised by its
+    name, each other by a guess from its unit or spelling (left out without one)."""
+    spec = {}
+    for i, (text, name) in enumerate(zip(raw, names, strict=True)):
+        guess = name if name in UNITS or name == "trial" else unit_guess(text, roles)
+        if guess is not None:
+            spec[str(i + 1)] = guess
+    return json.dumps({"columns": spec})
+
+
 def _parse_header(fields: list[str], where: str, has_rate: bool = False
-                  ) -> tuple[list[str], str]:
-    """Validate the header; return the column names and the input's SI name."""
+                  ) -> tuple[list[str], str, dict[str, str]]:
+    """Validate the header; return the column names (as :data:`UNITS` spells them), the
+    input's SI name and the header's own text of each name it spells otherwise."""
     problems = []
-    names = [f.strip() for f in fields]
-    if all(_is_number(n) for n in names if n):
+    raw = [f.strip() for f in fields]
+    if all(_is_number(n) for n in raw if n):
         raise DataError(
             f"{where}: line 1: expected a header line such as "
             f"'trial,time_s,pressure_pa,position_m', got {','.join(fields)!r}; "
             "add the header as the first line (or name a headerless file's columns in the "
             'sidecar: "columns": {"1": "time_s", ...}).'
         )
+    names = [_canonical(n) if n else n for n in raw]
     for i, n in enumerate(names):
         if not n:
             problems.append(f"column {i + 1} has an empty name (stray comma?)")
     seen: dict[str, int] = {}
     for i, n in enumerate(names):
         if n and n in seen:
-            problems.append(f"column {n!r} appears twice (columns {seen[n] + 1} and {i + 1})")
+            j = seen[n]
+            both = (f" ({raw[j]!r} and {raw[i]!r} are both {n})" if raw[i] != raw[j] else "")
+            problems.append(f"column {n!r} appears twice (columns {j + 1} and {i + 1}){both}")
         seen.setdefault(n, i)
     present = {UNITS[n][0] for n in names if n in UNITS} | ({"trial"} & set(names))
     inputs = [n for n in INPUT_NAMES if n in present]
     problems += role_problems(list(dict.fromkeys(n for n in names if n)))
     absent = [n for n in _ROLES if n not in present]
     candidates = absent + ([] if inputs else list(INPUT_NAMES))
-    for n in names:
+    unread = False
+    for text, n in zip(raw, names, strict=True):
         if not n or n in UNITS or n == "trial":
             continue
-        if quantity(n):
-            problems.append(unknown_unit(n))
+        if quantity(n):  # a unit no map can convert: the fix is in the values
+            read = f"{text!r} is {n}: " if text != n else ""
+            problems.append(read + unknown_unit(n))
             continue
-        match = difflib.get_close_matches(n.lower(), candidates, n=1, cutoff=0.6)
-        hint = f" ('{n}' looks like '{match[0]}')" if match else ""
-        problems.append(f"unexpected column {n!r}{hint}")
+        unread = True
+        guess = unit_guess(text, candidates)
+        hint = f" ('{text}' looks like '{guess}')" if guess else ""
+        problems.append(f"unexpected column {text!r}{hint}")
     for n in absent:
         if n == "position_m" or (n == "time_s" and not has_rate):
             problems.append(f"missing column {n!r}")
@@ -165,11 +200,19 @@ def _parse_header(fields: list[str], where: str, has_rate: bool = False
         problems.append("missing input column: need one of 'pressure_pa' or 'force_n' (or "
                         "the same in other units)")
     if problems:
+        columns = ""
+        if unread:
+            columns = (
+                " Or keep the header and name the columns in a sidecar "
+                f"{Path(where).with_suffix('.json').name} beside it, by number from 1 (the "
+                "header line is then skipped, and columns it does not name are not read), e.g. "
+                f"{_columns_example(raw, names, candidates)}")
         raise DataError(
             f"{where}: line 1 (header): " + "; ".join(problems) + f". The {_EXPECTED_TEXT}; "
-            "rename, add or remove columns to match."
+            "rename, add or remove columns to match." + columns
         )
-    return names, inputs[0]
+    headers = {n: text for text, n in zip(raw, names, strict=True) if text != n}
+    return names, inputs[0], headers
 
 
 def _scan_rows(lines: list[str], names: list[str], where: str) -> None:
@@ -247,7 +290,7 @@ def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
             f"{where}: file is empty; expected a header line "
             "'trial,time_s,pressure_pa,position_m' followed by one row per sample."
         )
-    names, input_name = _parse_header(lines[0].split(","), where, has_rate)
+    names, input_name, headers = _parse_header(lines[0].split(","), where, has_rate)
     rows = lines[1:]
     if not rows:
         raise DataError(
@@ -263,7 +306,7 @@ def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
         col, factor = names.index(si["time_s"]), UNITS[si["time_s"]][1]
         step = _scaled(lambda: _printed_step(rows, col), factor)
     return _Table(values, {s: n for s, n in si.items() if s != "trial"}, input_name, 2,
-                  step or (lambda: None))
+                  step or (lambda: None), headers=headers)
 
 
 def _scaled(step: Callable[[], float | None], factor: float) -> Callable[[], float | None]:
@@ -423,7 +466,7 @@ def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[
     Warns
     -----
     DataWarning
-        Once, naming each unit converted to SI.
+        Once per file and process, naming each unit converted to SI.
     """
     path = Path(path)
     where = str(path)
@@ -432,9 +475,10 @@ def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[
     names = {UNITS[n][0]: n for n in spec.values() if n in UNITS}
     record = _record(names)
     if record:
-        warnings.warn(DataWarning(f"{where}: units converted to SI on reading: "
-                                  f"{_said(record)}; the arrays returned are SI."),
-                      skip_file_prefixes=_HERE)
+        said = _said(record)
+        say_once(where, f"units: {said}", DataWarning(
+            f"{where}: units converted to SI on reading: {said}; the arrays returned are "
+            "SI (said once per file)."), _HERE)
     out = {s: to_si(raw[n], n) for s, n in names.items()}
     if "trial" in raw:
         out["trial"] = raw["trial"]

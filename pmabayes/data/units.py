@@ -6,18 +6,21 @@ A column (a CSV header's name, a sidecar ``"columns"`` entry, a ``"mat_variables
 role) is named ``<quantity>_<unit>``; :data:`UNITS` lists every name pmabayes reads.
 A name whose quantity pmabayes reads but whose unit it does not know is refused with
 the known units and the near match (``position_cm``: multiply by 10 and name the
-column ``position_mm``).
+column ``position_mm``). A CSV header may write the unit as people do:
+``Pressure (psi)``, ``Position [mm]``, ``Time (s)``, ``Force [kN]``, ``TIME_MS`` (case
+and spaces free) are read as ``pressure_psi``, ``position_mm``, ... (:func:`header_name`).
 """
 
 from __future__ import annotations
 
 import difflib
-import warnings
+import re
 from pathlib import Path
 
 import numpy as np
 
 from pmabayes.data.dataset import DataError, DataWarning, _fmt
+from pmabayes.data.sidecar import say_once
 
 #: warnings point at the caller's line, outside the data package
 _HERE = (str(Path(__file__).parent),)
@@ -66,6 +69,68 @@ def quantity(name: str) -> str | None:
     return head if head in {n.split("_")[0] for n in UNITS} and "_" in name else None
 
 
+#: a header's quantity and unit as people write them: ``Pressure (psi)``,
+#: ``Position [mm]``, ``time_ms``, ``Time s``
+_HEADER = re.compile(r"([a-z]+)\s*(?:\(\s*([a-z]+)\s*\)|\[\s*([a-z]+)\s*\]|[_\s]+([a-z]+))")
+
+
+def header_name(text: str) -> str | None:
+    """The column name a CSV header's text stands for, as :data:`UNITS` spells it.
+
+    ``Pressure (psi)`` -> ``pressure_psi``, ``Position [mm]`` -> ``position_mm``,
+    ``Time (s)`` -> ``time_s``, ``TIME_MS`` -> ``time_ms``, ``Trial`` -> ``trial``: case
+    and spaces free, the unit after an underscore or a space, or in ``()`` or ``[]``
+    (``µm`` is ``um``). The result may name a unit pmabayes does not read
+    (``pressure_atm``: :func:`quantity` and :func:`unknown_unit` say so) or a quantity
+    it does not know (``displacement_mm``).
+
+    Parameters
+    ----------
+    text : str
+        A header field.
+
+    Returns
+    -------
+    str or None
+        ``quantity_unit`` or ``trial``; None for text of another shape.
+    """
+    t = text.strip().lower().replace("\u00b5", "u").replace("\u03bc", "u")
+    if t == "trial":
+        return t
+    m = _HEADER.fullmatch(t)
+    if m is None:
+        return None
+    unit = next(u for u in m.groups()[1:] if u)
+    return f"{m.group(1)}_{unit}"
+
+
+def unit_guess(text: str, roles: list[str]) -> str | None:
+    """The name pmabayes reads that a header not recognised may stand for.
+
+    Parameters
+    ----------
+    text : str
+        The header field.
+    roles : list of str
+        The SI names the header does not give yet (``position_m``, ...).
+
+    Returns
+    -------
+    str or None
+        By the field's unit where that unit has one quantity among ``roles``
+        (``Displacement (mm)`` -> ``position_mm``), else by spelling; None without a
+        near match.
+    """
+    name = header_name(text)
+    if name is not None and "_" in name:
+        unit = name.split("_", 1)[1]
+        by_unit = [n for n in UNITS if n.split("_", 1)[1] == unit and UNITS[n][0] in roles]
+        if len(by_unit) == 1:
+            return by_unit[0]
+    match = difflib.get_close_matches(text.strip().lower(), roles, n=1, cutoff=0.6)
+    return match[0] if match else None
+
+
 def unknown_unit(name: str) -> str:
     """Why ``name`` (a known quantity with an unknown unit) is refused, and the fix."""
     q = quantity(name)
@@ -90,10 +155,26 @@ def to_si(values: np.ndarray, name: str) -> np.ndarray:
     return values * factor
 
 
-def _said(record: dict[str, dict]) -> str:
-    """The conversions of a record, for a message: ``pressure_psi (psi) x 6894.757 -> ...``."""
+def from_si(values: np.ndarray, name: str) -> np.ndarray:
+    """SI values in the unit of column ``name``: the inverse of :func:`to_si`, for files
+    written in the units a user's files use."""
+    factor = UNITS[name][1]
+    if factor == 1.0:
+        return values
+    if factor in _DIVISORS:
+        return values * _DIVISORS[factor]
+    return values / factor
+
+
+def _said(record: dict[str, dict], headers: dict[str, str] | None = None) -> str:
+    """The conversions of a record, for a message: ``pressure_psi (psi) x 6894.757 -> ...``,
+    or ``'Pressure (psi)' x 6894.757 -> ...`` where ``headers`` gives the file's own text
+    of a column name."""
+    headers = headers or {}
     return "; ".join(
-        f"{r['from']} ({_SYMBOL[r['from'].split('_', 1)[1]]}) x {_fmt(r['factor'])} -> {si} "
+        (repr(headers[r["from"]]) if r["from"] in headers else
+         f"{r['from']} ({_SYMBOL[r['from'].split('_', 1)[1]]})")
+        + f" x {_fmt(r['factor'])} -> {si} "
         f"({_SYMBOL[si.split('_', 1)[1]]})"
         + (" (negated: the sidecar's position_sign is -1)" if r["factor"] < 0 else "")
         for si, r in record.items())
@@ -128,10 +209,14 @@ def signed(x: np.ndarray, metadata: dict, declare: str) -> np.ndarray:
     return -x if position_sign(metadata, declare) < 0 else x
 
 
-def converted(names: dict[str, str], where: str, metadata: dict, declare: str) -> dict:
+def converted(names: dict[str, str], where: str, metadata: dict, declare: str,
+              headers: dict[str, str] | None = None) -> dict:
     """Warn once for a file's unit conversions; the metadata with their record added.
 
-    ``names`` maps each SI name to the column it was read from. The record, under
+    ``names`` maps each SI name to the column it was read from; ``headers`` a column
+    name to the header's own text where it differs (``Pressure (psi)``). The warning
+    is said once per file and conversion in a process (:func:`~pmabayes.data.sidecar.say_once`:
+    ``where`` is the file); the record is added at every reading. The record, under
     ``"converted_units"`` (only when something was converted), maps the SI name to
     ``{"from": column, "factor": f}``. A sidecar's ``"position_sign": -1`` (positions
     negated on reading, :func:`signed`) is a factor of -1 in the position's record, and
@@ -149,10 +234,11 @@ def converted(names: dict[str, str], where: str, metadata: dict, declare: str) -
         raise DataError(
             f"{declare}: 'converted_units' is written by pmabayes when it converts a file's "
             "units, and this file's columns are converted again; remove it.")
-    warnings.warn(DataWarning(
+    said = _said(record, headers)
+    say_once(where, f"units: {said}", DataWarning(
         f"{where}: units converted to SI on reading, as the column names say: "
-        f"{_said(record)}. The data set holds SI values; its metadata 'converted_units' "
-        "records the conversion."), skip_file_prefixes=_HERE)
+        f"{said}. The data set holds SI values; its metadata 'converted_units' "
+        "records the conversion."), _HERE)
     return {**metadata, "converted_units": record}
 
 

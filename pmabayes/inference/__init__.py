@@ -81,6 +81,7 @@ from pmabayes.inference.trials import (
     TrialWarning,
     check_trials,
     exclude_trials,
+    keep_trials,
     parse_trial_ids,
 )
 
@@ -114,6 +115,7 @@ __all__ = [
     "TrialCheck",
     "check_trials",
     "exclude_trials",
+    "keep_trials",
     "parse_trial_ids",
     "estimate_noise",
     "group_noise",

@@ -113,8 +113,8 @@ class Posterior:
         self.likelihood = (liks[0] if len(liks) == 1
                            else JointLikelihood(liks, self.experiment_names))
         self.noise_choices: list[NoiseChoice] = [
-            c if c is not None else NoiseChoice("ar1" if lik.ar_noise is None else "ar",
-                                                lik.ar_noise, math.nan)
+            c if c is not None else NoiseChoice(lik.noise.name, lik.ar_noise, math.nan,
+                                                model=lik.noise)
             for c, lik in zip(noise_choices or [None] * len(liks), liks, strict=True)]
         self.noise = self.group_noise[0]
         self.model = liks[0].model
@@ -197,7 +197,8 @@ class Posterior:
         self._free_cols = np.array([slot[n] for n in names], dtype=int)
 
     def noise_of(self, experiment: int, theta: np.ndarray | None = None) -> tuple:
-        """The noise ``(sigma, rho, white)`` of an experiment.
+        """The noise parameters of an experiment: ``(sigma, rho, white)`` for AR(1) +
+        white, its noise model's (:meth:`noise_names`) for a sampled one.
 
         Parameters
         ----------
@@ -225,7 +226,7 @@ class Posterior:
                         choice: NoiseChoice) -> None:
         """Replace a noise group's estimate from repeats and its experiments' noise model.
 
-        The group's likelihoods must already use ``choice`` (``use_ar_noise``); used
+        The group's likelihoods must already use ``choice`` (``use_noise``); used
         when the periods of a record from rest are referred to the model
         (:func:`pmabayes.inference.search.find_map`).
         """
@@ -248,17 +249,27 @@ class Posterior:
         Returns
         -------
         dict
-            ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``: floats for one
+            Each noise parameter (:meth:`noise_names`: ``sigma_noise_m``,
+            ``rho_noise`` and ``sigma_white_m`` for AR(1) + white): floats for one
             experiment, ``{experiment name: value}`` for several.
         """
         theta = np.asarray(theta, dtype=float).reshape(1, -1)
         per = [[float(np.asarray(v).reshape(-1)[0]) for v in self.noise_of(e, theta)]
                for e in range(self.n_experiments)]
-        keys = [p.name for p in NOISE_PARAMETERS]
+        keys = self.noise_names()
         if self.n_experiments == 1:
             return dict(zip(keys, per[0], strict=True))
         return {k: {n: per[e][j] for e, n in enumerate(self.experiment_names)}
                 for j, k in enumerate(keys)}
+
+    def noise_names(self) -> list[str]:
+        """The noise parameters' names (:meth:`noise_of`'s order): the sampled noise
+        model's, else AR(1) + white's (:data:`~pmabayes.inference.noise.NOISE_PARAMETERS`),
+        which the repeats give. The experiments of one fit share one noise model."""
+        for e in range(self.n_experiments):
+            if self.noise_sampled(e):
+                return [p.name for p in self.likelihoods[e].noise_parameters()]
+        return [p.name for p in NOISE_PARAMETERS]
 
     @property
     def ndim(self) -> int:

@@ -21,7 +21,8 @@ import xarray as xr
 from pmabayes import __version__
 from pmabayes.data import DataError, Dataset
 from pmabayes.inference.density import Posterior
-from pmabayes.inference.likelihood import NOISE_PARAMETERS, ArNoise, Likelihood, measurement_noise
+from pmabayes.inference.likelihood import NOISE_PARAMETERS, ArNoise, Likelihood
+from pmabayes.inference.noise import NoiseModel, noise_model_from_record
 from pmabayes.model.model import PAPER_VALUES, Model, Rig
 from pmabayes.model.parameters import parse_prior
 from pmabayes.util import finite_or_none
@@ -36,6 +37,7 @@ __all__ = [
     "FIT_METADATA",
     "experiment_models",
     "noise_models",
+    "fit_noise_models",
     "FitFileError",
     "is_fit_file",
     "save_fit",
@@ -85,7 +87,7 @@ def fit_tree(posterior: Posterior, z: np.ndarray, lp_z: np.ndarray, ensemble: np
     pointwise = [_pointwise(posterior, e, theta, *noise[e])
                  for e in range(posterior.n_experiments)]
     pick = rng.choice(theta.shape[0], size=min(ppc_draws, theta.shape[0]), replace=False)
-    preds = [_predictive(posterior, e, theta, *noise[e], pick, rng)
+    preds = [_predictive(posterior, e, theta, *noise[e], pick, rng=rng)
              for e in range(posterior.n_experiments)]
     model_post = {n: theta[:, j].reshape(n_chain, n_draw)
                   for j, n in enumerate(posterior.names[: posterior.n_model])}
@@ -96,7 +98,7 @@ def fit_tree(posterior: Posterior, z: np.ndarray, lp_z: np.ndarray, ensemble: np
             if posterior.n_experiments > 1:
                 name = f"{name}__{posterior.experiment_names[e]}"
             model_post[name] = theta[:, c].reshape(n_chain, n_draw)
-    keys = [p.name for p in NOISE_PARAMETERS]
+    keys = posterior.noise_names()
     if posterior.n_experiments == 1:
         tree = _single_tree(posterior.likelihoods[0], model_post, keys, noise[0], lp,
                             pointwise[0], preds[0], n_chain, n_draw)
@@ -190,34 +192,31 @@ def _multi_tree(posterior: Posterior, model_post: dict, keys, noise, lp, pointwi
     return tree
 
 
-def _pointwise(posterior: Posterior, e: int, theta, sigma, rho, white) -> np.ndarray:
+def _pointwise(posterior: Posterior, e: int, theta, *noise) -> np.ndarray:
     """Per-trial log-likelihood of every draw for experiment ``e``, in chunks."""
     lik = posterior.likelihoods[e]
-    sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
-                         for v in (sigma, rho, white))
+    noise = [np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],)) for v in noise]
     out = np.empty((theta.shape[0], lik.n_trials))
     for a in range(0, theta.shape[0], 512):
         sl = slice(a, a + 512)
         x = posterior.simulate(theta[sl], e)
-        out[sl] = lik.pointwise(x, sigma[sl], rho[sl], white[sl])
+        out[sl] = lik.pointwise(x, *(v[sl] for v in noise))
     return out
 
 
-def _predictive(posterior: Posterior, e: int, theta, sigma, rho, white, pick: np.ndarray,
+def _predictive(posterior: Posterior, e: int, theta, *noise_and_pick,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Picked draws' model output for experiment ``e`` (per trial, ``(draws, trials,
-    n)``, for trials with their own inputs), and trials made from it with fresh noise."""
+    n)``, for trials with their own inputs), and trials made from it with fresh noise
+    of the likelihood's own noise model (``noise_and_pick``: the noise parameters,
+    then the picked draws' indices)."""
+    *noise, pick = noise_and_pick
     lik = posterior.likelihoods[e]
-    sigma, rho, white = (np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],))
-                         for v in (sigma, rho, white))
+    noise = [np.broadcast_to(np.asarray(v, dtype=float), (theta.shape[0],)) for v in noise]
     x_pp = posterior.simulate(theta[pick], e)
     x_pp = lik._by_trial(x_pp) if lik.own_inputs else x_pp
-    if lik.ar_noise is not None:  # the likelihood's own noise model: the repeats' AR(p)
-        noise = lik.ar_noise.draw(len(pick) * lik.n_trials, lik.n_samples, rng)
-    else:
-        noise = measurement_noise(len(pick) * lik.n_trials, lik.n_samples,
-                                  *(np.repeat(v[pick], lik.n_trials)
-                                    for v in (sigma, rho, white)), rng)
+    noise = lik.noise.draw(len(pick) * lik.n_trials, lik.n_samples,
+                           tuple(np.repeat(v[pick], lik.n_trials) for v in noise), rng)
     y_pp = ((x_pp if lik.own_inputs else x_pp[:, None, :])
             + noise.reshape(len(pick), lik.n_trials, lik.n_samples))
     return y_pp, x_pp
@@ -265,18 +264,22 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
                          "prior": str(prior), "bounds": p.bounds, "fixed": False,
                          "description": p.description, "source": "experiment"})
     sampled = {p.name: p for p in posterior.parameters[posterior.n_model:]}
-    for p in NOISE_PARAMETERS:
-        p = sampled.get(p.name, p)  # a sampled noise's prior (guarded, on the data's scale)
+    noise_names = posterior.noise_names()
+    known = {p.name: p for p in (*posterior.likelihoods[0].noise_parameters(),
+                                 *NOISE_PARAMETERS)}
+    for name in noise_names:
+        p = sampled.get(name, known[name])  # a sampled noise's prior (guarded, data's scale)
         rows.append({"name": p.name, "unit": p.unit, "default": p.default,
                      "prior": str(p.prior), "bounds": p.bounds, "fixed": False,
                      "description": p.description, "source": "noise"})
     for row in rows:
         row["bounds"] = [float(b) for b in row["bounds"]]
     source = noise_values if noise_values is not None else (map_record.get("values") or {})
-    noise_map = {k: source.get(k) for k in (p.name for p in NOISE_PARAMETERS)}
+    noise_map = {k: source.get(k) for k in noise_names}
     experiments = experiment_records(posterior, noise_map, map_record.get("values"))
-    sources = {"own inputs" if e.get("own_inputs") else e["noise_source"]
-               for e in experiments}
+    sources = {"sampled" if not c.model.from_repeats else
+               "own inputs" if e.get("own_inputs") else e["noise_source"]
+               for e, c in zip(experiments, posterior.noise_choices, strict=True)}
     estimated_from = "; ".join(
         text for key, text in (
             ("trials", "deviations of the trials from their mean (repeatability); posterior by "
@@ -288,14 +291,13 @@ def set_fit_info(tree: xr.DataTree, posterior: Posterior, *, map_record: dict,
             ("periods", "deviations of the periods of a single periodic record from their "
                         "mean; posterior by Laplace approximation, independent draws"),
             ("record", "the record itself, jointly with the model (sampled), the disturbance's "
-                       "correlation time bounded far below the input's time scales"))
+                       "correlation time bounded far below the input's time scales"),
+            ("sampled", "the data themselves, jointly with the model (sampled)"))
         if key in sources)
-    noise = {"model": ("AR(1) disturbance plus white sensor noise per trial, stationary, "
-                       "independent between trials"
-                       + ("" if all(c.ar is None for c in posterior.noise_choices) else
-                          "; where the repeats reject it, the likelihood uses their AR(p) "
-                          "model (experiments[i].noise_model)")),
-             "parameters": [p.name for p in NOISE_PARAMETERS],
+    texts = list(dict.fromkeys(c.model.description for c in posterior.noise_choices))
+    # a text another extends (AR(1) + white's, by the repeats' AR(p)'s) is said once
+    texts = [t for t in texts if not any(o != t and o.startswith(t) for o in texts)]
+    noise = {"model": "; ".join(texts), "parameters": noise_names,
              "estimated_from": estimated_from, **noise_map}
     if posterior.n_experiments == 1:
         ds = posterior.likelihoods[0].dataset
@@ -368,8 +370,9 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         (the paper's cost at the MAP, None without it),
         ``noise_floor_m`` (None without repeats; of the trials' residuals at
         the MAP for trials with their own inputs; of a periodic record's periods,
-        :attr:`pmabayes.inference.likelihood.Likelihood.periods_noise_floor_m`), ``synthetic`` and
-        ``metadata`` (the data set's, to rebuild it).
+        :attr:`pmabayes.inference.likelihood.Likelihood.periods_noise_floor_m`), ``synthetic``,
+        ``metadata`` (the data set's, to rebuild it), ``trial_ids`` (the trials fitted) and
+        ``source_path`` (the resolved path of its file, None without a source).
     """
     noise_map = noise_map or {}
     map_values = map_values or {}
@@ -385,7 +388,7 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ds = lik.dataset
         if posterior.noise_sampled(e):
             est = {}
-            for k in (p.name for p in NOISE_PARAMETERS):
+            for k in posterior.noise_names():
                 v = noise_map.get(k)
                 est[k] = v.get(name) if isinstance(v, dict) else v
         else:
@@ -406,6 +409,9 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
             "parameters": dict(posterior.identified[e]),
             "synthetic": bool(ds.metadata.get("synthetic", False)),
             "metadata": ds.metadata,
+            # which trials of which file were fitted: validate refuses them as held out
+            "trial_ids": [int(i) for i in ds.trial_ids],
+            "source_path": ds.source_file and os.path.realpath(ds.source_file),
         })
         out[-1].update(_likelihood_record(posterior, e))
     return out
@@ -593,10 +599,36 @@ def noise_models(tree: xr.DataTree) -> list[ArNoise | None]:
         In the fit's experiment order: the AR(p) of the repeats, or None for AR(1)
         + white (and for fits written before noise models were recorded).
     """
+    return [getattr(m, "ar", None) for m in fit_noise_models(tree)]
+
+
+def fit_noise_models(tree: xr.DataTree) -> list[NoiseModel]:
+    """The noise model object each experiment's likelihood used, rebuilt from a fit
+    (:func:`pmabayes.inference.noise.noise_model_from_record`).
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit.
+
+    Returns
+    -------
+    list of NoiseModel
+        In the fit's experiment order; AR(1) + white for fits written before noise
+        models were recorded.
+
+    Raises
+    ------
+    FitFileError
+        For a noise model no registered model has (a plugin's, not loaded).
+    """
     out = []
     for exp in _experiments_of(tree):
-        rec = exp.get("noise_model") or {}
-        out.append(ArNoise.from_dict(rec) if rec.get("autocovariance_m2") else None)
+        try:
+            out.append(noise_model_from_record(exp.get("noise_model")))
+        except KeyError as err:
+            raise FitFileError(f"{err.args[0]}: load the plugin that registers it "
+                               "(--plugin) before reading this fit") from None
     return out
 
 

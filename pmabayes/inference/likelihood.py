@@ -1,30 +1,61 @@
 """The likelihood of an experiment's trials under a model and a noise model.
 
-Each trial is the model's position plus an AR(1) disturbance and white sensor noise
-(or, where the repeats reject that, the repeats' AR(p)), independent between trials;
-the exact likelihood comes from a Kalman filter. It factorises into the trials'
-deviations from their mean, which do not depend on the model and give the noise, and
-the trial mean's residual, which gives the model. A record without repeats learns its
-noise from its periods, or with the model under a bound on the noise's correlation
-time. Samples not observed (gaps, a warm-up) are missing in the filter; trials with
-their own measured inputs are each simulated on their own, their noise learnt from
-their residuals; a start may be estimated. The documentation's page "The likelihood"
-(``docs/theory/likelihood.rst``) gives the model, the factorisation and why.
+Each trial is the model's position plus noise, independent between trials. The noise
+model is an object (:class:`pmabayes.inference.noise.NoiseModel`) the likelihood
+delegates to: by default an AR(1) disturbance and white sensor noise, whose exact
+likelihood comes from a Kalman filter (or, where the repeats reject that, the repeats'
+AR(p); or a model asked for by name, such as Student-t white noise). For a Gaussian
+noise the likelihood factorises into the trials' deviations from their mean, which do
+not depend on the model and give the noise, and the trial mean's residual, which gives
+the model. A record without repeats learns its noise from its periods, or with the
+model under a bound on the noise's correlation time. Samples not observed (gaps, a
+warm-up) are missing in the filter; trials with their own measured inputs are each
+simulated on their own, their noise learnt from their residuals; a start may be
+estimated. The documentation's page "The likelihood" (``docs/theory/likelihood.rst``)
+gives the model, the factorisation and why.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy import signal
 
 from pmabayes.data import Dataset
+from pmabayes.inference.noise.ar1 import (
+    AR1_WHITE,
+    NOISE_PARAMETERS,
+    NOISE_PER_AMPLITUDE,
+    _kalman_innovations,
+    _kalman_loglik,
+    _kalman_loglik_fixed_noise,
+    _masked_loglik,
+    _noise_loglik,
+    ar1_noise,
+    measurement_noise,
+)
+from pmabayes.inference.noise.ar_repeats import (
+    MAX_AR_ORDER,
+    ArFromRepeats,
+    ArNoise,
+    ar_noise_from_repeats,
+    levinson,
+)
+from pmabayes.inference.noise.base import NoiseModel
+from pmabayes.inference.noise.choice import (
+    LEVEL_ADEQUATE,
+    LJUNG_BOX_LAGS,
+    NOISE_MODELS,
+    NoiseChoice,
+    _ljung_box_observed,
+    ar1_whiteness_of_repeats,
+    check_noise_model_name,
+    choose_noise_model,
+    ljung_box_statistic,
+)
 from pmabayes.model.model import Model
-from pmabayes.model.parameters import LogNormal, Normal, Parameter, Uniform
+from pmabayes.model.parameters import Normal, Parameter
 from pmabayes.model.simulator import position_reference, simulate_dataset, warmup_settings
 
 __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "JointLikelihood",
@@ -34,203 +65,9 @@ __all__ = ["NOISE_PARAMETERS", "NOISE_SOURCES", "GUARD_FACTOR", "Likelihood", "J
            "ar1_whiteness_of_repeats", "choose_noise_model", "NOISE_PER_AMPLITUDE", "span",
            "START_WINDOW_S", "slow_disturbance_note", "at_fast_bound"]
 
-#: The noise model's parameters, identified with every fit.
-NOISE_PARAMETERS: tuple[Parameter, ...] = (
-    Parameter(
-        "sigma_noise_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(0.0, math.inf),
-        description="standard deviation of each trial's disturbance (stationary AR(1))",
-        latex=r"\sigma",
-    ),
-    Parameter(
-        "rho_noise", "1", 0.9, Uniform(-1.0, 1.0), bounds=(-0.999999, 0.999999),
-        description="lag-one autocorrelation of the disturbance (per sample)",
-        latex=r"\rho",
-    ),
-    Parameter(
-        "sigma_white_m", "m", 5e-6, LogNormal(5e-6, 2.0), bounds=(0.0, math.inf),
-        description="standard deviation of the sensor's white noise (quantisation)",
-        latex=r"\sigma_w",
-    ),
-)
-
-
-#: A force-input rig's noise priors follow its data: the disturbance's median is this
-#: fraction of the positions' amplitude (half their range), the sensor's a tenth of
-#: it; the muscle's defaults (50 um on a 40 mm amplitude) give the fraction.
-NOISE_PER_AMPLITUDE = 5e-5 / 0.04
-
-
-def ar1_noise(
-    n_series: int, n_samples: int, sigma, rho, rng: np.random.Generator
-) -> np.ndarray:
-    """Draw stationary AR(1) series, the noise model of :class:`Likelihood`.
-
-    Parameters
-    ----------
-    n_series, n_samples : int
-        Output shape.
-    sigma, rho : float or array_like
-        Stationary standard deviation and lag-one autocorrelation, scalars or one
-        per series.
-    rng : numpy.random.Generator
-        Source of the white noise.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(n_series, n_samples)``.
-    """
-    sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (n_series,))
-    rho = np.broadcast_to(np.asarray(rho, dtype=float), (n_series,))
-    white = rng.standard_normal((n_series, n_samples))
-    innov = sigma * np.sqrt(1.0 - rho * rho)
-    e = np.empty((n_series, n_samples))
-    e[:, 0] = sigma * white[:, 0]
-    for k in range(1, n_samples):
-        e[:, k] = rho * e[:, k - 1] + innov * white[:, k]
-    return e
-
-
-def measurement_noise(n_series: int, n_samples: int, sigma, rho, white,
-                      rng: np.random.Generator) -> np.ndarray:
-    """Draw the noise model's whole noise: the AR(1) disturbance plus white sensor noise.
-
-    Parameters
-    ----------
-    n_series, n_samples : int
-        Output shape.
-    sigma, rho, white : float or array_like
-        ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``, scalars or one per
-        series.
-    rng : numpy.random.Generator
-        Source of the noise (the disturbance's draws first, then the sensor's).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(n_series, n_samples)``.
-    """
-    e = ar1_noise(n_series, n_samples, sigma, rho, rng)
-    w = rng.standard_normal(e.shape)  # in place: long records times many series are large
-    w *= np.broadcast_to(np.asarray(white, dtype=float), (n_series,))[:, None]
-    e += w
-    return e
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _kalman_loglik(y, x, scale, sigma, rho, white):
-    """Exact log-likelihood of ``scale * (y[r] - x[b])`` under the noise model.
-
-    ``y`` is ``(series, n)``, ``x`` is ``(batch, n)`` or ``(1, n)`` (shared), and
-    the noise parameters are ``(batch,)``. Returns ``(batch, series)``. A scalar
-    Kalman filter, with the AR(1) disturbance as its state, started from the
-    stationary distribution. The gains and innovation variances depend only on the
-    noise, not on the data: they are computed once for each run of batch members with
-    the same noise (the whole batch when the noise is fixed) and shared by the series.
-    """
-    batch = sigma.shape[0]
-    n = y.shape[1]
-    n_series = y.shape[0]
-    shared = x.shape[0] == 1
-    out = np.zeros((batch, n_series))
-    est = np.empty(n_series)
-    gains = np.empty(n)
-    variances = np.empty(n)
-    log2pi = math.log(2.0 * math.pi)
-    const = 0.0
-    for b in range(batch):
-        if b == 0 or not (sigma[b] == sigma[b - 1] and rho[b] == rho[b - 1]
-                          and white[b] == white[b - 1]):
-            s2 = sigma[b] * sigma[b]
-            q = s2 * (1.0 - rho[b] * rho[b])
-            r = white[b] * white[b]
-            p = s2
-            const = 0.0
-            for k in range(n):
-                s_k = p + r
-                gain = p / s_k
-                const += math.log(s_k)
-                variances[k] = s_k
-                gains[k] = gain
-                p = rho[b] * rho[b] * (1.0 - gain) * p + q
-        for m in range(n_series):
-            est[m] = 0.0
-        for k in range(n):
-            s_k = variances[k]
-            gain = gains[k]
-            for m in range(n_series):
-                v = scale * (y[m, k] - x[0 if shared else b, k]) - est[m]
-                out[b, m] -= 0.5 * v * v / s_k
-                est[m] = rho[b] * (est[m] + gain * v)
-        for m in range(n_series):
-            out[b, m] -= 0.5 * (const + n * log2pi)
-    return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _kalman_loglik_fixed_noise(y, xt, scale, sigma, rho, white):
-    """:func:`_kalman_loglik` for a batch that shares one noise: ``xt`` is ``(n, batch)``
-    (the simulator's own layout) and the noise parameters are scalars.
-
-    The gains are computed once, and the batch is the inner loop, so that the filters
-    of its members run side by side (vectorised); each member's arithmetic is the
-    same as in :func:`_kalman_loglik`, so the results are equal bit for bit. Returns
-    ``(series, batch)``.
-    """
-    n = y.shape[1]
-    n_series = y.shape[0]
-    batch = xt.shape[1]
-    out = np.zeros((n_series, batch))
-    est = np.empty(batch)
-    gains = np.empty(n)
-    variances = np.empty(n)
-    s2 = sigma * sigma
-    q = s2 * (1.0 - rho * rho)
-    r = white * white
-    p = s2
-    const = 0.0
-    for k in range(n):
-        s_k = p + r
-        gain = p / s_k
-        const += math.log(s_k)
-        variances[k] = s_k
-        gains[k] = gain
-        p = rho * rho * (1.0 - gain) * p + q
-    for m in range(n_series):
-        est[:] = 0.0
-        acc = out[m]
-        for k in range(n):
-            s_k = variances[k]
-            gain = gains[k]
-            y_mk = y[m, k]
-            x_k = xt[k]
-            for b in range(batch):
-                v = scale * (y_mk - x_k[b]) - est[b]
-                acc[b] -= 0.5 * v * v / s_k
-                est[b] = rho * (est[b] + gain * v)
-        for b in range(batch):
-            acc[b] -= 0.5 * (const + n * math.log(2.0 * math.pi))
-    return out
-
-
-def _noise_loglik(y: np.ndarray, x: np.ndarray, scale: float, sigma: np.ndarray,
-                  rho: np.ndarray, white: np.ndarray) -> np.ndarray:
-    """:func:`_kalman_loglik` (same arguments and result, ``(batch, series)``), by the
-    fastest of equal routes: a batch that shares one noise (the noise fixed by
-    repeats) computes its gains once and runs its members side by side, or only once
-    when the model output is shared too."""
-    batch = sigma.shape[0]
-    if batch > 1 and bool(np.all(sigma == sigma[0]) and np.all(rho == rho[0])
-                          and np.all(white == white[0])):
-        if x.shape[0] == 1:
-            one = _kalman_loglik(y, np.ascontiguousarray(x), scale, sigma[:1], rho[:1],
-                                 white[:1])
-            return np.repeat(one, batch, axis=0)
-        # x is usually the simulator's (n, batch) array seen transposed: no copy
-        out = _kalman_loglik_fixed_noise(y, np.ascontiguousarray(x.T), scale,
-                                         float(sigma[0]), float(rho[0]), float(white[0]))
-        return np.ascontiguousarray(out.T)
-    return _kalman_loglik(y, np.ascontiguousarray(x), scale, sigma, rho, white)
+#: The noise kernels, moved to :mod:`pmabayes.inference.noise.ar1`, still importable here
+_KERNELS = (_kalman_innovations, _kalman_loglik, _kalman_loglik_fixed_noise, _masked_loglik,
+            _noise_loglik, _ljung_box_observed)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -246,129 +83,6 @@ def _rms_by_time(y, xt):
             out[b] += d * d
     for b in range(batch):
         out[b] = math.sqrt(out[b] / n)
-    return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _kalman_innovations(y, scale, sigma, rho, white, seen):
-    """Standardised innovations ``v_k / sqrt(S_k)`` of ``scale * y`` (one series).
-
-    For data the model and noise describe, these are independent N(0, 1): the
-    whitened residual that system identification's classic tests expect. At samples
-    not ``seen`` there is none (NaN): the filter carries its prediction across them.
-    """
-    n = y.shape[0]
-    out = np.full(n, np.nan)
-    s2 = sigma * sigma
-    q = s2 * (1.0 - rho * rho)
-    r = white * white
-    p = s2
-    est = 0.0
-    for k in range(n):
-        if seen[k]:
-            s_k = p + r
-            gain = p / s_k
-            v = scale * y[k] - est
-            out[k] = v / math.sqrt(s_k)
-            est = rho * (est + gain * v)
-            p = rho * rho * (1.0 - gain) * p + q
-        else:
-            est = rho * est
-            p = rho * rho * p + q
-    return out
-
-
-# -- samples not observed: the filter predicts across them --------------------------
-# A Kalman filter takes a missing observation as it is: no update, the prediction
-# carried on. The kernels below are the masked forms of those above (``obs`` True where
-# a sample enters the likelihood); complete data keep the kernels above, bit for bit.
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _masked_gains(sigma, rho, white, seen, gains, variances):
-    """Fill the filter's gains and innovation variances for one mask ``seen`` (``(n,)``);
-    returns the sum of the log variances and the number of samples seen."""
-    s2 = sigma * sigma
-    q = s2 * (1.0 - rho * rho)
-    r = white * white
-    p = s2
-    const = 0.0
-    count = 0
-    for k in range(seen.shape[0]):
-        if seen[k]:
-            s_k = p + r
-            gain = p / s_k
-            const += math.log(s_k)
-            count += 1
-            variances[k] = s_k
-            gains[k] = gain
-            p = rho * rho * (1.0 - gain) * p + q
-        else:
-            p = rho * rho * p + q
-    return const, count
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _kalman_loglik_masked_fixed(y, xt, scale, sigma, rho, white, obs):
-    """Exact log-likelihood of ``scale * (y[m] - xt[:, m or 0, b])`` with samples not
-    seen, for a batch that shares one noise (scalars).
-
-    ``y`` is ``(series, n)`` (any value where not seen), ``xt`` ``(n, 1 or series,
-    batch)``, ``obs`` ``(1 or series, n)`` (True where seen). Returns ``(series,
-    batch)``. The gains are computed once per mask row, and the batch is the inner
-    loop, so that its members' filters run side by side.
-    """
-    n = y.shape[1]
-    n_series = y.shape[0]
-    batch = xt.shape[2]
-    own_x = xt.shape[1] > 1
-    own_obs = obs.shape[0] > 1
-    out = np.zeros((n_series, batch))
-    est = np.empty(batch)
-    gains = np.empty(n)
-    variances = np.empty(n)
-    const, count = 0.0, 0
-    for m in range(n_series):
-        seen = obs[m if own_obs else 0]
-        if m == 0 or own_obs:
-            const, count = _masked_gains(sigma, rho, white, seen, gains, variances)
-        xi = m if own_x else 0
-        est[:] = 0.0
-        acc = out[m]
-        for k in range(n):
-            if seen[k]:
-                s_k = variances[k]
-                gain = gains[k]
-                y_mk = y[m, k]
-                x_k = xt[k, xi]
-                for b in range(batch):
-                    v = scale * (y_mk - x_k[b]) - est[b]
-                    acc[b] -= 0.5 * v * v / s_k
-                    est[b] = rho * (est[b] + gain * v)
-            else:
-                for b in range(batch):
-                    est[b] = rho * est[b]
-        for b in range(batch):
-            acc[b] -= 0.5 * (const + count * math.log(2.0 * math.pi))
-    return out
-
-
-def _masked_loglik(y: np.ndarray, x3: np.ndarray, scale: float, sigma: np.ndarray,
-                   rho: np.ndarray, white: np.ndarray, obs: np.ndarray) -> np.ndarray:
-    """The log-likelihood of ``scale * (y[m] - x3[b, m or 0])`` with samples not seen,
-    ``(batch, series)``; ``x3`` is ``(batch, 1 or series, n)``, ``obs`` ``(1 or series,
-    n)``."""
-    xt = np.transpose(x3, (2, 1, 0))
-    y = np.ascontiguousarray(np.where(np.broadcast_to(obs, y.shape), y, 0.0))
-    obs = np.ascontiguousarray(obs)
-    # one filter's gains per run of batch members that share their noise
-    change = (np.diff(sigma) != 0) | (np.diff(rho) != 0) | (np.diff(white) != 0)
-    edges = [0, *(np.flatnonzero(change) + 1).tolist(), sigma.size]
-    out = np.empty((sigma.size, y.shape[0]))
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        out[a:b] = _kalman_loglik_masked_fixed(
-            y, np.ascontiguousarray(xt[:, :, a:b]), scale, float(sigma[a]), float(rho[a]),
-            float(white[a]), obs).T
     return out
 
 
@@ -608,8 +322,13 @@ class Likelihood:
         (:attr:`pmabayes.data.Dataset.warmup_s`). None when every sample does.
     per_trial : bool
         Whether the likelihood is the sum of each trial's: trials with their own
-        inputs, or trials observed at different samples. Otherwise the trial mean and
+        inputs, trials observed at different samples, or a noise model whose
+        likelihood does not split (``splits_mean`` of
+        :class:`~pmabayes.inference.noise.NoiseModel`). Otherwise the trial mean and
         the contrasts split it (see the module's docstring).
+    noise : NoiseModel
+        The noise model the likelihood delegates to (:meth:`use_noise`); AR(1) + white
+        by default.
     n_outputs : int
         Values of one model output (:meth:`simulate`): ``n_samples``, or ``n_trials *
         n_samples`` with :attr:`own_inputs` (trial after trial).
@@ -656,7 +375,8 @@ class Likelihood:
         self.columns: np.ndarray | None = None
         self.n_trials, self.n_samples = dataset.position_m.shape
         self.observed = None if complete else observed
-        self.per_trial = self.n_trials >= 2 and (
+        # the data's own reasons for a sum of each trial's likelihood (see per_trial)
+        self._per_trial_data = self.n_trials >= 2 and (
             self.own_inputs or not (complete or bool(np.all(observed == observed[0]))))
         self.n_outputs = self.n_samples * (self.n_trials if self.own_inputs else 1)
         self.input = np.ascontiguousarray(dataset.input[0])
@@ -664,7 +384,7 @@ class Likelihood:
         self._trials = np.ascontiguousarray(
             dataset.position_m if complete else np.where(observed, dataset.position_m, 0.0))
         # the split's trial mean and its samples (a mask shared by the trials)
-        self._mean_obs = None if complete or self.per_trial else observed[:1]
+        self._mean_obs = None if complete or self._per_trial_data else observed[:1]
         self._y_mean = (self.y_mean if self._mean_obs is None
                         else np.where(self._mean_obs[0], self._trials.mean(axis=0), 0.0))
         self.noise_source, repeats = _noise_repeats(dataset)
@@ -672,7 +392,7 @@ class Likelihood:
         self.referred = False
         self._set_repeats(repeats, _repeat_mask(dataset, self.observed))
         self.motion_m = motion
-        self.ar_noise: ArNoise | None = None
+        self.noise: NoiseModel = AR1_WHITE
         self._start = (_start_priors(self) if dataset.initial_state == "estimate" else ())
 
     def _set_repeats(self, repeats: np.ndarray, masks: np.ndarray | None = None) -> None:
@@ -840,14 +560,40 @@ class Likelihood:
         noise alone (none for a record without repeats)."""
         return self._contrasts
 
-    def use_ar_noise(self, ar: ArNoise | None) -> None:
-        """Use an AR(p) noise (from the repeats) instead of AR(1) + white, or go back.
+    @property
+    def per_trial(self) -> bool:
+        """Whether the likelihood is the sum of each trial's (see the class)."""
+        return self._per_trial_data or (self.n_trials >= 2 and not self.noise.splits_mean)
 
-        With ``ar`` set, :meth:`mean_log_likelihood`, :meth:`log_likelihood` and
-        :meth:`pointwise` are exact AR(p) densities and ignore their ``sigma``,
-        ``rho`` and ``white`` (the noise is fixed); :meth:`deviation_log_likelihood`,
-        :meth:`whiten` and :meth:`innovations` stay AR(1) + white, which
+    def use_noise(self, noise: NoiseModel) -> None:
+        """Use a noise model for :meth:`mean_log_likelihood`, :meth:`log_likelihood`,
+        :meth:`pointwise`, :meth:`stretch_pointwise`, :meth:`whiten` and
+        :meth:`innovations`; their noise parameters are then the model's
+        (:meth:`noise_parameters`). :meth:`deviation_log_likelihood` and
+        :meth:`whiten_contrasts` stay AR(1) + white, which
         :func:`pmabayes.inference.noise.estimate_noise` and the noise check need.
+
+        Parameters
+        ----------
+        noise : NoiseModel
+
+        Raises
+        ------
+        LikelihoodError
+            For a model that does not take samples not observed, on data with some.
+        """
+        if not isinstance(noise, NoiseModel):
+            raise TypeError(f"noise must be a NoiseModel, got {type(noise).__name__}")
+        if not noise.takes_missing and self.observed is not None:
+            raise LikelihoodError(
+                f"{self.dataset.source or 'the data set'}: samples not observed (gaps, a "
+                f"warm-up) leave AR(1) + white as the noise model: {noise.label} takes "
+                "complete series only (see choose_noise_model)")
+        self.noise = noise
+
+    def use_ar_noise(self, ar: ArNoise | None) -> None:
+        """Use the AR(p) noise of the repeats instead of AR(1) + white, or go back
+        (:meth:`use_noise` with :class:`~pmabayes.inference.noise.ArFromRepeats`).
 
         Parameters
         ----------
@@ -856,25 +602,17 @@ class Likelihood:
         """
         if ar is not None and not isinstance(ar, ArNoise):
             raise TypeError(f"ar must be an ArNoise or None, got {type(ar).__name__}")
-        if ar is not None and self.observed is not None:
-            raise LikelihoodError(
-                f"{self.dataset.source or 'the data set'}: samples not observed (gaps, a "
-                "warm-up) leave AR(1) + white as the noise model: the exact AR(p) density "
-                "here is for complete series (see choose_noise_model)")
-        self.ar_noise = ar
+        self.use_noise(AR1_WHITE if ar is None else ArFromRepeats(ar))
+
+    @property
+    def ar_noise(self) -> ArNoise | None:
+        """The AR(p) of the repeats the likelihood uses, or None (another noise model)."""
+        return getattr(self.noise, "ar", None)
 
     @property
     def noise_model_name(self) -> str:
         """The noise model of the likelihood in words."""
-        return "AR(1) + white" if self.ar_noise is None else self.ar_noise.name
-
-    def _ar_loglik(self, y: np.ndarray, x: np.ndarray, scale: float) -> np.ndarray:
-        """The :class:`ArNoise` density of ``scale * (y[m] - x[b])``, ``(batch, series)``."""
-        ar = self.ar_noise
-        xt = np.ascontiguousarray(np.atleast_2d(x).T)  # the simulator's (n, batch): no copy
-        out = _ar_loglik_fixed_noise(np.ascontiguousarray(y), xt, scale, ar.coefficients,
-                                     ar.variances)
-        return np.ascontiguousarray(out.T)
+        return self.noise.label
 
     # -- the noise bound for records without repeats ----------------------------
     @property
@@ -927,37 +665,22 @@ class Likelihood:
         return float(min(math.exp(-self.dataset.dt_s / float(declared)), 0.999999))
 
     def noise_parameters(self) -> tuple[Parameter, ...]:
-        """The noise parameters with their priors for this experiment.
+        """The noise parameters with their priors for this experiment: its noise
+        model's (:meth:`pmabayes.inference.noise.NoiseModel.parameters`).
 
-        :data:`NOISE_PARAMETERS`, with the noise's scale on the data's for a
-        force-input rig (:data:`NOISE_PER_AMPLITUDE`), except for a record without
-        repeats (``noise_source == "record"``): there ``rho_noise`` is bounded by
-        :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), a correlation
-        time far below the input's time scales unless the data allow a slower one; a
-        noise at that bound is said in the verdicts (:func:`slow_disturbance_note`).
+        For AR(1) + white, :data:`NOISE_PARAMETERS`, with the noise's scale on the
+        data's for a force-input rig (:data:`NOISE_PER_AMPLITUDE`), except for a
+        record without repeats (``noise_source == "record"``): there ``rho_noise`` is
+        bounded by :attr:`rho_max` (uniform prior on ``[-rho_max, rho_max]``), a
+        correlation time far below the input's time scales unless the data allow a
+        slower one; a noise at that bound is said in the verdicts
+        (:func:`slow_disturbance_note`).
 
         Returns
         -------
         tuple of Parameter
         """
-        sig, rho, white = NOISE_PARAMETERS
-        if self.model.rig.input_kind == "force":  # an oscillator's scale is the data's
-            amplitude = 0.5 * self.motion_m
-            sig, white = (dataclasses.replace(p, default=f * amplitude,
-                                              prior=LogNormal(f * amplitude, p.prior.sigma))
-                          for p, f in ((sig, NOISE_PER_AMPLITUDE), (white,
-                                                                    0.1 * NOISE_PER_AMPLITUDE)))
-        if self.noise_source != "record":
-            return (sig, rho, white) if self.model.rig.input_kind == "force" else NOISE_PARAMETERS
-        r = self.rho_max
-        bounded = Parameter(
-            "rho_noise", "1", 0.0, Uniform(-r, r), bounds=(-r, r),
-            description=(f"lag-one autocorrelation of the disturbance, at most {r:.6g} (a "
-                         "correlation time of "
-                         f"{-self.dataset.dt_s / math.log(r) * 1e3:.3g} ms)"),
-            latex=r"\rho",
-        )
-        return (sig, bounded, white)
+        return self.noise.parameters(self)
 
     # -- model output ---------------------------------------------------------
     def simulate(self, theta: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
@@ -1002,12 +725,6 @@ class Likelihood:
         return np.sqrt(np.mean((self.y_mean - x) ** 2, axis=1))
 
     # -- likelihood -------------------------------------------------------------
-    @staticmethod
-    def _params(sigma, rho, white, batch: int):
-        return tuple(
-            np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (batch,)))
-            for v in (sigma, rho, white)
-        )
 
     def deviation_log_likelihood(self, sigma, rho, white) -> np.ndarray:
         """Log-likelihood of the deviations from the trial mean (model-free).
@@ -1017,6 +734,9 @@ class Likelihood:
         periods of a single periodic record (:attr:`noise_source`); a record
         without repeats has none (the result is 0). The contrasts take the samples
         observed in every repeat; the others are missing for them.
+
+        Always under AR(1) + white: :func:`pmabayes.inference.noise.estimate_noise`
+        learns that noise from the repeats, whatever the likelihood's noise model.
 
         Parameters
         ----------
@@ -1030,31 +750,35 @@ class Likelihood:
             ``(batch,)``.
         """
         batch = np.broadcast(np.asarray(sigma), np.asarray(rho), np.asarray(white)).size
-        pars = self._params(sigma, rho, white, batch)
-        if self._contrast_obs is not None and self._contrasts.shape[0]:
-            zero = np.zeros((batch, 1, self.n_samples))
-            return _masked_loglik(self._contrasts, zero, 1.0, *pars,
-                                  self._contrast_obs).sum(axis=1)
-        zero = np.zeros((1, self._contrasts.shape[1]))
-        return _noise_loglik(self._contrasts, zero, 1.0, *pars).sum(axis=1)
+        return self._contrasts_log_likelihood(AR1_WHITE, (sigma, rho, white), batch)
 
-    def mean_log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
+    def _contrasts_log_likelihood(self, noise: NoiseModel, params: tuple, batch: int
+                                  ) -> np.ndarray:
+        """The contrasts' log density under ``noise``, ``(batch,)`` (0 without repeats)."""
+        if not self._contrasts.shape[0]:
+            return np.zeros(batch)
+        zero = np.zeros((1, 1, self._contrasts.shape[1]))
+        return noise.log_likelihood(self._contrasts, zero, 1.0, noise.broadcast(params, batch),
+                                    self._contrast_obs).sum(axis=1)
+
+    def mean_log_likelihood(self, x: np.ndarray, *noise) -> np.ndarray:
         """Log-likelihood of the data given the model: the part that depends on it.
 
         The density of ``sqrt(R) (ybar - x)``, one more series of the noise process
         and the orthonormal complement of the contrasts, so that it adds to
-        :meth:`deviation_log_likelihood` exactly. Under AR(1) + white (a Kalman
-        filter), or under the AR(p) of the repeats once :meth:`use_ar_noise` set it
-        (then ``sigma``, ``rho`` and ``white`` are ignored). Where the trial mean does
-        not split the likelihood (:attr:`per_trial`: trials with their own inputs, or
-        observed at different samples), the sum of each trial's likelihood.
+        :meth:`deviation_log_likelihood` exactly, under the noise model (:attr:`noise`:
+        AR(1) + white by a Kalman filter, the repeats' AR(p), ...). Where the trial
+        mean does not split the likelihood (:attr:`per_trial`: trials with their own
+        inputs, or observed at different samples, or a noise model that does not
+        split), the sum of each trial's likelihood.
 
         Parameters
         ----------
         x : numpy.ndarray
             Model positions ``(batch, n_outputs)``.
-        sigma, rho, white : array_like
-            Noise parameters, scalars or ``(batch,)``.
+        *noise : array_like
+            The noise parameters (:meth:`noise_parameters`' order: ``sigma``, ``rho``,
+            ``white`` for AR(1) + white), scalars or ``(batch,)``.
 
         Returns
         -------
@@ -1063,16 +787,13 @@ class Likelihood:
         """
         x = np.atleast_2d(x)
         if self.per_trial:
-            return self.pointwise(x, sigma, rho, white).sum(axis=1)
-        if self.ar_noise is not None:
-            return self._ar_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials))[:, 0]
-        pars = self._params(sigma, rho, white, x.shape[0])
-        if self._mean_obs is not None:
-            return _masked_loglik(self._y_mean[None, :], x[:, None, :], math.sqrt(self.n_trials),
-                                  *pars, self._mean_obs)[:, 0]
-        return _noise_loglik(self.y_mean[None, :], x, math.sqrt(self.n_trials), *pars)[:, 0]
+            return self.pointwise(x, *noise).sum(axis=1)
+        y = self.y_mean if self._mean_obs is None else self._y_mean
+        return self.noise.log_likelihood(y[None, :], x[:, None, :], math.sqrt(self.n_trials),
+                                         self.noise.broadcast(noise, x.shape[0]),
+                                         self._mean_obs)[:, 0]
 
-    def log_likelihood(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
+    def log_likelihood(self, x: np.ndarray, *noise) -> np.ndarray:
         """Total log-likelihood of all trials, per batch member.
 
         Equal to :meth:`deviation_log_likelihood` plus :meth:`mean_log_likelihood`
@@ -1085,8 +806,8 @@ class Likelihood:
         ----------
         x : numpy.ndarray
             Model positions ``(batch, n_outputs)``.
-        sigma, rho, white : array_like
-            Noise parameters, scalars or ``(batch,)``.
+        *noise : array_like
+            The noise parameters, scalars or ``(batch,)``.
 
         Returns
         -------
@@ -1094,16 +815,14 @@ class Likelihood:
             ``(batch,)``.
         """
         x = np.atleast_2d(x)
-        mean = self.mean_log_likelihood(x, sigma, rho, white)
+        mean = self.mean_log_likelihood(x, *noise)
         if self.noise_source != "trials" or self.per_trial:
             return mean
-        if self.ar_noise is not None:
-            zero = np.zeros((1, self.n_samples))
-            return self._ar_loglik(self._contrasts, zero, 1.0).sum(axis=1) + mean
-        return self.deviation_log_likelihood(*self._params(sigma, rho, white, x.shape[0])) + mean
+        return self._contrasts_log_likelihood(self.noise, noise, x.shape[0]) + mean
 
-    def whiten(self, v: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
-        """Standardised Kalman innovations of ``sqrt(R) v`` under the noise model.
+    def whiten(self, v: np.ndarray, *noise) -> np.ndarray:
+        """Standardised innovations of ``sqrt(R) v`` under the noise model (AR(1) +
+        white: the Kalman filter's).
 
         Linear in ``v``. Applied to the trial mean's residual it gives
         :meth:`innovations`; applied to sensitivities, their whitened versions. NaN
@@ -1113,8 +832,8 @@ class Likelihood:
         ----------
         v : numpy.ndarray
             A series on the data's time grid, ``(n_samples,)``.
-        sigma, rho, white : float
-            Noise parameters.
+        *noise : float
+            The noise parameters.
 
         Returns
         -------
@@ -1122,10 +841,9 @@ class Likelihood:
             ``(n_samples,)``.
         """
         v = np.ascontiguousarray(np.asarray(v, dtype=float).reshape(-1))
-        seen = (np.ones(v.size, dtype=bool) if self.observed is None
+        seen = (None if self.observed is None
                 else np.ascontiguousarray(self.observed.any(axis=0)))
-        return _kalman_innovations(np.where(seen, v, 0.0), math.sqrt(self.n_trials),
-                                   float(sigma), float(rho), float(white), seen)
+        return self.noise.whiten(v, math.sqrt(self.n_trials), noise, seen)
 
     def whiten_contrasts(self, sigma: float, rho: float, white: float) -> list[np.ndarray]:
         """The repeats' contrasts (:attr:`contrasts`) whitened by AR(1) + white.
@@ -1146,21 +864,19 @@ class Likelihood:
         list of numpy.ndarray
             One whitened series per contrast (none without repeats).
         """
-        length = self._contrasts.shape[1]
-        seen = (np.ones(length, dtype=bool) if self._contrast_obs is None
+        seen = (None if self._contrast_obs is None
                 else np.ascontiguousarray(self._contrast_obs[0]))
-        return [_kalman_innovations(np.ascontiguousarray(c), 1.0, float(sigma), float(rho),
-                                    float(white), seen) for c in self._contrasts]
+        return [AR1_WHITE.whiten(c, 1.0, (sigma, rho, white), seen) for c in self._contrasts]
 
-    def innovations(self, x: np.ndarray, sigma: float, rho: float, white: float) -> np.ndarray:
+    def innovations(self, x: np.ndarray, *noise) -> np.ndarray:
         """Standardised innovations of the trial mean's residual under the noise model.
 
         Parameters
         ----------
         x : numpy.ndarray
             Model positions ``(n_samples,)``.
-        sigma, rho, white : float
-            Noise parameters.
+        *noise : float
+            The noise parameters.
 
         Returns
         -------
@@ -1168,75 +884,64 @@ class Likelihood:
             ``(n_samples,)``; independent N(0, 1) when the model describes the data
             (NaN where no trial is observed).
         """
-        return self.whiten(self.y_mean - np.asarray(x, dtype=float).reshape(-1),
-                           sigma, rho, white)
+        return self.whiten(self.y_mean - np.asarray(x, dtype=float).reshape(-1), *noise)
 
-    def pointwise(self, x: np.ndarray, sigma, rho, white) -> np.ndarray:
+    def pointwise(self, x: np.ndarray, *noise) -> np.ndarray:
         """Log-likelihood of each trial, ``(batch, n_trials)``; sums to :meth:`log_likelihood`.
 
         Parameters
         ----------
         x : numpy.ndarray
             Model positions ``(batch, n_outputs)``.
-        sigma, rho, white : array_like
-            Noise parameters, scalars or ``(batch,)``.
+        *noise : array_like
+            The noise parameters, scalars or ``(batch,)``.
 
         Returns
         -------
         numpy.ndarray
         """
         x = np.atleast_2d(x)
-        if self.own_inputs and self.ar_noise is not None:
-            x3 = self._by_trial(x)
-            return np.stack([self._ar_loglik(self._trials[r:r + 1], x3[:, r], 1.0)[:, 0]
-                             for r in range(self.n_trials)], axis=1)
-        if self.ar_noise is not None:
-            return self._ar_loglik(self._trials, x, 1.0)
-        pars = self._params(sigma, rho, white, x.shape[0])
-        if self.observed is not None or self.own_inputs:
-            obs = self.observed if self.observed is not None else np.ones((1, self.n_samples),
-                                                                          dtype=bool)
-            return _masked_loglik(self._trials, self._by_trial(x), 1.0, *pars, obs)
-        return _noise_loglik(self._trials, x, 1.0, *pars)
+        return self.noise.log_likelihood(self._trials, self._by_trial(x), 1.0,
+                                         self.noise.broadcast(noise, x.shape[0]), self.observed)
 
-    def stretch_pointwise(self, x: np.ndarray, sigma, rho, white, n_stretches: int
-                          ) -> np.ndarray | None:
+    def stretch_pointwise(self, x: np.ndarray, *noise_and_stretches) -> np.ndarray | None:
         """Log-likelihood of each of ``n_stretches`` contiguous stretches of a single record
         given the rest of it, ``(batch, n_stretches)``: the units of a leave-one-out
         estimate where there is only one trial to leave out.
 
-        ``log p(y_k | y_-k) = log p(y) - log p(y_-k)``, exact under the noise model: the
-        Kalman filter takes the stretch left out as not observed and predicts across it.
+        ``log p(y_k | y_-k) = log p(y) - log p(y_-k)``, exact under the noise model: it
+        takes the stretch left out as not observed (the Kalman filter predicts across it).
 
         Parameters
         ----------
         x : numpy.ndarray
             Model positions ``(batch, n_outputs)``.
-        sigma, rho, white : array_like
-            Noise parameters, scalars or ``(batch,)``.
-        n_stretches : int
-            Number of stretches (2 or more).
+        *noise_and_stretches
+            The noise parameters (scalars or ``(batch,)``), then the number of
+            stretches (2 or more).
 
         Returns
         -------
         numpy.ndarray or None
-            None for two or more trials (leave out trials instead) or under the AR(p)
-            noise of :meth:`use_ar_noise`, whose filter does not take samples not observed.
+            None for two or more trials (leave out trials instead) or under a noise
+            model that does not take samples not observed (the repeats' AR(p)).
         """
-        if self.n_trials != 1 or self.ar_noise is not None or n_stretches < 2:
+        *noise, n_stretches = noise_and_stretches
+        if self.n_trials != 1 or not self.noise.takes_missing or n_stretches < 2:
             return None
         x = np.atleast_2d(x)
-        pars = self._params(sigma, rho, white, x.shape[0])
+        pars = self.noise.broadcast(noise, x.shape[0])
         obs = (np.ones((1, self.n_samples), dtype=bool) if self.observed is None
                else np.asarray(self.observed, dtype=bool))
         x3 = self._by_trial(x)
-        whole = _masked_loglik(self._trials, x3, 1.0, *pars, obs)[:, 0]
+        whole = self.noise.log_likelihood(self._trials, x3, 1.0, pars, obs)[:, 0]
         edges = np.linspace(0, self.n_samples, n_stretches + 1).astype(int)
         out = np.empty((x.shape[0], n_stretches))
         for k in range(n_stretches):
             rest = obs.copy()
             rest[:, edges[k]:edges[k + 1]] = False
-            out[:, k] = whole - _masked_loglik(self._trials, x3, 1.0, *pars, rest)[:, 0]
+            out[:, k] = whole - self.noise.log_likelihood(self._trials, x3, 1.0, pars,
+                                                          rest)[:, 0]
         return out
 
 
@@ -1393,521 +1098,3 @@ class JointLikelihood:
 # ---------------------------------------------------------------------------------
 # a higher-order noise model: AR(p) from the repeats
 
-#: Noise models a fit may use (:func:`choose_noise_model`): ``"auto"`` keeps AR(1) +
-#: white unless the repeats reject it, ``"ar1"`` always keeps it, ``"ar"`` always uses
-#: the AR(p) of the repeats.
-NOISE_MODELS: tuple[str, ...] = ("auto", "ar1", "ar")
-
-#: Level of the Ljung-Box tests of whiteness: of an adequate model's whitened residual
-#: (:mod:`pmabayes.criticism.whiteness`), and of the repeats whitened by AR(1) + white
-#: (:func:`choose_noise_model`).
-LEVEL_ADEQUATE = 0.01
-
-#: Largest order of the autoregressive noise model fitted to the repeats
-#: (:func:`ar_noise_from_repeats`).
-MAX_AR_ORDER = 60
-
-#: Lags of the Ljung-Box statistic.
-LJUNG_BOX_LAGS = 25
-
-
-def ljung_box_statistic(e: np.ndarray, *, max_lag: int = LJUNG_BOX_LAGS) -> float:
-    """The Ljung-Box statistic ``n (n + 2) sum_k acf_k^2 / (n - k)``, ``k = 1..max_lag``.
-
-    Chi-squared with ``max_lag`` degrees of freedom for a white series
-    (:func:`pmabayes.criticism.whiteness.ljung_box` adds its p-value). A series with
-    samples not observed (NaN: the innovations of a filter that predicts across gaps)
-    takes its ``n`` observed samples and, at each lag, the ``n_k`` pairs both observed:
-    ``(n + 2) / n sum_k n_k r_k^2`` with ``r_k`` the mean product over those pairs, the
-    same statistic when nothing is missing (``n_k = n - k``).
-
-    Parameters
-    ----------
-    e : numpy.ndarray
-        The series (NaN where not observed).
-    max_lag : int
-        Number of lags.
-
-    Returns
-    -------
-    float
-    """
-    e = np.asarray(e, float)
-    seen = np.isfinite(e)
-    if not seen.all():
-        return _ljung_box_observed(e, seen, max_lag)
-    n = e.size
-    a = (e - e.mean()) / e.std()
-    lags = np.arange(1, max_lag + 1)
-    acf = np.array([np.dot(a[k:n], a[0:n - k]) / n for k in lags])
-    return float(n * (n + 2) * np.sum(acf**2 / (n - lags)))
-
-
-def _ljung_box_observed(e: np.ndarray, seen: np.ndarray, max_lag: int) -> float:
-    """:func:`ljung_box_statistic` over the samples observed and the pairs both observed."""
-    n = int(seen.sum())
-    v = e[seen]
-    a = np.where(seen, (e - v.mean()) / v.std(), 0.0)
-    q = 0.0
-    for k in range(1, max_lag + 1):
-        pairs = int(np.count_nonzero(seen[k:] & seen[:-k]))
-        if pairs:
-            r = float(np.dot(a[k:], a[:-k])) / pairs
-            q += pairs * r * r
-    return float((n + 2.0) / n * q)
-
-
-def levinson(acov: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Durbin-Levinson: predictor coefficients and innovation variances of orders 0..order.
-
-    Parameters
-    ----------
-    acov : numpy.ndarray
-        Autocovariance at lags ``0 .. order`` (at least).
-    order : int
-        Largest order.
-
-    Returns
-    -------
-    coefficients : numpy.ndarray
-        ``(order + 1, max(order, 1))``: row ``m`` holds the order-``m`` one-step
-        predictor's coefficients (of lags 1..m) in its first ``m`` entries.
-    variances : numpy.ndarray
-        ``(order + 1,)``: the one-step prediction variances of those orders.
-    """
-    phi = np.zeros((order + 1, max(order, 1)))
-    var = np.empty(order + 1)
-    var[0] = acov[0]
-    for m in range(1, order + 1):
-        prev = phi[m - 1, : m - 1]
-        k = (acov[m] - prev @ acov[m - 1:0:-1]) / var[m - 1]
-        phi[m, : m - 1] = prev - k * prev[::-1]
-        phi[m, m - 1] = k
-        var[m] = var[m - 1] * (1.0 - k * k)
-    return phi, var
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _ar_loglik_fixed_noise(y, xt, scale, phi, var):
-    """Exact Gaussian log-likelihood of ``scale * (y[m] - xt[:, b])`` under a stationary
-    AR(p) noise, ``(series, batch)``; ``xt`` is ``(n, batch)`` (the simulator's layout).
-
-    The innovations come from the Durbin-Levinson predictors of orders 0..p: the
-    order-``k`` one for sample ``k < p`` and the order-``p`` one after, so the density
-    is exact, not conditional on the first ``p`` samples. The batch is the inner loop,
-    so that its members' filters run side by side.
-    """
-    n = y.shape[1]
-    n_series = y.shape[0]
-    batch = xt.shape[1]
-    p = var.shape[0] - 1
-    out = np.zeros((n_series, batch))
-    const = 0.0
-    for k in range(n):
-        const += math.log(var[k if k < p else p])
-    v = np.empty((n, batch))
-    e = np.empty(batch)
-    for m in range(n_series):
-        acc = out[m]
-        for k in range(n):
-            y_mk = y[m, k]
-            x_k = xt[k]
-            v_k = v[k]
-            for b in range(batch):
-                v_k[b] = scale * (y_mk - x_k[b])
-        for k in range(n):
-            o = k if k < p else p
-            v_k = v[k]
-            for b in range(batch):
-                e[b] = v_k[b]
-            for j in range(o):
-                c = phi[o, j]
-                v_j = v[k - 1 - j]
-                for b in range(batch):
-                    e[b] -= c * v_j[b]
-            inv = 1.0 / var[o]
-            for b in range(batch):
-                acc[b] -= 0.5 * e[b] * e[b] * inv
-        for b in range(batch):
-            acc[b] -= 0.5 * (const + n * math.log(2.0 * math.pi))
-    return out
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _ar_filter_draws(white, phi, var):
-    """Stationary AR(p) series from standard normal ``white`` ``(series, n)``, in place:
-    each sample is its Durbin-Levinson prediction from the past plus the innovation
-    (orders 0..p, as in :func:`_ar_loglik_fixed_noise`), so the series are exact draws."""
-    n_series, n = white.shape
-    p = var.shape[0] - 1
-    for m in range(n_series):
-        w = white[m]
-        for k in range(n):
-            o = k if k < p else p
-            pred = 0.0
-            for j in range(o):
-                pred += phi[o, j] * w[k - 1 - j]
-            w[k] = pred + math.sqrt(var[o]) * w[k]
-    return white
-
-
-@dataclass(frozen=True, eq=False)
-class ArNoise:
-    """A stationary AR(p) model of one trial's noise (disturbance and sensor together).
-
-    Defined by its autocovariance at lags ``0 .. order`` (from the repeats,
-    :func:`ar_noise_from_repeats`); its predictors of orders ``0 .. order`` and their
-    variances follow by :func:`levinson`, so the exact likelihood
-    (:meth:`Likelihood.mean_log_likelihood` once :meth:`Likelihood.use_ar_noise`), the
-    whitening (:meth:`whiten`) and the draws (:meth:`draw`) are exact from the first
-    sample.
-
-    Parameters
-    ----------
-    autocovariance_m2 : numpy.ndarray
-        Autocovariance at lags ``0 .. order``, in m^2.
-
-    Attributes
-    ----------
-    order : int
-    coefficients : numpy.ndarray
-        ``(order + 1, max(order, 1))``, Durbin-Levinson predictor coefficients (row
-        ``m``: order ``m``, first ``m`` entries).
-    variances : numpy.ndarray
-        ``(order + 1,)``, one-step prediction variances in m^2.
-    """
-
-    autocovariance_m2: np.ndarray
-    order: int = field(init=False)
-    coefficients: np.ndarray = field(init=False, repr=False)
-    variances: np.ndarray = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        acov = np.ascontiguousarray(np.asarray(self.autocovariance_m2, dtype=float).reshape(-1))
-        if acov.size < 1 or not np.all(np.isfinite(acov)) or not acov[0] > 0:
-            raise ValueError(f"an AR noise needs a finite autocovariance with a positive "
-                             f"variance at lag 0, got {acov[:3]}...")
-        order = acov.size - 1
-        phi, var = levinson(acov, order)
-        if not np.all(var > 0):
-            raise ValueError("the autocovariance is not positive definite (a prediction "
-                             "variance is not positive); it cannot define an AR noise")
-        object.__setattr__(self, "autocovariance_m2", acov)
-        object.__setattr__(self, "order", order)
-        object.__setattr__(self, "coefficients", np.ascontiguousarray(phi))
-        object.__setattr__(self, "variances", np.ascontiguousarray(var))
-
-    @property
-    def name(self) -> str:
-        """The model in words, e.g. ``"AR(7) from the repeats"``."""
-        return f"AR({self.order}) from the repeats"
-
-    def autocovariance(self, n_lags: int) -> np.ndarray:
-        """The model's autocovariance at lags ``0 .. n_lags - 1`` (m^2).
-
-        Lags up to :attr:`order` are the defining ones; beyond, the AR recursion
-        extends them.
-
-        Parameters
-        ----------
-        n_lags : int
-
-        Returns
-        -------
-        numpy.ndarray
-        """
-        p = self.order
-        out = np.zeros(max(n_lags, p + 1))
-        out[: p + 1] = self.autocovariance_m2
-        a = self.coefficients[p, :p]
-        for k in range(p + 1, out.size):
-            out[k] = a @ out[k - 1:k - 1 - p:-1]  # lags k-1 .. k-p
-        return out[:n_lags]
-
-    def log_likelihood(self, v: np.ndarray) -> np.ndarray:
-        """Exact log density of series of this noise.
-
-        Parameters
-        ----------
-        v : numpy.ndarray
-            ``(n_samples,)`` or ``(series, n_samples)``.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(series,)``.
-        """
-        v = np.ascontiguousarray(np.atleast_2d(np.asarray(v, dtype=float)))
-        zero = np.zeros((v.shape[1], 1))
-        return _ar_loglik_fixed_noise(v, zero, 1.0, self.coefficients, self.variances)[:, 0]
-
-    def whiten(self, v: np.ndarray) -> np.ndarray:
-        """Exact standardised innovations of a series of one trial's noise.
-
-        Parameters
-        ----------
-        v : numpy.ndarray
-            ``(n_samples,)``, e.g. a Helmert contrast, or ``sqrt(R)`` times the
-            trial mean's residual.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(n_samples,)``; independent N(0, 1) when the AR model holds.
-        """
-        v = np.asarray(v, dtype=float).reshape(-1)
-        p = min(self.order, v.size)
-        out = np.empty(v.size)
-        for t in range(p):  # the start: predictors of growing order (Durbin-Levinson)
-            out[t] = (v[t] - self.coefficients[t, :t] @ v[t - 1::-1][:t]) / math.sqrt(
-                self.variances[t])
-        a = np.concatenate(([1.0], -self.coefficients[p, :p]))
-        out[p:] = signal.lfilter(a, [1.0], v)[p:] / math.sqrt(self.variances[p])
-        return out
-
-    def draw(self, n_series: int, n_samples: int, rng: np.random.Generator) -> np.ndarray:
-        """Draw stationary series of this noise, exact from the first sample.
-
-        Parameters
-        ----------
-        n_series, n_samples : int
-            Output shape.
-        rng : numpy.random.Generator
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(n_series, n_samples)``.
-        """
-        white = rng.standard_normal((n_series, n_samples))
-        return _ar_filter_draws(white, self.coefficients, self.variances)
-
-    def to_dict(self) -> dict:
-        """JSON-ready record: ``model``, ``order``, ``coefficients`` (the order-p
-        predictor's), ``innovation_std_m`` and ``autocovariance_m2`` (what defines it,
-        :meth:`from_dict`)."""
-        return {"model": self.name, "order": self.order,
-                "coefficients": [float(c) for c in self.coefficients[self.order, : self.order]],
-                "innovation_std_m": float(math.sqrt(self.variances[self.order])),
-                "autocovariance_m2": [float(c) for c in self.autocovariance_m2]}
-
-    @classmethod
-    def from_dict(cls, record: dict) -> ArNoise:
-        """Rebuild from :meth:`to_dict`'s record (its ``autocovariance_m2``).
-
-        Parameters
-        ----------
-        record : dict
-
-        Returns
-        -------
-        ArNoise
-        """
-        return cls(np.asarray(record["autocovariance_m2"], dtype=float))
-
-
-def ar_noise_from_repeats(contrasts, *, max_order: int = MAX_AR_ORDER) -> ArNoise:
-    """The AR model of one trial's noise from the repeats' contrasts (model-free).
-
-    Yule-Walker: the autocovariance of the Helmert contrasts (series of the noise
-    alone), pooled over them, then the order by AIC from 1 up to ``max_order``
-    (at most a tenth of the shortest series).
-
-    Parameters
-    ----------
-    contrasts : numpy.ndarray or sequence of them
-        ``(n_contrasts, n_samples)`` (:attr:`Likelihood.contrasts`), or several such
-        arrays (experiments that share their noise) pooled together.
-    max_order : int
-        Largest order tried.
-
-    Returns
-    -------
-    ArNoise
-    """
-    arrays = [np.asarray(contrasts, dtype=float)] if isinstance(contrasts, np.ndarray) else [
-        np.asarray(c, dtype=float) for c in contrasts]
-    arrays = [c for c in arrays if c.shape[0] > 0]
-    if not arrays:
-        raise ValueError("no repeats: an AR noise is estimated from two or more repeats")
-    n_min = min(c.shape[1] for c in arrays)
-    order_max = int(max(1, min(max_order, n_min // 10)))
-    raw = 0.0
-    for c in arrays:
-        n = c.shape[1]
-        spec = np.fft.rfft(c, n=2 * n, axis=1)
-        raw = raw + np.fft.irfft(np.sum(np.abs(spec) ** 2, axis=0), axis=0)[: order_max + 1]
-    n_eff = sum(c.shape[0] * c.shape[1] for c in arrays)
-    acov = raw / n_eff
-    _, var = levinson(acov, order_max)
-    aic = n_eff * np.log(np.maximum(var, 1e-300)) + 2.0 * np.arange(order_max + 1)
-    order = int(np.argmin(aic[1:]) + 1)
-    return ArNoise(acov[: order + 1])
-
-
-@dataclass(frozen=True)
-class NoiseChoice:
-    """Which noise model an experiment's likelihood uses, and why (:func:`choose_noise_model`).
-
-    Parameters
-    ----------
-    requested : str
-        ``"auto"``, ``"ar1"`` or ``"ar"`` (:data:`NOISE_MODELS`).
-    ar : ArNoise or None
-        The AR model of the repeats the trial-mean likelihood uses, or None for AR(1)
-        + white.
-    ljung_box_p : float
-        Pooled Ljung-Box p-value of the repeats' contrasts whitened by AR(1) + white
-        (NaN without repeats, or when not tested).
-    level : float
-        The test's level.
-    note : str
-        Why the choice was not the test's (samples not observed), or empty.
-    """
-
-    requested: str
-    ar: ArNoise | None
-    ljung_box_p: float
-    level: float = LEVEL_ADEQUATE
-    note: str = ""
-
-    @property
-    def name(self) -> str:
-        """The noise model in words."""
-        return "AR(1) + white" if self.ar is None else self.ar.name
-
-    def describe(self) -> str:
-        """One sentence for the progress line and reports."""
-        if self.note:
-            return f"AR(1) + white: {self.note}"
-        tested = (f"Ljung-Box of the repeats whitened by AR(1) + white p = "
-                  f"{self.ljung_box_p:.2g}" if math.isfinite(self.ljung_box_p) else "")
-        if self.ar is None:
-            if self.requested == "ar1":
-                return "AR(1) + white (as asked" + (f"; {tested})" if tested else ")")
-            if not tested:
-                return "AR(1) + white (no repeats to test it on)"
-            return f"AR(1) + white: the repeats accept it ({tested})"
-        if self.requested == "ar":
-            return f"{self.ar.name}, as asked" + (f" ({tested})" if tested else "")
-        return f"{self.ar.name}: the repeats reject AR(1) + white ({tested})"
-
-    def to_dict(self) -> dict:
-        """JSON-ready record: ``model``, ``requested``, ``ljung_box_p``, ``level``, and
-        for an AR model its :meth:`ArNoise.to_dict` (``order``, ``coefficients``, ...)."""
-        out = {"model": self.name, "requested": self.requested,
-               "ljung_box_p": self.ljung_box_p if math.isfinite(self.ljung_box_p) else None,
-               "level": self.level, "order": 1}
-        if self.note:
-            out["note"] = self.note
-        if self.ar is not None:
-            out.update(self.ar.to_dict())
-        return out
-
-
-def check_noise_model_name(noise_model: str) -> str:
-    """``noise_model`` if it is one of :data:`NOISE_MODELS`, else a clear error.
-
-    Parameters
-    ----------
-    noise_model : str
-
-    Returns
-    -------
-    str
-
-    Raises
-    ------
-    ValueError
-        Naming the allowed values.
-    """
-    if not isinstance(noise_model, str) or noise_model not in NOISE_MODELS:
-        raise ValueError(f"noise_model must be one of {', '.join(map(repr, NOISE_MODELS))}, "
-                         f"got {noise_model!r}: 'auto' tests AR(1) + white on the repeats and "
-                         "uses their AR(p) when it is rejected")
-    return noise_model
-
-
-def ar1_whiteness_of_repeats(likelihoods, sigma: float, rho: float, white: float
-                             ) -> tuple[float, float, list[np.ndarray]]:
-    """Whiten the repeats' contrasts by AR(1) + white and test them (pooled Ljung-Box).
-
-    Parameters
-    ----------
-    likelihoods : Likelihood or sequence of Likelihood
-        Experiments sharing the noise (only those with repeats count).
-    sigma, rho, white : float
-        The AR(1) + white noise (from the repeats, :func:`pmabayes.inference.noise.estimate_noise`).
-
-    Returns
-    -------
-    ljung_box_p : float
-        Pooled over the contrasts (:data:`LJUNG_BOX_LAGS` lags each); NaN without
-        repeats.
-    energy : float
-        Mean square of the whitened contrasts (over the samples they observe).
-    innovations : list of numpy.ndarray
-        The whitened contrasts (:meth:`Likelihood.whiten_contrasts`), each on its
-        repeats' grid: the trials', or one period of a periodic record.
-    """
-    from scipy import stats
-
-    liks = [likelihoods] if isinstance(likelihoods, Likelihood) else list(likelihoods)
-    innov = [e for lik in liks for e in lik.whiten_contrasts(sigma, rho, white)]
-    if not innov:
-        return math.nan, math.nan, innov
-    q = sum(ljung_box_statistic(e) for e in innov)
-    p = float(stats.chi2.sf(q, LJUNG_BOX_LAGS * len(innov)))
-    # experiments of different lengths: the mean over every whitened sample observed
-    every = np.concatenate(innov)
-    return p, float(np.mean(np.square(every[np.isfinite(every)]))), innov
-
-
-def choose_noise_model(likelihoods, sigma: float, rho: float, white: float,
-                       noise_model: str = "auto", *, level: float = LEVEL_ADEQUATE,
-                       max_order: int = MAX_AR_ORDER) -> NoiseChoice:
-    """The noise model of experiments whose noise comes from repeats.
-
-    ``"auto"``: AR(1) + white unless the repeats' contrasts whitened by it fail a
-    pooled Ljung-Box test at ``level`` (:func:`ar1_whiteness_of_repeats`); then the
-    AR(p) of the repeats (:func:`ar_noise_from_repeats`). ``"ar1"`` and ``"ar"`` force
-    one or the other. Without repeats the choice is AR(1) + white, and with samples not
-    observed (gaps, a warm-up) too, said in the choice's ``note``: the AR(p) density is
-    exact for complete series (Durbin-Levinson over the record); with samples missing
-    it would need a state of ``p`` lags in a Kalman filter (``p`` up to
-    :data:`MAX_AR_ORDER`, ``p^2`` times the work a sample), and its Yule-Walker
-    estimate and the whiteness test are made for complete series too.
-
-    Parameters
-    ----------
-    likelihoods : Likelihood or sequence of Likelihood
-        Experiments that share the noise.
-    sigma, rho, white : float
-        Their AR(1) + white noise from the repeats.
-    noise_model : str
-        One of :data:`NOISE_MODELS`.
-    level : float
-        Level of the test.
-    max_order : int
-        Largest AR order tried.
-
-    Returns
-    -------
-    NoiseChoice
-    """
-    check_noise_model_name(noise_model)
-    liks = [likelihoods] if isinstance(likelihoods, Likelihood) else list(likelihoods)
-    contrasts = [lik.contrasts for lik in liks if lik.contrasts.shape[0] > 0]
-    if not contrasts:
-        return NoiseChoice(noise_model, None, math.nan, level)
-    gaps = sum(int((~lik.observed).sum()) for lik in liks if lik.observed is not None)
-    if gaps:
-        return NoiseChoice(noise_model, None, math.nan, level, note=(
-            f"{gaps} samples are not observed (gaps or a warm-up), and the repeats' AR(p) "
-            "is exact for complete series only; the filter takes missing samples as they "
-            "are"))
-    p = ar1_whiteness_of_repeats(liks, sigma, rho, white)[0]
-    if noise_model == "ar1" or (noise_model == "auto" and p >= level):
-        return NoiseChoice(noise_model, None, p, level)
-    return NoiseChoice(noise_model, ar_noise_from_repeats(contrasts, max_order=max_order),
-                       p, level)

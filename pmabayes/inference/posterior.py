@@ -251,9 +251,10 @@ def build_posterior(model: Model, datasets: Dataset | Sequence[Dataset], *,
         accuracy check (:func:`choose_substeps`).
     tie_noise : bool
         One noise group for all experiments instead of one each.
-    noise_model : {"auto", "ar1", "ar"}
-        The noise model each group's repeats choose
-        (:func:`pmabayes.inference.likelihood.choose_noise_model`).
+    noise_model : str
+        ``"auto"`` or a registered noise model's name: the noise model each group's
+        repeats choose (:func:`pmabayes.inference.noise.choose_noise_model`), or the
+        one asked for.
     steady_state_tol_m, max_warmup_periods : optional
         The periodic steady state's settings where the data start in it, over each
         sidecar's (:func:`pmabayes.model.simulator.warmup_settings`).

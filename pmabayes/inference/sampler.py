@@ -44,7 +44,7 @@ from pmabayes.inference.likelihood import check_noise_model_name
 from pmabayes.inference.noise import refer_periods
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import MapResult, disagreement_text, find_map
-from pmabayes.inference.trials import check_trials
+from pmabayes.inference.trials import check_trials, keep_trials
 from pmabayes.model.model import Model
 from pmabayes.parallel import Runner
 from pmabayes.util import Progress, fingerprint, local_cores, show_progress, side_stream
@@ -113,13 +113,15 @@ class FitSettings:
     tie_segments : bool
         The segments of one record (:func:`pmabayes.data.load_segments`) share one
         noise (the default), as one sensor's; False gives each its own.
-    noise_model : {"auto", "ar1", "ar"}
-        The noise model of the trial mean's likelihood where the noise comes from
-        repeats (:func:`pmabayes.inference.likelihood.choose_noise_model`): ``"auto"``
-        keeps AR(1) + white unless the repeats' deviations reject it (then their
-        AR(p) model), ``"ar1"`` always keeps it, ``"ar"`` always uses the AR(p).
-        Records without repeats keep the sampled AR(1) + white under its guard. The
-        fit file records each experiment's (``experiments[i]["noise_model"]``).
+    noise_model : {"auto", "ar1", "ar", "student_t"} or a registered noise model's name
+        The noise model of the likelihood (:mod:`pmabayes.inference.noise`;
+        :func:`pmabayes.inference.noise.choose_noise_model`). Where the noise comes
+        from repeats: ``"auto"`` keeps AR(1) + white unless the repeats' deviations
+        reject it (then their AR(p) model), ``"ar1"`` always keeps it, ``"ar"`` always
+        uses the AR(p); records without repeats keep the sampled AR(1) + white under
+        its guard. ``"student_t"``: Student-t white noise (heavy tails, for
+        outliers), its parameters sampled with the model's. The fit file records
+        each experiment's (``experiments[i]["noise_model"]``).
     steady_state_tol_m : float or None
         Tolerance of the periodic steady state of data that start in it; None takes
         each sidecar's ``steady_state_tol_m`` (or 1e-9 m).
@@ -452,10 +454,11 @@ def _fingerprint(posterior: Posterior, settings: FitSettings, seed) -> str:
         extra.update(rigs=[lik.model.rig.to_dict() for lik in liks],
                      names=posterior.experiment_names, groups=posterior.groups,
                      sampled_noise=list(posterior.names[posterior.n_model:]))
-    if any(lik.ar_noise is not None for lik in liks):
-        # chains of an AR(1) + white likelihood are not those of an AR(p) one
-        extra["noise_models"] = [None if lik.ar_noise is None
-                                 else lik.ar_noise.autocovariance_m2.tolist() for lik in liks]
+    records = [lik.noise.to_dict() for lik in liks]
+    if any(records):
+        # chains of an AR(1) + white likelihood are not those of another noise model's
+        # (an AR(p)'s keeps the fingerprint it always had: its autocovariance)
+        extra["noise_models"] = [r.get("autocovariance_m2", r or None) for r in records]
     if any(lik.observed is not None or lik.own_inputs or lik.start_parameters()
            for lik in liks):
         # what else the likelihood is of: samples missing in it, inputs, starts
@@ -528,6 +531,7 @@ def fit(
     settings: FitSettings | None = None,
     chains_dir: str | Path | None = None,
     restart: bool = False,
+    trials: Sequence[int] | None = None,
 ) -> xr.DataTree:
     """Identify a model's parameters from one or more experiments: MAP, then posterior.
 
@@ -548,8 +552,10 @@ def fit(
     datasets : Dataset or sequence of Dataset
         The experiments, all with the same kind of input (pressure or force).
     model : Model, optional
-        The model (effects, priors, fixed values); the base model by default. With
-        one experiment it is used as given. With several, each experiment gets it
+        The model (effects, priors, fixed values); by default the base model on the
+        first experiment's rig (``Model.for_dataset``: its metadata's ``rig``, else the
+        characterisation rig, said once per file). With one experiment it is used as
+        given. With several, each experiment gets it
         on the rig its metadata records (``Model.for_dataset``), or on the
         model's rig where the metadata records none.
     seed : int or None
@@ -564,6 +570,12 @@ def fit(
         and a failure before any chain is written removes it again.
     restart : bool
         Discard existing chains in ``chains_dir`` instead of resuming.
+    trials : sequence of int, optional
+        Fit only these trials (ids, as in the file's ``trial`` column) of the data,
+        which must come from one file (a data set, or the segments of one record);
+        the others are held out, e.g. for :func:`pmabayes.validate` with
+        ``trials=``. The fit file records the trials fitted, per experiment
+        (``experiments[i].trial_ids``). All of them by default.
 
     Returns
     -------
@@ -575,6 +587,8 @@ def fit(
     FitError
         When the data cannot be fitted, the experiments' inputs are of different
         kinds, or the chains belong to another fit.
+    DataError
+        When ``trials`` names an id the data do not hold, or data of several files.
 
     Warns
     -----
@@ -591,9 +605,13 @@ def fit(
         numbers, :func:`pmabayes.inference.search.fit_quality`). The fit goes on.
     """
     settings = FitSettings() if settings is None else settings
+    if trials is not None:
+        datasets = keep_trials(datasets, trials)
+    if model is None:
+        first = datasets if isinstance(datasets, Dataset) else next(iter(datasets), None)
+        model = Model.for_dataset(first) if isinstance(first, Dataset) else Model()
     with show_progress("fit", settings.progress):
-        return _fit(datasets, Model() if model is None else model, seed, settings,
-                    chains_dir, restart)
+        return _fit(datasets, model, seed, settings, chains_dir, restart)
 
 
 def _fit(datasets, model: Model, seed, settings: FitSettings, chains_dir, restart: bool

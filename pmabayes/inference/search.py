@@ -404,8 +404,9 @@ def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
         ``agree`` (bool, or None where the own fits have no parameter beyond the
         joint's), ``statistic``, ``df``, ``p_value``, ``level``, and per experiment
         (by name) ``log_likelihood_own``, ``log_likelihood_joint``,
-        ``rms_cost_own_m``, ``rms_cost_joint_m`` and ``values_own`` (the experiment's
-        own MAP of its model's free parameters).
+        ``rms_cost_own_m``, ``rms_cost_joint_m``, ``values_own`` (the experiment's
+        own MAP of its model's free parameters) and ``z_own`` (each parameter's own MAP
+        and Laplace sd in the sampler's coordinates).
     """
     theta = posterior.to_natural(z_map[None])
     per: dict[str, dict] = {}
@@ -423,11 +424,20 @@ def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
                      "rms_cost_own_m": float(lik.rms_cost(x_own)[0]),
                      "rms_cost_joint_m": float(lik.rms_cost(x)[0]),
                      "values_own": {n: float(result.values[n]) for n in lik.model.free_names
-                                    if n in result.values}}
+                                    if n in result.values},
+                     "z_own": _own_z(alone, result)}
     stat = 2.0 * gain
     p = float(chi2.sf(stat, df)) if df > 0 else None
     return {"agree": None if p is None else bool(p >= LEVEL_ADEQUATE), "statistic": stat,
             "df": int(df), "p_value": p, "level": LEVEL_ADEQUATE, "experiments": per}
+
+
+def _own_z(alone: Posterior, result: MapResult) -> dict[str, list[float]]:
+    """Each parameter of an experiment's own MAP in the sampler's coordinates (log for a
+    positive one) with its Laplace sd there: how far apart two experiments' estimates
+    are, in units of their uncertainty."""
+    sd = np.sqrt(np.clip(np.diag(result.covariance_z), 0.0, None))
+    return {n: [float(result.z[j]), float(sd[j])] for j, n in enumerate(alone.names)}
 
 
 def disagreement_text(agreement: dict) -> str:

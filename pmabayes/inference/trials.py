@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,7 +40,7 @@ import numpy as np
 from pmabayes.data import DataError, Dataset, DataWarning
 
 __all__ = ["TrialWarning", "TrialFinding", "TrialCheck", "check_trials", "exclude_trials",
-           "parse_trial_ids"]
+           "keep_trials", "parse_trial_ids"]
 
 #: Level of each of the three tests (offset drift, shape drift, outlier).
 LEVEL = 0.01
@@ -332,6 +332,52 @@ def exclude_trials(dataset: Dataset, ids: Iterable[int], *, min_trials: int = 2)
                         f"{len(have)}; at least {min_trials} repeated trials are needed to "
                         "tell the model's error from the noise. Exclude fewer trials.")
     return dataset.select_trials(keep)
+
+
+def keep_trials(datasets: Dataset | Sequence[Dataset], ids: Iterable[int], *,
+                min_trials: int = 1) -> list[Dataset]:
+    """The data sets with only the trials of the given ids: the others left out through
+    :func:`exclude_trials` (``trials=`` of :func:`pmabayes.fit` and
+    :func:`pmabayes.validate`).
+
+    Parameters
+    ----------
+    datasets : Dataset or sequence of Dataset
+        One file's data: one data set, or the segments of one record (trial ids
+        belong to a file).
+    ids : iterable of int
+        Trial ids (as in the file's ``trial`` column) to keep.
+    min_trials : int
+        Fewest trials to keep.
+
+    Returns
+    -------
+    list of Dataset
+        Each with the trials asked for, in the file's order.
+
+    Raises
+    ------
+    DataError
+        For data sets of several files, an id a data set does not hold, or no id.
+    """
+    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
+    ids = [int(i) for i in ids]
+    files = list(dict.fromkeys(d.source_file for d in datasets))
+    if len(files) > 1 or (len(datasets) > 1 and files == [None]):
+        raise DataError(
+            f"trials={ids}: trial ids belong to one data file, but the data come from "
+            f"{len(datasets)} ({', '.join(str(f) for f in files[:4])}); select the trials of "
+            "each file alone (pmabayes.inference.keep_trials) and pass the data sets")
+    out = []
+    for d in datasets:
+        have = [int(i) for i in d.trial_ids]
+        unknown = [i for i in ids if i not in have]
+        if unknown or not ids:
+            raise DataError(f"{d.source or 'the data set'}: trials={ids}: no trial with id "
+                            f"{', '.join(map(str, unknown)) or '(none given)'}; the trial ids "
+                            f"are {have}")
+        out.append(exclude_trials(d, [i for i in have if i not in ids], min_trials=min_trials))
+    return out
 
 
 def parse_trial_ids(text: str) -> list[int]:

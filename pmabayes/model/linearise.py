@@ -3,8 +3,9 @@ the linear time-varying system of the whole plant (:func:`linearise`).
 
 The one place outside the simulator that evaluates the force effects' ``physics`` and
 ``advance``, whatever their signature (plain, reading ``z``, carrying a state), and the
-Bouc-Wen law with its hysteresis effect: callers (the discrepancy step's linear
-response) ask this module instead of calling an effect themselves.
+Bouc-Wen law (:func:`pmabayes.model.boucwen.linearised`) with its hysteresis effect:
+callers (the discrepancy step's linear response) ask this module instead of calling an
+effect themselves.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pmabayes.model import boucwen
+from pmabayes.model.boucwen import BoucWenColumns
 from pmabayes.model.model import Model
 
 __all__ = ["LinearisationError", "EffectForces", "Linearisation", "effect_forces", "linearise"]
@@ -206,8 +209,6 @@ def _hysteresis_rates(model: Model, th: np.ndarray, v: np.ndarray, z: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The Bouc-Wen law ``z' = (alpha - c g(|z|) |z|) v`` linearised, ``dz' = kz dv +
     bz dz``, with the hysteresis effect's factor ``g`` (1 without one)."""
-    alpha, beta, gamma = (th[model.index(k)] for k in ("alpha", "beta", "gamma"))
-    c = beta * np.where(v * z >= 0.0, 1.0, -1.0) + gamma
     az = np.abs(z)
     g, dg = np.ones_like(z), np.zeros_like(z)
     for eff, sl in model.effect_slices():
@@ -223,9 +224,7 @@ def _hysteresis_rates(model: Model, th: np.ndarray, v: np.ndarray, z: np.ndarray
                 g[k] = eff.physics(q, az[k])
                 lo = max(az[k] - h, 0.0)
                 dg[k] = (eff.physics(q, az[k] + h) - eff.physics(q, lo)) / (az[k] + h - lo)
-    kz = alpha - c * g * az
-    bz = -v * c * np.where(z >= 0.0, 1.0, -1.0) * (g + az * dg)
-    return kz, bz
+    return boucwen.linearised(v, z, *BoucWenColumns.of(model).law(th), g, dg)
 
 
 def linearise(model: Model, theta: np.ndarray, x_m: np.ndarray, v_m_s: np.ndarray,

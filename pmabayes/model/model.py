@@ -18,12 +18,18 @@ A :class:`Rig` holds what is known and fixed (masses, area, gravity); a
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
 
 import numpy as np
 
+from pmabayes.data import DataWarning
+from pmabayes.data.keys import KeyDoc
+from pmabayes.data.sidecar import say_once
+from pmabayes.model.boucwen import loading_branch
 from pmabayes.model.effects import Effect, resolve_effects
 from pmabayes.model.parameters import (
     HalfNormal,
@@ -49,11 +55,17 @@ __all__ = [
     "BASE_PARAMETERS",
     "RIG_PRIOR_KEYS",
     "RIG_PREFIX",
+    "RIG_DICT_KEYS",
+    "RIG_KEYS",
+    "assumed_rig",
     "force_rig_priors",
     "Rig",
     "Model",
     "ModelError",
 ]
+
+#: warnings point at the caller's line, outside the package
+_PACKAGE = (str(Path(__file__).parents[1]),)
 
 G_M_S2 = 9.81
 PMA_MASS_KG = 0.022
@@ -132,15 +144,14 @@ def derive_area(
     v = dict(PAPER_VALUES if values is None else values)
     weight = moving_mass_kg * g_m_s2 * gravity_sign
     x0 = -weight / v["K_e"]
-    c = v["beta"] + v["gamma"]
-    dx = extension_m - x0
-    z = v["alpha"] * dx if c == 0 else v["alpha"] / c * -math.expm1(-c * dx)
+    z = loading_branch(extension_m - x0, v["alpha"], v["beta"], v["gamma"])
     return (v["K_e"] * extension_m + z + weight) / (pressure_pa - v["p_dz"])
 
 
 PAPER_AREA_M2 = derive_area()
 
-#: Base parameters in kernel order; the order is part of the simulator's contract.
+#: Base parameters, first in every model's parameter order (the simulator finds
+#: them by name: :class:`~pmabayes.model.boucwen.BoucWenColumns`).
 BASE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
         "alpha", "N/m", PAPER_VALUES["alpha"], LogNormal(25.0, 1.5), bounds=(0.0, math.inf),
@@ -278,7 +289,7 @@ class Rig:
         A value of :data:`RIG_PRIOR_KEYS` may be a prior's text
         (:func:`~pmabayes.model.parameters.parse_prior`), e.g. ``"LogNormal(1e-5, 1.5)"``.
         """
-        known = {"moving_mass_kg", "gravity_sign", "area_m2", "input_kind", "g_m_s2", "name"}
+        known = set(RIG_DICT_KEYS)
         unknown = set(d) - known
         if unknown:
             raise ModelError(f"unknown rig keys {sorted(unknown)}; expected {sorted(known)}: "
@@ -301,6 +312,71 @@ class Rig:
     def prior_of(self, key: str) -> Prior | None:
         """The prior of rig value ``key``, or None where the value is a number."""
         return dict(self.priors).get(key)
+
+
+#: The keys of a rig's dict (:meth:`Rig.to_dict`, a sidecar's ``"rig"``): its fields,
+#: a value given as a prior written under its own key.
+RIG_DICT_KEYS: tuple[str, ...] = tuple(f.name for f in fields(Rig) if f.name != "priors")
+
+#: The sidecar reference of each key of a ``"rig"`` (:data:`RIG_DICT_KEYS`); the defaults
+#: are the characterisation rig's, which a sidecar without a rig gets.
+RIG_KEYS: dict[str, KeyDoc] = {
+    "moving_mass_kg": KeyDoc(
+        'number > 0, or a prior (`"LogNormal(0.07, 1.5)"`)', "kg",
+        f"{CARRIAGE_MASS_KG + PMA_MASS_KG:g} (carriage + muscle)",
+        "`M + m`: everything that moves with the muscle's free end (carriage, load, muscle).",
+        "guide/rig_priors"),
+    "gravity_sign": KeyDoc(
+        "1, 0 or -1", "", "1", "`s_g`: +1 gravity opposes extension, -1 it pulls toward "
+        "extension (a hanging load), 0 none (a horizontal rig).", "guide/rig_priors"),
+    "area_m2": KeyDoc(
+        'number > 0, or a prior (`"LogNormal(1e-4, 1.5)"`)', "m^2",
+        f"{PAPER_AREA_M2:.6g} (derived from the paper's muscle)",
+        "Effective area `A`, force per pressure; 1 for a force-driven oscillator.",
+        "guide/rig_priors"),
+    "input_kind": KeyDoc(
+        '`"pressure"` or `"force"`', "", "pressure", "What the input column holds: "
+        "pressure in Pa (a muscle, with a dead zone) or force in N (an oscillator).",
+        "guide/data"),
+    "g_m_s2": KeyDoc("number", "m/s^2", f"{G_M_S2:g}", "Gravitational acceleration.",
+                     "guide/rig_priors"),
+    "name": KeyDoc("string", "", "custom", "A label for reports; a fit of several "
+                   "experiments matches held-out data to fitted ones by it.",
+                   "guide/validation"),
+}
+
+
+def assumed_rig(dataset) -> None:
+    """Say once per file that a data set whose sidecar gives no ``"rig"`` runs on the
+    paper's characterisation rig (a :class:`~pmabayes.data.DataWarning`).
+
+    Silent for data sets made in Python (no source), synthetic data (their sidecar
+    has their rig, or says ``"synthetic"``) and force data (refused without a rig).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Data whose model is about to get the characterisation rig.
+
+    Warns
+    -----
+    DataWarning
+        Once per file and process, with a complete ``"rig"`` to declare.
+    """
+    meta = dataset.metadata or {}
+    source = dataset.source_file
+    if (source is None or "rig" in meta or meta.get("synthetic") is True
+            or "generator" in meta or dataset.input_name != "pressure_pa"):
+        return
+    rig = Rig.characterisation()
+    example = json.dumps({"rig": {**rig.to_dict(), "name": "my_rig"}})
+    say_once(source, "rig", DataWarning(
+        f'{source}: no "rig" in its sidecar, so the paper\'s characterisation rig is '
+        f"assumed (moving mass {rig.moving_mass_kg:g} kg, gravity against extension, area "
+        f"A={rig.area_m2:.4g} m^2); declare yours in "
+        f"{Path(source).with_suffix('.json').name}: {example[1:-1]} (gravity_sign -1: "
+        "gravity pulls toward extension, 0: none; a value not known may be a prior, e.g. "
+        '"area_m2": "LogNormal(1e-4, 1.5)")'), _PACKAGE)
 
 
 def _rig_parameter(key: str, prior: Prior) -> Parameter:
@@ -522,7 +598,8 @@ class Model:
         ----------
         dataset : Dataset
             Data whose ``metadata["rig"]`` (if any) gives the rig; the
-            characterisation rig otherwise.
+            characterisation rig otherwise, said once per file
+            (:func:`assumed_rig`).
         effects : iterable or str
             Effects to add to the base model.
         priors : mapping of str to Prior, optional
@@ -534,7 +611,10 @@ class Model:
         -------
         Model
         """
-        rig = _rig_of(dataset) or Rig.characterisation()
+        rig = _rig_of(dataset)
+        if rig is None:
+            assumed_rig(dataset)
+            rig = Rig.characterisation()
         return cls(effects, rig=rig, priors=priors, fixed=fixed)
 
     def on_rig(self, dataset) -> Model:

@@ -41,7 +41,7 @@ def write_validation(validation, out_dir: str | Path) -> Path:
     settings = v.settings
     pct = f"{100 * settings['ci_prob']:.4g}%"
     model = " + ".join(["base", *v.effects])
-    # the yardsticks fitted (linear, play, narx where SysIdentPy is installed)
+    # the yardsticks fitted (linear, play, narx where the records are long enough)
     yards = [n for n in REGISTRY if any(n in e.baselines for e in v.experiments)]
     body = [
         f'<p class="meta">fit: <code>{html.escape(str(v.fit_source or "(in memory)"))}</code>'

@@ -48,6 +48,7 @@ from pmabayes.criticism.prose import removed_text
 from pmabayes.criticism.signature import residual_signature
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.simulator import Simulation
+from pmabayes.outputs import check_folder_for_new_files
 from pmabayes.util import format_together
 
 __all__ = ["estimate_discrepancy"]
@@ -78,11 +79,12 @@ def estimate_discrepancy(
     simulation : Simulation
         The model at its MAP, with its states.
     plugin_dir : str or Path or False, optional
-        Where to write the proposal's ``.py`` file (the current folder by default).
-        An existing file of the same name is never overwritten: a numbered name is
-        chosen instead. False: the file is written to a temporary folder for the
-        refit and not kept (the proposal's ``plugin`` is then None, and its text says
-        how to keep it).
+        The folder where the proposal's ``.py`` file is kept (created if missing,
+        checked first by :func:`pmabayes.outputs.check_folder_for_new_files`). An
+        existing file of the same name is never overwritten: a numbered name is
+        chosen instead. None or False (the default): the file is written to a
+        temporary folder for the refit and not kept (the proposal's ``plugin`` is then
+        None, and its text says how to keep it).
     verify : bool
         Refit the model with the written effect (nonlinear, through the simulator)
         and report what it achieves.
@@ -96,7 +98,15 @@ def estimate_discrepancy(
     Returns
     -------
     Discrepancy
+
+    Raises
+    ------
+    pmabayes.outputs.OutputError
+        If ``plugin_dir`` is a file or cannot be written in (before any work).
     """
+    keep = plugin_dir is not None and plugin_dir is not False
+    if keep:
+        check_folder_for_new_files(plugin_dir, "plugin_dir")
     problem = LinearProblem(likelihood, noise, values, simulation, start)
     n = problem.n_counted
     e0 = float(problem.r_w @ problem.r_w)
@@ -136,7 +146,7 @@ def estimate_discrepancy(
         else None
     not_force = reading is not None and reading.as_good
     if gain > max(2.0 * gain_se, 2.0) and not not_force:
-        if plugin_dir is False:  # checked, not kept
+        if not keep:  # checked, not kept: nothing is written outside a temporary folder
             with tempfile.TemporaryDirectory(prefix="pmabayes-proposal-") as tmp:
                 proposal = _propose(problem, st, (tau, width), blocks, full, loo_full, gain, states,
                                     tmp, verify, command)
@@ -306,7 +316,7 @@ def _propose(problem, st, scales, blocks, full, loo_full, gain, states, plugin_d
         # near the flexible estimate: within its noise, or a small share of its gain
         closed = (dic.fit(problem, support), d, se, d > -max(2.0 * se, 4.0, 0.02 * gain))
     series = {t.slug: v for t, v in dic.terms}
-    folder = Path(plugin_dir) if plugin_dir is not None else Path.cwd()
+    folder = Path(plugin_dir)
     existing = {str(f) for f in folder.glob("*.py")} if folder.is_dir() else set()
 
     def write(chosen, kind, d, se, **kw) -> Proposal:

@@ -260,13 +260,13 @@ def describe_terms(chosen: list, kind: str) -> tuple[str, str]:
     return " ".join(parts).lstrip("+"), "; ".join(words)
 
 
-def write_plugin(chosen: list, kind: str, tables, plugin_dir) -> tuple[Path, bool]:
-    """Write the effect's file (in ``plugin_dir``, the current folder by default); never
-    over another file. Its path, and whether this call created it."""
+def write_plugin(chosen: list, kind: str, tables, plugin_dir: str | Path) -> tuple[Path, bool]:
+    """Write the effect's file in the folder ``plugin_dir``; never over another file. Its
+    path, and whether this call created it."""
     _, description = describe_terms(chosen, kind)
     name = effect_name(chosen)
     body = plugin_source(name, chosen, description, tables)
-    folder = Path(plugin_dir) if plugin_dir is not None else Path.cwd()
+    folder = Path(plugin_dir)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.py"
     k = 2

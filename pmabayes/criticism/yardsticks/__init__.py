@@ -6,7 +6,7 @@ same experiments as the physics (:mod:`~pmabayes.criticism.baselines` fits them 
             :class:`~pmabayes.criticism.yardsticks.base.Fitted`), the records, NRMSE
 ``linear``  a linear output-error model
 ``play``    a Prandtl-Ishlinskii model of play operators
-``narx``    a polynomial NARX model (SysIdentPy's FROLS; optional)
+``narx``    a polynomial NARX model (terms chosen by FROLS, built in: ``_frols``)
 ==========  ==========================================================================
 
 A new yardstick is one :class:`~pmabayes.criticism.yardsticks.base.Yardstick` subclass

@@ -1,6 +1,7 @@
 """The polynomial NARX yardstick: ``y(k) = F[y(k-1..n), u(k-1..n)]``, ``F`` a polynomial
-of degree :data:`NARX_DEGREE`, its terms chosen by SysIdentPy's forward regression with
-orthogonal least squares (FROLS: the error reduction ratio of Billings).
+of degree :data:`NARX_DEGREE`, its terms chosen by forward regression with orthogonal
+least squares (FROLS: the error reduction ratio of Chen, Billings & Luo 1989; Billings
+2013, ch. 3), built in (module ``_frols`` beside this one).
 
 ``n`` (the output and input lags, one number for both) is one of :data:`NARX_LAGS` and the
 number of terms at most :data:`MAX_TERMS`; both are chosen on the training data alone,
@@ -35,19 +36,25 @@ constant through each record; a predicted record must then declare its load too.
 Input, output and load are scaled to zero mean and unit spread on the training data
 before the regression (a pressure in Pa squared beside a position in m would leave the
 least squares without digits); the coefficients in the JSON are those of the scaled
-variables. SysIdentPy is an optional dependency (``pip install pmabayes[narx]``); without
-it this yardstick is left out, with one line saying so.
+variables.
+
+References
+----------
+S. Chen, S. A. Billings and W. Luo (1989), "Orthogonal least squares methods and their
+application to non-linear system identification", *Int. J. Control* 50(5), 1873-1896.
+S. A. Billings (2013), *Nonlinear System Identification: NARMAX Methods in the Time,
+Frequency, and Spatio-Temporal Domains*, Wiley.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from pmabayes.criticism.yardsticks._frols import free_run, frols, regressor_codes, regressors
 from pmabayes.criticism.yardsticks.base import (
     TRAIN_SHARE,
     Fitted,
@@ -79,18 +86,6 @@ PARSIMONY = 0.05
 #: A free run farther than this many training output ranges from the training output's
 #: mean has diverged.
 DIVERGED = 100.0
-
-_INSTALL = "pip install pmabayes[narx]"
-
-
-def _sysidentpy():
-    """SysIdentPy's pieces: FROLS, the polynomial basis, the lagged matrix; an
-    ImportError without it."""
-    from sysidentpy.basis_function import Polynomial
-    from sysidentpy.model_structure_selection import FROLS
-    from sysidentpy.parameter_estimation import LeastSquares
-    from sysidentpy.utils.information_matrix import build_lagged_matrix
-    return FROLS, Polynomial, LeastSquares, build_lagged_matrix
 
 
 # ----------------------------------------------------------------------------- the grid
@@ -151,8 +146,8 @@ def _spread(values: np.ndarray) -> tuple[float, float]:
 
 
 def _term_name(code: Sequence[int], n_inputs: int) -> str:
-    """``y(k-1)*u(k-2)`` of a SysIdentPy regressor code (1001: y(k-1), 2001: first
-    input(k-1), 3001: the load)."""
+    """``y(k-1)*u(k-2)`` of a regressor code (1001: y(k-1), 2001: first input(k-1), 3001:
+    the load; SysIdentPy's coding)."""
     names = ["y", "u", "load"][: n_inputs + 1]
     parts = [f"{names[c // 1000 - 1]}(k-{c % 1000})" for c in code if c]
     return "*".join(parts) or "1"
@@ -169,7 +164,8 @@ class NarxBaseline(Fitted):
     grid_dt_s : float
         The internal sample interval.
     terms : numpy.ndarray
-        SysIdentPy regressor codes of the kept terms, ``(n_terms, degree)``.
+        Regressor codes of the kept terms, ``(n_terms, degree)`` (see
+        ``pmabayes.criticism.yardsticks._frols``).
     coefficients : numpy.ndarray
         Their coefficients, for the scaled variables.
     scale : _Scale
@@ -276,45 +272,20 @@ class NarxBaseline(Fitted):
                                  for k, v in self.scores.items()}}
 
 
-def _model(lag: int, n_inputs: int, terms: np.ndarray, coefficients: np.ndarray):
-    """A SysIdentPy FROLS object holding given terms and coefficients (for its free run)."""
-    frols, polynomial, least_squares, _ = _sysidentpy()
-    m = frols(order_selection=False, n_terms=max(1, terms.shape[0]), ylag=lag,
-              xlag=_xlag(lag, n_inputs), basis_function=polynomial(degree=NARX_DEGREE),
-              estimator=least_squares(), model_type="NARMAX")
-    m.n_inputs = n_inputs
-    m.regressor_code = m.regressor_space(n_inputs)
-    m.final_model = np.asarray(terms).copy()
-    m.theta = np.asarray(coefficients, float).reshape(-1, 1)
-    m.pivv = np.arange(terms.shape[0])
-    return m
-
-
-def _xlag(lag: int, n_inputs: int):
-    """SysIdentPy's input lags: ``lag`` for the input, 1 for the (constant) load."""
-    return lag if n_inputs == 1 else [list(range(1, lag + 1)), [1]]
-
-
 def _free_run(fitted: NarxBaseline, x: np.ndarray) -> np.ndarray | None:
     """The scaled free run of scaled grid inputs ``x`` from the steady state at their first
     row (``burn_in`` rows of it first, from the training mean); None when it diverges."""
-    return _simulate(_model(fitted.lag, fitted.n_inputs, fitted.terms, fitted.coefficients),
-                     x, fitted.burn_in, fitted.scale.limit)
+    return _simulate(fitted.lag, fitted.terms, fitted.coefficients, x, fitted.burn_in,
+                     fitted.scale.limit)
 
 
-def _simulate(model, x: np.ndarray, burn_in: int, limit: float) -> np.ndarray | None:
-    """:func:`_free_run` for a SysIdentPy model: None when the run overflows or leaves
-    ``limit`` (scaled)."""
-    lead = np.repeat(x[:1], burn_in, axis=0)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        try:
-            y = model.predict(X=np.concatenate([lead, x]),
-                              y=np.zeros((model.max_lag, 1)), steps_ahead=None)
-        except (FloatingPointError, OverflowError, ValueError, np.linalg.LinAlgError):
-            return None
-    y = np.asarray(y, float).ravel()[burn_in:]
-    return y if np.all(np.isfinite(y)) and np.all(np.abs(y) < limit) else None
+def _simulate(lag: int, terms: np.ndarray, coefficients: np.ndarray, x: np.ndarray,
+              burn_in: int, limit: float) -> np.ndarray | None:
+    """:func:`_free_run` of given terms and coefficients: None when the run overflows or
+    leaves ``limit`` (scaled)."""
+    y = free_run(terms, coefficients, np.concatenate([np.repeat(x[:1], burn_in, axis=0), x]),
+                 lag, limit)
+    return None if y is None else y[burn_in:]
 
 
 # ----------------------------------------------------------------------------- the fit
@@ -355,18 +326,13 @@ def _grids(records: Sequence[Record]) -> tuple[list[_Grid], _Scale, float, int]:
 def _rows(grids: list[_Grid], lag: int, part: str) -> tuple[np.ndarray, np.ndarray]:
     """The candidate regressors and the target of every observed row (all lags and the
     target finite) of the fitting parts (``"head"``) or of the whole records."""
-    frols, polynomial, _, build_lagged_matrix = _sysidentpy()
-    basis = polynomial(degree=NARX_DEGREE)
-    n_inputs = grids[0].x.shape[1]
-    xlag = _xlag(lag, n_inputs)
+    codes = regressor_codes(lag, grids[0].x.shape[1], NARX_DEGREE)
     psi, target = [], []
     with np.errstate(invalid="ignore"):
         for g in grids:
             if g.y.size <= lag + 1:
                 continue
-            lagged = build_lagged_matrix(g.x, g.y[:, None], xlag, lag, "NARMAX")
-            p = np.asarray(basis.fit(lagged, lag, lag, xlag, "NARMAX",
-                                     predefined_regressors=None), float)
+            p = regressors(g.x, g.y, codes, lag)
             t = g.y[lag:]
             keep = np.all(np.isfinite(p), axis=1) & np.isfinite(t)
             if part == "head":
@@ -381,28 +347,7 @@ def _rows(grids: list[_Grid], lag: int, part: str) -> tuple[np.ndarray, np.ndarr
 def _n_regressors(lag: int, n_inputs: int) -> int:
     """Candidate terms of degree at most 2 in ``lag`` outputs and ``lag`` inputs (one
     load lag)."""
-    v = 2 * lag + (n_inputs - 1)
-    return math.comb(v + NARX_DEGREE, NARX_DEGREE)
-
-
-def _rank(psi: np.ndarray, target: np.ndarray, lag: int, n_inputs: int) -> np.ndarray:
-    """The candidate terms' indices in FROLS' order (largest error reduction first)."""
-    frols, polynomial, least_squares, _ = _sysidentpy()
-    m = frols(order_selection=False, n_terms=min(MAX_TERMS, psi.shape[1]), ylag=lag,
-              xlag=_xlag(lag, n_inputs), basis_function=polynomial(degree=NARX_DEGREE),
-              estimator=least_squares(), model_type="NARMAX")
-    # FROLS reads its target from the row max_lag on, as fit() passes the whole record
-    padded = np.concatenate([np.zeros(m.max_lag), target])[:, None]
-    piv = m.error_reduction_ratio(psi, padded, min(MAX_TERMS, psi.shape[1]))[1]
-    return np.asarray(piv, dtype=int).ravel()[: min(MAX_TERMS, psi.shape[1])]
-
-
-def _codes(lag: int, n_inputs: int) -> np.ndarray:
-    frols, polynomial, least_squares, _ = _sysidentpy()
-    m = frols(order_selection=False, n_terms=1, ylag=lag, xlag=_xlag(lag, n_inputs),
-              basis_function=polynomial(degree=NARX_DEGREE), estimator=least_squares(),
-              model_type="NARMAX")
-    return m.regressor_space(n_inputs)
+    return regressor_codes(lag, n_inputs, NARX_DEGREE).shape[0]
 
 
 def _lstsq(psi: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -411,12 +356,13 @@ def _lstsq(psi: np.ndarray, target: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(psi / norms, target, rcond=None)[0] / norms
 
 
-def _tail_rmse(model, grids: list[_Grid], burn_in: int, scale: _Scale) -> float:
+def _tail_rmse(lag: int, terms: np.ndarray, coefficients: np.ndarray, grids: list[_Grid],
+               burn_in: int, scale: _Scale) -> float:
     """RMS error (m) of the free run on the held-back parts of the grid records; inf
     when a run diverges."""
     errs = []
     for g in grids:
-        y = _simulate(model, g.x, burn_in, scale.limit)
+        y = _simulate(lag, terms, coefficients, g.x, burn_in, scale.limit)
         if y is None:
             return math.inf
         tail = np.arange(g.y.size) >= g.cut
@@ -451,12 +397,9 @@ def fit_narx(records: Sequence[Record]) -> NarxBaseline:
     Raises
     ------
     LeftOut
-        Without SysIdentPy, when the records are too short for its smallest lag, or when
-        every candidate's free run diverges.
+        When the records are too short for its smallest lag, or when every candidate's
+        free run diverges.
     """
-    reason = NarxYardstick.unavailable()
-    if reason:
-        raise LeftOut(reason)
     grids, scale, grid_dt, burn_in = _grids(records)
     n_inputs = 1 if scale.load is None else 2
     scores: dict[str, float] = {}
@@ -465,12 +408,11 @@ def fit_narx(records: Sequence[Record]) -> NarxBaseline:
         psi, target = _rows(grids, lag, "head")
         if target.size < MIN_ROWS_PER_REGRESSOR * _n_regressors(lag, n_inputs):
             continue
-        order = _rank(psi, target, lag, n_inputs)
-        codes = _codes(lag, n_inputs)
+        order = frols(psi, target, MAX_TERMS)[0]
+        codes = regressor_codes(lag, n_inputs, NARX_DEGREE)
         for n in range(1, order.size + 1):
             coef = _lstsq(psi[:, order[:n]], target)
-            score = _tail_rmse(_model(lag, n_inputs, codes[order[:n]], coef), grids, burn_in,
-                               scale)
+            score = _tail_rmse(lag, codes[order[:n]], coef, grids, burn_in, scale)
             scores[f"lag {lag}, {n} terms"] = score
             if math.isfinite(score):
                 tried[n, lag] = (score, codes[order[:n]], order[:n], coef)
@@ -508,16 +450,6 @@ class NarxYardstick(Yardstick):
 
     name = "narx"
     colour = "tab:orange"
-
-    @classmethod
-    def unavailable(cls) -> str | None:
-        """A line with the fix when SysIdentPy cannot be imported."""
-        try:
-            _sysidentpy()
-        except ImportError as err:
-            return (f"narx yardstick left out: SysIdentPy is not installed ({err}); "
-                    f"{_INSTALL} to have it")
-        return None
 
     def fit(self, records: Sequence[Record]) -> NarxBaseline:
         """:func:`fit_narx`."""

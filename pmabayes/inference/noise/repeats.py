@@ -1,9 +1,10 @@
 """The noise, learnt from repeatability: the posterior of the AR(1) + white noise from
 the deviations of the repeats from their mean (trials, or the periods of a periodic
 record), each noise group's estimate and noise model, the start of a noise sampled with
-the model (a record without repeats), and the periods of a record from rest referred to
-the model's residual. The noise models themselves (AR(1) + white, AR(p)) and their
-choice live in :mod:`pmabayes.inference.likelihood`.
+the model (a record without repeats, or a model that is not learnt from repeats), and
+the periods of a record from rest referred to the model's residual. The noise models
+themselves are the package's other modules; their choice is
+:mod:`pmabayes.inference.noise.choice`.
 """
 
 from __future__ import annotations
@@ -18,16 +19,13 @@ from scipy.optimize import minimize
 
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import _fd_hessian
-from pmabayes.inference.likelihood import (
-    NOISE_PARAMETERS,
-    JointLikelihood,
-    Likelihood,
-    NoiseChoice,
-    choose_noise_model,
-)
+from pmabayes.inference.noise.ar1 import NOISE_PARAMETERS, _lag_moment, _moment_start
+from pmabayes.inference.noise.base import noise_model_class
+from pmabayes.inference.noise.choice import NoiseChoice, _as_list, choose_noise_model
 
-if TYPE_CHECKING:  # the density holds a NoiseEstimate, so it is imported for types only
+if TYPE_CHECKING:  # the density holds a NoiseEstimate, and the likelihood a noise model
     from pmabayes.inference.density import Posterior
+    from pmabayes.inference.likelihood import Likelihood
 
 __all__ = [
     "estimate_noise",
@@ -57,7 +55,7 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
     FitError
         If there are no repeats, or their spread does not identify the noise.
     """
-    liks = [likelihood] if isinstance(likelihood, Likelihood) else list(likelihood)
+    liks = _as_list(likelihood)
     where = ", ".join(str(lik.dataset.source or "the data set") for lik in liks)
     liks = [lik for lik in liks if lik.n_repeats >= 2]
     if not liks:
@@ -99,38 +97,14 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
     return NoiseEstimate(float(np.exp(u[0])), float(np.tanh(u[1])), float(np.exp(u[2])), u, cov)
 
 
-def _lag_moment(d: np.ndarray, observed: np.ndarray | None, lag: int) -> float:
-    """Mean of ``d[:, k] d[:, k - lag]`` over series ``d`` ``(series, n)``: over every
-    pair, or over the pairs of samples both ``observed`` (``(1 or series, n)``; ``d`` is
-    0 where a sample is not)."""
-    n = d.shape[1]
-    if observed is None:
-        return float(np.mean(d[:, lag:] * d[:, : n - lag]))
-    pairs = np.broadcast_to(observed[:, lag:] & observed[:, : n - lag], (d.shape[0], n - lag))
-    return float(np.sum(d[:, lag:] * d[:, : n - lag]) / max(int(pairs.sum()), 1))
-
-
-def _moment_start(var: float, c1: float, c2: float, rho_high: float = 0.9999) -> np.ndarray:
-    """A start ``(log sigma, atanh rho, log sigma_w)`` for the noise from a series'
-    moments: its variance ``var`` and autocovariances ``c1``, ``c2`` at lags 1 and 2.
-
-    The disturbance's correlation from the decay of the autocovariance between lags
-    1 and 2 (clipped to ``[0, rho_high]``), its variance from lag 1, and the white
-    part from the drop of the autocovariance at lag one.
-    """
-    rho0 = float(np.clip(c2 / c1, 0.0, rho_high)) if c1 > 0 else min(0.5, rho_high)
-    ar_var = min(max(c1 / max(rho0, 1e-3), 1e-3 * var), var)
-    white_var = max(var - ar_var, 1e-4 * var)
-    return np.array([0.5 * math.log(max(ar_var, 1e-24)), math.atanh(rho0),
-                     0.5 * math.log(max(white_var, 1e-24))])
-
-
-def _minimise_noise(neg, u0: np.ndarray) -> np.ndarray:
-    """Minimise ``neg`` (batched) over noise coordinates from ``u0``, and from ``u0``
-    with every white part ``e^2`` times smaller (it may be tiny); the better optimum."""
+def _minimise_noise(neg, u0: np.ndarray, shift: np.ndarray | None = None) -> np.ndarray:
+    """Minimise ``neg`` (batched) over noise coordinates from ``u0``, and from ``u0 +
+    shift`` (by default: every AR(1) + white noise's white part ``e^2`` times smaller,
+    as it may be tiny); the better optimum."""
     best = None
-    shift = np.zeros(u0.size)
-    shift[2::3] = -2.0  # (log sigma, atanh rho, log sigma_w) per noise
+    if shift is None:
+        shift = np.zeros(u0.size)
+        shift[2::3] = -2.0  # (log sigma, atanh rho, log sigma_w) per noise
     for start in (u0, u0 + shift):
         res = minimize(lambda u: float(neg(u)[0]), start, method="Nelder-Mead",
                        options={"xatol": 1e-9, "fatol": 1e-9, "maxiter": 6000})
@@ -148,31 +122,35 @@ def _default_noise_z(posterior: Posterior, first: int | None = None) -> np.ndarr
 
 
 def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
-    """``z`` with the noise sampled with the model (records without repeats) set to
-    its posterior mode given the model's parameters in ``z``.
+    """``z`` with the noise sampled with the model (records without repeats, noise
+    models not learnt from repeats) set to its posterior mode given the model's
+    parameters in ``z``.
 
     The global search's cost does not depend on the noise, so it leaves the noise
     anywhere; a polish started there can stop in a mode of the noise alone (all of
     it white, or a negative correlation) far below the posterior's. The residual of
-    the search's optimum is a series of the noise (plus what misfit is left): its
-    moments start the search, over the noise coordinates only, of the posterior.
+    the search's optimum is a series of the noise (plus what misfit is left): each
+    noise model starts the search, over the noise coordinates only, of the posterior
+    from it (:meth:`~pmabayes.inference.noise.NoiseModel.start`).
     """
     cols = np.arange(posterior.n_searched, posterior.ndim)
     if cols.size == 0:
         return z
     x = posterior.output(posterior.to_natural(z[None]))
-    parts = (posterior.likelihood.split(x) if isinstance(posterior.likelihood, JointLikelihood)
-             else [x])
-    starts: dict[int, np.ndarray] = {}  # per sampled group, from its first experiment
+    # several experiments are seen as one JointLikelihood, which splits the output
+    parts = posterior.likelihood.split(x) if posterior.n_experiments > 1 else [x]
+    # per sampled group, from its first experiment: (start, shift, noise model, its lik)
+    starts: dict[int, tuple] = {}
     for e, (lik, xe) in enumerate(zip(posterior.likelihoods, parts, strict=True)):
         g = posterior.groups[e]
         if posterior.noise_sampled(e) and g not in starts:
             r = lik.y_mean - xe[0]
             if lik.observed is not None:  # a single record: its samples observed
                 r = np.where(lik.observed[0], r, 0.0)
-            c = [_lag_moment(r[None], lik.observed, k) for k in range(3)]
-            starts[g] = _moment_start(*c, rho_high=0.99 * lik.rho_max)
-    u0 = np.concatenate([starts[g] for g in sorted(starts)])  # the columns' order
+            starts[g] = (*lik.noise.start(r, lik.observed, lik), lik.noise)
+    order = sorted(starts)  # the columns' order
+    u0 = np.concatenate([starts[g][0] for g in order])
+    shift = np.concatenate([starts[g][1] for g in order])
 
     def neg(u: np.ndarray) -> np.ndarray:
         zz = np.repeat(z[None], np.atleast_2d(u).shape[0], axis=0)
@@ -180,12 +158,13 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
         return -posterior.log_prob_z(zz)
 
     out = z.copy()
-    out[cols] = _minimise_noise(neg, u0)
-    # a correlation at its guard (a disturbance slower than the guard allows) starts
-    # the polish just inside it, where its finite differences stay in the support
-    rho = cols[1::3]
-    edge = np.arctanh(0.99 * posterior.upper[rho])
-    out[rho] = np.clip(out[rho], -edge, edge)
+    out[cols] = _minimise_noise(neg, u0, shift)
+    a = posterior.n_searched
+    for g in order:
+        width = starts[g][0].size
+        sl = slice(a, a + width)
+        out[sl] = starts[g][2].clip_start(out[sl], posterior.upper[sl])
+        a += width
     return out
 
 
@@ -197,27 +176,31 @@ def group_noise(members: list[Likelihood], noise_model: str
     ----------
     members : list of Likelihood
         The experiments that share one noise; they are set to use the chosen model
-        (:meth:`~pmabayes.inference.likelihood.Likelihood.use_ar_noise`).
-    noise_model : {"auto", "ar1", "ar"}
-        The requested noise model
-        (:func:`~pmabayes.inference.likelihood.choose_noise_model`).
+        (:meth:`~pmabayes.inference.likelihood.Likelihood.use_noise`).
+    noise_model : str
+        The requested noise model, ``"auto"`` or a registered one's name
+        (:func:`~pmabayes.inference.noise.choose_noise_model`).
 
     Returns
     -------
     estimate : NoiseEstimate or None
-        From the repeats; None where no member has repeats (the noise is then
-        sampled with the model).
+        From the repeats; None where no member has repeats, or the model is not
+        learnt from repeats (its noise is then sampled with the model).
     choice : NoiseChoice
         The noise model chosen.
     """
-    est = (estimate_noise(members) if any(lik.n_repeats >= 2 for lik in members)
-           else None)
+    repeats = noise_model == "auto" or noise_model_class(noise_model).from_repeats
+    est = (estimate_noise(members)
+           if repeats and any(lik.n_repeats >= 2 for lik in members) else None)
     # the repeats test AR(1) + white; where they reject it the trial mean's
     # likelihood uses their AR(p) (fixed, as the AR(1) noise from repeats is)
-    choice = (choose_noise_model(members, est.sigma, est.rho, est.white, noise_model)
-              if est is not None else NoiseChoice(noise_model, None, math.nan))
+    if not repeats:  # a model asked for by name, sampled with the model's parameters
+        choice = choose_noise_model(members, math.nan, math.nan, math.nan, noise_model)
+    else:
+        choice = (choose_noise_model(members, est.sigma, est.rho, est.white, noise_model)
+                  if est is not None else NoiseChoice(noise_model, None, math.nan))
     for lik in members:
-        lik.use_ar_noise(choice.ar)
+        lik.use_noise(choice.model)
     return est, choice
 
 
