@@ -100,8 +100,9 @@ def run(name: str, out: Path, args) -> dict:
     row = {"specimen": name, "effects": "+".join(effects) or "-"}
     for part, path in (("fitted", train), ("held_out", held)):
         val = out / f"{name}_validate_{part}.json"
+        own = ["--in-sample"] if part == "fitted" else []
         pmabayes("validate", str(fit), str(path), "--json", str(val), "--draws", "100",
-                 *seed, *quiet)
+                 *own, *seed, *quiet)
         row |= {f"{part}_{k}": v for k, v in _nrmse_row(json.loads(val.read_text())).items()}
     row["seconds"] = time.perf_counter() - started
     return row

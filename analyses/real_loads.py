@@ -23,7 +23,10 @@ go into ``--out``.
 Usage::
 
     python analyses/real_loads.py [--samples 1,2] [--rounds 2] [--out DIR] [--seed 0]
-        [--steps 600] [--leave-one-out] [--candidates A,B]
+        [--steps 600] [--leave-one-out] [--candidates A,B] [--effects A,B]
+
+``--effects maxwell_creep,force_length_map --rounds -1`` repeats the final fit and the
+held-out predictions of the effects sample 1's two diagnoses named, without diagnosing.
 
 The table is printed last; ``--out`` keeps the diagnoses, fits, JSON and ``table.csv``.
 """
@@ -49,9 +52,9 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[str], list[dict]
     held = [str(paths[g]) for g in HELD_OUT_G]
     seed, quiet = ["--seed", str(args.seed)], ["--quiet"]
     candidates = ["--candidates", args.candidates] if args.candidates else []
-    effects: list[str] = []
+    effects: list[str] = [e for e in args.effects.split(",") if e]
     rounds = []
-    for round_ in range(args.rounds + 1):
+    for round_ in range(args.rounds + 1):  # none when --rounds is -1
         fx = ["--effects", ",".join(effects)] if effects else []
         diag = out / f"diagnose_{round_}.json"
         took, _ = pmabayes("diagnose", *train, "--json", str(diag), *fx, *candidates,
@@ -89,6 +92,48 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[str], list[dict]
     return effects, rounds, rows
 
 
+def write_paper_table(results: Path, tables: Path) -> Path:
+    """The paper's table of the held-out loads (``real_loads.tex``) from a finished run's
+    ``table.csv``: per sample and held-out load, the final model's NRMSE beside the three
+    yardsticks', and its 90% band's coverage.
+
+    Parameters
+    ----------
+    results : Path
+        The run's ``--out`` folder.
+    tables : Path
+        Where ``real_loads.tex`` is written.
+
+    Returns
+    -------
+    Path
+        Its path.
+    """
+    with open(results / "table.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if "leave one out" not in r["model"]]
+
+    def num(r: dict, key: str) -> str:
+        v = float(r[key])
+        best = min(float(r[k]) for k in ("nrmse", "linear_nrmse", "play_nrmse", "narx_nrmse")
+                   if r[k] not in ("", None))
+        return f"\\textbf{{{v:.3f}}}" if v == best else f"{v:.3f}"
+
+    body = "".join(
+        f"{r['sample']} & {r['held_out'].split('_')[-1].replace('g', '~g')} & "
+        f"{num(r, 'nrmse')} & {num(r, 'linear_nrmse')} & {num(r, 'play_nrmse')} & "
+        f"{num(r, 'narx_nrmse')} & {100 * float(r['coverage']):.1f}\\% \\\\\n" for r in rows)
+    model = rows[0]["model"].replace("_", "\\_").replace("+", " + ")
+    tables.mkdir(parents=True, exist_ok=True)
+    path = tables / "real_loads.tex"
+    path.write_text(
+        "% written by analyses/real_loads.py --tables-from RESULTS\n"
+        "\\begin{tabular}{llrrrrr}\n\\toprule\n"
+        "sample & held out & model & linear & play & NARX & 90\\% band \\\\\n\\midrule\n"
+        + body + "\\bottomrule\n\\end{tabular}\n"
+        f"% model: {model}\n")
+    return path
+
+
 def _fmt(v, pct: bool = False) -> str:
     if v is None or v == "":
         return "-"
@@ -104,11 +149,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("real_loads"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, default=600, help="sampler steps of the fits (600)")
+    ap.add_argument("--effects", default="",
+                    help="effects to start from (e.g. those an earlier run's diagnoses "
+                    "named); with --rounds -1 no diagnosis is run: fit and validate only")
     ap.add_argument("--candidates", default="",
                     help="the candidates diagnose tests (default: all it has)")
     ap.add_argument("--leave-one-out", action="store_true",
                     help="also leave each load out in turn (fit four, predict the fifth)")
+    ap.add_argument("--tables-from", type=Path, metavar="RESULTS",
+                    help="only write the paper's table (real_loads.tex, into --tables) from "
+                         "a finished run's --out folder")
+    ap.add_argument("--tables", type=Path, default=Path(__file__).resolve().parents[1]
+                    / "paper" / "tables", help="where --tables-from writes (paper/tables)")
     args = ap.parse_args(argv)
+    if args.tables_from:
+        print(write_paper_table(args.tables_from, args.tables))
+        return 0
     rows, summaries = [], []
     for sample in (int(s) for s in args.samples.split(",")):
         out = (args.out / f"sample{sample}").resolve()

@@ -14,10 +14,10 @@ names), and writes, into ``--out``, each specimen as a data file declared two wa
 
 each with its sidecar (``"input_kind": "force"``, the mass, no gravity, area 1 m^2, the
 record starting at rest). Then, as a user would, for each specimen and declaration:
-``pmabayes fit`` and ``pmabayes validate`` of the fit on its own record (for the NRMSE and
-the yardsticks on the same footing), and, on the kN file, ``pmabayes diagnose``. The
-default priors of a force-input rig follow the data's scale, so the two declarations
-must give the same NRMSE; ``diagnose`` must finish on each.
+``pmabayes fit`` and ``pmabayes validate --in-sample`` of the fit on its own record (for
+the NRMSE and the yardsticks on the same footing), and, on the kN file, ``pmabayes
+diagnose``. The default priors of a force-input rig follow the data's scale, so the two
+declarations must give the same NRMSE; ``diagnose`` must finish on each.
 
 Usage::
 
@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
             pmabayes("fit", str(path), "--out", str(fit), "--restart", *steps, *seed, "--quiet")
             val = out / f"{name}_{unit}_validate.json"
             pmabayes("validate", str(fit), str(path), "--json", str(val), "--draws", "40",
-                     *seed, "--quiet")
+                     "--in-sample", *seed, "--quiet")
             e = json.loads(val.read_text())["experiments"][0]
             row[f"nrmse_{unit}"] = e["nrmse"]
             if unit == "kn":

@@ -33,8 +33,15 @@ extensions = [
     "numpydoc",
     "myst_parser",
     "sphinx_gallery.gen_gallery",
+    "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",
     "pmabayes_docs",
 ]
+# Equations are rendered by MathJax from a copy inside the built site
+# (sphinx-mathjax-offline, from PyPI): the pages read offline and need no TeX on the
+# machine that builds them. imgmath would need latex plus dvisvgm or dvipng, which a
+# developer's machine and CI may lack, and a fallback to MathJax from a CDN would not
+# render offline.
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 exclude_patterns = ["_build", "examples/README.rst", "**/*.ipynb", "**/*.py.md5",

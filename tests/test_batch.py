@@ -118,7 +118,7 @@ def test_unreadable_data_sets_are_reported_each_with_its_file(tmp_path):
     save(generate_chirp_dataset(n_trials=2, seed=1, chirp=CHIRP), bad_rig)
     sidecar = bad_rig.with_suffix(".json")
     meta = json.loads(sidecar.read_text())
-    meta["rig"] = {"no_such_rig_field": 1.0}
+    meta["rig"] = {"moving_mass_kg": -1.0}  # refused on reading, naming the file
     sidecar.write_text(json.dumps(meta))
     missing = tmp_path / "missing.csv"
     res = fit_batch([_broken(tmp_path), missing, bad_rig], out_dir=tmp_path / "fits",

@@ -289,6 +289,38 @@ def test_a_clock_that_runs_backwards_names_its_line(tmp_path: Path) -> None:
         load(path)
 
 
+def test_a_block_stamped_a_second_late_is_proposed_and_moved_only_when_declared(
+        tmp_path: Path) -> None:
+    """As in a real DAQ log: blocks of 100 samples 20 ms apart, the third stamped 1 s late,
+    so the clock steps back after it. The error names the block and the declaration;
+    declared, the record reads as one grid with the blocks' gaps, and says so."""
+    blocks = [np.arange(100) * 1e-3 + b * 0.12 for b in range(5)]
+    truth = np.concatenate(blocks)
+    stamped = truth.copy()
+    stamped[200:300] += 1.0
+    rows = ["time_s,pressure_kpa,position_mm", *clock_rows(stamped)]
+    path = lab_file(tmp_path, "late.csv", rows, pressure_reference="gauge")
+    proposed = (r": line 302: .*clock runs backwards.*if line 202 to 301 were stamped late "
+                r".*\"clock_shifts\": \[\{\"lines\": \[202, 301\], \"shift_s\": -1\}\]")
+    with pytest.raises(DataError, match=at(path, proposed)):
+        load(path)
+    path = lab_file(tmp_path, "late.csv", rows, pressure_reference="gauge",
+                    clock_shifts=[{"lines": [202, 301], "shift_s": -1}])
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        ds = load(path)
+    assert any("clock_shifts declares: lines 202-301 by -1 s" in str(w.message) for w in said)
+    assert ds.n_samples == 580 and int(ds.observed.sum()) == 500
+    assert np.allclose(ds.time_s[ds.observed[0]], truth - truth[0], atol=1e-9)
+    # a shift that names no line of data, or is not a number: one line naming the fix
+    for bad in ([{"lines": [1, 50], "shift_s": -1}], [{"lines": [202, 301], "shift_s": "1s"}],
+                {"lines": [202, 301]}):
+        path = lab_file(tmp_path, "late.csv", rows, pressure_reference="gauge",
+                        clock_shifts=bad)
+        with pytest.raises(DataError, match=r"late\.json.*clock_shifts.*e\.g\. \"clock_shifts\""):
+            load(path)
+
+
 def test_max_gap_s_splits_the_record_into_segments(tmp_path: Path) -> None:
     # a block, a restart 0.7005 s later (not a whole number of steps), a block with a gap
     first = np.arange(500) * 1e-3

@@ -232,8 +232,12 @@ def test_validate_refuses_fitted_trials_and_takes_the_held_out_ones(tmp_path):
     v = validate(tree, path, trials=[4], n_draws=10)
     assert v.experiments[0].n_trials == 1
     # every trial fitted: the fix is to hold some out when fitting
-    with pytest.raises(ValidationError, match=r"hold trials out when fitting"):
+    with pytest.raises(ValidationError, match=r"hold trials out when fitting.*in_sample=True"):
         validate(_fit_of(path, [1, 2, 3, 4]), path, n_draws=10)
+    # asked for, the fit on its own trials is measured, and said to be so
+    with pytest.warns(DataWarning, match=r"trials 1, 2, 3, 4 were fitted.*not held-out"):
+        v = validate(_fit_of(path, [1, 2, 3, 4]), path, n_draws=10, in_sample=True)
+    assert v.experiments[0].n_trials == 4
 
 
 def test_validate_trials_must_exist(tmp_path):
@@ -292,6 +296,17 @@ def test_one_file_serves_fit_and_validate_on_the_command_line(tmp_path, capsys):
 
     ids = [tuple(r["trial_ids"]) for r in fit_info(load_fit(fit_path))["experiments"]]
     assert ids == [(0, 1, 2)]
+    # the next command the fit suggests keeps trial 3 out of the diagnosis, and diagnose
+    # takes the option
+    from pmabayes.cli import _parser
+    from pmabayes.inference.fitfile import experiment_datasets
+    from pmabayes.report.verdicts import _diagnose_command
+
+    tree = load_fit(fit_path)
+    (kept,) = experiment_datasets(tree)
+    assert kept.metadata["selected_trials"] == [0, 1, 2]
+    assert _diagnose_command(fit_info(tree), kept).endswith(f"{data} --trials 0,1,2")
+    assert _parser().parse_args(["diagnose", str(data), "--trials", "0,1,2"]).trials == [0, 1, 2]
     out = tmp_path / "val.json"
     assert main(["validate", str(fit_path), str(data), "--trials", "3", "--json", str(out),
                  "--draws", "20", "--quiet"]) == 0

@@ -422,3 +422,28 @@ def test_the_verdict_names_the_effects_to_diagnose_with(hidden_lag):
     lines = fit_adequacy(tree, dataset=ds).lines()
     assert lines[-1] == ("Next: pmabayes diagnose data/hidden_lag.csv "
                          "--effects coulomb_friction")
+
+
+def test_the_data_of_a_joint_fit_with_gaps_are_recognised(monkeypatch):
+    """Samples not observed (NaN in both) do not make a fit's own data look foreign; a
+    position that differs, or a sample observed in one and not the other, does."""
+    import pmabayes.report.fit_data as fit_data
+    from pmabayes.data import DataError, Dataset
+
+    def one(name, seed, gap=True):
+        x = np.random.default_rng(seed).normal(size=(1, 50)) * 1e-3
+        seen = np.ones((1, 50), dtype=bool)
+        if gap:
+            seen[0, 10:14] = False
+            x[~seen] = np.nan
+        return Dataset(time_s=np.arange(50) * 1e-3, input=np.ones((1, 50)), position_m=x,
+                       trial_ids=np.arange(1), source=name, observed=seen)
+
+    stored = [one("a.csv", 0), one("b.csv", 1)]
+    monkeypatch.setattr(fit_data, "experiment_datasets", lambda tree: stored)
+    given = [one("a.csv", 0), one("b.csv", 1)]
+    assert fit_data.check_experiment_data(None, given) == given
+    with pytest.raises(DataError, match=r"b\.csv does not match .*the samples observed"):
+        fit_data.check_experiment_data(None, [one("a.csv", 0), one("b.csv", 1, gap=False)])
+    with pytest.raises(DataError, match=r"a\.csv does not match .*the positions"):
+        fit_data.check_experiment_data(None, [one("a.csv", 2), one("b.csv", 1)])

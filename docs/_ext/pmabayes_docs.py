@@ -6,7 +6,7 @@
   disagree.
 * ``sidecar-keys``, a directive: the sidecar reference (every key pmabayes reads, its
   type, unit, default and page), generated from :mod:`pmabayes.data.keys` and the
-  rig's :data:`pmabayes.model.model.RIG_KEYS`.
+  rig's :data:`pmabayes.data.rig.RIG_KEYS`.
 * :func:`reexports`: for each package, the public names it imports from its
   modules (the reference documents each object once, in the module that defines
   it; a package page lists what it re-exports).
@@ -335,14 +335,14 @@ class SidecarKeys(SphinxDirective):
     """``sidecar-keys``: the sidecar reference, generated from the code that reads the
     sidecar: :data:`pmabayes.data.keys.SIDECAR_KEYS` (every key of
     :data:`pmabayes.data.METADATA_KEYS`) or, with the option ``:rig:``,
-    :data:`pmabayes.model.model.RIG_KEYS` (the keys of a ``"rig"``)."""
+    :data:`pmabayes.data.rig.RIG_KEYS` (the keys of a ``"rig"``)."""
 
     has_content = False
     option_spec = {"rig": lambda arg: True}
 
     def run(self) -> list[nodes.Node]:
         from pmabayes.data.keys import SIDECAR_KEYS
-        from pmabayes.model.model import RIG_KEYS
+        from pmabayes.data.rig import RIG_KEYS
 
         self.env.note_dependency(str(PACKAGE_DIR / "data" / "keys.py"))
         self.env.note_dependency(str(PACKAGE_DIR / "model" / "model.py"))

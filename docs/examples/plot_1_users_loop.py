@@ -36,7 +36,7 @@ from pmabayes.data import load
 root = Path(pb.__file__).resolve().parents[1]
 lab = load(root / "data" / "pma_chirp_lab.csv")
 print(f"{lab.n_trials} trials x {lab.time_s.size} samples, synthetic: "
-      f"{lab.metadata['synthetic']}; noise floor {lab.noise_floor_m * 1e6:.1f} um")
+      f"{lab.metadata['synthetic']}; noise floor {lab.noise_floor_m * 1e6:.1f} µm")
 
 fig, ax = plt.subplots(figsize=(8, 3.5), layout="constrained")
 ax.plot(lab.time_s, lab.position_m.T * 1e3, lw=0.5)
@@ -98,12 +98,12 @@ ax.scatter(x, [b.floor_m * 1e6 for b in first], marker="_", s=600, color="k",
            label="noise floor", zorder=3)
 ax.set_yscale("log")
 ax.set_xticks(x, names)
-ax.set(ylabel="RMS error of the trial mean [um]", title="the error falls as effects are added")
+ax.set(ylabel="RMS error of the trial mean [µm]", title="the error falls as effects are added")
 ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4)
 plt.show()
 
 for label, d in steps.items():
-    print(f"{label:45s} RMS {d.rms_m * 1e6:8.1f} um = {d.rms_m / d.noise_floor_m:6.2f}x "
+    print(f"{label:45s} RMS {d.rms_m * 1e6:8.1f} µm = {d.rms_m / d.noise_floor_m:6.2f}x "
           f"the floor; adequate: {d.adequate}")
 
 # %%

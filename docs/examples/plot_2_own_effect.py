@@ -60,7 +60,7 @@ truth = 2e-4  # N s/(m Pa)
 data = generate_chirp_dataset(n_trials=4, seed=3, chirp=Chirp(duration_s=5.0),
                               effects={"pressure_damping": truth})
 print(f"synthetic: {data.metadata['synthetic']}, noise floor "
-      f"{data.noise_floor_m * 1e6:.1f} um")
+      f"{data.noise_floor_m * 1e6:.1f} µm")
 
 base = pb.Model()
 fig, ax = plt.subplots(figsize=(8, 3.5), layout="constrained")

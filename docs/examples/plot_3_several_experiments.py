@@ -52,8 +52,8 @@ d = pb.diagnose(experiments, settings=DiagnoseSettings(
     candidates=["regulator_lag", "transport_delay", "coulomb_friction"], max_refits=2))
 print(d.verdict)
 for e in d.experiments:
-    print(f"  {e.name}: RMS {e.rms_m * 1e6:.0f} um against a floor of "
-          f"{e.noise_floor_m * 1e6:.1f} um; adequate: {e.adequate}")
+    print(f"  {e.name}: RMS {e.rms_m * 1e6:.0f} µm against a floor of "
+          f"{e.noise_floor_m * 1e6:.1f} µm; adequate: {e.adequate}")
 
 # %%
 # Fit both with the lag
@@ -70,7 +70,7 @@ print(f"tau_reg: mean {tau.mean() * 1e3:.2f} ms, 90% interval "
       "(45 ms hidden)")
 sigma = post["sigma_noise_m"]
 for name in sigma["experiment"].values:
-    print(f"noise of {name}: {float(sigma.sel(experiment=name).mean()) * 1e6:.1f} um")
+    print(f"noise of {name}: {float(sigma.sel(experiment=name).mean()) * 1e6:.1f} µm")
 
 fig, ax = plt.subplots(figsize=(6, 3.2), layout="constrained")
 ax.hist(tau * 1e3, bins=40, color="tab:blue")

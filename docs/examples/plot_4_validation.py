@@ -58,7 +58,7 @@ for e in v.experiments:
     floor = e.noise_floor_m
     ratio = f"{e.rmse_m / floor:.2f}x the floor" if floor and np.isfinite(floor) else "no floor"
     print(f"{e.name:12s} {e.rig['name'] if isinstance(e.rig, dict) else e.rig!s:18s} "
-          f"RMSE {e.rmse_m * 1e6:8.1f} um ({ratio}); "
+          f"RMSE {e.rmse_m * 1e6:8.1f} µm ({ratio}); "
           f"{100 * e.band_coverage:.1f}% inside the 90% band")
 
 # %%
@@ -74,7 +74,7 @@ fig, ax = plt.subplots(figsize=(8, 3.5), layout="constrained")
 ax.fill_between(e.time_s, (e.low_m - e.prediction_m) * 1e6, (e.high_m - e.prediction_m) * 1e6,
                 color="tab:blue", alpha=0.3, label="90% predictive band")
 ax.plot(e.time_s, (e.position_m - e.prediction_m).T * 1e6, "k.", ms=0.5)
-ax.set(xlim=(2, 4), xlabel="time [s]", ylabel="measured - predicted [um]",
+ax.set(xlim=(2, 4), xlabel="time [s]", ylabel="measured - predicted [µm]",
        title="held-out sine, loaded rig: trials and band about the prediction")
 ax.legend(loc="upper right")
 plt.show()

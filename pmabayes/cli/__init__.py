@@ -26,6 +26,11 @@
     of several experiments take one data file per experiment.
 ``pmabayes effects``
     List the registered physical effects and their parameters.
+``pmabayes design DATA.csv [DATA2.csv ...] --candidates A,B --input-range LO,HI --out DIR``
+    The next experiment that tells candidate effects apart (or, with ``--goal
+    parameters``, shrinks chosen parameters' intervals): each candidate fitted on the
+    data so far, candidate experiments scored by Monte Carlo; writes ``next.csv`` (the
+    input, in the data's units), ``next.json``, ``design.json`` and a page.
 ``pmabayes track --freq F``
     Closed-loop tracking of the paper's sinusoid by PID and computed torque.
 ``pmabayes robustness FIT.nc --out DIR``
@@ -58,7 +63,7 @@ options and argument types; ``inputs`` the reading of data files and fits; ``end
 the one ending of every command (its JSON summary and page where asked, each named,
 the time, the exit status); and one module per group of commands: ``fit`` (run, fit,
 batch, predict), ``report``, ``criticism`` (diagnose, compare, validate), ``data``
-(simulate, effects) and ``control`` (track, robustness). A command
+(simulate, effects), ``design`` (design) and ``control`` (track, robustness). A command
 is a function ``_cmd_NAME(args) -> int`` and its parser in its group's module.
 
 Its modules import only the standard library at their top; the package's layers are
@@ -78,6 +83,7 @@ from pmabayes import __version__
 from pmabayes.cli.control import _control_commands
 from pmabayes.cli.criticism import _criticism_commands, _print_ranking, _validation_commands
 from pmabayes.cli.data import _data_commands
+from pmabayes.cli.design import _design_commands
 from pmabayes.cli.fit import _batch_commands, _fit_commands, _predict_commands
 from pmabayes.cli.inputs import _load_all, _load_data, _say
 from pmabayes.cli.options import (
@@ -111,6 +117,7 @@ _USER_ERRORS = (
     ("pmabayes.inference.likelihood", "LikelihoodError"),
     ("pmabayes.inference.errors", "FitError"), ("pmabayes.inference.fitfile", "FitFileError"),
     ("pmabayes.control.operating", "ControlError"), ("pmabayes.outputs", "OutputError"),
+    ("pmabayes.design.experiments", "DesignError"),
 )
 
 
@@ -153,6 +160,7 @@ def _parser() -> argparse.ArgumentParser:
     _criticism_commands(sub, common)
     _data_commands(sub, common)
     _control_commands(sub, common)
+    _design_commands(sub, common)
     _validation_commands(sub, common)
     return parser
 

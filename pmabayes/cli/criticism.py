@@ -147,7 +147,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     held_out = [d for p in args.data for d in _segments(p)]
     result = validate(args.fit, held_out, n_draws=args.draws, ci_prob=args.ci_prob,
                       seed=args.seed, noise_from=args.noise_from, substeps=args.substeps,
-                      start_fraction=args.start_fraction, trials=args.trials or None)
+                      start_fraction=args.start_fraction, trials=args.trials or None,
+                      in_sample=args.in_sample)
     print(f"validate {args.fit} (model: {' + '.join(['base', *result.effects])}) on "
           f"{len(result.experiments)} held-out experiment(s), {args.draws} posterior draws "
           "each:")
@@ -185,6 +186,7 @@ def _criticism_commands(sub, common) -> None:
     _noise_model_option(diag)
     _prior_option(diag)
     _exclude_option(diag)
+    _trials_option(diag, "diagnose")
     diag.set_defaults(func=_cmd_diagnose)
 
     comp = sub.add_parser("compare", parents=[common],
@@ -227,4 +229,7 @@ def _validation_commands(sub, common) -> None:
                      help="for held-out data whose start is declared 'estimate': the first "
                      "part of the record (a fraction of it, 0.05) from which each posterior "
                      "draw's start is estimated by least squares")
+    val.add_argument("--in-sample", action="store_true",
+                     help="allow trials the fit was fitted on: the numbers then measure "
+                     "the fit on its own data (beside the yardsticks), not a prediction")
     val.set_defaults(func=_cmd_validate)

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmabayes.data import Dataset, experiment_conditions
+from pmabayes.data.rig import declared_rig
 
 __all__ = ["experiment_conditions_table", "moving_parameters", "trend_text",
            "agreement_change"]
@@ -52,7 +53,7 @@ def experiment_conditions_table(datasets: Sequence[Dataset]) -> dict[str, list[f
             table[key] = [d[key] for d in declared]
     masses = []
     for ds in datasets:
-        rig = (ds.metadata or {}).get("rig") or {}
+        rig = declared_rig(ds.metadata) or {}  # notes about a rig declare no mass
         mass = rig.get("moving_mass_kg")
         masses.append(float(mass) if isinstance(mass, int | float) else math.nan)
     if "moving_mass_kg" not in table and all(np.isfinite(masses)):

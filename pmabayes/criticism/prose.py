@@ -6,16 +6,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pmabayes.criticism.bands import band_label, band_rms
+from pmabayes.criticism.refit import Refit, se_note
 from pmabayes.criticism.signature import Signature
 from pmabayes.util import format_together
-
-if TYPE_CHECKING:  # for annotations: results imports the discrepancy, which uses this
-    from pmabayes.criticism.results import Refit
 
 
 def contribution_text(contribution_m: np.ndarray, base_residual_m: np.ndarray,
@@ -122,24 +119,6 @@ def explanation_text(eff, evidence: float, p_value: float, significant: bool,
     return text + contribution
 
 
-def se_note(refit) -> str | None:
-    """Why a refit's ΔELPD has no standard error, or None when it has one.
-
-    Parameters
-    ----------
-    refit : Refit
-        The refit.
-
-    Returns
-    -------
-    str or None
-    """
-    if math.isfinite(refit.elpd_diff_se) or not math.isfinite(refit.elpd_diff):
-        return None
-    return ("one left-out unit (a single record whose noise model cannot leave out "
-            "stretches of it): no spread to estimate a standard error from")
-
-
 def elpd_text(refit, verb: str = "") -> str:
     """``ΔELPD +d ± se`` of a refit; ``± n/a`` with the reason where the standard error
     cannot be estimated; that the refit failed (its numbers are not the effect's), or
@@ -207,13 +186,16 @@ def _sig_text(signature: Signature) -> str:
 
 def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
                  missing: str | None, refits: dict, findings: list, min_explained: float,
-                 twins: list | None = None, partial: str | None = None) -> str:
+                 twins: list | None = None, partial: str | None = None,
+                 data: str = "DATA.csv") -> str:
     """The diagnosis' conclusion in words: what is missing (or the best partial step, or
     that nothing is, or that nothing in the library explains the misfit), where the
     misfit shows, and the next command.
 
     ``findings`` are in the order the ranking shows them (refits by ELPD gain): the
-    verdict's "top-ranked" refit is the first of them, as in the list.
+    verdict's "top-ranked" refit is the first of them, as in the list. ``data`` names
+    the data files in the ``pmabayes design`` command offered where near twins cannot
+    be told apart.
     """
     names = [e.name for e in experiments]
     if len(experiments) == 1:
@@ -230,14 +212,14 @@ def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
                     "the noise." if good else "."))
     floors = all(math.isfinite(e.signature.bands[-1].floor_m) for e in experiments)
     text = _verdict_core(name, effects, sig, adequate, missing, refits, findings,
-                         min_explained, names, twins, partial, floors)
+                         min_explained, names, twins, partial, floors, data)
     return text + where + (f" {notes}" if notes else "")
 
 
 def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,
                   refits: dict, findings: list, min_explained: float, names: list,
                   twins: list | None = None, partial: str | None = None,
-                  floors: bool = True) -> str:
+                  floors: bool = True, data: str = "DATA.csv") -> str:
     if missing is not None:
         r = refits[missing]
         tied = [t[0] for t in twins or ()]
@@ -249,8 +231,14 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
             text += (f" But {missing} and {twin} cannot be told apart by these data: both "
                      f"account for the misfit and their leave-one-trial-out ELPDs differ by "
                      f"only {diff:+.1f} ± {se:.1f} (less than two standard errors), so "
-                     f"{missing} is named for its slightly better ELPD, not proven; data "
-                     "that excite where they differ would separate them.")
+                     f"{missing} is named for its slightly better ELPD, not proven.")
+        if tied:
+            # the next experiment that separates them is what pmabayes design chooses
+            base = f" --effects {','.join(effects)}" if effects else ""
+            text += (" Data that excite where they differ would separate them; `pmabayes "
+                     f"design {data}{base} --candidates {','.join([missing, *tied])} "
+                     "--input-range LO,HI --out next` designs that experiment (LO,HI: the "
+                     "rig's safe input range, in the data file's units).")
         if others:
             text += (f" It predicts left-out trials better than the other refitted "
                      f"candidate(s) ({', '.join(others)}).")

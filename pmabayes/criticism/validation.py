@@ -924,8 +924,10 @@ def _fitted_trials(tree: xr.DataTree) -> dict[str, set[int]]:
     return out
 
 
-def _refuse_fitted(ds: Dataset, fitted: dict[str, set[int]], fit_where: str) -> None:
-    """A trial the fit was fitted on is not held out: refused, naming it and the fix."""
+def _refuse_fitted(ds: Dataset, fitted: dict[str, set[int]], fit_where: str,
+                   in_sample: bool = False) -> None:
+    """A trial the fit was fitted on is not held out: refused, naming it and the fix;
+    only said when ``in_sample`` asks for the fit on its own data."""
     if not ds.source_file:
         return
     ids = fitted.get(os.path.realpath(ds.source_file))
@@ -933,11 +935,19 @@ def _refuse_fitted(ds: Dataset, fitted: dict[str, set[int]], fit_where: str) -> 
     both = [i for i in have if ids and i in ids]
     if not both:
         return
+    if in_sample:
+        warnings.warn(f"{ds.source_file}: trial{'s' if len(both) > 1 else ''} "
+                      f"{', '.join(map(str, both))} {'were' if len(both) > 1 else 'was'} "
+                      f"fitted ({fit_where}); in_sample: these are not held-out data, and "
+                      "the numbers say how well it fits, not how well it predicts",
+                      DataWarning, stacklevel=3)
+        return
     left = [i for i in have if i not in both]
     fix = (f"validate on the trials it left out: trials={left} (on the command line: "
            f"--trials {','.join(map(str, left))})" if left else
            "hold trials out when fitting (pmabayes.fit(data, trials=[...])) and validate on "
-           "the others (validate(fit, data, trials=[...]))")
+           "the others (validate(fit, data, trials=[...])); to measure the fit on its "
+           "own data instead, say so: validate(..., in_sample=True), --in-sample")
     raise ValidationError(
         f"{ds.source_file}: trial{'s' if len(both) > 1 else ''} {', '.join(map(str, both))} "
         f"{'were' if len(both) > 1 else 'was'} fitted ({fit_where} was made from trials "
@@ -1104,6 +1114,7 @@ def validate(
     substeps: int | None = None,
     start_fraction: float = START_FRACTION,
     trials: Sequence[int] | None = None,
+    in_sample: bool = False,
 ) -> Validation:
     """Predict held-out experiments with a fit's posterior and compare with their data.
 
@@ -1139,6 +1150,10 @@ def validate(
         Validate only these trials (ids, as in the file's ``trial`` column) of the
         data, which must come from one file: the trials a fit held out of it
         (:func:`pmabayes.fit` with ``trials=``). All of them by default.
+    in_sample : bool
+        Allow trials the fit was fitted on (False). Their numbers then measure how well
+        the model fits, not how well it predicts (a warning says so); this is for
+        comparing a fit with the yardsticks on its own data, not for validation.
 
     Returns
     -------
@@ -1151,9 +1166,30 @@ def validate(
         For a data set the fit cannot predict (a different input kind, a rig whose
         parameters the fit lacks, trials with different inputs), a fit without
         noise draws, or bad settings; and for a trial the fit was fitted on (the same
-        file and trial id, as the fit file records them), which is not held out.
+        file and trial id, as the fit file records them), which is not held out,
+        unless ``in_sample`` is True.
     DataError
         When ``trials`` names an id the data do not hold, or data of several files.
+
+    Examples
+    --------
+    Predict the two trials a fit held out of its file (the example of
+    :func:`pmabayes.fit`):
+
+    >>> import pmabayes
+    >>> from pmabayes.data import load
+    >>> data = load("muscle_a.csv")  # doctest: +SKIP
+    >>> model = pmabayes.Model.for_dataset(data, effects=["regulator_lag"])  # doctest: +SKIP
+    >>> tree = pmabayes.fit(data, model, trials=[1, 2, 3, 4])  # doctest: +SKIP
+    >>> v = pmabayes.validate(tree, data, trials=[5, 6])  # doctest: +SKIP
+    >>> e = v.experiments[0]  # doctest: +SKIP
+    >>> round(e.ratio_to_floor, 2), e.band_coverage  # doctest: +SKIP
+    (0.99, 0.9033)
+    >>> print(e.summary())  # doctest: +SKIP
+
+    ``validate(tree, data)`` without ``trials=`` is refused: trials 1 to 4 were
+    fitted, so they are not held out (``in_sample=True`` allows them, to measure the
+    fit).
     """
     if not (isinstance(n_draws, int | np.integer) and not isinstance(n_draws, bool)
             and n_draws >= 2):
@@ -1180,7 +1216,7 @@ def validate(
         datasets = keep_trials(datasets, trials)
     fitted = _fitted_trials(tree)
     for d in datasets:
-        _refuse_fitted(d, fitted, fit_path or "the fit")
+        _refuse_fitted(d, fitted, fit_path or "the fit", in_sample)
     fit = _read_fit(tree, fit_path or "the fit")
     if substeps is None:
         substeps = int(fit_info(tree).get("substeps", 1))

@@ -53,7 +53,8 @@ reading) and ``"check_units": false``; ``"input_between_samples"`` says what the
 input does between samples (:data:`BETWEEN_SAMPLES`), ``"initial_state"`` the state
 each trial starts from (:data:`INITIAL_STATES`). A metadata key close to one
 pmabayes reads (:data:`METADATA_KEYS`) is taken for a misspelling and refused. A
-``"rig"`` whose ``input_kind`` does not drive the data's input column is refused, and
+``"rig"`` is checked against the rig's schema (:mod:`pmabayes.data.rig`: its keys,
+their values, and that its ``input_kind`` drives the data's input column), and
 :func:`check_same_input_kind` refuses experiments of different input kinds in one fit.
 """
 

@@ -26,6 +26,45 @@ from pmabayes.data.dataset import (
 _ROUNDING_SLACK = 0.6
 
 
+def _shifted_clock(time: np.ndarray, metadata: dict, where: str, first_line: int,
+                   declare: str) -> np.ndarray:
+    """The times with the sidecar's ``"clock_shifts"`` applied, said in a warning.
+
+    A DAQ that logs in blocks may stamp one block wrongly (a whole second late, say), so
+    that the clock steps back after it. The lab declares which lines to move and by how
+    much: ``"clock_shifts": [{"lines": [9001, 10000], "shift_s": -1.0}]``; nothing is
+    moved that the sidecar does not name.
+    """
+    shifts = metadata.get("clock_shifts")
+    if shifts is None:
+        return time
+    example = '"clock_shifts": [{"lines": [9001, 10000], "shift_s": -1.0}]'
+    if not isinstance(shifts, list) or not shifts:
+        raise DataError(f"{declare}: metadata 'clock_shifts' is {shifts!r}; it must be a list "
+                        f"of the blocks of lines whose times move, e.g. {example}")
+    last_line = first_line + time.size - 1
+    out = np.array(time, dtype=float)
+    said = []
+    for k, item in enumerate(shifts):
+        lines = item.get("lines") if isinstance(item, dict) else None
+        shift = item.get("shift_s") if isinstance(item, dict) else None
+        ok = (isinstance(lines, list) and len(lines) == 2
+              and all(isinstance(v, int) and not isinstance(v, bool) for v in lines)
+              and first_line <= lines[0] <= lines[1] <= last_line
+              and isinstance(shift, int | float) and not isinstance(shift, bool)
+              and np.isfinite(shift) and set(item) == {"lines", "shift_s"})
+        if not ok:
+            raise DataError(
+                f"{declare}: clock_shifts[{k}] is {item!r}; each shift names its first and "
+                f"last line of data (between {first_line} and {last_line}, the header not "
+                f"counted as data) and the seconds added to their times, e.g. {example}")
+        out[lines[0] - first_line:lines[1] - first_line + 1] += float(shift)
+        said.append(f"lines {lines[0]}-{lines[1]} by {_fmt(float(shift))} s")
+    warnings.warn(DataWarning(f"{where}: the clock's times moved as the sidecar's "
+                              f"clock_shifts declares: {'; '.join(said)}"), stacklevel=4)
+    return out
+
+
 def _trial_blocks(trial: np.ndarray) -> list[tuple[int, int]]:
     """``(start, end)`` rows of each run of equal trial ids, in file order."""
     starts = np.concatenate(([0], np.flatnonzero(trial[1:] != trial[:-1]) + 1))

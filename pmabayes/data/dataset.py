@@ -22,10 +22,12 @@ import numpy as np
 import xarray as xr
 from numpy.typing import ArrayLike
 
+from pmabayes.data.rig import DEFAULT_INPUT_KIND, INPUT_OF_KIND, is_declared_rig, rig_problem
+
 __all__ = ["INPUT_NAMES", "BETWEEN_SAMPLES", "METADATA_KEYS", "DataError", "DataWarning",
            "Dataset", "check_same_input_kind", "check_time_grid", "experiment_conditions"]
 
-INPUT_NAMES: tuple[str, ...] = ("pressure_pa", "force_n")
+INPUT_NAMES: tuple[str, ...] = tuple(INPUT_OF_KIND.values())  # pressure_pa, force_n
 """Allowed names of the input column: commanded gauge pressure (Pa) or force (N)."""
 
 _UNITS = {"time_s": "s", "pressure_pa": "Pa", "force_n": "N", "position_m": "m"}
@@ -55,7 +57,8 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "columns", "read_columns", "converted_units", "max_gap_s", "segment",
                  "time_origin_s", "position_reference", "steady_state_tol_m",
                  "max_warmup_periods", "warmup_s", "position_sign", "position_zero_s",
-                 "position_zero", "disturbance_max_s", "disturbance_check", "conditions")
+                 "position_zero", "disturbance_max_s", "disturbance_check", "conditions",
+                 "selected_trials", "input_range", "clock_shifts")
 
 
 class DataError(ValueError):
@@ -156,9 +159,35 @@ def _check_increasing(t: np.ndarray, source: str, where: Callable[[int], str],
         back = " (the clock runs backwards)" if d[j - 1] < 0 else ""
         raise error(
             f"{source}: {where(j)}: time_s = {_fmt(t[j])} is not after {_fmt(t[j - 1])} "
-            f"on {where(j - 1)}{back}; times must be strictly increasing: sort by time and "
-            "remove duplicate samples."
+            f"on {where(j - 1)}{back}; times must be strictly increasing: "
+            f"{_late_block(t, j, where)}sort by time and remove duplicate samples."
         )
+
+
+def _late_block(t: np.ndarray, j: int, where: Callable[[int], str]) -> str:
+    """Where the clock steps back at ``j``: the block before it that a shift would put in
+    order (stamped late, as a DAQ logging in blocks may), as the sidecar declaration
+    that moves it; empty when no earlier interval is long enough or lines are not known."""
+    step = float(t[j - 1] - t[j])
+    d = np.diff(t[:j])
+    # a block of samples stepping back by several intervals, not one sample out of place
+    if step <= 2 * float(np.median(d)) or not where(j).startswith("line "):
+        return ""
+    longer = np.flatnonzero(d > step)
+    if longer.size == 0:
+        return ""
+    a = int(longer[-1]) + 1  # the block's first sample
+    if j - a < 2:
+        return ""
+    lo, hi = -float(d[a - 1]), -step  # a shift inside (lo, hi) puts both edges in order
+    whole = math.ceil(lo)  # a logging fault is often a whole second
+    shift = float(whole) if lo < whole < hi else round((lo + hi) / 2, 6)
+    first, last = where(a)[len("line "):], where(j - 1)[len("line "):]
+    if not (first.isdigit() and last.isdigit()):
+        return ""
+    return (f"if {where(a)} to {last} were stamped late (the interval before them is "
+            f"{_fmt(d[a - 1])} s), declare it in the sidecar: \"clock_shifts\": "
+            f"[{{\"lines\": [{first}, {last}], \"shift_s\": {_fmt(shift)}}}]; otherwise ")
 
 
 def _check_metadata_rate(metadata: dict, rate_hz: float, where: str) -> None:
@@ -363,23 +392,21 @@ def _check_period(metadata: dict, n_samples: int, where: str) -> None:
             "correct 'period_samples'.")
 
 
-#: The input column each rig ``input_kind`` drives (a rig's kind, as pmabayes.model.model's
-#: ``Rig`` names it, read here from the sidecar's dict: data do not import the model).
-_INPUT_OF_KIND = {"pressure": "pressure_pa", "force": "force_n"}
-
-
-def _check_rig_input(metadata: dict, input_name: str, where: str) -> None:
-    """A sidecar ``rig`` must drive the data's input column: pressure_pa or force_n."""
+def _check_rig(metadata: dict, input_name: str, where: str) -> None:
+    """A sidecar ``rig`` must follow the rig's schema (:mod:`pmabayes.data.rig`) and drive
+    the data's input column: pressure_pa or force_n. Free-form notes about the rig (no
+    rig key) are kept unchecked."""
     rig = metadata.get("rig")
-    if not isinstance(rig, dict):
+    if not is_declared_rig(rig):
         return
-    # a pmabayes rig without input_kind is a pressure rig (the Rig default); a dict
-    # without moving_mass_kg or input_kind is free-form notes about the rig
-    kind = rig.get("input_kind", "pressure" if "moving_mass_kg" in rig else None)
-    expected = _INPUT_OF_KIND.get(kind) if isinstance(kind, str) else None
-    if expected is None or expected == input_name:
+    problem = rig_problem(rig)
+    if problem:
+        raise DataError(f"{where}: metadata 'rig': {problem}")
+    kind = rig.get("input_kind", DEFAULT_INPUT_KIND)
+    expected = INPUT_OF_KIND[kind]
+    if expected == input_name:
         return
-    other = next(k for k, v in _INPUT_OF_KIND.items() if v == input_name)
+    other = next(k for k, v in INPUT_OF_KIND.items() if v == input_name)
     name = rig.get("name", "the rig")
     raise DataError(
         f"{where}: metadata 'rig' ({name}) has input_kind {kind!r}, which drives "
@@ -552,7 +579,7 @@ class Dataset:
                 "pass a dict (possibly empty)."
             )
         _check_declarations(self.metadata, where)
-        _check_rig_input(self.metadata, self.input_name, where)
+        _check_rig(self.metadata, self.input_name, where)
 
         time_s = self._as_float(self.time_s, "time_s", where)
         grid_dt_s = check_time_grid(time_s, source=where)

@@ -2,8 +2,8 @@
 
 :data:`SIDECAR_KEYS` gives each key pmabayes reads or writes in a data file's JSON
 sidecar its type, unit, default, meaning and the guide page that explains it; the
-rig's own keys (``"rig": {...}``) are :data:`pmabayes.model.model.RIG_KEYS`, next to
-the code that reads them. The documentation's sidecar reference is generated from
+rig's own keys (``"rig": {...}``) are :data:`pmabayes.data.rig.RIG_KEYS`, the rig's
+schema. The documentation's sidecar reference is generated from
 both, and a test fails when a key the code reads has no entry here.
 """
 
@@ -154,4 +154,18 @@ SIDECAR_KEYS: dict[str, KeyDoc] = {
         "How this experiment differed from the others fitted with it "
         '(`{"load_kg": 0.3}`); the joint fit\'s criticism relates moving parameters to '
         "them.", "guide/identification"),
+    "selected_trials": KeyDoc(
+        "list of integers", "", "none", "Written when some of a file's trials are left "
+        "out (`trials=`, `--trials`, `--exclude-trials`): the trial ids kept, so that the "
+        "next command a fit suggests chooses them too.", "guide/validation", written=True),
+    "input_range": KeyDoc(
+        "list of two numbers, low < high", "Pa (N on a force rig)", "none",
+        "The rig's safe input range: `pmabayes design` keeps its experiments inside it, "
+        "and refuses an `--input-range` beyond it.", "guide/design"),
+    "clock_shifts": KeyDoc(
+        "list of objects", "s", "none",
+        'Blocks of lines whose time stamps a logging fault moved, and the seconds to add '
+        '(`[{"lines": [9001, 10000], "shift_s": -1.0}]`, lines of the file); applied on '
+        "reading and said. A clock that steps back gets an error that proposes it.",
+        "guide/lab_records"),
 }

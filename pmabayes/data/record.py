@@ -24,6 +24,7 @@ from pmabayes.data.clock import (
     _rounded_grid,
     _samples,
     _Segment,
+    _shifted_clock,
     _trial_blocks,
 )
 from pmabayes.data.dataset import (
@@ -206,7 +207,8 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
     rate = _positive_rate(metadata)
     starts, ends, run_ids = _check_blocks(trial, where, first)
     if "time_s" in v:
-        time = _rounded_grid(trial, v["time_s"], table.printed_step, rate, where)
+        stamped = _shifted_clock(v["time_s"], metadata, where, first, declare)
+        time = _rounded_grid(trial, stamped, table.printed_step, rate, where)
     else:  # no time column: the sidecar's rate gives each trial its grid from 0
         time = np.concatenate([np.arange(e - s) for s, e in zip(starts, ends, strict=True)])
         time = time / rate

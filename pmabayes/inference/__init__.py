@@ -61,8 +61,8 @@ from pmabayes.inference.noise import (
     NoiseEstimate,
     estimate_noise,
     group_noise,
-    refer_periods,
 )
+from pmabayes.inference.noise_start import refer_periods
 from pmabayes.inference.posterior import (
     build_posterior,
     experiments,

@@ -364,8 +364,8 @@ def experiment_records(posterior: Posterior, noise_map: dict | None = None,
         ``"tied"``), ``noise_source`` (``"trials"``, ``"periods"`` or
         ``"record"``), ``periods_referred_to_model`` (the periods of a record from
         rest taken from its residual at the MAP,
-        :func:`pmabayes.inference.noise.refer_periods`), ``noise_estimate`` (the noise's mode),
-        ``noise_model``
+        :func:`pmabayes.inference.noise_start.refer_periods`), ``noise_estimate`` (the
+        noise's mode), ``noise_model``
         (:meth:`pmabayes.inference.likelihood.NoiseChoice.to_dict`), ``rms_cost_m``
         (the paper's cost at the MAP, None without it),
         ``noise_floor_m`` (None without repeats; of the trials' residuals at
@@ -577,12 +577,8 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
         In the fit's experiment order; see :func:`model_from_fit`.
     """
     base = model_from_fit(tree)
-    out = []
-    for exp in _experiments_of(tree):
-        rig = Rig.from_dict(exp["rig"]) if isinstance(exp.get("rig"), dict) else base.rig
-        out.append(Model(list(base.effect_names), rig=rig,
-                         priors=base.chosen_priors(rig) or None, fixed=dict(base.fixed) or None))
-    return out
+    return [base.on_rig(Rig.from_dict(exp["rig"])) if isinstance(exp.get("rig"), dict)
+            else base for exp in _experiments_of(tree)]
 
 
 def noise_models(tree: xr.DataTree) -> list[ArNoise | None]:
@@ -700,6 +696,18 @@ def load_fit(path: str | Path) -> xr.DataTree:
     ------
     FitFileError
         If the file is missing or is not a pmabayes fit.
+
+    Examples
+    --------
+    A fit written by ``pmabayes fit muscle_a.csv --out fit.nc`` (or by
+    :func:`save_fit`), read back with its posterior, noise and data:
+
+    >>> import pmabayes
+    >>> tree = pmabayes.load_fit("fit.nc")  # doctest: +SKIP
+    >>> "posterior" in tree.children, "observed_data" in tree.children  # doctest: +SKIP
+    (True, True)
+    >>> tree.posterior["tau_reg"].dims  # doctest: +SKIP
+    ('chain', 'draw')
     """
     path = Path(path)
     if not path.is_file():
@@ -753,8 +761,10 @@ def model_from_fit(tree: xr.DataTree) -> Model:
     """
     m = fit_info(tree).get("model") or {}
     rig = m.get("rig")
+    # a parameter fixed by default that the fit freed is free again ("free"; older fits
+    # did not record it)
     kwargs = {"rig": Rig.from_dict(rig) if isinstance(rig, dict) else None,
-              "fixed": m.get("fixed") or None}
+              "fixed": m.get("fixed") or None, "free": m.get("free") or None}
     model = Model(list(m.get("effects") or []), **kwargs)
     # the priors the fit used (a user's --prior), where they differ from the defaults
     priors = {row["name"]: parse_prior(row["prior"]) for row in m.get("parameters") or []

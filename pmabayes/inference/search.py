@@ -3,7 +3,7 @@ evolution, the paper's GlobalSearch) on the RMS error of the trial mean over the
 plausible region, then a local polish (L-BFGS-B, the paper's fmincon) of the negative
 log posterior, and the Laplace approximation there. A second global search on a spawned
 stream is kept only where it finds another, lower basin. Records from rest have their
-noise referred to the model at the MAP (:func:`pmabayes.inference.noise.refer_periods`)
+noise referred to the model at the MAP (:func:`pmabayes.inference.noise_start.refer_periods`)
 until the MAP settles. A joint fit of several experiments also starts from each
 experiment's own MAP, keeps the highest, and tests whether the experiments agree on one
 parameter set (:func:`experiments_agreement`).
@@ -23,7 +23,7 @@ from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import _fd_hessian, _laplace_covariance, _scaled_hessian
 from pmabayes.inference.likelihood import LEVEL_ADEQUATE, JointLikelihood, Likelihood, span
-from pmabayes.inference.noise import _default_noise_z, _noise_start, refer_periods
+from pmabayes.inference.noise_start import _default_noise_z, _noise_start, refer_periods
 from pmabayes.model.nested import static_line_values
 from pmabayes.model.simulator import position_reference
 from pmabayes.util import Progress

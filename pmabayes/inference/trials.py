@@ -331,7 +331,10 @@ def exclude_trials(dataset: Dataset, ids: Iterable[int], *, min_trials: int = 2)
         raise DataError(f"{where}: excluding trials {sorted(set(ids))} leaves {len(keep)} of "
                         f"{len(have)}; at least {min_trials} repeated trials are needed to "
                         "tell the model's error from the noise. Exclude fewer trials.")
-    return dataset.select_trials(keep)
+    out = dataset.select_trials(keep)
+    if len(keep) < len(have):  # the next command (diagnose, validate) must choose them too
+        out.metadata["selected_trials"] = [have[k] for k in keep]
+    return out
 
 
 def keep_trials(datasets: Dataset | Sequence[Dataset], ids: Iterable[int], *,

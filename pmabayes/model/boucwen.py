@@ -16,13 +16,21 @@ rather than writing the law again. The sign convention: ``sgn(0) = +1``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:  # model.py imports this module
-    from pmabayes.model.model import Model
+
+class NamedParameters(Protocol):
+    """What :meth:`BoucWenColumns.of` reads of a model: its parameters' names in column
+    order (a :class:`~pmabayes.model.model.Model` has them; model.py imports this module,
+    so it is not imported here)."""
+
+    @property
+    def parameter_names(self) -> Sequence[str]: ...
+
 
 __all__ = ["BOUC_WEN_PARAMETERS", "BoucWenColumns", "direction_sign", "coefficient", "slope",
            "linearised", "along", "loading_branch", "coefficient_code", "slope_code",
@@ -55,13 +63,13 @@ class BoucWenColumns:
     p_dz: int | None
 
     @classmethod
-    def of(cls, model: Model) -> BoucWenColumns:
+    def of(cls, model: NamedParameters) -> BoucWenColumns:
         """The columns in ``model``'s parameter order.
 
         Parameters
         ----------
         model : Model
-            The composed model.
+            The composed model (anything with ``parameter_names``).
 
         Returns
         -------

@@ -27,7 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from pmabayes.data import DataWarning
-from pmabayes.data.keys import KeyDoc
+from pmabayes.data.rig import (  # the rig's schema (RIG_* re-exported from here too)
+    DEFAULT_INPUT_KIND,
+    INPUT_OF_KIND,
+    RIG_DICT_KEYS,
+    RIG_KEYS,
+    RIG_PRIOR_KEYS,
+    declared_rig,
+    rig_problem,
+)
 from pmabayes.data.sidecar import say_once
 from pmabayes.model.boucwen import loading_branch
 from pmabayes.model.effects import Effect, resolve_effects
@@ -186,13 +194,6 @@ BASE_PARAMETERS: tuple[Parameter, ...] = (
 )
 
 
-#: Rig values a sidecar may give as a prior instead of a number (``"area_m2":
-#: "LogNormal(1e-5, 1.5)"``): each is then identified with the physics as the model
-#: parameter ``rig_KEY`` (unit, meaning).
-RIG_PRIOR_KEYS: dict[str, tuple[str, str]] = {
-    "moving_mass_kg": ("kg", "moving mass M + m"),
-    "area_m2": ("m^2", "effective area A on which the pressure acts"),
-}
 #: Prefix of the model parameter of a rig value given as a prior.
 RIG_PREFIX = "rig_"
 
@@ -225,21 +226,17 @@ class Rig:
     moving_mass_kg: float
     gravity_sign: float = 1.0
     area_m2: float = PAPER_AREA_M2
-    input_kind: str = "pressure"
+    input_kind: str = DEFAULT_INPUT_KIND
     g_m_s2: float = G_M_S2
     name: str = "custom"
     priors: tuple[tuple[str, Prior], ...] = field(default=())
 
     def __post_init__(self) -> None:
-        if not self.moving_mass_kg > 0:
-            raise ModelError(f"rig mass must be > 0 kg, got {self.moving_mass_kg}")
-        if self.gravity_sign not in (-1.0, 0.0, 1.0):
-            raise ModelError(f"gravity_sign must be -1, 0 or +1, got {self.gravity_sign}")
-        if not self.area_m2 > 0:
-            raise ModelError(f"area_m2 must be > 0 (the effective area in m^2, force per "
-                             f"pressure; 1 for a force input), got {self.area_m2}; fix it")
-        if self.input_kind not in ("pressure", "force"):
-            raise ModelError(f"input_kind must be 'pressure' or 'force', got {self.input_kind!r}")
+        # the one schema of a rig (pmabayes.data.rig), which a sidecar's is checked with
+        problem = rig_problem({f.name: getattr(self, f.name) for f in fields(self)
+                               if f.name != "priors"})
+        if problem:
+            raise ModelError(problem)
         for key, prior in self.priors:
             if key not in RIG_PRIOR_KEYS or not isinstance(prior, Prior):
                 raise ModelError(f"rig prior {key!r}: only {', '.join(RIG_PRIOR_KEYS)} may be "
@@ -267,7 +264,7 @@ class Rig:
     @property
     def input_name(self) -> str:
         """Name of the input column in data files."""
-        return "pressure_pa" if self.input_kind == "pressure" else "force_n"
+        return INPUT_OF_KIND[self.input_kind]
 
     @property
     def gravity_force_n(self) -> float:
@@ -289,18 +286,13 @@ class Rig:
         A value of :data:`RIG_PRIOR_KEYS` may be a prior's text
         (:func:`~pmabayes.model.parameters.parse_prior`), e.g. ``"LogNormal(1e-5, 1.5)"``.
         """
-        known = set(RIG_DICT_KEYS)
-        unknown = set(d) - known
-        if unknown:
-            raise ModelError(f"unknown rig keys {sorted(unknown)}; expected {sorted(known)}: "
-                             "rename or remove them")
+        problem = rig_problem(d)
+        if problem:
+            raise ModelError(problem)
         values, priors = dict(d), []
         for key, value in d.items():
-            if not isinstance(value, str) or key in ("input_kind", "name"):
+            if key not in RIG_PRIOR_KEYS or not isinstance(value, str):
                 continue
-            if key not in RIG_PRIOR_KEYS:
-                raise ModelError(f"{key!r} is {value!r}; it must be a number (only "
-                                 f"{', '.join(RIG_PRIOR_KEYS)} may be given as a prior)")
             try:
                 prior = parse_prior(value)
             except ValueError as err:
@@ -314,41 +306,10 @@ class Rig:
         return dict(self.priors).get(key)
 
 
-#: The keys of a rig's dict (:meth:`Rig.to_dict`, a sidecar's ``"rig"``): its fields,
-#: a value given as a prior written under its own key.
-RIG_DICT_KEYS: tuple[str, ...] = tuple(f.name for f in fields(Rig) if f.name != "priors")
-
-#: The sidecar reference of each key of a ``"rig"`` (:data:`RIG_DICT_KEYS`); the defaults
-#: are the characterisation rig's, which a sidecar without a rig gets.
-RIG_KEYS: dict[str, KeyDoc] = {
-    "moving_mass_kg": KeyDoc(
-        'number > 0, or a prior (`"LogNormal(0.07, 1.5)"`)', "kg",
-        f"{CARRIAGE_MASS_KG + PMA_MASS_KG:g} (carriage + muscle)",
-        "`M + m`: everything that moves with the muscle's free end (carriage, load, muscle).",
-        "guide/rig_priors"),
-    "gravity_sign": KeyDoc(
-        "1, 0 or -1", "", "1", "`s_g`: +1 gravity opposes extension, -1 it pulls toward "
-        "extension (a hanging load), 0 none (a horizontal rig).", "guide/rig_priors"),
-    "area_m2": KeyDoc(
-        'number > 0, or a prior (`"LogNormal(1e-4, 1.5)"`)', "m^2",
-        f"{PAPER_AREA_M2:.6g} (derived from the paper's muscle)",
-        "Effective area `A`, force per pressure; 1 for a force-driven oscillator.",
-        "guide/rig_priors"),
-    "input_kind": KeyDoc(
-        '`"pressure"` or `"force"`', "", "pressure", "What the input column holds: "
-        "pressure in Pa (a muscle, with a dead zone) or force in N (an oscillator).",
-        "guide/data"),
-    "g_m_s2": KeyDoc("number", "m/s^2", f"{G_M_S2:g}", "Gravitational acceleration.",
-                     "guide/rig_priors"),
-    "name": KeyDoc("string", "", "custom", "A label for reports; a fit of several "
-                   "experiments matches held-out data to fitted ones by it.",
-                   "guide/validation"),
-}
-
-
 def assumed_rig(dataset) -> None:
-    """Say once per file that a data set whose sidecar gives no ``"rig"`` runs on the
-    paper's characterisation rig (a :class:`~pmabayes.data.DataWarning`).
+    """Say once per file that a data set whose sidecar declares no rig (no ``"rig"``, or
+    free-form notes there) runs on the paper's characterisation rig (a
+    :class:`~pmabayes.data.DataWarning`).
 
     Silent for data sets made in Python (no source), synthetic data (their sidecar
     has their rig, or says ``"synthetic"``) and force data (refused without a rig).
@@ -365,13 +326,16 @@ def assumed_rig(dataset) -> None:
     """
     meta = dataset.metadata or {}
     source = dataset.source_file
-    if (source is None or "rig" in meta or meta.get("synthetic") is True
+    if (source is None or declared_rig(meta) is not None or meta.get("synthetic") is True
             or "generator" in meta or dataset.input_name != "pressure_pa"):
         return
     rig = Rig.characterisation()
     example = json.dumps({"rig": {**rig.to_dict(), "name": "my_rig"}})
+    # a "rig" of free-form notes (no rig key) declares no rig either
+    missing = ('its sidecar\'s "rig" holds notes, not the rig\'s constants' if "rig" in meta
+               else 'no "rig" in its sidecar')
     say_once(source, "rig", DataWarning(
-        f'{source}: no "rig" in its sidecar, so the paper\'s characterisation rig is '
+        f"{source}: {missing}, so the paper's characterisation rig is "
         f"assumed (moving mass {rig.moving_mass_kg:g} kg, gravity against extension, area "
         f"A={rig.area_m2:.4g} m^2); declare yours in "
         f"{Path(source).with_suffix('.json').name}: {example[1:-1]} (gravity_sign -1: "
@@ -617,28 +581,29 @@ class Model:
             rig = Rig.characterisation()
         return cls(effects, rig=rig, priors=priors, fixed=fixed)
 
-    def on_rig(self, dataset) -> Model:
-        """This model (effects, priors, fixed values) on the rig a data set records.
+    def on_rig(self, where: Rig | object) -> Model:
+        """This model (effects, priors, fixed values) on another rig: a :class:`Rig`, or the
+        rig a data set records.
 
         Parameters
         ----------
-        dataset : Dataset
-            Data whose ``metadata["rig"]`` (if any) gives the rig.
+        where : Rig or Dataset
+            The rig, or data whose ``metadata["rig"]`` (if any) gives it.
 
         Returns
         -------
         Model
-            This model itself where the data set records no rig; otherwise a model
-            with the same effects, free parameters, fixed values and the priors this
-            one replaced, on the recorded rig.
+            This model itself where the data set records no rig or the rig is this
+            model's; otherwise a model with the same effects, free parameters, fixed
+            values and the priors this one replaced, on the other rig.
 
         Raises
         ------
         ModelError
             If the recorded rig is not valid (the message names the data's file).
         """
-        rig = _rig_of(dataset)
-        if rig is None:
+        rig = where if isinstance(where, Rig) else _rig_of(where)
+        if rig is None or rig == self.rig:
             return self
         return Model(self.effects, rig=rig, priors=self.chosen_priors(rig),
                      fixed=dict(self.fixed),
@@ -764,8 +729,8 @@ class Model:
 
 def _rig_of(dataset) -> Rig | None:
     """The rig a data set's metadata records, or None where it records none."""
-    rig_meta = dataset.metadata.get("rig") if dataset.metadata else None
-    if not isinstance(rig_meta, dict):
+    rig_meta = declared_rig(dataset.metadata)  # checked against the schema on reading
+    if rig_meta is None:
         return None
     try:
         return Rig.from_dict(rig_meta)

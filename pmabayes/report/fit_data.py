@@ -216,12 +216,16 @@ def check_experiment_data(tree: xr.DataTree, datasets) -> list[Dataset]:
         if not isinstance(ds, Dataset):
             raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
                             f"{type(ds).__name__}")
-        if ds.position_m.shape != ref.position_m.shape or not np.allclose(
-                ds.position_m, ref.position_m, rtol=0, atol=1e-12):
-            raise DataError(f"dataset {ds.source or '(no source)'} does not match the observed "
-                            f"data of the fit's experiment from {ref.source}: shape "
-                            f"{ds.position_m.shape} against {ref.position_m.shape} or positions "
-                            "differ by more than 1e-12 m; give the fit's data files in its order")
+        where = (f"dataset {ds.source or '(no source)'} does not match the observed data of "
+                 f"the fit's experiment from {ref.source}")
+        fix = "give the fit's data files in its order"
+        if ds.position_m.shape != ref.position_m.shape:
+            raise DataError(f"{where}: shape {ds.position_m.shape} (trials, samples) against "
+                            f"{ref.position_m.shape}; {fix}")
+        # samples not observed (gaps in the clock) are NaN in both
+        if not np.allclose(ds.position_m, ref.position_m, rtol=0, atol=1e-12, equal_nan=True):
+            raise DataError(f"{where}: the positions or the samples observed differ (tolerance "
+                            f"1e-12 m); {fix}")
     return datasets
 
 

@@ -163,4 +163,7 @@ def _diagnose_command(info: dict, dataset: Dataset | Sequence[Dataset]) -> str:
                for ds in datasets]
     effects = (info.get("model") or {}).get("effects") or []
     command = "pmabayes diagnose " + " ".join(shlex.quote(str(s)) for s in sources)
+    chosen = datasets[0].metadata.get("selected_trials") if len(datasets) == 1 else None
+    if chosen:  # the trials held out of the fit stay out of its diagnosis
+        command += f" --trials {','.join(map(str, chosen))}"
     return command + (f" --effects {','.join(effects)}" if effects else "")

@@ -13,8 +13,10 @@ from repeats.
 - :mod:`~pmabayes.inference.noise.choice`: which model a likelihood uses
   (:func:`choose_noise_model`, :class:`NoiseChoice`).
 - :mod:`~pmabayes.inference.noise.repeats`: the AR(1) + white noise's posterior from the
-  repeats (:func:`estimate_noise`), each noise group's (:func:`group_noise`), and the
-  periods of a record from rest referred to the model (:func:`refer_periods`).
+  repeats (:func:`estimate_noise`) and each noise group's (:func:`group_noise`). The
+  periods of a record from rest referred to the model
+  (:func:`pmabayes.inference.noise_start.refer_periods`) work on the posterior density,
+  above this package.
 
 A new noise model is one module beside these: a :class:`NoiseModel` subclass decorated
 with :func:`register_noise_model`, imported below; its ``name`` is then a value of
@@ -55,22 +57,18 @@ from pmabayes.inference.noise.choice import (
 )
 from pmabayes.inference.noise.repeats import (
     NoiseEstimate,
-    _default_noise_z,
     _lag_moment,
     _log_sech2,
     _minimise_noise,
     _moment_start,
-    _noise_start,
     estimate_noise,
     group_noise,
-    refer_periods,
 )
 from pmabayes.inference.noise.student_t import STUDENT_T_PARAMETERS, StudentT
 
 __all__ = [
     "estimate_noise",
     "group_noise",
-    "refer_periods",
     "NoiseEstimate",
     "NoiseModel",
     "register_noise_model",
@@ -101,5 +99,4 @@ __all__ = [
 ]
 
 # private helpers other modules of the package's users import
-_PRIVATE = (_default_noise_z, _lag_moment, _log_sech2, _minimise_noise, _moment_start,
-            _noise_start)
+_PRIVATE = (_lag_moment, _log_sech2, _minimise_noise, _moment_start)

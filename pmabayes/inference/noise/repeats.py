@@ -1,10 +1,10 @@
 """The noise, learnt from repeatability: the posterior of the AR(1) + white noise from
 the deviations of the repeats from their mean (trials, or the periods of a periodic
-record), each noise group's estimate and noise model, the start of a noise sampled with
-the model (a record without repeats, or a model that is not learnt from repeats), and
-the periods of a record from rest referred to the model's residual. The noise models
-themselves are the package's other modules; their choice is
-:mod:`pmabayes.inference.noise.choice`.
+record), and each noise group's estimate and noise model. The start of a noise sampled
+with the model and the periods of a record from rest referred to the model's residual
+work on the posterior density, above this package
+(:mod:`pmabayes.inference.noise_start`). The noise models themselves are the package's
+other modules; their choice is :mod:`pmabayes.inference.noise.choice`.
 """
 
 from __future__ import annotations
@@ -23,14 +23,12 @@ from pmabayes.inference.noise.ar1 import NOISE_PARAMETERS, _lag_moment, _moment_
 from pmabayes.inference.noise.base import noise_model_class
 from pmabayes.inference.noise.choice import NoiseChoice, _as_list, choose_noise_model
 
-if TYPE_CHECKING:  # the density holds a NoiseEstimate, and the likelihood a noise model
-    from pmabayes.inference.density import Posterior
+if TYPE_CHECKING:  # the likelihood holds a noise model
     from pmabayes.inference.likelihood import Likelihood
 
 __all__ = [
     "estimate_noise",
     "group_noise",
-    "refer_periods",
     "NoiseEstimate",
 ]
 
@@ -113,61 +111,6 @@ def _minimise_noise(neg, u0: np.ndarray, shift: np.ndarray | None = None) -> np.
     return best.x
 
 
-def _default_noise_z(posterior: Posterior, first: int | None = None) -> np.ndarray:
-    """The defaults, in unconstrained coordinates, of the columns from ``first`` on: by
-    default the sampled noise parameters' (none when the noise comes from repeats)."""
-    theta = np.array([[p.default for p in posterior.parameters]])
-    first = posterior.n_searched if first is None else first
-    return posterior.to_unconstrained(theta)[0, first:]
-
-
-def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
-    """``z`` with the noise sampled with the model (records without repeats, noise
-    models not learnt from repeats) set to its posterior mode given the model's
-    parameters in ``z``.
-
-    The global search's cost does not depend on the noise, so it leaves the noise
-    anywhere; a polish started there can stop in a mode of the noise alone (all of
-    it white, or a negative correlation) far below the posterior's. The residual of
-    the search's optimum is a series of the noise (plus what misfit is left): each
-    noise model starts the search, over the noise coordinates only, of the posterior
-    from it (:meth:`~pmabayes.inference.noise.NoiseModel.start`).
-    """
-    cols = np.arange(posterior.n_searched, posterior.ndim)
-    if cols.size == 0:
-        return z
-    x = posterior.output(posterior.to_natural(z[None]))
-    # several experiments are seen as one JointLikelihood, which splits the output
-    parts = posterior.likelihood.split(x) if posterior.n_experiments > 1 else [x]
-    # per sampled group, from its first experiment: (start, shift, noise model, its lik)
-    starts: dict[int, tuple] = {}
-    for e, (lik, xe) in enumerate(zip(posterior.likelihoods, parts, strict=True)):
-        g = posterior.groups[e]
-        if posterior.noise_sampled(e) and g not in starts:
-            r = lik.y_mean - xe[0]
-            if lik.observed is not None:  # a single record: its samples observed
-                r = np.where(lik.observed[0], r, 0.0)
-            starts[g] = (*lik.noise.start(r, lik.observed, lik), lik.noise)
-    order = sorted(starts)  # the columns' order
-    u0 = np.concatenate([starts[g][0] for g in order])
-    shift = np.concatenate([starts[g][1] for g in order])
-
-    def neg(u: np.ndarray) -> np.ndarray:
-        zz = np.repeat(z[None], np.atleast_2d(u).shape[0], axis=0)
-        zz[:, cols] = np.atleast_2d(u)
-        return -posterior.log_prob_z(zz)
-
-    out = z.copy()
-    out[cols] = _minimise_noise(neg, u0, shift)
-    a = posterior.n_searched
-    for g in order:
-        width = starts[g][0].size
-        sl = slice(a, a + width)
-        out[sl] = starts[g][2].clip_start(out[sl], posterior.upper[sl])
-        a += width
-    return out
-
-
 def group_noise(members: list[Likelihood], noise_model: str
                 ) -> tuple[NoiseEstimate | None, NoiseChoice]:
     """A noise group's estimate from its repeats and its noise model.
@@ -202,45 +145,6 @@ def group_noise(members: list[Likelihood], noise_model: str
     for lik in members:
         lik.use_noise(choice.model)
     return est, choice
-
-
-def refer_periods(posterior: Posterior, z: np.ndarray) -> bool:
-    """Learn the noise of records from rest, and of trials with their own inputs, from
-    their repeats' residual at ``z``.
-
-    Each experiment whose repeats must be referred to the model
-    (:attr:`pmabayes.inference.likelihood.Likelihood.refers_to_model`: the periods of a
-    record that starts from rest, or trials with their own inputs) takes its repeats
-    from the residual at ``z``
-    (:meth:`~pmabayes.inference.likelihood.Likelihood.refer_periods_to`), and the noise of its
-    group is estimated again, its noise model chosen again as first requested.
-    Other experiments keep theirs.
-
-    Parameters
-    ----------
-    posterior : Posterior
-        Updated in place (:meth:`~pmabayes.inference.density.Posterior.set_group_noise`).
-    z : numpy.ndarray
-        The point, in unconstrained coordinates ``(ndim,)``: a MAP.
-
-    Returns
-    -------
-    bool
-        Whether any experiment's periods were referred to the model.
-    """
-    liks = posterior.likelihoods
-    shaken = [e for e, lik in enumerate(liks) if lik.refers_to_model]
-    if not shaken:
-        return False
-    theta = posterior.to_natural(np.asarray(z, dtype=float)[None])
-    for e in shaken:
-        liks[e].refer_periods_to(posterior.simulate(theta, e)[0])
-    for g in sorted({posterior.groups[e] for e in shaken}):
-        members = [e for e, gg in enumerate(posterior.groups) if gg == g]
-        est, choice = group_noise([liks[e] for e in members],
-                                   posterior.noise_choices[members[0]].requested)
-        posterior.set_group_noise(g, est, choice)
-    return True
 
 
 def _log_sech2(z: np.ndarray) -> np.ndarray:

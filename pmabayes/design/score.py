@@ -1,0 +1,194 @@
+"""The scores of a candidate experiment, from the candidates' predicted responses.
+
+Everything is computed on *whitened* responses: the fitted noise model's standardised
+innovations of the trial mean of the experiment's ``R`` trials
+(:meth:`pmabayes.inference.noise.base.NoiseModel.whiten`, linear). There the noise is
+independent N(0, 1) at every sample, so that a measured trial mean is a whitened model
+response plus a standard normal vector.
+
+Discrimination (:func:`discrimination`). Each candidate model's predictive distribution
+of the new data, given the data so far, is taken Gaussian: the mean and the covariance
+of its posterior draws' whitened responses, plus the unit noise (Box and Hill's
+criterion, 1967, and Buzzi-Ferraris' in its Gaussian form: a model whose parameters are
+uncertain predicts with the spread of its draws added to the noise). Its log density is
+exact for that Gaussian by the Woodbury identity (the draws' spread has the rank of
+their number). The expected discrimination is estimated by Monte Carlo over (the true
+model, a posterior draw of it, the noise): the data such a truth gives are scored by
+every model's predictive density, and the log Bayes factor of the true model over the
+strongest other one (equal prior odds) is averaged; the rate at which the true model
+wins is the rate at which it is named. The draws that make the truths are not those that
+make the predictive densities, so a truth is never scored by its own draw. The Monte
+Carlo standard error is the spread over the truths over their number's square root (a
+truth's noise replicates averaged first: they are not independent of each other).
+
+Parameters (:func:`shrinkage`). The Laplace covariance ``C`` of the data so far and the
+whitened sensitivities ``J`` of the experiment at a posterior draw give the covariance
+after it, ``(C^-1 + J^T J)^-1``; a parameter's 90% interval shrinks (in the fit's
+unconstrained coordinates: a positive parameter's log) by the square root of the ratio
+of its variances.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_triangular
+
+__all__ = ["Discrimination", "discrimination", "shrinkage", "whiten_rows"]
+
+
+def whiten_rows(noise_model, noise: tuple, n_trials: int, x: np.ndarray) -> np.ndarray:
+    """The standardised innovations of each row's trial mean of ``n_trials`` trials.
+
+    Parameters
+    ----------
+    noise_model : NoiseModel
+        The fitted noise model (a likelihood's ``noise``).
+    noise : tuple of float
+        Its parameters at the MAP.
+    n_trials : int
+        Trials the experiment repeats: their mean's noise is the model's over
+        ``sqrt(n_trials)``.
+    x : numpy.ndarray
+        Responses ``(rows, n_samples)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(rows, n_samples)``.
+    """
+    scale = math.sqrt(n_trials)
+    return np.array([noise_model.whiten(np.ascontiguousarray(row), scale, noise)
+                     for row in np.atleast_2d(x)])
+
+
+@dataclass(frozen=True)
+class Discrimination:
+    """How well an experiment tells the candidates apart.
+
+    Parameters
+    ----------
+    score : float
+        Expected log Bayes factor of the true model over the strongest other one.
+    score_se : float
+        Its Monte Carlo standard error.
+    named_rate : float
+        Expected rate at which the true model has the highest predictive density.
+    named_se : float
+        Its Monte Carlo standard error.
+    pairs : numpy.ndarray
+        ``(K, K)``: the mean log Bayes factor of model ``i`` over model ``j`` when ``i``
+        is true (0 on the diagonal).
+    n_samples : int
+        Monte Carlo samples (truths) behind the numbers.
+    """
+
+    score: float
+    score_se: float
+    named_rate: float
+    named_se: float
+    pairs: np.ndarray
+    n_samples: int
+
+    def to_dict(self, names: Sequence[str]) -> dict:
+        """JSON-ready, the pairs by the candidates' names."""
+        return {"expected_log_bayes_factor": self.score, "mc_se": self.score_se,
+                "named_rate": self.named_rate, "named_rate_mc_se": self.named_se,
+                "n_monte_carlo": self.n_samples,
+                "log_bayes_factor_when_true": {
+                    a: {b: float(self.pairs[i, j]) for j, b in enumerate(names) if j != i}
+                    for i, a in enumerate(names)}}
+
+
+def _log_predictive(evidence: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Log density (less the constant ``n log(2 pi) / 2``) of rows ``y`` under
+    N(mean of ``evidence``, I + covariance of ``evidence``), by Woodbury."""
+    m = evidence.mean(axis=0)
+    u = (evidence - m).T / math.sqrt(max(evidence.shape[0] - 1, 1))  # (n, draws)
+    chol = np.linalg.cholesky(np.eye(u.shape[1]) + u.T @ u)
+    logdet = 2.0 * float(np.sum(np.log(np.diag(chol))))
+    r = y - m
+    s = solve_triangular(chol, (r @ u).T, lower=True)
+    return -0.5 * (np.einsum("ij,ij->i", r, r) - np.einsum("ij,ij->j", s, s) + logdet)
+
+
+def discrimination(truths: Sequence[np.ndarray], evidence: Sequence[np.ndarray],
+                   rng: np.random.Generator, n_noise: int = 4) -> Discrimination:
+    """Monte Carlo of the expected discrimination between ``K`` candidate models.
+
+    Parameters
+    ----------
+    truths : sequence of numpy.ndarray
+        Per model, whitened responses ``(n_truth, n)`` of posterior draws that play the
+        true model.
+    evidence : sequence of numpy.ndarray
+        Per model, whitened responses ``(n_draws, n)`` of other posterior draws, that
+        make its predictive density.
+    rng : numpy.random.Generator
+        Draws the noise.
+    n_noise : int
+        Noise vectors per truth (cheap: they need no simulation).
+
+    Returns
+    -------
+    Discrimination
+    """
+    k = len(truths)
+    labels = np.repeat(np.concatenate([np.full(t.shape[0], i) for i, t in enumerate(truths)]),
+                       n_noise)
+    y = np.repeat(np.concatenate(truths, axis=0), n_noise, axis=0)
+    y = y + rng.standard_normal(y.shape)
+    lp = np.stack([_log_predictive(e, y) for e in evidence], axis=1)  # (samples, K)
+    own = lp[np.arange(y.shape[0]), labels]
+    others = lp.copy()
+    others[np.arange(y.shape[0]), labels] = -np.inf
+    margin = own - others.max(axis=1)
+    named = margin > 0
+    pairs = np.zeros((k, k))
+    for i in range(k):
+        rows = labels == i
+        pairs[i] = (lp[rows, i][:, None] - lp[rows]).mean(axis=0)
+    # a truth's noise replicates are not independent of each other: the standard errors
+    # are over the truths (each one's mean over its replicates)
+    per_margin = margin.reshape(-1, n_noise).mean(axis=1)
+    per_named = named.reshape(-1, n_noise).mean(axis=1)
+    n = per_margin.size
+    rate = float(named.mean())
+    # at a rate of 0 or 1 the spread is 0, but n truths resolve no better than 1/n
+    named_se = float(per_named.std(ddof=1)) / math.sqrt(n) if 0 < rate < 1 else 1.0 / n
+    return Discrimination(
+        score=float(margin.mean()), score_se=float(per_margin.std(ddof=1) / math.sqrt(n)),
+        named_rate=rate, named_se=named_se,
+        pairs=pairs, n_samples=int(n))
+
+
+def shrinkage(covariance: np.ndarray, jacobians: Sequence[np.ndarray],
+              columns: Sequence[int]) -> np.ndarray:
+    """Factors by which the experiment shrinks the parameters' 90% intervals.
+
+    Parameters
+    ----------
+    covariance : numpy.ndarray
+        The Laplace covariance of the data so far, ``(p, p)``, unconstrained coordinates.
+    jacobians : sequence of numpy.ndarray
+        Per posterior draw, the whitened sensitivities ``(n, p)`` of the experiment's
+        response to the same coordinates.
+    columns : sequence of int
+        The parameters asked about.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(draws, len(columns))``: each width before over width after (>= 1).
+    """
+    cov = 0.5 * (covariance + covariance.T)
+    precision = np.linalg.inv(cov)
+    before = np.diag(cov)[list(columns)]
+    out = []
+    for jac in jacobians:
+        after = np.linalg.inv(precision + jac.T @ jac)
+        out.append(np.sqrt(before / np.diag(after)[list(columns)]))
+    return np.array(out)
