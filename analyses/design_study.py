@@ -76,9 +76,10 @@ def _verdict(datasets: list, pair: list[str], truth: str, seed: int) -> tuple[bo
     other's, paired over the trials, by more than two standard errors of the sum of the
     differences; and the difference in words.
 
-    Diagnose's rule pairs leave-one-trial-out ELPDs (PSIS over Laplace draws); on these
-    tightly identified fits that estimate moved by thousands between two seeds of its
-    draws on the same fits, so the study pairs the log-likelihoods themselves (the
+    Diagnose's rule pairs leave-one-trial-out ELPDs (importance-weighted Laplace draws),
+    which on these tightly identified fits are mostly marked not reliable (Pareto k-hat
+    high), and then names an effect by the same paired log-likelihoods at the MAPs; the
+    study uses those directly (the
     candidates differ by one or two parameters: in-sample optimism of a few nats,
     beside gaps of hundreds where the data tell the candidates apart).
     """

@@ -96,7 +96,7 @@ def oracle(posterior, truth: dict) -> float:
                                                                 - posterior.n_model))]))[0]
     z = _noise_start(posterior, z)
     box = posterior.plausible_box(np.random.default_rng(0), posterior.names)
-    z_map, _ = _polish_from(posterior, z, box[:, 1] - box[:, 0])
+    z_map, _, _ = _polish_from(posterior, z, box[:, 1] - box[:, 0])
     return float(posterior.log_prob_z(z_map[None])[0])
 
 

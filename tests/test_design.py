@@ -352,3 +352,111 @@ def test_diagnose_verdict_offers_the_design_for_near_twins(gap, tied):
                "regulator_lag,transport_delay --input-range LO,HI --out next")
     assert (command in text) is tied, text
     assert ("cannot be told apart" in text) is tied
+
+
+# -- the design simulates as the data were recorded ----------------------------------
+
+
+def _area_first(reference: str):
+    """The fixture's kind of first experiment on a rig with a 0.1 kg dead load and the
+    area as a prior, its positions referred as ``reference`` says."""
+    from dataclasses import replace
+
+    from pmabayes.model.model import CARRIAGE_MASS_KG, PAPER_AREA_M2, PMA_MASS_KG, Rig
+
+    rig = Rig(CARRIAGE_MASS_KG + PMA_MASS_KG + 0.1, 1.0, PAPER_AREA_M2, name="load_0.1kg")
+    chirp = Chirp(f0_hz=0.1, f1_hz=0.5, duration_s=6.0, p_min_pa=1.0e5, p_max_pa=1.6e5,
+                  sample_rate_hz=200.0)
+    ds = generate_chirp_dataset(n_trials=4, seed=3, chirp=chirp, rig=rig)
+    meta = {**ds.metadata, "rig": {**ds.metadata["rig"], "area_m2": "LogNormal(1e-4, 1.5)"},
+            "position_reference": reference}
+    return replace(ds, metadata=meta)
+
+
+def _base_fit(ds, sd: dict[str, float] | None = None,
+              at: dict[str, float] | None = None) -> CandidateFit:
+    """The base model 'fitted' at the generator's values (the paper's area) or ``at``'s,
+    sd 0.05 in every unconstrained coordinate but those ``sd`` names."""
+    from pmabayes.model.model import PAPER_AREA_M2
+
+    post = build_posterior(Model.for_dataset(ds), ds, substeps=1)
+    truth = {**ds.metadata["generator"]["parameters"], "rig_area_m2": PAPER_AREA_M2,
+             **(at or {})}
+    values = {n: truth.get(n, p.quantile(0.5)) for n, p in zip(post.names, post.priors,
+                                                               strict=True)}
+    z = post.to_unconstrained(np.array([[values[n] for n in post.names]]))[0]
+    var = np.full(z.size, 0.05**2)
+    for name, s in (sd or {}).items():
+        var[list(post.names).index(name)] = s**2
+    return CandidateFit("base", post, MapResult(values, math.nan, math.nan, {}, math.nan, z,
+                                                np.diag(var)))
+
+
+def test_a_sensor_zeroed_at_the_start_is_simulated_so():
+    # with "position_reference": "start" the records never see a load's static sag: the
+    # design's responses are referred to their first sample, as the likelihood's are,
+    # and a heavier load is not credited with the sag's information about the area
+    factors = {}
+    for reference in ("absolute", "start"):
+        ds = _area_first(reference)
+        res = design(ds, [], [], goal="parameters", parameters=["rig_area_m2"],
+                     loads=(0.5,), input_range=RANGE, n_experiments=3, n_draws=8, seed=0,
+                     fits={"base": _base_fit(ds)})
+        start = res.predictions["base"]["map"][0]
+        assert bool(start == 0.0) is (reference == "start"), start
+        factors[reference] = res.score_of("default_chirp")["factors"]["rig_area_m2"]
+    assert factors["absolute"] > 2 * factors["start"], factors
+
+
+def test_parameter_draws_stay_inside_the_priors_support(first):
+    # a dead-zone pressure near 0 with a wide Laplace sd on its identity coordinate: half
+    # its draws would be negative pressures, which the simulator refuses
+    post = build_posterior(Model.for_dataset(first), first, substeps=1)
+    assert post.kinds[list(post.names).index("p_dz")] == "identity"
+    fit = _base_fit(first, sd={"p_dz": 5e4}, at={"p_dz": 1e4})
+    res = design(first, [], [], goal="parameters", parameters=["K_e"], input_range=RANGE,
+                 n_experiments=3, n_draws=8, seed=0, fits={"base": fit})
+    assert all(math.isfinite(s["score"]) and s["factor"] >= 1.0 for s in res.scores)
+
+
+def test_data_so_far_of_several_experiments(tmp_path):
+    # a joint fit's noise is one value per experiment ({experiment: value}): the design's
+    # summary and page take it as the fit gives it
+    from dataclasses import replace
+
+    from pmabayes.report.design_page import write_design
+
+    first, other = (replace(_area_first("start"), source=f"{name}.csv")
+                    for name in ("first", "second"))
+    post = build_posterior(Model.for_dataset(first), [first, other], substeps=1)
+    one = _base_fit(first)
+    theta = post.to_natural(one.map.z[None])
+    values = {**one.map.values, **post.noise_values(theta[0])}
+    assert isinstance(values["sigma_noise_m"], dict)
+    fit = CandidateFit("base", post, replace(one.map, values=values))
+    res = design([first, other], [], [], goal="parameters", parameters=["rig_area_m2"],
+                 loads=(0.0, 0.4), input_range=RANGE, n_experiments=3, n_draws=8, seed=0,
+                 fits={"base": fit})
+    noise = res.settings["fitted"]["base"]["values"]["sigma_noise_m"]
+    assert set(noise) == {"first", "second"}
+    write_design(res, tmp_path)
+    summary = json.loads((tmp_path / "design.json").read_text())
+    assert summary["settings"]["fitted"]["base"]["values"]["sigma_noise_m"] == noise
+
+
+def test_a_fit_whose_experiments_disagree_is_said_beside_the_scores(first, tmp_path):
+    from dataclasses import replace
+
+    fit = _base_fit(first)
+    res = design(first, [], [], goal="parameters", parameters=["K_e"], input_range=RANGE,
+                 n_experiments=2, n_draws=8, seed=0, fits={"base": fit})
+    assert res.notes == [] and not any("note:" in line for line in res.lines())
+    torn = replace(fit, map=replace(fit.map, agreement={"agree": False, "statistic": 4.85e4,
+                                                        "df": 14}))
+    res = design(first, [], [], goal="parameters", parameters=["K_e"], input_range=RANGE,
+                 n_experiments=2, n_draws=8, seed=0, fits={"base": torn})
+    assert len(res.notes) == 1 and "disagree" in res.notes[0] and "4.85e+04" in res.notes[0]
+    assert any(line.startswith("  note: base: the experiments so far disagree")
+               for line in res.lines())
+    write_design_files(res, tmp_path)
+    assert json.loads((tmp_path / "design.json").read_text())["notes"] == res.notes

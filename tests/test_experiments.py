@@ -91,7 +91,7 @@ def test_the_disagreement_verdict_names_the_experiment_that_loses_most():
     verdict = {"agree": False, "statistic": 182.0, "df": 6, "p_value": 1e-36,
                "experiments": per}
     text = disagreement_text(verdict)
-    assert "182 on 6 degrees of freedom" in text and "sine loses most: RMS 300 um" in text
+    assert "182 on 6 degrees of freedom" in text and "sine loses most: RMS 300 µm" in text
     assert "alone" in text and "pmabayes diagnose" in text and "which parameters move" in text
     assert disagreement_text({**verdict, "agree": True}) == ""
     assert disagreement_text({**verdict, "agree": None}) == ""

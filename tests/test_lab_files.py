@@ -226,7 +226,7 @@ def test_a_daq_clock_with_jitter_is_a_uniform_grid(tmp_path: Path) -> None:
     assert ds.n_missing == 0 and ds.n_samples == 2000
     np.testing.assert_allclose(np.diff(ds.time_s), 1e-3, rtol=1e-6)
     (clock,) = [s for s in said if "uniform grid" in s]
-    m = re.search(r"deviate from the uniform grid by up to ([\d.]+) us \(([\d.]+) steps, "
+    m = re.search(r"deviate from the uniform grid by up to ([\d.]+) µs \(([\d.]+) steps, "
                   r"line (\d+)\)", clock)
     assert m and 70 < float(m.group(1)) < 90 and 0.07 < float(m.group(2)) < 0.09
     assert int(m.group(3)) == worst + 2

@@ -169,7 +169,7 @@ def test_a_records_declared_or_settled_disturbance_bound_and_its_words():
     kept = Likelihood(pb.Model(), dataclasses.replace(ds, metadata={
         **ds.metadata, "disturbance_max_s": 0.2, "disturbance_check": check}))
     note = slow_disturbance_note(kept, 0.99)
-    assert "is slow" in note and "50.5 um against 50 um" in note
+    assert "is slow" in note and "50.5 µm against 50 µm" in note
     assert "would look the same on one record" in note
     for change, words in (({"rms_slow_m": 80e-6}, "takes in misfit"),
                           ({"rms_slow_m": None}, "refused"),

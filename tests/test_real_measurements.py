@@ -56,12 +56,12 @@ def test_a_search_that_ends_where_nothing_simulates_is_a_fit_error(monkeypatch):
     n_model = posterior.n_model
 
     def nowhere(post, z0, scale):
-        return np.full_like(z0, np.nan), np.eye(z0.size)
+        return np.full_like(z0, np.nan), np.eye(z0.size), None
 
     monkeypatch.setattr(search, "_global_search",
                         lambda post, box, *a: (np.zeros(n_model), 1.0))
     monkeypatch.setattr(search, "_polish_from", nowhere)
-    monkeypatch.setattr(search, "_climb", lambda post, z, cov, scale, rng: (z, cov))
+    monkeypatch.setattr(search, "_climb", lambda post, z, cov, note, scale, rng: (z, cov, note))
     with pytest.raises(FitError, match="found no point where the model simulates the data "
                                        "under its priors .*not a number.*--prior"):
         find_map(posterior, rng=np.random.default_rng(0), refer=False)
@@ -83,12 +83,12 @@ def test_the_elpd_of_too_few_usable_draws_is_unknown_not_a_crash():
     lik.pointwise = few
     n = len(posterior.names)
     best = SimpleNamespace(z=np.zeros(n), covariance_z=1e-6 * np.eye(n))
-    elpd, elpd_i, interval = laplace_loo(posterior, best, np.random.default_rng(0), 40, 0.9,
-                                         ("alpha",))
-    assert np.isnan(elpd) and elpd_i.shape == (2,) and np.isnan(elpd_i).all()
-    assert np.isnan(interval["alpha"]).all()
+    loo = laplace_loo(posterior, best, np.random.default_rng(0), 40, 0.9, ("alpha",))
+    assert np.isnan(loo.elpd) and loo.elpd_i.shape == (2,) and np.isnan(loo.elpd_i).all()
+    assert np.isnan(loo.interval["alpha"]).all()
+    assert not loo.reliable and "Laplace draws are inside" in loo.note
     lik.pointwise = pointwise  # with every draw usable it is a number
-    assert np.isfinite(laplace_loo(posterior, best, np.random.default_rng(0), 40, 0.9)[0])
+    assert np.isfinite(laplace_loo(posterior, best, np.random.default_rng(0), 40, 0.9).elpd)
 
 
 def _run(script: str, out: Path) -> str:

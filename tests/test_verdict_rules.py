@@ -186,7 +186,7 @@ def test_a_periodic_record_has_one_floor_in_fit_diagnose_and_the_verdict():
 
 
 def test_numbers_side_by_side_show_their_ratio():
-    """"RMS error 0.1 um (noise floor 0.1 um)" where the ratio was 1.98."""
+    """"RMS error 0.1 µm (noise floor 0.1 µm)" where the ratio was 1.98."""
     rms, floor = format_together(0.0988, 0.0499)
     assert rms != floor and float(rms) / float(floor) == pytest.approx(1.98, rel=0.01)
     one, other = format_together(1004.0, 998.0, digits=1)

@@ -78,9 +78,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     for e in result.experiments:
         prefix = f"[{e.name}] " if len(result.experiments) > 1 else ""
         rms_um, floor_um = _um(e.rms_m, e.noise_floor_m)
-        floor = (f"noise floor {floor_um} um" if math.isfinite(e.noise_floor_m)
+        floor = (f"noise floor {floor_um} µm" if math.isfinite(e.noise_floor_m)
                  else "no noise floor: a single record without repeats")
-        print(f"{prefix}RMS error of the trial mean: {rms_um} um ({floor}); "
+        print(f"{prefix}RMS error of the trial mean: {rms_um} µm ({floor}); "
               f"adequate: {'yes' if e.adequate else 'no'}")
     if len(result.experiments) > 1:
         print(f"adequate in every experiment: {'yes' if result.adequate else 'no'}")
@@ -122,7 +122,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         for k in c.labels:
             b = c.bands[k][-1]
             ratio = f"{b.ratio:7.3g}x floor" if math.isfinite(b.floor_m) else "(no floor)"
-            print(f"{f'[{name}] ' if name else ''}{k:<40s} RMS {b.rms_m * 1e6:9.1f} um = "
+            print(f"{f'[{name}] ' if name else ''}{k:<40s} RMS {b.rms_m * 1e6:9.1f} µm = "
                   f"{ratio}  Ljung-Box p {c.whiteness[k]['ljung_box_p']:.2g}")
     for k in result.labels:
         print(f"{k:<40s} ELPD {result.elpd[k]['elpd']:.1f} (leave one trial out"

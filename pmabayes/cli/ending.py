@@ -46,13 +46,13 @@ def _finish(kind: str, *, summary: Mapping | None = None, js: Path | None = None
 
 
 def _floor_text(floor_m, rms_m: float | None = None) -> str:
-    """``noise floor X um``, with the digits that tell it from ``rms_m`` beside it."""
+    """``noise floor X µm``, with the digits that tell it from ``rms_m`` beside it."""
     if floor_m is None:
         return "no repeats"
     from pmabayes.util import format_together
 
     floor = format_together(floor_m * 1e6, *([] if rms_m is None else [rms_m * 1e6]))[0]
-    return f"noise floor {floor} um"
+    return f"noise floor {floor} µm"
 
 
 def _nan(record: dict) -> float:

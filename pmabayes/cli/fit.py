@@ -64,15 +64,15 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "bands": [b.to_dict() for b in band_errors(dataset, x)],
     }
     floor_text = ("no noise floor: one trial, repeat the trial to estimate it"
-                  if math.isnan(floor) else f"noise floor {floor * 1e6:.1f} um")
+                  if math.isnan(floor) else f"noise floor {floor * 1e6:.1f} µm")
     print(f"data: {args.data} ({dataset.n_trials} trials x {dataset.n_samples} samples"
           f"{', synthetic' if summary['synthetic'] else ''})")
     print(f"model: base{' + ' + ' + '.join(model.effect_names) if model.effect_names else ''}")
-    print(f"RMS error of the trial mean: {summary['rms_m'] * 1e6:.1f} um "
-          f"({floor_text}, max error {summary['max_error_m'] * 1e6:.1f} um)")
+    print(f"RMS error of the trial mean: {summary['rms_m'] * 1e6:.1f} µm "
+          f"({floor_text}, max error {summary['max_error_m'] * 1e6:.1f} µm)")
     for b in summary["bands"][:-1]:
         print(f"  {band_label(tuple(b['band_hz'][:1]) + (b['band_hz'][1] or math.inf,)):>12s}: "
-              f"RMS {b['rms_m'] * 1e6:.1f} um = {b['nrms']:.3g} of the motion"
+              f"RMS {b['rms_m'] * 1e6:.1f} µm = {b['nrms']:.3g} of the motion"
               + (f", {b['ratio']:.3g}x the floor" if b["ratio"] is not None else ""))
 
     def page(folder: Path) -> None:
@@ -103,7 +103,7 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
     conv = info["convergence"]
     data_text = " ".join(str(d) for d in args.data)
     print(f"fit: {data_text} with {' + '.join(['base', *model.effect_names])}: "
-          f"MAP RMS cost {_um(info['map']['rms_cost_m'], _nan(info['data']))[0]} um "
+          f"MAP RMS cost {_um(info['map']['rms_cost_m'], _nan(info['data']))[0]} µm "
           + (f"({_floor_text(info['data']['noise_floor_m'], info['map']['rms_cost_m'])}); "
              if len(datasets) == 1
              else f"(combined over {len(datasets)} experiments); ")
@@ -121,7 +121,7 @@ def _do_fit(args: argparse.Namespace, datasets: list, model, out: Path):
         for exp in info["experiments"]:
             print(f"  experiment {exp['name']} ({exp['source']}): {exp['n_trials']} trial(s) x "
                   f"{exp['n_samples']} samples on the {Rig.from_dict(exp['rig']).name} rig, "
-                  f"RMS cost {_um(exp['rms_cost_m'], _nan(exp))[0]} um "
+                  f"RMS cost {_um(exp['rms_cost_m'], _nan(exp))[0]} µm "
                   f"({_floor_text(exp['noise_floor_m'], exp['rms_cost_m'])}), noise "
                   f"{exp['noise']} "
                   f"from the {exp['noise_source']}")
@@ -152,7 +152,7 @@ def _likelihood_lines(exp: dict) -> list[str]:
         lines.append("trials with their own inputs, each simulated on its own; noise and "
                      "noise floor from the trials' residuals at the MAP (the model's response "
                      "to the inputs' differences cancels)"
-                     + (f"; the raw trials' spread makes {raw * 1e6:.1f} um" if raw else ""))
+                     + (f"; the raw trials' spread makes {raw * 1e6:.1f} µm" if raw else ""))
     start = exp.get("start")
     if start:
         lines.append("start estimated: " + ", ".join(
@@ -242,7 +242,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         took = (f"{r['seconds']:.1f} s" if r["status"] == "fitted"
                 else "skipped, up to date")
         print(f"{r['name']}: {r['fit_file']}: MAP RMS cost "
-              f"{'n/a' if rms is None else f'{rms * 1e6:.1f} um'}, {conv} "
+              f"{'n/a' if rms is None else f'{rms * 1e6:.1f} µm'}, {conv} "
               f"({r['n_steps']} steps), {took}")
     print(f"{summary['n_datasets']} data sets: {summary['n_fitted']} fitted, "
           f"{summary['n_skipped']} skipped, {summary['n_failed']} failed, "

@@ -45,7 +45,23 @@ from pmabayes.util import Progress, fingerprint, source_text
 
 
 class GainGridWarning(UserWarning):
-    """The gain rule's best gains sit on the edge of its grid."""
+    """The gain rule's best gains sit on the edge of its grid.
+
+    Examples
+    --------
+    A grid too narrow for PID: the best gains are its largest, so it should be widened.
+
+    >>> import warnings
+    >>> from pmabayes.control import GainGridWarning, tune_gains
+    >>> grid = {"kp": [1e6, 3e6], "ki": [1e7, 3e7], "kd": [0.0]}
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     gains = tune_gains("pid", grid=grid, duration_s=6.0)
+    >>> caught[0].category is GainGridWarning
+    True
+    >>> print(caught[0].message)
+    the best pid gains sit on the grid's edge in kp, ki; widen the grid there
+    """
 
 
 def _default_grid(controller: str) -> dict[str, np.ndarray]:
@@ -304,6 +320,17 @@ def tune_gains(controller: str, *, model: Model | None = None, params=None,
     GainGridWarning
         If a chosen gain (for computed torque: ``kp`` or the damping ratio) sits on
         the edge of the grid: the grid should be widened.
+
+    Examples
+    --------
+    The rule on a small grid of computed torque's gains (the default grid, 288 pairs,
+    takes about a minute); its best sits on the grid's edge, which a
+    :class:`GainGridWarning` says:
+
+    >>> from pmabayes.control import tune_gains
+    >>> tune_gains("ct", grid={"kp": [100.0, 400.0, 900.0], "kd": [20.0, 40.0, 60.0]},
+    ...            duration_s=6.0)
+    {'kp': 900.0, 'kd': 60.0}
     """
     _controller_codes(controller, 1)
     timing = Timing() if timing is None else timing
@@ -402,6 +429,16 @@ def nominal_gains(model: Model | None = None, params=None, *, timing: Timing | N
     -------
     dict
         ``{"pid": {...}, "ct": {...}}``.
+
+    Examples
+    --------
+    On the paper's values the rule's result is :data:`DEFAULT_GAINS`, without tuning:
+
+    >>> from pmabayes.control import DEFAULT_GAINS, nominal_gains
+    >>> nominal_gains() == DEFAULT_GAINS
+    True
+    >>> {name: round(g["kp"], 1) for name, g in nominal_gains().items()}
+    {'pid': 5623413.3, 'ct': 632.8}
     """
     model = _nominal_model(model)
     theta = _theta1(model, params)
@@ -464,6 +501,16 @@ def resolve_gains(controllers: Sequence[str], gains: Mapping | None = None, *,
     ------
     ControlError
         On an unknown controller or gain name, or a bad gain.
+
+    Examples
+    --------
+    Computed torque's ``kp`` given, its ``kd`` from the rule (on the paper's values,
+    :data:`DEFAULT_GAINS`):
+
+    >>> from pmabayes.control import resolve_gains
+    >>> gains = resolve_gains(["ct"], {"ct": {"kp": 200.0}})
+    >>> gains["ct"]["kp"], round(gains["ct"]["kd"], 1)
+    (200.0, 125.8)
     """
     names = tuple(dict.fromkeys(controllers))
     given = {c: dict(g) for c, g in (gains or {}).items()}

@@ -49,6 +49,12 @@ def minimum_duration_s(frequency_hz: float, settle_s: float = 2.0) -> float:
     -------
     float
         ``max(settle_s, 1 / f) + 1 / f`` in s.
+
+    Examples
+    --------
+    >>> from pmabayes.control import minimum_duration_s
+    >>> minimum_duration_s(2.0), minimum_duration_s(0.25)
+    (2.5, 8.0)
     """
     return max(settle_s, 1.0 / frequency_hz) + 1.0 / frequency_hz
 
@@ -98,6 +104,16 @@ def tracking_metrics(time_s: np.ndarray, reference_m: np.ndarray, position_m: np
     ------
     ControlError
         If the frequency is not > 0 or the run holds no whole period after start-up.
+
+    Examples
+    --------
+    >>> from pmabayes.control import closed_loop, tracking_metrics
+    >>> run = closed_loop("ct", 1.0, duration_s=6.0)
+    >>> m = tracking_metrics(run.time_s, run.reference_m, run.position_m, 1.0)
+    >>> sorted(m)
+    ['amplitude_ratio', 'max_error_m', 'overshoot_pct', 'phase_lag_deg', 'rms_error_m']
+    >>> round(float(m["rms_error_m"][0]) * 1e3, 1), round(float(m["phase_lag_deg"][0]))
+    (5.2, 18)
     """
     frequency_hz = _check_frequency(frequency_hz)
     time_s, ref, pos = _rows(time_s, reference_m, position_m)
@@ -152,6 +168,13 @@ def command_fractions(time_s: np.ndarray, command_pa: np.ndarray, frequency_hz: 
     dict of str to numpy.ndarray
         ``dead_zone_fraction`` (command at or below ``p_dz``: no actuator force) and
         ``saturated_fraction`` (command at the upper limit), each ``(batch,)``.
+
+    Examples
+    --------
+    >>> from pmabayes.control import closed_loop, command_fractions
+    >>> run = closed_loop("ct", 1.0, duration_s=6.0)
+    >>> command_fractions(run.time_s, run.command_pa, 1.0, dead_zone_pa=run.dead_zone_pa)
+    {'dead_zone_fraction': array([0.]), 'saturated_fraction': array([0.])}
     """
     frequency_hz = _check_frequency(frequency_hz)
     time_s, cmd = _rows(time_s, command_pa)
@@ -183,6 +206,16 @@ def period_difference_m(time_s: np.ndarray, position_m: np.ndarray,
     numpy.ndarray
         ``max |x(t) - x(t - T)|`` over the last period ``T``, in m, ``(batch,)``
         (the earlier period linearly interpolated; inf for a non-finite response).
+
+    Examples
+    --------
+    A loop at 1 Hz after 6 s repeats itself to within about the encoder's step
+    (12.7 µm):
+
+    >>> from pmabayes.control import closed_loop, period_difference_m
+    >>> run = closed_loop("ct", 1.0, duration_s=6.0)
+    >>> bool(period_difference_m(run.time_s, run.position_m, 1.0)[0] < 1e-4)
+    True
     """
     frequency_hz = _check_frequency(frequency_hz)
     time_s, pos = _rows(time_s, position_m)
@@ -216,6 +249,16 @@ def loop_metrics(run: ClosedLoop, *, settle_s: float = 2.0) -> dict[str, np.ndar
         The metrics of :func:`tracking_metrics` and :func:`command_fractions`, and
         ``period_difference_m`` (:func:`period_difference_m`: how far the loop is
         from a periodic steady state), each ``(batch,)``.
+
+    Examples
+    --------
+    >>> from pmabayes.control import closed_loop, loop_metrics
+    >>> metrics = loop_metrics(closed_loop("ct", 1.0, duration_s=6.0))
+    >>> list(metrics)
+    ['rms_error_m', 'max_error_m', 'amplitude_ratio', 'phase_lag_deg', 'overshoot_pct',
+     'dead_zone_fraction', 'saturated_fraction', 'period_difference_m']
+    >>> round(float(metrics["overshoot_pct"][0]), 1)
+    5.6
     """
     batch = run.position_m.shape[0]
     out = {m: np.empty(batch) for m in METRICS}

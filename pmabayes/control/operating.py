@@ -26,7 +26,17 @@ _PRESSURE_MAX_PA = 0.9e6
 
 
 class ControlError(ValueError):
-    """Bad input to a controller or a closed-loop simulation."""
+    """Bad input to a controller or a closed-loop simulation.
+
+    Examples
+    --------
+    >>> from pmabayes.control import ControlError, closed_loop
+    >>> try:
+    ...     closed_loop("pd", 1.0)
+    ... except ControlError as error:
+    ...     print(error)
+    unknown controller 'pd'; choose one of pid, ct
+    """
 
 
 def _nominal_model(model: Model | None) -> Model:
@@ -131,6 +141,15 @@ def operating_mean_m(model: Model | None = None, params=None, *, frequency_hz: f
     ControlError
         If no mean keeps the pressure inside both margins (lower the frequency, the
         amplitude or the margin).
+
+    Examples
+    --------
+    >>> from pmabayes import Model, Rig
+    >>> from pmabayes.control import operating_mean_m
+    >>> operating_mean_m()  # the paper's model at 2 Hz
+    0.1
+    >>> operating_mean_m(Model(["regulator_lag"], rig=Rig.control()), {"tau_reg": 0.045})
+    0.1
     """
     if not (frequency_hz > 0 and amplitude_m > 0 and margin_pa >= 0 and resolution_m > 0):
         raise ControlError("need frequency_hz > 0, amplitude_m > 0, margin_pa >= 0 and "
@@ -205,6 +224,13 @@ def inverse_model_pressure_pa(frequency_hz: float, *, model: Model | None = None
     -------
     numpy.ndarray
         The pressure in Pa at 2000 phases over one period, from phase 0.
+
+    Examples
+    --------
+    >>> from pmabayes.control import inverse_model_pressure_pa
+    >>> p_pa = inverse_model_pressure_pa(1.0)
+    >>> p_pa.shape, round(float(p_pa.min()) / 1e3), round(float(p_pa.max()) / 1e3)  # kPa
+    ((2000,), 207, 448)
     """
     frequency_hz = _check_frequency(frequency_hz)
     pressure, _ = _inverse_pressure(model, params, frequency_hz, amplitude_m)
@@ -230,6 +256,13 @@ def reference_m(time_s: np.ndarray, frequency_hz, *, mean_m: float | None = None
     -------
     numpy.ndarray
         The reference in m.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pmabayes.control import reference_m
+    >>> reference_m(np.array([0.0, 0.25, 0.5]), 1.0)  # a quarter and half a period
+    array([0.1   , 0.1225, 0.1   ])
     """
     return _mean(mean_m) + amplitude_m * np.sin(2 * np.pi * np.asarray(frequency_hz)
                                          * np.asarray(time_s))

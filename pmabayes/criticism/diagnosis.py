@@ -301,6 +301,7 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
         ranking=findings, elpd=base.elpd, verdict=verdict,
         settings=_record(s, seed, findings, base), discrepancy=found,
         discrepancy_experiment=found_in, partial=partial, agreement=agreement,
+        elpd_note=base.loo.note if base.loo is not None else None,
     )
 
 

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmabayes.criticism.bands import band_label, band_rms
-from pmabayes.criticism.refit import Refit, se_note
+from pmabayes.criticism.refit import Refit, se_note, witnessed
 from pmabayes.criticism.signature import Signature
 from pmabayes.util import format_together
 
@@ -121,9 +121,11 @@ def explanation_text(eff, evidence: float, p_value: float, significant: bool,
 
 def elpd_text(refit, verb: str = "") -> str:
     """``ΔELPD +d ± se`` of a refit; ``± n/a`` with the reason where the standard error
-    cannot be estimated; that the refit failed (its numbers are not the effect's), or
-    that its ELPD could not be estimated (PSIS-LOO over the refit's Laplace draws gave
-    no finite value, e.g. when its draws do not simulate).
+    cannot be estimated; that the estimate is not reliable, why, and what its in-sample
+    witness says (:func:`pmabayes.criticism.refits.witnessed`); that the refit failed
+    (its numbers are not the effect's), or that its ELPD could not be estimated
+    (PSIS-LOO over the refit's Laplace draws gave no finite value, e.g. when its draws
+    do not simulate).
 
     Parameters
     ----------
@@ -144,15 +146,33 @@ def elpd_text(refit, verb: str = "") -> str:
     head = f"ELPD {verb} " if verb else "ΔELPD "
     note = se_note(refit)
     if note:
-        return f"{head}{refit.elpd_diff:+.1f} ± n/a ({note})"
-    return f"{head}{refit.elpd_diff:+.1f} ± {refit.elpd_diff_se:.1f}"
+        text = f"{head}{refit.elpd_diff:+.1f} ± n/a ({note})"
+    else:
+        text = f"{head}{refit.elpd_diff:+.1f} ± {refit.elpd_diff_se:.1f}"
+    return text + _reliability_text(refit)
 
 
+def _reliability_text(refit) -> str:
+    """`` (not reliable: WHY; ...)`` after an unreliable ΔELPD, with its witness; empty
+    for a reliable one."""
+    why = getattr(refit, "elpd_note", None)
+    if not why:
+        return ""
+    d = getattr(refit, "plugin_diff", math.nan)
+    se = getattr(refit, "plugin_diff_se", math.nan)
+    if not math.isfinite(d):
+        return f" (not reliable: {why}; with no in-sample witness it names nothing)"
+    pm = f"{se:.1f}" if math.isfinite(se) else "n/a"
+    verdict = ("agrees" if witnessed(refit) else
+               "does not clear two standard errors, so it names nothing")
+    return (f" (not reliable: {why}; the in-sample log likelihood at the two MAPs less the "
+            f"added parameters, {d:+.1f} ± {pm}, {verdict})")
 
 
 def elpd_short(refit) -> str:
     """A refit's ΔELPD for a table cell: ``+d ± se``, ``+d ± n/a`` (no standard error),
-    ``refit failed`` or ``not estimable`` (the words of :func:`elpd_text`, shortened).
+    either with `` (not reliable)`` where its estimate is not, ``refit failed`` or ``not
+    estimable`` (the words of :func:`elpd_text`, shortened).
 
     Parameters
     ----------
@@ -168,7 +188,8 @@ def elpd_short(refit) -> str:
     if not math.isfinite(refit.elpd_diff):
         return "not estimable"
     se = f"{refit.elpd_diff_se:.1f}" if math.isfinite(refit.elpd_diff_se) else "n/a"
-    return f"{refit.elpd_diff:+.1f} ± {se}"
+    flag = " (not reliable)" if getattr(refit, "elpd_note", None) else ""
+    return f"{refit.elpd_diff:+.1f} ± {se}{flag}"
 
 
 def _sig_text(signature: Signature) -> str:
@@ -276,8 +297,9 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
             detail += f"; it {_refit_removed(top)}"
     return (f"{name}: the residual is {above} ({sig}); candidates are significant but no "
             "refit predicts held-out data clearly better (ΔELPD above two standard errors, "
-            f"plausible estimates, a search that succeeded){detail}. Something outside the "
-            "library is missing; no candidate is named.")
+            "a reliable estimate or one its in-sample witness confirms, plausible estimates, "
+            f"a search that succeeded){detail}. Something outside the library is missing; no "
+            "candidate is named.")
 
 
 def _partial_text(name: str, effects: tuple, sig: str, r: Refit, names: list, floors: bool,

@@ -1,6 +1,6 @@
-"""A model refitted with one more effect (:class:`Refit`), and why its ΔELPD may have no
-standard error (:func:`se_note`): below the diagnosis' results and its prose, which both
-read refits.
+"""A model refitted with one more effect (:class:`Refit`), why its ΔELPD may have no
+standard error (:func:`se_note`) and whether an unreliable one is confirmed
+(:func:`witnessed`): below the diagnosis' results and its prose, which both read refits.
 """
 
 from __future__ import annotations
@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pmabayes.criticism.elpd import LaplaceLoo
 from pmabayes.util import finite_or_none
 
-__all__ = ["Refit", "se_note"]
+__all__ = ["Refit", "se_note", "witnessed"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,20 @@ class Refit:
     agreement : dict or None
         With several experiments, whether they agree on one parameter set once the
         effect is added (:func:`pmabayes.inference.search.experiments_agreement`).
+    elpd_note : str or None
+        Why ``elpd_diff`` is not a reliable estimate (the refit's or the base model's
+        PSIS-LOO: a Pareto k-hat of its importance weights above the threshold, a Laplace
+        covariance that is a stand-in; :class:`pmabayes.criticism.elpd.LaplaceLoo`);
+        such a ΔELPD names nothing unless ``plugin_diff`` agrees. None when reliable.
+    plugin_diff : float
+        The witness that needs no draws: the in-sample log likelihoods at the two MAPs,
+        paired over the units, less the parameters the effect adds
+        (:func:`pmabayes.criticism.elpd.plugin_difference`); NaN where not computed.
+    plugin_diff_se : float
+        Its standard error from the per-unit differences.
+    loo : LaplaceLoo or None
+        The refit's own ELPD estimate (its reliability, its units' log likelihoods at
+        the MAP), to compare refits with each other; not in :meth:`to_dict`.
 
     Notes
     -----
@@ -100,14 +115,20 @@ class Refit:
     implausible: str | None = None
     failed: str | None = None
     agreement: dict | None = None
+    elpd_note: str | None = None
+    plugin_diff: float = math.nan
+    plugin_diff_se: float = math.nan
+    loo: LaplaceLoo | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary: ``rms_m`` (pooled), ``explained`` (whitened energy),
         ``explained_rms`` (mean square above the floor), ``adequate``, ``elpd_diff``
         and ``elpd_diff_se`` (None where not estimable: the standard error of one
-        left-out unit), ``elpd_diff_se_note`` (why it is None, else None), ``implausible``,
-        ``failed`` and ``experiments``, one ``{"rms_m", "noise_ratio", "ljung_box_p",
-        "energy"}`` each.
+        left-out unit), ``elpd_diff_se_note`` (why it is None, else None),
+        ``elpd_note`` (why the ΔELPD is not reliable, else None), ``plugin_diff`` and
+        ``plugin_diff_se`` (its in-sample witness, None where not computed),
+        ``implausible``, ``failed`` and ``experiments``, one ``{"rms_m", "noise_ratio",
+        "ljung_box_p", "energy"}`` each.
 
         Returns
         -------
@@ -118,6 +139,9 @@ class Refit:
                 "elpd_diff": finite_or_none(self.elpd_diff),
                 "elpd_diff_se": finite_or_none(self.elpd_diff_se),
                 "elpd_diff_se_note": se_note(self),
+                "elpd_note": self.elpd_note,
+                "plugin_diff": finite_or_none(self.plugin_diff),
+                "plugin_diff_se": finite_or_none(self.plugin_diff_se),
                 "implausible": self.implausible, "failed": self.failed,
                 "experiments": [{"rms_m": sig.bands[-1].rms_m,
                                  "noise_ratio": finite_or_none(sig.ratio),
@@ -141,3 +165,26 @@ def se_note(refit: Refit) -> str | None:
         return None
     return ("one left-out unit (a single record whose noise model cannot leave out "
             "stretches of it): no spread to estimate a standard error from")
+
+
+def witnessed(refit: Refit) -> bool:
+    """Whether a refit's ΔELPD may be read as it stands: its estimate is reliable, or the
+    in-sample witness (:attr:`~pmabayes.criticism.results.Refit.plugin_diff`) agrees
+    that it rises (by more than two standard errors; where there is no standard error,
+    one left-out unit, above zero).
+
+    Parameters
+    ----------
+    refit : Refit
+        The refit.
+
+    Returns
+    -------
+    bool
+    """
+    if refit.elpd_note is None:
+        return True
+    d, se = refit.plugin_diff, refit.plugin_diff_se
+    if not math.isfinite(d):
+        return False
+    return bool(d > 2.0 * se if math.isfinite(se) else d > 0.0)

@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pmabayes.criticism.bands import excess_removed
-from pmabayes.criticism.elpd import laplace_loo, paired_difference
+from pmabayes.criticism.elpd import LaplaceLoo, laplace_loo, paired_difference, plugin_difference
 from pmabayes.criticism.observed import counted_samples, residual, simulate_states
 from pmabayes.criticism.plausibility import implausible
+from pmabayes.criticism.refit import witnessed
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
@@ -116,6 +117,9 @@ class BaseFit:
     agreement : dict or None
         With several experiments, whether they agree on one parameter set, with each
         one's own estimates (:func:`pmabayes.inference.search.experiments_agreement`).
+    loo : LaplaceLoo or None
+        The ELPD's whole estimate: whether it is reliable (``note``, the Pareto
+        k-hats) and the units' log likelihoods at the MAP (the refits' witness).
     """
 
     likelihoods: list
@@ -132,6 +136,7 @@ class BaseFit:
     trial_models: list = field(default_factory=list)
     log_likelihood: float = math.nan
     agreement: dict | None = None
+    loo: LaplaceLoo | None = None
 
     @property
     def excess(self) -> float:
@@ -199,10 +204,10 @@ def fit_base(models: list, datasets: list, names: list, s: DiagnoseSettings,
     sims = [sim for sim, _ in runs]
     signatures = [residual_signature(lik, noise, sim, model_trials_m=trials)
                   for lik, noise, (sim, trials) in zip(liks, noises, runs, strict=True)]
-    elpd, elpd_i, _ = laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
+    loo = laplace_loo(posterior, best, rng, s.n_draws, s.ci_prob)
     return BaseFit(liks, names, repeat_noise, list(posterior.noise_choices), noises, values,
-                   sims, signatures, elpd, elpd_i, points, [trials for _, trials in runs],
-                   _map_log_likelihood(posterior, best), best.agreement)
+                   sims, signatures, loo.elpd, loo.elpd_i, points, [trials for _, trials in runs],
+                   _map_log_likelihood(posterior, best), best.agreement, loo)
 
 
 def _map_log_likelihood(posterior: Posterior, best) -> float:
@@ -256,8 +261,8 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
     ext = ext_liks[0].model
     eff = ext.effects[-1]
     tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
-    e_elpd, e_elpd_i, interval = laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob,
-                                             tested)
+    loo = laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob, tested)
+    e_elpd, e_elpd_i, interval = loo.elpd, loo.elpd_i, loo.interval
     ext_noises = _experiment_noises(ext_post, ext_map)
     nulls = {p.name: p.null for p in eff.parameters if p.vary and p.null is not None}
     points = [ext_post.experiment_point(e, ext_map.values) for e in range(len(ext_liks))]
@@ -283,6 +288,8 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
                      if e.significant]
         nxt = max(following, key=lambda e: e.explained) if following else None
     diff, diff_se = paired_difference(e_elpd_i, base.elpd_i)
+    plugin, plugin_se = (plugin_difference(loo, base.loo) if base.loo is not None
+                         else (math.nan, math.nan))
     rms = pooled_rms([sig.bands[-1].rms_m for sig in sigs], sizes)
     removed = excess_removed([b.bands[-1].rms_m for b in base.signatures],
                              [x.bands[-1].rms_m for x in sigs],
@@ -301,7 +308,35 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
         failed=refit_failure(base.log_likelihood, _map_log_likelihood(ext_post, ext_map),
                              effect),
         agreement=ext_map.agreement,
+        elpd_note=_difference_note(loo, base.loo),
+        plugin_diff=plugin, plugin_diff_se=plugin_se, loo=loo,
     )
+
+
+def _difference_note(refit: LaplaceLoo, base: LaplaceLoo | None) -> str | None:
+    """Why a refit's ΔELPD is not reliable, in a few words (each estimate's whole reason
+    is in its :class:`~pmabayes.criticism.elpd.LaplaceLoo`): the largest Pareto k-hat of
+    the refit's and of the model's draws against the threshold, and a Laplace
+    covariance that is a stand-in; None when both estimates are reliable."""
+    both = [(who, loo) for who, loo in (("refit", refit), ("model", base))
+            if loo is not None and loo.note]
+    if not both:
+        return None
+    parts, ks = [], []
+    for who, loo in both:
+        k = np.nanmax([loo.pareto_k, loo.correction_k, -np.inf])
+        if k > loo.good_k:
+            ks.append(f"{k:.2f} ({who})")
+        if not math.isfinite(loo.elpd):
+            parts.append(f"the {who}'s ELPD is not estimable")
+        stand_in = loo.note.split("; ")[0] if "is a stand-in" in loo.note else None
+        if stand_in:
+            parts.append(f"the {who}'s {stand_in.removeprefix('the ')}")
+    if ks:
+        good = min(loo.good_k for _, loo in both)
+        parts.insert(0, f"Pareto k-hat of the draws' importance weights {', '.join(ks)}, "
+                        f"above {good:.2f}")
+    return "; ".join(parts) or "; ".join(loo.note for _, loo in both)
 
 
 def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
@@ -340,7 +375,12 @@ def improves(refit: Refit) -> bool:
     Its ELPD (leaving out trials, or stretches of a single record) rises by more than
     two standard errors of the paired difference, a real one (not NaN); the refit's
     search did not fail (:attr:`~pmabayes.criticism.results.Refit.failed`) and its
-    estimates are physics (:mod:`~pmabayes.criticism.plausibility`).
+    estimates are physics (:mod:`~pmabayes.criticism.plausibility`). A ΔELPD whose
+    estimate is not reliable (:attr:`~pmabayes.criticism.results.Refit.elpd_note`: the
+    Pareto k-hats of its importance weights) does not decide on its own: the in-sample
+    log likelihoods at the two MAPs, less the added parameters
+    (:func:`pmabayes.criticism.elpd.plugin_difference`), must also rise by more than two
+    of their standard errors.
 
     Parameters
     ----------
@@ -353,7 +393,7 @@ def improves(refit: Refit) -> bool:
     """
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 2.0 * refit.elpd_diff_se)
+                and refit.elpd_diff > 2.0 * refit.elpd_diff_se and witnessed(refit))
 
 
 def ranking_key(refit: Refit) -> tuple:
@@ -404,7 +444,7 @@ def _gains_without_se(refit: Refit) -> bool:
     account for the misfit."""
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and not math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 0.0)
+                and refit.elpd_diff > 0.0 and witnessed(refit))
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:
@@ -450,7 +490,8 @@ def partial_effect(refits: dict, missing: str | None = None) -> str | None:
 def near_twins(refits: dict, missing: str | None, s: DiagnoseSettings
                ) -> list[tuple[str, float, float]]:
     """The other explaining refits whose ELPD is within two standard errors of the
-    missing one's (paired over trials).
+    missing one's (paired over trials), or above that only by an estimate that is not
+    reliable and that the in-sample witness does not confirm.
 
     Parameters
     ----------
@@ -473,6 +514,18 @@ def near_twins(refits: dict, missing: str | None, s: DiagnoseSettings
         if r.effect == missing or r.elpd_i is None:
             continue
         diff, se = paired_difference(best.elpd_i, r.elpd_i)
-        if diff <= 2.0 * se:
+        if diff <= 2.0 * se or not _told_apart_in_sample(best, r):
             out.append((r.effect, diff, se))
     return out
+
+
+def _told_apart_in_sample(a: Refit, b: Refit) -> bool:
+    """Whether ``a``'s ELPD above ``b``'s may be read as it stands: both estimates are
+    reliable, or their in-sample witness (:func:`pmabayes.criticism.elpd.plugin_difference`)
+    also puts ``a`` above by more than two standard errors."""
+    if not any(r.loo is not None and r.loo.note for r in (a, b)):
+        return True
+    if a.loo is None or b.loo is None:
+        return False
+    d, se = plugin_difference(a.loo, b.loo)
+    return bool(d > 2.0 * se)

@@ -288,6 +288,10 @@ class Diagnosis:
         differ, the parameters that ``moving`` between them and the ``trend`` in
         words (:mod:`pmabayes.criticism.experiments`), and each refitted candidate's
         test (``candidates``). None for one experiment.
+    elpd_note : str or None
+        Why ``elpd`` is not a reliable estimate (the Pareto k-hats of its draws'
+        importance weights, a Laplace covariance that is a stand-in:
+        :class:`pmabayes.criticism.elpd.LaplaceLoo`); None when it is.
     """
 
     experiments: tuple
@@ -302,6 +306,7 @@ class Diagnosis:
     discrepancy_experiment: str | None = None
     partial: str | None = None
     agreement: dict | None = None
+    elpd_note: str | None = None
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -350,9 +355,9 @@ class Diagnosis:
             ``rms_m``, ``noise_floor_m``
                 Pooled over the experiments (the floor None when one has no
                 repeats).
-            ``adequate``, ``missing``, ``partial``, ``verdict``, ``elpd_loo``
+            ``adequate``, ``missing``, ``partial``, ``verdict``, ``elpd_loo``, ``elpd_loo_note``
                 As the fields ``adequate``, ``missing``, ``partial``, ``verdict``,
-                ``elpd``.
+                ``elpd``, ``elpd_note``.
             ``ranking``
                 One :meth:`Finding.to_dict` per candidate.
             ``values``
@@ -383,7 +388,8 @@ class Diagnosis:
             "verdict": self.verdict,
             "ranking": [f.to_dict() for f in self.ranking],
             "values": dict(self.values),
-            "elpd_loo": self.elpd,
+            "elpd_loo": finite_or_none(self.elpd),
+            "elpd_loo_note": self.elpd_note,
             "settings": dict(self.settings),
             "discrepancy": (None if self.discrepancy is None else
                             {**self.discrepancy.to_dict(),

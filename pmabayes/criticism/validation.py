@@ -253,14 +253,14 @@ class ExperimentValidation:
         """One line for the command line: error, floor, NRMSE and coverage."""
         floor = ("(no noise floor: one trial)" if self.noise_floor_m is None
                  else f"= {self.ratio_to_floor:.3g}x the noise floor "
-                      f"{self.noise_floor_m * 1e6:.3g} um")
+                      f"{self.noise_floor_m * 1e6:.3g} µm")
         synth = ", synthetic" if self.synthetic else ""
         with_d = ("" if self.coverage is None else
                   f" ({100 * self.coverage:.1f}% with the model's discrepancy)")
         yard = "".join(f"; {name} yardstick ({b.get('order_text', '')}) NRMSE {b['nrmse']:.3g}"
                        for name, b in self.baselines.items())
         return (f"{self.name}: {self.n_trials} trial(s) x {self.n_samples} samples"
-                f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} um "
+                f"{synth}, rig {self.rig.get('name')}: RMSE {self.rmse_m * 1e6:.3g} µm "
                 f"{floor}; NRMSE {self.nrmse:.3g}{yard}; {100 * self.band_coverage:.1f}% "
                 f"of the samples inside the {100 * self.ci_prob:.4g}% predictive band"
                 f"{with_d}, {100 * self.model_band_coverage:.1f}% of the trial mean inside "
@@ -268,7 +268,7 @@ class ExperimentValidation:
                 + (f"; start estimated from the first {self.start['samples']} samples "
                    f"({100 * self.start['fraction']:.3g}% of the record, "
                    f"{self.start['seconds']:.3g} s), RMSE after them "
-                   f"{self.start['rmse_after_start_m'] * 1e6:.3g} um"
+                   f"{self.start['rmse_after_start_m'] * 1e6:.3g} µm"
                    + (f"; the start of {self.start['not_estimated']} draw(s) could not be "
                       "estimated (not finite): they start from its prior means"
                       if self.start.get("not_estimated") else "")
@@ -418,6 +418,8 @@ class Validation:
 
 
 #: The numbers' definitions, as the JSON states them.
+#:
+#: :meta hide-value:
 DEFINITIONS = {
     "rmse_m": "RMS over samples of (trial mean - posterior-mean prediction), in m",
     "nrmse": "rmse_m / RMS of (trial mean - its time average): 0 is perfect, 1 predicts "

@@ -386,10 +386,10 @@ def _samples(n: int) -> str:
 
 
 def _dur(seconds: float) -> str:
-    """A duration for messages, in s, ms or us."""
+    """A duration for messages, in s, ms or µs."""
     a = abs(seconds)
     if a >= 1:
         return f"{seconds:.4g} s"
     if a >= 1e-3:
         return f"{seconds * 1e3:.4g} ms"
-    return f"{seconds * 1e6:.3g} us"
+    return f"{seconds * 1e6:.3g} µs"

@@ -50,6 +50,8 @@ BETWEEN_SAMPLES = ("hold", "linear", "bandlimited")
 INITIAL_STATES = ("rest", "zero", "estimate")
 #: The metadata (sidecar) keys pmabayes reads or writes; a key close to one of
 #: these is taken for a misspelling. Any other key is free-form and kept.
+#:
+#: :meta hide-value:
 METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic",
                  "pressure_reference", "ambient_pressure_pa", "check_units",
                  "converted_from_absolute", "input_between_samples", "period_samples",
@@ -66,6 +68,20 @@ class DataError(ValueError):
 
     Every message names the file (or the data set's source), the line (1-based,
     header = line 1) or the trial, and says how to fix the problem.
+
+    Examples
+    --------
+    A clock that stops is refused, with the sample and the fix:
+
+    >>> import numpy as np
+    >>> from pmabayes.data import DataError, Dataset
+    >>> try:
+    ...     Dataset(time_s=np.array([0.0, 0.01, 0.01]), input=np.zeros((1, 3)),
+    ...             position_m=np.zeros((1, 3)), trial_ids=np.array([1]))
+    ... except DataError as error:
+    ...     print(error)
+    Dataset: sample 2: time_s = 0.01 is not after 0.01 on sample 1; times must be strictly
+    increasing: sort by time and remove duplicate samples.
     """
 
 
@@ -440,6 +456,24 @@ def check_same_input_kind(datasets: Sequence[Dataset]) -> str:
     DataError
         If no data set is given, or two have different inputs; the message names the
         first file of each kind.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pmabayes.data import Dataset, DataError, check_same_input_kind
+    >>> t = np.arange(4) * 0.01
+    >>> muscle = Dataset(time_s=t, input=np.full((1, 4), 2e5), position_m=np.zeros((1, 4)),
+    ...                  trial_ids=np.array([1]))
+    >>> oscillator = Dataset(time_s=t, input=np.ones((1, 4)), position_m=np.zeros((1, 4)),
+    ...                      trial_ids=np.array([1]), input_name="force_n")
+    >>> check_same_input_kind([muscle, muscle])
+    'pressure_pa'
+    >>> try:
+    ...     check_same_input_kind([muscle, oscillator])
+    ... except DataError as error:
+    ...     print(error)
+    experiment 2: its input is 'force_n' but experiment 1 has 'pressure_pa'; ... fit them
+    separately.
     """
     datasets = list(datasets)
     for d in datasets:
@@ -464,6 +498,27 @@ class DataWarning(UserWarning):
 
     Every message names the file, the trial and the fix, and how to declare the
     data right when the suspicion is wrong.
+
+    Examples
+    --------
+    Converting a lab's units is said once, as a warning the caller may record (or turn
+    into an error with ``warnings.simplefilter("error", DataWarning)``):
+
+    >>> import warnings
+    >>> from pathlib import Path
+    >>> from pmabayes.data import DataWarning, read_csv
+    >>> rows = [f"1,{10 * k},{k % 5},{k % 5 / 10}" for k in range(20)]
+    >>> _ = Path("psi.csv").write_text("\\n".join(["Trial,Time (ms),Pressure (psi),Position (mm)",
+    ...                                           *rows]))
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     data = read_csv("psi.csv")
+    >>> caught[0].category is DataWarning
+    True
+    >>> print(caught[0].message)
+    psi.csv: units converted to SI on reading, as the column names say: 'Time (ms)' x 0.001
+    -> time_s (s); 'Pressure (psi)' x 6894.757293 -> pressure_pa (Pa); 'Position (mm)' x 0.001
+    -> position_m (m). ...
     """
 
 
@@ -546,6 +601,23 @@ class Dataset:
     ``np.linspace(time_s[0], time_s[-1], n_samples)``: a file holds only the
     observed samples' times, so the grid is defined by its ends and written and read
     back exactly.
+
+    Examples
+    --------
+    Two trials of four samples at 100 Hz, built in memory (:func:`pmabayes.data.save`
+    writes them to a file pmabayes reads):
+
+    >>> import numpy as np
+    >>> from pmabayes.data import Dataset
+    >>> data = Dataset(time_s=np.arange(4) * 0.01,
+    ...                input=np.array([[0.0, 1e5, 2e5, 1e5]] * 2),
+    ...                position_m=np.array([[0.0, 1.0, 3.0, 2.0], [0.0, 1.1, 3.1, 2.1]]) * 1e-3,
+    ...                trial_ids=np.array([1, 2]))
+    >>> data
+    Dataset(n_trials=2, n_samples=4, dt_s=0.01, input_name='pressure_pa', trial_ids=[1, 2],
+            source=None)
+    >>> data.position_m.mean(axis=0)  # the trial mean, in m
+    array([0.     , 0.00105, 0.00305, 0.00205])
     """
 
     time_s: np.ndarray

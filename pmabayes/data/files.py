@@ -117,6 +117,26 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
         If units are converted, if the clock has jitter or gaps, or if the pressure
         looks absolute or offset rather than gauge, unless the metadata declares
         ``"pressure_reference"``.
+
+    Examples
+    --------
+    A lab's file with its own header style: the units are read from it and converted to
+    SI, once (a :class:`DataWarning` says so):
+
+    >>> from pathlib import Path
+    >>> from pmabayes.data import read_csv
+    >>> rows = [f"{trial},{10 * k},{k % 5},{k % 5 / 10 + trial / 100}"
+    ...         for trial in (1, 2) for k in range(20)]
+    >>> _ = Path("lab.csv").write_text("\\n".join(["Trial,Time (ms),Pressure (psi),Position (mm)",
+    ...                                           *rows]))
+    >>> data = read_csv("lab.csv")
+    >>> data
+    Dataset(n_trials=2, n_samples=20, dt_s=0.01, input_name='pressure_pa', trial_ids=[1, 2],
+            source='lab.csv')
+    >>> data.metadata["converted_units"]["pressure_pa"]["from"]
+    'pressure_psi'
+    >>> round(float(data.input.max()))  # 4 psi, in Pa
+    27579
     """
     return _text_segments(path, check_units, split=False)[0]
 
@@ -310,6 +330,18 @@ def load(path: PathLike, **kwargs: Any) -> Dataset:
         If the suffix is not supported, or the reader rejects the file (a record
         that splits into segments at gaps longer than ``"max_gap_s"`` is read with
         :func:`load_segments`).
+
+    Examples
+    --------
+    The bundled synthetic chirps (``data/`` of a checkout), with their sidecar's rig:
+
+    >>> from pmabayes.data import load
+    >>> data = load("data/pma_chirp_lab.csv")
+    >>> data
+    Dataset(n_trials=10, n_samples=15000, dt_s=0.001, input_name='pressure_pa',
+            trial_ids=[0, 1, 2, 3, 4, 5, 6, 7, 8, 9], source='data/pma_chirp_lab.csv')
+    >>> data.metadata["rig"]["moving_mass_kg"], data.metadata["synthetic"]
+    (0.067, True)
     """
     path = Path(path)
     return _READERS[_suffix(path, _READERS)](path, **kwargs)
@@ -351,6 +383,25 @@ def load_segments(path: PathLike, **kwargs: Any) -> list[Dataset]:
     -----
     DataWarning
         Once per file for the clock (its gaps, segments and jitter), as :func:`load`.
+
+    Examples
+    --------
+    A record whose DAQ stopped for 0.4 s between two blocks, and a sidecar that says gaps
+    over 0.1 s end a segment:
+
+    >>> import json
+    >>> from pathlib import Path
+    >>> from pmabayes.data import load_segments
+    >>> times = [k / 100 for k in [*range(20), *range(60, 80)]]
+    >>> rows = [f"1,{t:.2f},{2e5 + 1e5 * (k % 4)},{(k % 4) / 1000}" for k, t in enumerate(times)]
+    >>> header = "trial,time_s,pressure_pa,position_m"
+    >>> _ = Path("blocks.csv").write_text("\\n".join([header, *rows]))
+    >>> _ = Path("blocks.json").write_text(json.dumps({"max_gap_s": 0.1}))
+    >>> first, second = load_segments("blocks.csv")
+    >>> first.source, second.source, float(second.time_s[0])
+    ('blocks#1.csv', 'blocks#2.csv', 0.6)
+    >>> second.metadata["segment"]["first"]
+    'line 22'
     """
     path = Path(path)
     suffix = _suffix(path, _READERS)
@@ -375,6 +426,14 @@ def save(dataset: Dataset, path: PathLike) -> None:
     ------
     DataError
         If the suffix is not supported, or the writer rejects the data.
+
+    Examples
+    --------
+    >>> from pmabayes.data import load, save
+    >>> data = load("data/pma_chirp_paper.csv")
+    >>> save(data, "chirp.nc")  # NetCDF: smaller, and read faster than the CSV
+    >>> load("chirp.nc") == data
+    True
     """
     path = Path(path)
     _WRITERS[_suffix(path, _WRITERS)](dataset, path)

@@ -45,6 +45,8 @@ class KeyDoc:
 
 
 #: Every key of :data:`~pmabayes.data.METADATA_KEYS`, in that order.
+#:
+#: :meta hide-value:
 SIDECAR_KEYS: dict[str, KeyDoc] = {
     "description": KeyDoc(
         "string", "", "none", "Free text about the record (what, where, when); shown in "

@@ -2,7 +2,7 @@
 
 What a file's numbers can show about their units: pressure in MPa or bar, below
 vacuum, or looking absolute (the lowest command about one atmosphere) or offset
-(far below ambient); position in mm, cm or um, or no length at all; times in ms or us
+(far below ambient); position in mm, cm or µm, or no length at all; times in ms or us
 read as s (a sample rate, and an input, far slower than a muscle on a rig). Errors for
 what cannot be right, :class:`DataWarning` for what looks wrong; each names the unit
 the numbers look like and the column name that reads them (:data:`~pmabayes.data.UNITS`).

@@ -42,6 +42,8 @@ RIG_PRIOR_KEYS: dict[str, tuple[str, str]] = {
 #: The sidecar reference of each key of a ``"rig"``, in :class:`pmabayes.model.Rig`'s
 #: field order; the defaults are the characterisation rig's, which a sidecar without a
 #: rig gets (``tests/test_rig_schema.py`` checks them against the model's constants).
+#:
+#: :meta hide-value:
 RIG_KEYS: dict[str, KeyDoc] = {
     "moving_mass_kg": KeyDoc(
         'number > 0, or a prior (`"LogNormal(0.07, 1.5)"`)', "kg",

@@ -467,6 +467,16 @@ def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[
     -----
     DataWarning
         Once per file and process, naming each unit converted to SI.
+
+    Examples
+    --------
+    A displacement kept in its own one-column file, in mm:
+
+    >>> from pathlib import Path
+    >>> from pmabayes.data import read_columns
+    >>> _ = Path("displ.txt").write_text("displacement\\n0.0\\n1.5\\n3.0\\n")
+    >>> read_columns("displ.txt", {"1": "position_mm"})
+    {'position_m': array([0.    , 0.0015, 0.003 ])}
     """
     path = Path(path)
     where = str(path)

@@ -33,6 +33,8 @@ _PSI_PA = 0.45359237 * 9.80665 / 0.0254 ** 2
 #: Every column name pmabayes reads, to the SI name it becomes and the factor that
 #: converts it (SI value = value x factor). Conversions by a power of ten below 1
 #: divide by its inverse, so that 1.5 mm is exactly 1.5 / 1000 m.
+#:
+#: :meta hide-value:
 UNITS: dict[str, tuple[str, float]] = {
     "time_s": ("time_s", 1.0),
     "time_ms": ("time_s", 1e-3),
@@ -50,8 +52,8 @@ UNITS: dict[str, tuple[str, float]] = {
 }
 _DIVISORS = {1e-3: 1e3, 1e-6: 1e6}
 #: units named in messages the way people write them
-_SYMBOL = {"s": "s", "ms": "ms", "us": "us", "pa": "Pa", "kpa": "kPa", "bar": "bar",
-           "psi": "psi", "mpa": "MPa", "m": "m", "mm": "mm", "um": "um", "n": "N", "kn": "kN"}
+_SYMBOL = {"s": "s", "ms": "ms", "us": "µs", "pa": "Pa", "kpa": "kPa", "bar": "bar",
+           "psi": "psi", "mpa": "MPa", "m": "m", "mm": "mm", "um": "µm", "n": "N", "kn": "kN"}
 #: what a unit pmabayes does not read comes to, and how to get there
 _ADVICE = {
     "position_cm": "centimetres: multiply by 10 and name the column position_mm",

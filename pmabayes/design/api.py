@@ -33,7 +33,7 @@ from pmabayes.design.experiments import (
 from pmabayes.design.fits import CandidateFit, does_not_act, fit_candidate
 from pmabayes.design.score import discrimination, shrinkage, whiten_rows
 from pmabayes.model.effects import get_effect
-from pmabayes.model.simulator import simulate
+from pmabayes.model.simulator import position_reference, simulate
 from pmabayes.util import Progress
 
 __all__ = ["design", "DesignResult", "GOALS", "model_names", "given_fits"]
@@ -85,6 +85,9 @@ class DesignResult:
         The SI name of time and input to the column name of the user's files.
     seconds : float
         Wall time of the design.
+    notes : list of str
+        What the fits of the data so far say that makes the scores less than they seem
+        (a poor fit, experiments that disagree, a stand-in Laplace covariance).
     """
 
     goal: str
@@ -100,6 +103,7 @@ class DesignResult:
     input_name: str = "pressure_pa"
     units: dict = field(default_factory=dict)
     seconds: float = math.nan
+    notes: list = field(default_factory=list)
 
     @property
     def experiment(self) -> Experiment:
@@ -129,6 +133,7 @@ class DesignResult:
                                                            strict=True))],
             "rig": self.rig,
             "settings": self.settings,
+            "notes": list(self.notes),
             "seconds": self.seconds,
         }
 
@@ -144,6 +149,7 @@ class DesignResult:
                 out.append(f"  {what}: {_score_text(self.goal, other)}")
         for name, why in self.left_out.items():
             out.append(f"  left out {name}: {why}")
+        out += [f"  note: {note}" for note in self.notes]
         return out
 
 
@@ -285,6 +291,28 @@ def design(
     -----
     The noise of the next experiment is the fitted noise model of the first data set at
     the first model's MAP: learnt from the repeats, it is the same for every model.
+
+    Examples
+    --------
+    Which of two effects a muscle lacks, a regulator lag or a transport delay: four
+    candidate experiments scored with four draws per model, too few to trust but enough
+    to show the result (about 10 s):
+
+    >>> from pmabayes.design import design
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
+    ...                               seed=1)
+    >>> result = design(data, candidates=["regulator_lag", "transport_delay"],
+    ...                 input_range=(0.0, 5e5), n_experiments=4, n_draws=4, seed=0)
+    >>> result.candidates
+    ['regulator_lag', 'transport_delay']
+    >>> [e.family for e in result.experiments]
+    ['repeat', 'default_chirp', 'chirp', 'steps']
+    >>> print(result.lines()[0])
+    chosen: ...
+
+    ``result.experiment.input()`` is the input to run next; ``pmabayes design`` writes it
+    to a file with a report.
     """
     start = time.perf_counter()
     datasets = _checked_datasets(datasets)
@@ -371,11 +399,49 @@ def design(
                 "loads_kg": list(loads_kg), "base_effects": base,
                 "parameters": list(parameters or []),
                 "noise": {"model": noise_model_obj.name, "values": list(noise)},
-                "fitted": {n: {"values": {k: float(v) for k, v in f.map.values.items()}}
+                "fitted": {n: {"values": _plain_values(f.map.values)}
                            for n, f in fitted.items()}}
     return DesignResult(goal, list(models), left_out, experiments, scores, chosen,
                         chosen_predictions, settings, fitted, ref.model.rig.to_dict(),
-                        first.input_name, _units(first), time.perf_counter() - start)
+                        first.input_name, _units(first), time.perf_counter() - start,
+                        _fit_notes(fitted))
+
+
+def _fit_notes(fitted: Mapping[str, CandidateFit]) -> list[str]:
+    """What each fit of the data so far says that makes the scores less than they seem.
+
+    The scores start from each model's posterior as fitted (its Laplace covariance, or a
+    fit file's draws). Where the model misses much of the data, or the experiments so
+    far disagree on one parameter set, that posterior is the model's certainty, narrower
+    than what the data know (fits of one load and of three loads of a real muscle put its
+    area three times apart, each to within a fraction of a percent:
+    ``docs/studies/real_measurements.md``). A next experiment cannot show what the model
+    lacks, so its expected gain is then small beside an interval already too narrow.
+    """
+    notes = []
+    for name, fit in fitted.items():
+        quality = fit.map.quality or {}
+        if quality.get("poor") and quality.get("text"):
+            notes.append(f"{name}: {quality['text']} The scores start from this fit's "
+                         "posterior: read their ranking, not their size.")
+        agreement = fit.map.agreement or {}
+        if agreement.get("agree") is False:
+            notes.append(
+                f"{name}: the experiments so far disagree on one parameter set (likelihood "
+                f"ratio {agreement['statistic']:.4g} on {agreement['df']} degrees of freedom), "
+                "so the joint fit's posterior, which the scores start from, is narrower than "
+                "what the data know: read their ranking, not their size; `pmabayes diagnose` "
+                "says what differs between the experiments.")
+        if fit.map.laplace_note:
+            notes.append(f"{name}: {fit.map.laplace_note}")
+    return notes
+
+
+def _plain_values(values: Mapping) -> dict:
+    """A MAP's values for JSON: floats, and a joint fit's noise ``{experiment: value}``
+    (one per experiment: :meth:`pmabayes.inference.density.Posterior.noise_values`)."""
+    return {k: ({e: float(x) for e, x in v.items()} if isinstance(v, Mapping) else float(v))
+            for k, v in values.items()}
 
 
 def model_names(base: Sequence[str] | str, candidates: Sequence[str] | str,
@@ -474,13 +540,20 @@ def _chunks(experiments: Sequence[Experiment], rows: int) -> list[list[int]]:
 def _responses(fit: CandidateFit, theta: np.ndarray, experiments: Sequence[Experiment],
                chunk: list[int]) -> np.ndarray:
     """The model's responses ``(len(chunk), rows, n)`` to the chunk's inputs, one batched
-    simulation: each input for every row of ``theta``."""
+    simulation: each input for every row of ``theta``, referred as the first data set's
+    positions are (to the model's at the first sample where its sidecar says
+    ``"position_reference": "start"``)."""
     exps = [experiments[i] for i in chunk]
     rows = theta.shape[0]
     model = fit.model_on(exps[0].load_kg)
     u = np.repeat(np.stack([e.input() for e in exps]), rows, axis=0)
     x = simulate(model, np.tile(theta, (len(exps), 1)), u, time_s=exps[0].time_s,
                  substeps=fit.substeps)
+    if position_reference(fit.posterior.likelihoods[0].dataset) == "start":
+        # a sensor zeroed at the record's start never sees the static sag of a load (or
+        # any offset the model's zero has): scoring it would credit the next experiment
+        # with information its record cannot hold
+        x = x - x[:, :1]
     return x.reshape(len(exps), rows, -1)
 
 
@@ -530,14 +603,12 @@ def _parameters(fit: CandidateFit, experiments: list, whiten, rng: np.random.Gen
     differences of the whitened response at a few posterior draws (in the fit's
     unconstrained coordinates, steps of a hundredth of each one's sd)."""
     post, cov = fit.posterior, np.asarray(fit.map.covariance_z, dtype=float)
-    z0 = np.asarray(fit.map.z, dtype=float)
     n_fisher = min(_FISHER_DRAWS, n_draws)
-    chol = np.linalg.cholesky(0.5 * (cov + cov.T) + 1e-12 * np.eye(z0.size))
-    zd = z0 + rng.standard_normal((n_fisher, z0.size)) @ chol.T
-    h = 1e-2 * np.sqrt(np.diag(cov))
-    rows = np.concatenate([np.vstack([z, z + np.diag(h)]) for z in zd])
+    zd, steps = _fisher_points(fit, rng, n_fisher)
+    rows = np.concatenate([np.vstack([z, z + np.diag(h)]) for z, h in zip(zd, steps,
+                                                                         strict=True)])
     theta = fit._model_theta(post.to_natural(rows))
-    p = z0.size
+    p = zd.shape[1]
     scores: list[dict | None] = [None] * len(experiments)
     for chunk in _chunks(experiments, theta.shape[0]):
         xs = _responses(fit, theta, experiments, chunk)
@@ -547,7 +618,7 @@ def _parameters(fit: CandidateFit, experiments: list, whiten, rng: np.random.Gen
                 scores[i] = {"score": math.nan, "mc_se": math.nan, "failed": why}
                 continue
             white = whiten(xs[j]).reshape(n_fisher, p + 1, -1)
-            jac = [((w[1:] - w[0]) / h[:, None]).T for w in white]
+            jac = [((w[1:] - w[0]) / h[:, None]).T for w, h in zip(white, steps, strict=True)]
             factors = shrinkage(cov, jac, columns)  # (draws, parameters)
             logs = np.log(factors).mean(axis=1)
             score = float(logs.mean())
@@ -558,6 +629,48 @@ def _parameters(fit: CandidateFit, experiments: list, whiten, rng: np.random.Gen
                                      for k, n in enumerate(parameters)},
                          "n_monte_carlo": int(logs.size)}
     return scores, {}
+
+
+def _fisher_points(fit: CandidateFit, rng: np.random.Generator, n: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` draws of the fit's Laplace approximation inside the priors' support, in its
+    unconstrained coordinates ``(n, p)``, and each one's finite-difference steps
+    ``(n, p)``: a hundredth of each coordinate's sd, backwards where a step forwards
+    would leave the support.
+
+    A parameter whose prior's support is narrower than its coordinate (a dead-zone
+    pressure's ``(0, inf)`` on an identity coordinate) would otherwise be simulated
+    outside it, which the simulator refuses.
+
+    Raises
+    ------
+    DesignError
+        Where fewer than ``n`` of ``10 n`` draws fall inside the support.
+    """
+    post = fit.posterior
+    cov = np.asarray(fit.map.covariance_z, dtype=float)
+    z0 = np.asarray(fit.map.z, dtype=float)
+    chol = np.linalg.cholesky(0.5 * (cov + cov.T) + 1e-12 * np.eye(z0.size))
+
+    def inside(z: np.ndarray) -> np.ndarray:
+        return np.isfinite(post.log_prior(post.to_natural(z)))
+
+    kept: list[np.ndarray] = []
+    for _ in range(10):
+        z = z0 + rng.standard_normal((n, z0.size)) @ chol.T
+        kept += list(z[inside(z)])
+        if len(kept) >= n:
+            break
+    else:
+        raise DesignError(f"the Laplace approximation of {fit.name!r} puts fewer than {n} of "
+                          f"{10 * n} draws inside the priors' support; fit it by MCMC")
+    zd = np.array(kept[:n])
+    h = 1e-2 * np.sqrt(np.diag(cov))
+    steps = np.tile(h, (n, 1))
+    for d in range(n):
+        forward = inside(zd[d] + np.diag(h))
+        steps[d, ~forward] = -h[~forward]
+    return zd, steps
 
 
 def _predictions(fitted: dict, experiment: Experiment, draws: dict,

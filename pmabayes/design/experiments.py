@@ -103,7 +103,7 @@ class Experiment:
     def label(self) -> str:
         """The experiment in a few words, in SI."""
         s = self.settings
-        load = f", dead load {self.load_kg:g} kg" if self.load_kg else ""
+        load = f", +{self.load_kg:g} kg dead load" if self.load_kg else ""
         if self.family == "repeat":
             return f"the first experiment's input again ({self.duration_s:g} s){load}"
         if self.family in ("chirp", "default_chirp", "noise"):

@@ -417,6 +417,26 @@ def fit_batch(
         scheduler.
     EffectError
         An unknown effect.
+
+    Examples
+    --------
+    Two files of three short chirps each, fitted one after the other in this process
+    (short runs, too short to converge, for the example):
+
+    >>> from pmabayes.data import save
+    >>> from pmabayes.inference.batch import fit_batch
+    >>> from pmabayes.inference.sampler import FitSettings
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> chirp = Chirp(duration_s=4.0, sample_rate_hz=200.0)
+    >>> for seed in (1, 2):
+    ...     save(generate_chirp_dataset(n_trials=3, chirp=chirp, seed=seed), f"muscle_{seed}.csv")
+    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)
+    >>> result = fit_batch(["muscle_1.csv", "muscle_2.csv"], out_dir="fits", settings=quick,
+    ...                    processes=1)
+    >>> [(r["name"], r["status"], r["fit_file"]) for r in result.records]
+    [('muscle_1', 'fitted', 'fits/muscle_1.nc'), ('muscle_2', 'fitted', 'fits/muscle_2.nc')]
+
+    Run again, a fit whose file is up to date is skipped (``restart=True`` redoes it).
     """
     start = time.perf_counter()
     if sum(x is not None for x in (processes, dask, runner)) > 1:

@@ -534,6 +534,24 @@ def experiment_datasets(tree: xr.DataTree) -> list[Dataset]:
     list of Dataset
         Time, input, positions, trial ids, metadata and source of each experiment,
         in the fit's order.
+
+    Examples
+    --------
+    A short fit (too short to converge, for the example), and the data it holds:
+
+    >>> import pmabayes
+    >>> from pmabayes.inference.sampler import FitSettings
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
+    ...                               seed=1)
+    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
+    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.inference.fitfile import experiment_datasets
+    >>> experiment_datasets(tree)
+    [Dataset(n_trials=3, n_samples=800, dt_s=0.005, input_name='pressure_pa', trial_ids=[0, 1, 2],
+             source=None)]
+    >>> experiment_datasets(tree)[0] == data
+    True
     """
     exps = _experiments_of(tree)
     obs_g = tree["observed_data"]
@@ -575,6 +593,21 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
     -------
     list of Model
         In the fit's experiment order; see :func:`model_from_fit`.
+
+    Examples
+    --------
+    A short fit (too short to converge, for the example), and its model:
+
+    >>> import pmabayes
+    >>> from pmabayes.inference.sampler import FitSettings
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
+    ...                               seed=1)
+    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
+    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.inference.fitfile import experiment_models
+    >>> experiment_models(tree)
+    [Model(rig=characterisation, effects=none, parameters=6)]
     """
     base = model_from_fit(tree)
     return [base.on_rig(Rig.from_dict(exp["rig"])) if isinstance(exp.get("rig"), dict)
@@ -738,6 +771,26 @@ def fit_info(tree: xr.DataTree) -> dict:
     -------
     dict
         Decoded from the root attribute ``pmabayes``.
+
+    Examples
+    --------
+    A short fit (too short to converge, for the example), and what it records:
+
+    >>> import pmabayes
+    >>> from pmabayes.inference.sampler import FitSettings
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
+    ...                               seed=1)
+    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
+    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.inference.fitfile import fit_info
+    >>> info = fit_info(tree)
+    >>> sorted(info)
+    ['convergence', 'data', 'experiments', 'map', 'model', 'noise', 'paper_values', ...]
+    >>> info["seed"], info["data"]["n_trials"], info["model"]["free"]
+    (0, 3, ['alpha', 'beta', 'gamma', 'd', 'K_e', 'p_dz'])
+    >>> info["convergence"]["converged"]
+    False
     """
     try:
         return json.loads(tree.attrs["pmabayes"])

@@ -229,8 +229,8 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
         tau = -dt / math.log(min(max(float(rho), 1e-12), 0.999999))
         return (f"the record's disturbance is slow: a correlation time of {tau * 1e3:.3g} ms, "
                 f"beyond the fast bound's {tau_flat * 1e3:.2g} ms, allowed because it leaves "
-                f"the model's own error as it was ({check['rms_slow_m'] * 1e6:.4g} um against "
-                f"{check['rms_fast_m'] * 1e6:.4g} um with a fast one, at most "
+                f"the model's own error as it was ({check['rms_slow_m'] * 1e6:.4g} µm against "
+                f"{check['rms_fast_m'] * 1e6:.4g} µm with a fast one, at most "
                 f"{check['ratio_allowed']:g}x allowed) and the residual white under it "
                 f"(Ljung-Box p = {check['ljung_box_p_slow']:.2g}). Slow physics the model "
                 "lacks that leaves the fit as it was would look the same on one record: "
@@ -240,8 +240,8 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
         if slow_rms is None:
             what = "its fit was refused: it takes in misfit"
         elif slow_rms > check["ratio_allowed"] * check["rms_fast_m"]:
-            what = (f"it left the model's own error at {slow_rms * 1e6:.4g} um against "
-                    f"{check['rms_fast_m'] * 1e6:.4g} um: it takes in misfit")
+            what = (f"it left the model's own error at {slow_rms * 1e6:.4g} µm against "
+                    f"{check['rms_fast_m'] * 1e6:.4g} µm: it takes in misfit")
         else:
             p_words = "< 1e-15" if p < 1e-15 else f"= {p:.2g}"
             what = (f"it left the residual coloured (Ljung-Box p {p_words}): it explains "

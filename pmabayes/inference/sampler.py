@@ -712,8 +712,8 @@ def _map_or_resume(chains: _Chains, posterior: Posterior, seed: np.random.SeedSe
              if k in lik.dataset.metadata} or None for lik in settled.likelihoods]
         posterior = settled
     t_map = time.perf_counter() - start
-    say.say(f"MAP in {t_map:.1f} s: RMS cost {map_result.rms_cost_m * 1e6:.1f} um "
-            f"(global search {map_result.global_rms_cost_m * 1e6:.1f} um)")
+    say.say(f"MAP in {t_map:.1f} s: RMS cost {map_result.rms_cost_m * 1e6:.1f} µm "
+            f"(global search {map_result.global_rms_cost_m * 1e6:.1f} µm)")
     if map_result.agreement is not None:
         say.say(f"MAP from the {map_result.agreement['start']}")
         text = disagreement_text(map_result.agreement)

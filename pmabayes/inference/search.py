@@ -21,7 +21,12 @@ from scipy.stats import chi2
 
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
-from pmabayes.inference.laplace import _fd_hessian, _laplace_covariance, _scaled_hessian
+from pmabayes.inference.laplace import (
+    PROBE_STEP,
+    _fd_hessian,
+    _scaled_hessian,
+    laplace_covariance,
+)
 from pmabayes.inference.likelihood import LEVEL_ADEQUATE, JointLikelihood, Likelihood, span
 from pmabayes.inference.noise_start import _default_noise_z, _noise_start, refer_periods
 from pmabayes.model.nested import static_line_values
@@ -72,6 +77,12 @@ class MapResult:
         (:func:`fit_quality`): its RMS cost, the motion, the RMS cost of the best
         static line and of the mean alone, whether the search started from the line's
         nested model, and the words a poor fit is reported with.
+    laplace_note : str or None
+        Why ``covariance_z`` is a stand-in and not the inverse Hessian (a Hessian that
+        is not finite, or not positive definite once measured again:
+        :func:`pmabayes.inference.laplace.laplace_covariance`); None where it is the
+        inverse Hessian. What reads the covariance as the posterior's (the ELPD of
+        :func:`pmabayes.criticism.elpd.laplace_loo`) says so.
     """
 
     values: dict
@@ -85,6 +96,7 @@ class MapResult:
     agreement: dict | None = None
     disturbance: list | None = None
     quality: dict | None = None
+    laplace_note: str | None = None
 
     def record(self) -> dict:
         """Everything, JSON-ready (arrays as lists), for the chains folder's stamp."""
@@ -113,6 +125,8 @@ class MapResult:
             out["agreement"] = self.agreement
         if self.quality is not None:
             out["quality"] = self.quality
+        if self.laplace_note is not None:
+            out["laplace_note"] = self.laplace_note
         return out
 
 
@@ -228,12 +242,13 @@ def find_map(
                                                        _default_noise_z(posterior, n_model)]))
     # optimise in coordinates scaled to the plausible box
     scale = box[:, 1] - box[:, 0]
-    z_map, cov_z = _polish_from(posterior, z_global, scale)
+    z_map, cov_z, note = _polish_from(posterior, z_global, scale)
     own, best_start = [], "joint search"
     if own_starts and posterior.n_experiments > 1:
         own = _own_optima(posterior, rng.spawn(1)[0], popsize, maxiter)
-        z_map, cov_z, best_start = _best_of_starts(posterior, z_map, cov_z, own, scale)
-    return _finish(posterior, z_map, cov_z, scale, rng, refer=refer,
+        z_map, cov_z, note, best_start = _best_of_starts(posterior, z_map, cov_z, note, own,
+                                                         scale)
+    return _finish(posterior, z_map, cov_z, note, scale, rng, refer=refer,
                    global_point=(z_global, global_cost),
                    agreement_of=(own, best_start) if own else None, nested_start=nested)
 
@@ -277,16 +292,17 @@ def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Genera
     _, ll, x = posterior.evaluate(np.asarray(theta, dtype=float)[None])
     cost = (float(posterior.likelihood.rms_cost(np.atleast_2d(x[0]))[0]) if x is not None
             else math.inf)
-    z_map, cov_z = _polish_from(posterior, z0, scale)
-    return _finish(posterior, z_map, cov_z, scale, rng, refer=refer,
+    z_map, cov_z, note = _polish_from(posterior, z0, scale)
+    return _finish(posterior, z_map, cov_z, note, scale, rng, refer=refer,
                    global_point=(z0, cost), agreement_of=None)
 
 
-def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: np.ndarray,
-            rng: np.random.Generator, *, refer: bool, global_point: tuple,
+def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, note: str | None,
+            scale: np.ndarray, rng: np.random.Generator, *, refer: bool, global_point: tuple,
             agreement_of: tuple | None, nested_start: bool = False) -> MapResult:
     """A polished MAP's noise learnt again, its climb out of saddles, its quality check
-    and its record (:func:`find_map`, :func:`polish_map`)."""
+    and its record (:func:`find_map`, :func:`polish_map`); ``note`` says why ``cov_z``
+    is a stand-in (None where it is the inverse Hessian)."""
     z_global, global_cost = global_point
     # the periods of a record from rest still hold the model's shakedown: the noise
     # is learnt again from the residual's periods, and the MAP polished again, until
@@ -296,11 +312,11 @@ def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: n
         if not refer_periods(posterior, z_map):
             break
         reference = z_map
-        z_map, cov_z = _polish_from(posterior, reference, scale)
+        z_map, cov_z, note = _polish_from(posterior, reference, scale)
         moved = np.max(np.abs(z_map - reference) / np.sqrt(np.diag(cov_z)))
         if k > 0 and moved < _REFER_SETTLED:
             break
-    z_map, cov_z = _climb(posterior, z_map, cov_z, scale, rng.spawn(1)[0])
+    z_map, cov_z, note = _climb(posterior, z_map, cov_z, note, scale, rng.spawn(1)[0])
     theta_map = posterior.to_natural(z_map[None])
     lp, ll, x = posterior.evaluate(theta_map)
     if x is None or not np.isfinite(ll[0]):
@@ -325,6 +341,7 @@ def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: n
         period_reference_z=reference,
         agreement=agreement,
         quality=quality,
+        laplace_note=note,
     )
 
 
@@ -365,17 +382,19 @@ def _joint_point(posterior: Posterior, z_joint: np.ndarray, experiment: int,
 
 
 def _best_of_starts(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray,
-                    own: list[MapResult], scale: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, str]:
+                    note: str | None, own: list[MapResult], scale: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, str | None, str]:
     """The highest of the joint MAP and the joint MAPs polished from each
-    experiment's own MAP; its covariance, and which start it came from."""
-    best = (float(posterior.log_prob_z(z_map[None])[0]), z_map, cov_z, "joint search")
+    experiment's own MAP; its covariance (and why it is a stand-in, or None), and which
+    start it came from."""
+    best = (float(posterior.log_prob_z(z_map[None])[0]), z_map, cov_z, note, "joint search")
     for e, result in enumerate(own):
-        z_e, cov_e = _polish_from(posterior, _joint_point(posterior, z_map, e, result), scale)
+        z_e, cov_e, note_e = _polish_from(posterior, _joint_point(posterior, z_map, e, result),
+                                          scale)
         lp = float(posterior.log_prob_z(z_e[None])[0])
         if lp > best[0]:
-            best = (lp, z_e, cov_e, f"own MAP of {posterior.experiment_names[e]}")
-    return best[1], best[2], best[3]
+            best = (lp, z_e, cov_e, note_e, f"own MAP of {posterior.experiment_names[e]}")
+    return best[1], best[2], best[3], best[4]
 
 
 def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
@@ -460,22 +479,23 @@ def disagreement_text(agreement: dict) -> str:
     return (f"the experiments disagree: their own optima are not compatible with one shared "
             f"parameter set (likelihood ratio {agreement['statistic']:.4g} on "
             f"{agreement['df']} degrees of freedom, p = {agreement['p_value']:.2g}). "
-            f"{worst} loses most: RMS {w['rms_cost_joint_m'] * 1e6:.3g} um at the joint MAP "
-            f"against {w['rms_cost_own_m'] * 1e6:.3g} um alone. The joint posterior averages "
+            f"{worst} loses most: RMS {w['rms_cost_joint_m'] * 1e6:.3g} µm at the joint MAP "
+            f"against {w['rms_cost_own_m'] * 1e6:.3g} µm alone. The joint posterior averages "
             "them into a model that is none of theirs: `pmabayes diagnose` of the same "
             "experiments shows which parameters move between them and tests the effects "
             "that could make them agree")
 
 
 def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, str | None]:
     """The MAP polished from ``z0`` in coordinates scaled by ``scale``, and its Laplace
-    covariance, both unconstrained."""
+    covariance, both unconstrained; and why that covariance is a stand-in (None where it
+    is the inverse Hessian)."""
     neg_logpost = _scaled_neg_log_posterior(posterior, z0, scale)
     u, hess = _polish(neg_logpost, posterior.ndim)
     hess, edges = _open_edges(hess, neg_logpost, u)
-    cov = _laplace_covariance(hess, None if edges else neg_logpost, u)
-    return z0 + u * scale, cov * np.outer(scale, scale)
+    cov, note = laplace_covariance(hess, None if edges else neg_logpost, u)
+    return z0 + u * scale, cov * np.outer(scale, scale), note
 
 
 #: A curvature (in units of the plausible box) above which a finite difference has
@@ -498,10 +518,14 @@ def _open_edges(hess: np.ndarray, neg_logpost, u: np.ndarray) -> tuple[np.ndarra
     sampler's walkers would all start at one value there and never move in it.
     """
     d = np.abs(np.diag(hess))
-    edge = ~np.isfinite(d) | (d > _EDGE_CURVATURE) | ~np.all(np.isfinite(hess), axis=1)
+    edge = ~np.isfinite(d) | (d > _EDGE_CURVATURE)
+    # an entry that is not finite between coordinates whose own curvature was measured
+    # (its row's edge columns do not count: they are opened anyway, and flagging every
+    # row that meets one would drop the correlations of every coordinate)
+    edge |= ~np.all(np.isfinite(hess[:, ~edge]), axis=1)
     if not edge.any():
         return hess, False
-    near = np.diag(_fd_hessian(neg_logpost, u, np.full(u.size, 1e-6)))
+    near = np.diag(_fd_hessian(neg_logpost, u, PROBE_STEP * np.maximum(1.0, np.abs(u))))
     ok = np.isfinite(near) & (near > 0) & (near < _EDGE_CURVATURE)
     out = hess.copy()
     out[edge, :] = 0.0
@@ -516,8 +540,9 @@ def _open_edges(hess: np.ndarray, neg_logpost, u: np.ndarray) -> tuple[np.ndarra
 _CLIMB_DRAWS, _CLIMB_GAIN, _CLIMB_ROUNDS = 64, 1.0, 5
 
 
-def _climb(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: np.ndarray,
-           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def _climb(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, note: str | None,
+           scale: np.ndarray, rng: np.random.Generator
+           ) -> tuple[np.ndarray, np.ndarray, str | None]:
     """The MAP polished again from a draw of its Laplace approximation that lies higher.
 
     On a rough posterior (a real record the model does not describe: creep, ringing)
@@ -535,11 +560,11 @@ def _climb(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, scale: np
         k = int(np.argmax(lp))
         if not lp[k] > best + _CLIMB_GAIN:
             break
-        z_new, cov_new = _polish_from(posterior, draws[k], scale)
+        z_new, cov_new, note_new = _polish_from(posterior, draws[k], scale)
         lp_new = float(posterior.log_prob_z(z_new[None])[0])
-        z_map, cov_z, best = ((z_new, cov_new, lp_new) if lp_new >= lp[k]
-                              else (draws[k], cov_z, float(lp[k])))
-    return z_map, cov_z
+        z_map, cov_z, note, best = ((z_new, cov_new, note_new, lp_new) if lp_new >= lp[k]
+                                    else (draws[k], cov_z, note, float(lp[k])))
+    return z_map, cov_z, note
 
 
 #: Most passes of learning a record from rest's noise from its periods' residual at
@@ -590,7 +615,7 @@ def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generat
         r = intermediate_result
         # scipy's convergence: tol over the spread of the costs; the search ends at 1
         say.status(f"global search {which}: generation {r.nit} (at most {maxiter}), best "
-                   f"RMS cost {r.fun * 1e6:.4g} um, the population "
+                   f"RMS cost {r.fun * 1e6:.4g} µm, the population "
                    f"{min(100 * r.convergence, 100):.0f}% of the way to agreeing (done at "
                    "100%)")
 
@@ -674,7 +699,9 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
         if t <= 1e-4:
             break
         u = u + t * step
-        if np.max(np.abs(t * step) * np.sqrt(np.abs(np.diag(hess)))) < 1e-3:
+        with np.errstate(invalid="ignore"):  # 0 * inf: a coordinate at the edge, unmoved
+            moved = np.abs(t * step) * np.sqrt(np.abs(np.diag(hess)))
+        if np.max(np.nan_to_num(moved, nan=0.0, posinf=np.inf)) < 1e-3:
             break
     return u, _scaled_hessian(neg_logpost, u)
 

@@ -205,6 +205,19 @@ def check_trials(dataset: Dataset, *, level: float = LEVEL, n_null: int = 200,
     ------
     ValueError
         If ``level`` is not in (0, 1) or ``n_null`` is below 20.
+
+    Examples
+    --------
+    The ten repeats of the bundled lab-like chirps (``data/`` of a checkout) are
+    exchangeable:
+
+    >>> from pmabayes.data import load
+    >>> from pmabayes.inference.trials import check_trials
+    >>> check = check_trials(load("data/pma_chirp_lab.csv"))
+    >>> check.findings
+    []
+    >>> sorted(check.p_values)
+    ['offset drift', 'outlier', 'shape drift']
     """
     if not 0 < level < 1:
         raise ValueError(f"level must be in (0, 1); got {level!r}")
@@ -318,6 +331,21 @@ def exclude_trials(dataset: Dataset, ids: Iterable[int], *, min_trials: int = 2)
     DataError
         For an id the data do not hold, or when fewer than ``min_trials`` would
         remain.
+
+    Examples
+    --------
+    Hold trials 8 and 9 out of a fit (``pmabayes.fit(data, trials=...)`` does the same
+    and records it in the fit file):
+
+    >>> from pmabayes.data import load
+    >>> from pmabayes.inference.trials import exclude_trials
+    >>> data = load("data/pma_chirp_lab.csv")
+    >>> exclude_trials(data, [8, 9]).trial_ids
+    array([0, 1, 2, 3, 4, 5, 6, 7])
+    >>> exclude_trials(data, [10])
+    Traceback (most recent call last):
+    ...
+    pmabayes.data.dataset.DataError: ...
     """
     where = dataset.source or "the data set"
     ids = [int(i) for i in ids]

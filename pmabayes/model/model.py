@@ -148,6 +148,14 @@ def derive_area(
     -------
     float
         ``A`` in m^2.
+
+    Examples
+    --------
+    >>> from pmabayes import derive_area
+    >>> round(derive_area() * 1e4, 3)  # the paper's rig, in cm^2
+    2.183
+    >>> round(derive_area(moving_mass_kg=0.567) * 1e4, 3)  # 500 g more to lift
+    2.552
     """
     v = dict(PAPER_VALUES if values is None else values)
     weight = moving_mass_kg * g_m_s2 * gravity_sign
@@ -160,6 +168,8 @@ PAPER_AREA_M2 = derive_area()
 
 #: Base parameters, first in every model's parameter order (the simulator finds
 #: them by name: :class:`~pmabayes.model.boucwen.BoucWenColumns`).
+#:
+#: :meta hide-value:
 BASE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
         "alpha", "N/m", PAPER_VALUES["alpha"], LogNormal(25.0, 1.5), bounds=(0.0, math.inf),
@@ -221,6 +231,24 @@ class Rig:
         Rig values that are not known but identified (:data:`RIG_PRIOR_KEYS`), each
         with its prior; the value's field then holds the prior's median. A model on
         this rig has the parameter ``rig_KEY`` for each.
+
+    Examples
+    --------
+    A bench with 250 g moving (the paper's area), then the same bench whose effective
+    area is not known but identified from a prior, as a sidecar's ``"rig"`` says it:
+
+    >>> from pmabayes import Model, Rig
+    >>> rig = Rig(moving_mass_kg=0.25, name="bench_a")
+    >>> Model(["regulator_lag"], rig=rig)
+    Model(rig=bench_a, effects=regulator_lag, parameters=7)
+    >>> unknown_area = Rig.from_dict({"moving_mass_kg": 0.25, "name": "bench_a",
+    ...                               "area_m2": "LogNormal(2e-4, 1.2)"})
+    >>> unknown_area.priors
+    (('area_m2', LogNormal(median=0.0002, sigma=1.2)),)
+    >>> Model(rig=unknown_area).free_names[-1]
+    'rig_area_m2'
+    >>> Rig.characterisation().moving_mass_kg  # the paper's rig, the default
+    0.067
     """
 
     moving_mass_kg: float

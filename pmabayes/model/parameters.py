@@ -352,6 +352,19 @@ def parse_prior(text: str) -> Prior:
     ValueError
         If the name is unknown, an argument is not a number, or the distribution
         rejects the values; the message lists the forms accepted.
+
+    Examples
+    --------
+    >>> from pmabayes.model.parameters import parse_prior
+    >>> prior = parse_prior("LogNormal(5e4, 2)")
+    >>> prior
+    LogNormal(median=50000.0, sigma=2.0)
+    >>> print(prior)
+    LogNormal(median=50000, sigma=2)
+    >>> parse_prior(str(prior)) == prior
+    True
+    >>> print(parse_prior("uniform(low=0, high=1)"))
+    Uniform(0, 1)
     """
     kinds = {cls.__name__.lower(): cls for cls in (Uniform, Normal, LogNormal, HalfNormal)}
     forms = "Uniform(low, high), Normal(mu, sigma), LogNormal(median, sigma), HalfNormal(sigma)"

@@ -103,7 +103,7 @@ def write_report(
 
     Examples
     --------
-    >>> from pmabayes.inference.posterior import load_fit
+    >>> from pmabayes import load_fit
     >>> tree = load_fit("results/lab/fit.nc")  # doctest: +SKIP
     >>> write_report(tree, "results/lab/report")  # doctest: +SKIP
     PosixPath('results/lab/report/index.html')

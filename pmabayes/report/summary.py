@@ -29,6 +29,8 @@ __all__ = ["SUMMARY_COLUMNS", "PAPER_RIGS", "summary_table", "paper_rig", "map_o
 
 
 #: Keys of a summary row, in CSV column order.
+#:
+#: :meta hide-value:
 SUMMARY_COLUMNS: tuple[str, ...] = (
     "name",
     "unit",

@@ -71,7 +71,7 @@ def fit_adequacy(tree: xr.DataTree, *, dataset: Dataset | None = None,
 
     Examples
     --------
-    >>> from pmabayes.inference.posterior import load_fit
+    >>> from pmabayes import load_fit
     >>> tree = load_fit("results/lab/fit.nc")  # doctest: +SKIP
     >>> print("\\n".join(fit_adequacy(tree).lines()))  # doctest: +SKIP
     """

@@ -103,6 +103,29 @@ def estimate_discrepancy(
     ------
     pmabayes.outputs.OutputError
         If ``plugin_dir`` is a file or cannot be written in (before any work).
+
+    Examples
+    --------
+    :func:`pmabayes.diagnose` calls it on the diagnosed model at its MAP
+    (``Diagnosis.discrepancy``). Called directly, on three short chirps with 2 N of
+    Coulomb friction the base model lacks (about 5 s; ``verify=False`` skips the refit):
+
+    >>> import numpy as np
+    >>> from pmabayes import Model
+    >>> from pmabayes.criticism.discrepancy import estimate_discrepancy
+    >>> from pmabayes.criticism.refits import fit_base
+    >>> from pmabayes.criticism.settings import DiagnoseSettings
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
+    ...                               effects={"coulomb_friction": 2.0}, seed=1)
+    >>> base = fit_base([Model.for_dataset(data)], [data], ["friction"],
+    ...                 DiagnoseSettings(substeps=1), np.random.default_rng(0))
+    >>> found = estimate_discrepancy(base.likelihoods[0], base.noises[0], base.points[0][0],
+    ...                              base.simulations[0], verify=False)
+    >>> found.states[0].state  # the state the missing force depends on most
+    'velocity'
+    >>> found.proposal.expression
+    '2.066 N * tanh(v/5 mm/s)'
     """
     keep = plugin_dir is not None and plugin_dir is not False
     if keep:

@@ -20,6 +20,8 @@ __all__ = ["STATES"]
 
 
 #: the states the flexible force may depend on: name, unit, symbol
+#:
+#: :meta hide-value:
 STATES = (("position", "m", "x"), ("velocity", "m/s", "v"), ("pressure", "Pa", "p"),
           ("hysteresis", "N", "z"), ("direction", "1", "sgn v"),
           ("memory", "m/s", "v_lp"), ("loop", "1", "h"))

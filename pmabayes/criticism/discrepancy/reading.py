@@ -24,6 +24,8 @@ __all__ = ["ReadingError", "play", "reading_error"]
 
 #: half-widths of the play scanned for backlash of the sensor, m (0.05 to 1.6 mm by
 #: factors of sqrt(2): a play off by more than that is imitated better by a force)
+#:
+#: :meta hide-value:
 PLAY_HALF_WIDTHS_M = tuple(0.05e-3 * 2.0 ** (k / 2) for k in range(11))
 
 #: reading errors combined at most

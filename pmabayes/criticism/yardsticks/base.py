@@ -29,6 +29,8 @@ __all__ = ["TRAIN_SHARE", "REGISTRY", "Record", "Fitted", "Yardstick", "LeftOut"
 TRAIN_SHARE = 0.7
 
 #: The yardsticks, by name, in the order they are defined (linear, play, narx).
+#:
+#: :meta hide-value:
 REGISTRY: dict[str, type[Yardstick]] = {}
 
 
@@ -171,6 +173,49 @@ class Yardstick(ABC):
 
     Subclasses define :attr:`name`, :attr:`colour`, :meth:`fit` and :meth:`orders`
     and :meth:`describe`; :meth:`unavailable` when it needs an optional package.
+
+    Examples
+    --------
+    A static line of position on input, the crudest yardstick, registered beside the
+    built-in ones and forgotten again:
+
+    >>> import numpy as np
+    >>> from pmabayes.criticism.baselines import fit_baselines
+    >>> from pmabayes.criticism.observed import shared_input
+    >>> from pmabayes.criticism.yardsticks import REGISTRY, Fitted, Yardstick
+    >>> class StaticLine(Fitted):
+    ...     name = "static_line"
+    ...     n_parameters = 2
+    ...     def __init__(self, gain, offset_m, rmse_m):
+    ...         self.gain, self.offset_m, self.rmse_m, self.scores = gain, offset_m, rmse_m, {}
+    ...     def predict_dataset(self, dataset):
+    ...         return self.gain * shared_input(dataset) + self.offset_m
+    ...     def to_dict(self):
+    ...         return {"n_parameters": 2, "train_rmse_m": self.rmse_m}
+    >>> class StaticLineYardstick(Yardstick):
+    ...     name = "static_line"
+    ...     def fit(self, records):
+    ...         u = np.concatenate([r.u[r.mask("all")] for r in records])
+    ...         y = np.concatenate([r.y[r.mask("all")] for r in records])
+    ...         (gain, offset_m), *_ = np.linalg.lstsq(np.c_[u, np.ones_like(u)], y)
+    ...         rmse_m = float(np.sqrt(np.mean((gain * u + offset_m - y) ** 2)))
+    ...         return StaticLine(gain, offset_m, rmse_m)
+    ...     @staticmethod
+    ...     def orders(entry):
+    ...         return "2 parameters"
+    ...     @staticmethod
+    ...     def describe(entry):
+    ...         return "a static line of position on input"
+    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
+    ...                               seed=1)
+    >>> fitted = fit_baselines(data)
+    >>> list(fitted.fitted)
+    ['linear', 'play', 'narx', 'static_line']
+    >>> scores = fitted.scores(data)
+    >>> bool(scores["static_line"]["nrmse"] > scores["linear"]["nrmse"])  # it misses the dynamics
+    True
+    >>> del REGISTRY["static_line"]
     """
 
     #: Key of the JSON entry (``baselines.<name>``) and of :data:`REGISTRY`.

@@ -26,6 +26,8 @@ __all__ = ["NOISE_PARAMETERS", "NOISE_PER_AMPLITUDE", "ar1_noise", "measurement_
            "Ar1White", "AR1_WHITE"]
 
 #: The noise model's parameters, identified with every fit.
+#:
+#: :meta hide-value:
 NOISE_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
         "sigma_noise_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(0.0, math.inf),

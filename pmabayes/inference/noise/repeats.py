@@ -86,6 +86,10 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
     try:
         cov = np.linalg.inv(hess)
         np.linalg.cholesky(cov)
+        # inv and cholesky pass a NaN matrix silently: a Hessian that is not finite (a
+        # step that left the support) is no covariance either
+        if not (np.all(np.isfinite(hess)) and np.all(np.isfinite(cov))):
+            raise np.linalg.LinAlgError("not finite")
     except np.linalg.LinAlgError:
         raise FitError(f"{where}: the noise parameters "
                        "are not identified by the spread between the trials; the trials must "

@@ -30,6 +30,8 @@ __all__ = ["STUDENT_T_PARAMETERS", "StudentT"]
 
 #: The Student-t noise's parameters: its scale (the muscle's disturbance's prior) and
 #: its degrees of freedom (median 5: heavy tails; from about 30 on it is Gaussian).
+#:
+#: :meta hide-value:
 STUDENT_T_PARAMETERS: tuple[Parameter, ...] = (
     Parameter(
         "sigma_t_m", "m", 5e-5, LogNormal(5e-5, 2.0), bounds=(0.0, math.inf),

@@ -41,6 +41,8 @@ from pmabayes.model.effects.registry import (
 
 #: The built-in effects, registered in the order the library grew (candidate lists
 #: and their ties follow it).
+#:
+#: :meta hide-value:
 BUILTIN: tuple[type[Effect], ...] = (
     RegulatorLag, TransportDelay, CoulombFriction, CubicStiffness, PressureStiffness,
     PositionOffset, StribeckFriction, McKibbenForce, RegulatorSecondOrder,

@@ -160,6 +160,19 @@ def load_plugin(spec: str | os.PathLike, *, register: bool = True) -> ModuleType
     EffectError
         For a missing file, a module that cannot be found, or a file that does not
         compile or run (the message names the file and the line).
+
+    Examples
+    --------
+    The plugin of the docs' criticism page (``docs/plugins/`` of a checkout), a drag
+    the library does not hold:
+
+    >>> import pmabayes
+    >>> from pmabayes.model.effects import load_plugin
+    >>> module = load_plugin("docs/plugins/hidden_drag.py")
+    >>> "hidden_drag" in pmabayes.registered_effects()
+    True
+    >>> pmabayes.Model(["hidden_drag"]).parameter_names[-1]
+    'c_hidden'
     """
     text = os.fspath(spec)
     _UNREGISTERED[0] = not register
