@@ -10,6 +10,7 @@ so every file says how to make it again.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -32,6 +33,8 @@ __all__ = [
     "Regulator",
     "hidden_effects_model",
     "generate_chirp_dataset",
+    "example_data",
+    "example_fit",
     "HiddenDetent",
     "HiddenDrag",
     "HiddenCompressionSpring",
@@ -459,6 +462,67 @@ def generate_chirp_dataset(
         input_name=model.rig.input_name,
         metadata=metadata,
     )
+
+
+def example_data(seed: int = 1) -> Dataset:
+    """The small synthetic data set of the examples: three 4 s chirp trials at 200 Hz.
+
+    Parameters
+    ----------
+    seed : int
+        The generator's seed.
+
+    Returns
+    -------
+    Dataset
+        :func:`generate_chirp_dataset` of the paper's model, 800 samples a trial.
+
+    Examples
+    --------
+    >>> from pmabayes.synthetic import example_data
+    >>> example_data()
+    Dataset(n_trials=3, n_samples=800, dt_s=0.005, input_name='pressure_pa', trial_ids=[0, 1, 2],
+            source=None)
+    """
+    return generate_chirp_dataset(n_trials=3, seed=seed,
+                                  chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0))
+
+
+@functools.cache
+def _example_fit(seed: int):
+    from pmabayes.inference.sampler import FitSettings, fit
+
+    # 50 steps of 16 walkers: seconds, not a converged posterior
+    return fit(example_data(seed), settings=FitSettings(n_walkers=16, n_ensembles=1,
+                                                        max_steps=50))
+
+
+def example_fit(seed: int = 1):
+    """A short fit of :func:`example_data`, for examples of what takes a fit.
+
+    Like ArviZ's example data sets, one call serves every example; the fit is made once
+    a process and each call returns its own copy. It is too short to converge (50 steps
+    of 16 walkers), and it warns so the first time.
+
+    Parameters
+    ----------
+    seed : int
+        The seed of the data (and of the sampler, through :func:`pmabayes.fit`'s
+        default).
+
+    Returns
+    -------
+    xarray.DataTree
+        The fit file's tree, as :func:`pmabayes.fit` returns it.
+
+    Examples
+    --------
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # warns: not converged
+    >>> sorted(tree["posterior"].data_vars)[:3]
+    ['K_e', 'alpha', 'beta']
+    """
+    return _example_fit(int(seed)).copy(deep=True)
 
 
 # ---------------------------------------------------------------------------------

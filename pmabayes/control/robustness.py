@@ -98,13 +98,8 @@ def control_model_from_fit(tree: xr.DataTree) -> Model:
     A short fit (too short to converge, for the example) on the characterisation rig,
     its model moved to the control rig:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.control.robustness import control_model_from_fit
     >>> model = control_model_from_fit(tree)
     >>> model, model.rig.moving_mass_kg
@@ -139,13 +134,8 @@ def posterior_mean(tree: xr.DataTree, model: Model) -> np.ndarray:
     --------
     A short fit (too short to converge, for the example):
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.control.robustness import control_model_from_fit, posterior_mean
     >>> model = control_model_from_fit(tree)
     >>> mean = posterior_mean(tree, model)
@@ -186,13 +176,8 @@ def posterior_samples(tree: xr.DataTree, model: Model, samples: int,
     --------
     A short fit (too short to converge, for the example), and three draws of it:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.control.robustness import control_model_from_fit, posterior_samples
     >>> theta, mean, where = posterior_samples(tree, control_model_from_fit(tree), 3, seed=0)
     >>> theta.shape, mean.shape, where.shape
@@ -295,13 +280,8 @@ def robustness_sweep(
     Four plants drawn from a short fit (too short to converge, for the example), each
     tracking 1 Hz with both controllers at the paper's gains (given, so none is tuned):
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.control import DEFAULT_GAINS
     >>> from pmabayes.control.robustness import robustness_sweep
     >>> sweep = robustness_sweep(tree, samples=4, frequencies_hz=[1.0], duration_s=4.0,
@@ -466,13 +446,8 @@ def summarise_robustness(ds: xr.Dataset) -> xr.Dataset:
     --------
     The sweep of :func:`robustness_sweep`'s example, summarised:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.control import DEFAULT_GAINS
     >>> from pmabayes.control.robustness import robustness_sweep
     >>> sweep = robustness_sweep(tree, samples=4, frequencies_hz=[1.0], duration_s=4.0,
@@ -524,13 +499,8 @@ def write_robustness(ds: xr.Dataset, out_dir) -> dict[str, Path]:
     --------
     The sweep of :func:`robustness_sweep`'s example, written:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.control import DEFAULT_GAINS
     >>> from pmabayes.control.robustness import robustness_sweep
     >>> sweep = robustness_sweep(tree, samples=4, frequencies_hz=[1.0], duration_s=4.0,

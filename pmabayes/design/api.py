@@ -299,9 +299,8 @@ def design(
     to show the result (about 10 s):
 
     >>> from pmabayes.design import design
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
+    >>> from pmabayes.synthetic import example_data
+    >>> data = example_data()  # three synthetic 4 s chirps at 200 Hz
     >>> result = design(data, candidates=["regulator_lag", "transport_delay"],
     ...                 input_range=(0.0, 5e5), n_experiments=4, n_draws=4, seed=0)
     >>> result.candidates

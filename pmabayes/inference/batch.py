@@ -426,10 +426,9 @@ def fit_batch(
     >>> from pmabayes.data import save
     >>> from pmabayes.inference.batch import fit_batch
     >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> chirp = Chirp(duration_s=4.0, sample_rate_hz=200.0)
+    >>> from pmabayes.synthetic import example_data
     >>> for seed in (1, 2):
-    ...     save(generate_chirp_dataset(n_trials=3, chirp=chirp, seed=seed), f"muscle_{seed}.csv")
+    ...     save(example_data(seed), f"muscle_{seed}.csv")
     >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)
     >>> result = fit_batch(["muscle_1.csv", "muscle_2.csv"], out_dir="fits", settings=quick,
     ...                    processes=1)

@@ -539,18 +539,14 @@ def experiment_datasets(tree: xr.DataTree) -> list[Dataset]:
     --------
     A short fit (too short to converge, for the example), and the data it holds:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.inference.fitfile import experiment_datasets
     >>> experiment_datasets(tree)
     [Dataset(n_trials=3, n_samples=800, dt_s=0.005, input_name='pressure_pa', trial_ids=[0, 1, 2],
              source=None)]
-    >>> experiment_datasets(tree)[0] == data
+    >>> from pmabayes.synthetic import example_data
+    >>> experiment_datasets(tree)[0] == example_data()  # the data it was fitted to
     True
     """
     exps = _experiments_of(tree)
@@ -598,13 +594,8 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
     --------
     A short fit (too short to converge, for the example), and its model:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.inference.fitfile import experiment_models
     >>> experiment_models(tree)
     [Model(rig=characterisation, effects=none, parameters=6)]
@@ -776,13 +767,8 @@ def fit_info(tree: xr.DataTree) -> dict:
     --------
     A short fit (too short to converge, for the example), and what it records:
 
-    >>> import pmabayes
-    >>> from pmabayes.inference.sampler import FitSettings
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
-    >>> quick = FitSettings(n_walkers=16, n_ensembles=1, max_steps=50)  # warns: not converged
-    >>> tree = pmabayes.fit(data, settings=quick)
+    >>> from pmabayes.synthetic import example_fit
+    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
     >>> from pmabayes.inference.fitfile import fit_info
     >>> info = fit_info(tree)
     >>> sorted(info)

@@ -837,9 +837,8 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
     >>> import numpy as np
     >>> from pmabayes import Model
     >>> from pmabayes.model.simulator import simulate_dataset
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
+    >>> from pmabayes.synthetic import example_data
+    >>> data = example_data()  # three synthetic 4 s chirps at 200 Hz
     >>> x = simulate_dataset(Model.for_dataset(data), None, data)  # at the paper's values
     >>> x.shape
     (1, 800)

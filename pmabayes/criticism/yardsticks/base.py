@@ -206,9 +206,8 @@ class Yardstick(ABC):
     ...     @staticmethod
     ...     def describe(entry):
     ...         return "a static line of position on input"
-    >>> from pmabayes.synthetic import Chirp, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=3, chirp=Chirp(duration_s=4.0, sample_rate_hz=200.0),
-    ...                               seed=1)
+    >>> from pmabayes.synthetic import example_data
+    >>> data = example_data()  # three synthetic 4 s chirps at 200 Hz
     >>> fitted = fit_baselines(data)
     >>> list(fitted.fitted)
     ['linear', 'play', 'narx', 'static_line']
