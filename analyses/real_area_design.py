@@ -16,9 +16,9 @@ interval most, given the data so far:
    and its Laplace covariance (``pmabayes design --fit FIT.nc``).
 
 The design may use any of the five dead loads the lab has (0.1 to 0.5 kg; ``--loads``
-adds kg to the first file's rig, which carries 0.1 kg already, so the loads given are
-0 to 0.4 kg) and any pressure between 0 and 255 psi (just above the highest the records
-reach, 253.3 psi), for a record as long as the first file (13.4 s at 1 kHz). The
+hangs each in place of the first file's, which its sidecar declares) and any pressure
+between 0 and 255 psi (just above the highest the records reach, 253.3 psi), for a
+record as long as the first file (13.4 s at 1 kHz). The
 first two fit the base model as ``pmabayes design`` does (the MAP and its Laplace
 covariance); each design scores 50 candidate experiments (chirps, steps and holds,
 band-limited noise, sines, each on a dead load, the default chirp over the range and
@@ -96,10 +96,10 @@ def run(paths: dict[int, Path], loads_g: tuple[int, ...], out: Path, seed: int,
     fits = (None if fit_file is None else
             given_fits([fit_from_file(fit_file, datasets)], [], [], "parameters"))
     first_g = loads_g[0]
-    added = [(g - first_g) / 1000.0 for g in LAB_LOADS_G if g >= first_g]
+    lab = [g / 1000.0 for g in LAB_LOADS_G if g >= first_g]
     low, high = (float(v) for v in to_si(np.array(RANGE_PSI), "pressure_psi"))
     tic = time.perf_counter()
-    res = design(datasets, [], [], goal="parameters", parameters=[TARGET], loads=added,
+    res = design(datasets, [], [], goal="parameters", parameters=[TARGET], loads=lab,
                  input_range=(low, high), n_experiments=n_exp, n_draws=n_draws, seed=seed,
                  fits=fits)
     write_design(res, out)
@@ -115,7 +115,8 @@ def run(paths: dict[int, Path], loads_g: tuple[int, ...], out: Path, seed: int,
     print(f"  area at the {where} {fit.map.values[TARGET]:.4g} m^2, 90% interval [{lo:.4g}, "
           f"{hi:.4g}] (x{hi / lo:.4g} from end to end; the prior's x{prior:.0f})")
     chosen = res.scores[res.chosen]
-    total = {i: first_g + round(1000 * e.load_kg) for i, e in enumerate(res.experiments)}
+    total = {i: first_g if e.load_kg is None else round(1000 * e.load_kg)
+             for i, e in enumerate(res.experiments)}
     print(f"  chosen: {res.experiment.label()} -> on the {total[res.chosen]} g load; "
           f"expected shrinkage {_score(chosen)}")
     for family, what in (("default_chirp", "default chirp"), ("repeat", "first record again")):

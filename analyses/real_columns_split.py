@@ -6,7 +6,8 @@ For each specimen, as a user would: ``pmabayes diagnose`` of the first 70% (the 
 it names, ``missing`` or else its partial step, added and the record diagnosed again,
 ``--rounds`` times at most), ``pmabayes fit`` with the effects found, and ``pmabayes
 validate`` of that fit on the first 70% (in-sample) and on the last 30% (its state at
-the split unknown: ``"initial_state": "estimate"``), beside the three yardsticks
+the split unknown: ``"initial_state": "estimate"``; every state is estimated from its
+first samples, a degrading law's dissipated energy too), beside the three yardsticks
 ``validate`` fits on the same training part. The targets: below every yardstick on at
 least three of the four specimens, both on the fitted part and on the held-out 30%.
 
@@ -75,6 +76,17 @@ def _nrmse_row(validation: dict) -> dict:
                                     for k in ("linear", "play", "narx")}}
 
 
+def _start_text(start: dict) -> str:
+    """The estimated start of a held-out part: the samples it was fitted to, and its
+    effects' states (a degrading law's dissipated energy at the cut)."""
+    if start.get("initial_state") != "estimate":
+        return "-"
+    states = ", ".join(f"{n} {start.get(n + '_median', float('nan')):.4g}"
+                       for n in start.get("states_estimated") or ())
+    return (f"{start['samples']} samples ({100 * start['fraction']:.3g}%; "
+            f"{start.get('window', 'start_fraction')})" + (f"; {states}" if states else ""))
+
+
 def run(name: str, out: Path, args) -> dict:
     """The loop on one specimen; its row of the table."""
     train, held = declare(out, name)
@@ -103,7 +115,10 @@ def run(name: str, out: Path, args) -> dict:
         own = ["--in-sample"] if part == "fitted" else []
         pmabayes("validate", str(fit), str(path), "--json", str(val), "--draws", "100",
                  *own, *seed, *quiet)
-        row |= {f"{part}_{k}": v for k, v in _nrmse_row(json.loads(val.read_text())).items()}
+        validation = json.loads(val.read_text())
+        row |= {f"{part}_{k}": v for k, v in _nrmse_row(validation).items()}
+        if part == "held_out":  # how the held-out part's start was estimated
+            row["held_out_start"] = _start_text(validation["experiments"][0].get("start") or {})
     row["seconds"] = time.perf_counter() - started
     return row
 
@@ -144,6 +159,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{r['specimen']:<9} {r['effects']:<40} {part:<9} {f(r[part + '_nrmse']):>6} "
                   f"{f(r[part + '_linear_nrmse']):>7} {f(r[part + '_play_nrmse']):>6} "
                   f"{f(r[part + '_narx_nrmse']):>6}")
+    print("held-out starts, estimated from the first samples of each last 30%:")
+    for r in rows:
+        print(f"  {r['specimen']}: {r.get('held_out_start', '-')}")
     for part in ("fitted", "held_out"):
         won = sum(_beats(r, part) for r in rows)
         print(f"below every yardstick on the {part.replace('_', '-')} part: {won} of {len(rows)}")

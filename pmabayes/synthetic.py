@@ -70,6 +70,16 @@ def draw_plausible(rng: np.random.Generator) -> dict[str, float]:
     -------
     dict
         One value per base parameter.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pmabayes.synthetic import draw_plausible
+    >>> values = draw_plausible(np.random.default_rng(0))
+    >>> sorted(values)
+    ['K_e', 'alpha', 'beta', 'd', 'gamma', 'p_dz']
+    >>> bool(450.0 <= values["K_e"] <= 850.0)
+    True
     """
     out = {}
     for name, (lo, hi, scale) in PLAUSIBLE_REGION.items():
@@ -97,6 +107,13 @@ class Chirp:
         Pressure range (gauge).
     sample_rate_hz : float
         Sampling rate of command and measurement.
+
+    Examples
+    --------
+    >>> from pmabayes.synthetic import Chirp
+    >>> chirp = Chirp(duration_s=2.0, sample_rate_hz=100.0)
+    >>> chirp.time_s.size, float(chirp.pressure_pa()[0]), float(chirp.frequency_hz(2.0))
+    (200, 0.0, 3.0)
     """
 
     f0_hz: float = 0.1
@@ -326,6 +343,12 @@ def hidden_effects_model(
     ------
     ModelError
         On an unknown parameter of an effect.
+
+    Examples
+    --------
+    >>> from pmabayes.synthetic import hidden_effects_model
+    >>> hidden_effects_model({"regulator_lag": 0.045})
+    (Model(rig=characterisation, effects=regulator_lag, parameters=7), {'tau_reg': 0.045})
     """
     effects = dict(effects or {})
     model = Model(list(effects), rig=rig)
@@ -537,7 +560,18 @@ def _detent(q, x, v, p):
 
 
 class HiddenDetent(Effect):
-    """A rail's detent force, periodic in position (in no library)."""
+    """A rail's detent force, periodic in position (in no library).
+
+    Examples
+    --------
+    Hidden in synthetic data (the generator records it; a fitted model does not know it):
+
+    >>> from pmabayes.synthetic import Chirp, HiddenDetent, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
+    ...                               effects={HiddenDetent: 2.0}, seed=1)
+    >>> data.metadata["generator"]["effects"]
+    {'hidden_detent': {'F_det': 2.0}}
+    """
 
     __test__ = False  # not a pytest class
     name = "hidden_detent"
@@ -557,7 +591,18 @@ def _drag(q, x, v, p):
 
 
 class HiddenDrag(Effect):
-    """A quadratic drag, ``c_hidden v |v|`` (in no library)."""
+    """A quadratic drag, ``c_hidden v |v|`` (in no library).
+
+    Examples
+    --------
+    Hidden in synthetic data (the generator records it; a fitted model does not know it):
+
+    >>> from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
+    ...                               effects={HiddenDrag: 300.0}, seed=1)
+    >>> data.metadata["generator"]["effects"]
+    {'hidden_drag': {'c_hidden': 300.0}}
+    """
 
     __test__ = False
     name = "hidden_drag"
@@ -577,7 +622,18 @@ def _compression(q, x, v, p):
 
 
 class HiddenCompressionSpring(Effect):
-    """A spring acting only below ``x_cs``, in compression (in no library)."""
+    """A spring acting only below ``x_cs``, in compression (in no library).
+
+    Examples
+    --------
+    Hidden in synthetic data (the generator records it; a fitted model does not know it):
+
+    >>> from pmabayes.synthetic import Chirp, HiddenCompressionSpring, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
+    ...                               effects={HiddenCompressionSpring: 800.0}, seed=1)
+    >>> data.metadata["generator"]["effects"]
+    {'hidden_compression_spring': {'k_cs': 800.0}}
+    """
 
     __test__ = False
     name = "hidden_compression_spring"
@@ -597,7 +653,18 @@ def _z_force(q, x, v, p, z, s):
 
 
 class HiddenZForce(Effect):
-    """A hysteretic force growing as ``z |z|``: a loop that fattens faster than z."""
+    """A hysteretic force growing as ``z |z|``: a loop that fattens faster than z.
+
+    Examples
+    --------
+    Hidden in synthetic data (the generator records it; a fitted model does not know it):
+
+    >>> from pmabayes.synthetic import Chirp, HiddenZForce, generate_chirp_dataset
+    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
+    ...                               effects={HiddenZForce: 0.005}, seed=1)
+    >>> data.metadata["generator"]["effects"]
+    {'hidden_z_force': {'c_hz': 0.005}}
+    """
 
     __test__ = False
     name = "hidden_z_force"

@@ -37,26 +37,14 @@ def first():
                                   effects={"regulator_lag": 0.03})
 
 
-def _given_fit(ds, effect: str, value: float, sd: float = 0.05) -> CandidateFit:
-    """A candidate 'fitted' at the generator's base values and ``value`` for its effect,
-    with a Laplace covariance of ``sd`` in every unconstrained coordinate: what the
-    fits of twin effects on such data give, without the search's time."""
-    model = Model.for_dataset(ds, [effect])
-    post = build_posterior(model, ds, substeps=1)
-    values = dict(ds.metadata["generator"]["parameters"])
-    values = {n: values.get(n, model.defaults[n]) for n in post.names}
-    values[model.effects[-1].parameters[0].name] = value
-    z = post.to_unconstrained(np.array([[values[n] for n in post.names]]))[0]
-    cov = np.diag(np.full(z.size, sd**2))
-    return CandidateFit(effect, post, MapResult(values, math.nan, math.nan, {}, math.nan, z,
-                                                cov))
-
-
 @pytest.fixture(scope="module")
 def fits(first):
-    # the two twins agree on the first experiment: a 30 ms lag, a 26 ms delay
-    return {"regulator_lag": _given_fit(first, "regulator_lag", 0.03),
-            "transport_delay": _given_fit(first, "transport_delay", 0.026)}
+    # the two twins fitted on the first experiment (the package's MAP and Laplace
+    # covariance, about 10 s): they agree there, a 30 ms lag and a delay of about 26 ms
+    from pmabayes.design import fit_candidate
+
+    return {name: fit_candidate([first], [name], name, rng=np.random.default_rng(0))
+            for name in PAIR}
 
 
 @pytest.fixture(scope="module")
@@ -227,12 +215,55 @@ def test_discrimination_of_twins_and_of_separated_models():
                            np.random.default_rng(1))
     assert apart.named_rate == 1.0 and apart.score > 50
     assert math.isfinite(apart.score_se) and apart.named_se > 0
+    assert math.isnan(apart.decisive_rate)  # one trial: no paired standard error
+
+
+def test_a_decisive_naming_needs_more_than_a_higher_density():
+    # two models whose means differ by |delta| (whitened mean of 4 trials), parameters
+    # known: the true one has the higher density Phi(|delta| / 2) of the time, but
+    # diagnose names it only where its per-trial differences, paired, sum to more than two
+    # standard errors (pmabayes.criticism.elpd.paired_difference): a rate counted here
+    # by brute force on independent trials
+    from statistics import NormalDist
+
+    from pmabayes.criticism.elpd import paired_difference
+
+    rng = np.random.default_rng(0)
+    n, r = 400, 4
+    for size in (1.0, 3.0, 7.0):
+        delta = np.full(n, size / math.sqrt(n))
+        truths = [rng.normal(0, 1e-4, (64, n)), rng.normal(0, 1e-4, (64, n)) + delta]
+        evidence = [rng.normal(0, 1e-4, (16, n)), rng.normal(0, 1e-4, (16, n)) + delta]
+        d = discrimination(truths, evidence, np.random.default_rng(1), n_trials=r)
+        assert abs(d.named_rate - NormalDist().cdf(size / 2)) < 0.08, (size, d.named_rate)
+        named = []
+        for _ in range(4000):  # model 0 true; one trial's noise is sqrt(R) the mean's
+            y = math.sqrt(r) * rng.standard_normal((r, n))
+            ll = [-0.5 * np.sum((y - m) ** 2, axis=1) / r for m in (0.0, delta)]
+            diff, se = paired_difference(ll[0], ll[1])
+            named.append(diff > 2.0 * se)
+        brute = float(np.mean(named))
+        assert abs(d.decisive_rate - brute) < 0.06, (size, d.decisive_rate, brute)
+        assert d.decisive_rate <= d.named_rate and 0 < d.decisive_se < 0.1
 
 
 def test_design_fits_the_candidates_itself(first):
     res = design(first, [], PAIR, input_range=RANGE, n_experiments=6, n_draws=8, seed=0)
     assert set(res.fits) == set(PAIR)
     assert res.scores[res.chosen]["score"] > res.score_of("repeat")["score"]
+    # its own MAPs are checked, found at their optima, and no note says otherwise
+    assert all(f.convergence["converged"] for f in res.fits.values())
+    assert not any("converge" in note for note in res.notes)
+    # one moved off its optimum (by a Laplace sd in every coordinate) is not
+    from dataclasses import replace
+
+    from pmabayes.design.fits import map_check
+
+    fit = res.fits["regulator_lag"]
+    sd = np.sqrt(np.diag(fit.map.covariance_z))
+    off = map_check(fit.posterior, replace(fit.map, z=np.asarray(fit.map.z) + sd))
+    assert not off["converged"] and off["newton_gain_nats"] > 1.0
+    assert "Newton step" in off["messages"][0]
 
 
 @pytest.mark.parametrize("what, extra, message", [
@@ -246,6 +277,9 @@ def test_design_fits_the_candidates_itself(first):
     ("no range", ["--candidates", ",".join(PAIR)], None),
     ("budget", ["--candidates", ",".join(PAIR), "--input-range", "0,4e5", "--duration",
                 "0.05"], "too short to score anything"),
+    ("loads without the first file's", ["--candidates", ",".join(PAIR), "--input-range",
+                                        "0,4e5", "--loads", "0.3"],
+     r'declare it \("conditions": \{"load_kg": 0.1\}'),
 ])
 def test_bad_input_on_the_command_line_is_one_line_and_writes_nothing(
         first, tmp_path, capsys, what, extra, message):
@@ -288,6 +322,7 @@ def test_command_line(first, tmp_path):
 
 def test_fit_files_give_their_mcmc_draws(first, tmp_path):
     import warnings
+    from dataclasses import replace
 
     from pmabayes.design.api import given_fits
     from pmabayes.design.fits import fit_from_file
@@ -308,6 +343,25 @@ def test_fit_files_give_their_mcmc_draws(first, tmp_path):
                  fits=fits)
     assert res.fits["transport_delay"] is fits["transport_delay"]
     assert all(math.isfinite(s["score"]) for s in res.scores)
+    # a 40-step run did not converge: one line per fit file says so, why it matters and
+    # the fix, in the lines printed, design.json and the page
+    said = [n for n in res.notes if "did NOT converge" in n]
+    assert len(said) == 2, res.notes
+    for name, note in zip(PAIR, sorted(said), strict=True):
+        assert note.startswith(f"{name}: the fit file {tmp_path / name}.nc did NOT converge")
+        assert "expected factors" in note and "--steps" in note and "\n" not in note
+    assert all(f"  note: {n}" in res.lines() for n in said)
+    from pmabayes.report.design_page import write_design
+
+    write_design(res, tmp_path / "page")
+    assert json.loads((tmp_path / "page" / "design.json").read_text())["notes"] == res.notes
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert page.count("did NOT converge") == 2
+    # a converged one is not noted
+    done = replace(fits["regulator_lag"], convergence={"converged": True, "messages": []})
+    res = design(first, [], PAIR, input_range=RANGE, n_experiments=2, n_draws=8, seed=0,
+                 fits={**fits, "regulator_lag": done})
+    assert [n.split(":")[0] for n in res.notes if "converge" in n] == ["transport_delay"]
     with pytest.raises(DesignError, match="no candidate model's"):
         given_fits([fits["regulator_lag"]], [], ["coulomb_friction", "transport_delay"])
 
@@ -369,7 +423,7 @@ def _area_first(reference: str):
                   sample_rate_hz=200.0)
     ds = generate_chirp_dataset(n_trials=4, seed=3, chirp=chirp, rig=rig)
     meta = {**ds.metadata, "rig": {**ds.metadata["rig"], "area_m2": "LogNormal(1e-4, 1.5)"},
-            "position_reference": reference}
+            "position_reference": reference, "conditions": {"load_kg": 0.1}}
     return replace(ds, metadata=meta)
 
 
@@ -400,7 +454,7 @@ def test_a_sensor_zeroed_at_the_start_is_simulated_so():
     for reference in ("absolute", "start"):
         ds = _area_first(reference)
         res = design(ds, [], [], goal="parameters", parameters=["rig_area_m2"],
-                     loads=(0.5,), input_range=RANGE, n_experiments=3, n_draws=8, seed=0,
+                     loads=(0.6,), input_range=RANGE, n_experiments=3, n_draws=8, seed=0,
                      fits={"base": _base_fit(ds)})
         start = res.predictions["base"]["map"][0]
         assert bool(start == 0.0) is (reference == "start"), start
@@ -435,7 +489,7 @@ def test_data_so_far_of_several_experiments(tmp_path):
     assert isinstance(values["sigma_noise_m"], dict)
     fit = CandidateFit("base", post, replace(one.map, values=values))
     res = design([first, other], [], [], goal="parameters", parameters=["rig_area_m2"],
-                 loads=(0.0, 0.4), input_range=RANGE, n_experiments=3, n_draws=8, seed=0,
+                 loads=(0.1, 0.5), input_range=RANGE, n_experiments=3, n_draws=8, seed=0,
                  fits={"base": fit})
     noise = res.settings["fitted"]["base"]["values"]["sigma_noise_m"]
     assert set(noise) == {"first", "second"}
@@ -460,3 +514,74 @@ def test_a_fit_whose_experiments_disagree_is_said_beside_the_scores(first, tmp_p
                for line in res.lines())
     write_design_files(res, tmp_path)
     assert json.loads((tmp_path / "design.json").read_text())["notes"] == res.notes
+
+
+# -- a dead load from --loads hangs in place of the first record's ---------------------
+
+
+def test_a_load_replaces_the_first_records_dead_load(tmp_path):
+    # the first record hangs 0.1 kg (its rig's moving mass includes it); the lab's 0.3 kg
+    # weight hung instead moves 0.2 kg more, not 0.3 kg more
+    from pmabayes.model.model import CARRIAGE_MASS_KG, PMA_MASS_KG
+
+    ds = _area_first("start")
+    mass = CARRIAGE_MASS_KG + PMA_MASS_KG + 0.1
+    assert ds.metadata["rig"]["moving_mass_kg"] == pytest.approx(mass)
+    res = design(ds, [], [], goal="parameters", parameters=["rig_area_m2"], loads=(0.1, 0.3),
+                 input_range=RANGE, n_experiments=6, n_draws=8, seed=0,
+                 fits={"base": _base_fit(ds)})
+    fit = res.fits["base"]
+    assert fit.model_on(0.1) is fit.model  # the first record's own load: its rig
+    assert fit.model_on(0.3).rig.moving_mass_kg == pytest.approx(mass + 0.2, abs=1e-12)
+    assert fit.model_on(0.0).rig.moving_mass_kg == pytest.approx(mass - 0.1, abs=1e-12)
+    heavy = next(i for i, e in enumerate(res.experiments) if e.load_kg == 0.3)
+    res.chosen = heavy
+    assert res.experiment.label().endswith(", 0.3 kg dead load")
+    write_design_files(res, tmp_path)
+    sidecar = json.loads((tmp_path / "next.json").read_text())
+    assert sidecar["rig"]["moving_mass_kg"] == pytest.approx(mass + 0.2, abs=1e-12)
+    assert sidecar["conditions"] == {"load_kg": 0.3}
+
+
+def test_loads_need_the_first_records_declared_load(first):
+    # without the load the first record was made with, the mass under another is unknown
+    with pytest.raises(DesignError, match=r'"conditions": \{"load_kg": 0.1\}'):
+        design(first, [], PAIR, loads=(0.3,), input_range=RANGE, n_experiments=2,
+               n_draws=4, seed=0)
+
+
+def test_a_load_that_leaves_no_moving_mass_is_refused():
+    from dataclasses import replace
+
+    ds = _area_first("start")
+    # a rig whose moving mass is its load alone (the real cavatappi records' sidecars)
+    meta = {**ds.metadata, "rig": {**ds.metadata["rig"], "moving_mass_kg": 0.1}}
+    with pytest.raises(DesignError, match="moving mass of 0 kg"):
+        design(replace(ds, metadata=meta), [], [], goal="parameters",
+               parameters=["rig_area_m2"], loads=(0.0, 0.3), input_range=RANGE,
+               n_experiments=2, n_draws=4, seed=0)
+
+
+# -- the scores start from draws of the posterior, not of its Laplace approximation ----
+
+
+def test_draws_follow_the_posterior_where_the_laplace_approximation_does_not(fits):
+    # a Laplace covariance a hundred times too wide: its draws spread ten times the
+    # posterior's sd, and as truths they would be named on any experiment; importance-
+    # resampled (from a narrower proposal where its weights are too uneven) they keep
+    # to the posterior's spread
+    from dataclasses import replace
+
+    fit = fits["regulator_lag"]
+    k = list(fit.posterior.names).index("tau_reg")
+    j = fit.model.index("tau_reg")
+    sd = math.sqrt(fit.map.covariance_z[k, k])  # of log tau_reg
+    sets, weights = fit.weighted_draws(np.random.default_rng(0), 64, sets=2)
+    assert weights["scale"] == 1.0 and weights["k_hat"] <= 0.7  # a MAP's own: it does
+    assert [s.shape for s in sets] == [(64, len(fit.model.parameters))] * 2
+    wide = replace(fit, map=replace(fit.map, covariance_z=100.0 * fit.map.covariance_z))
+    plain = np.log(wide.draws(np.random.default_rng(0), 256)[:, j])
+    assert plain.std() > 5 * sd
+    sets, weights = wide.weighted_draws(np.random.default_rng(0), 64, sets=2)
+    spread = np.log(np.vstack(sets)[:, j]).std()
+    assert weights["scale"] < 1.0 and 0.3 * sd < spread < 2.5 * sd, (spread / sd, weights)

@@ -22,6 +22,7 @@ from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.inference.laplace import (
     MAX_STEP,
     MIN_STEP,
+    _fd_diagonal,
     _fd_hessian,
     _scaled_hessian,
     laplace_covariance,
@@ -46,6 +47,21 @@ def test_steps_are_never_zero_or_nan():
     for bad in (0.0, np.nan, -1e-3):
         with pytest.raises(ValueError, match="positive and finite"):
             _fd_hessian(lambda v: np.sum(v * v, axis=1), np.zeros(2), np.array([1e-3, bad]))
+
+
+def test_the_probe_diagonal_is_the_hessians_to_the_bit():
+    """The probe of the curvatures evaluates the diagonal's points alone (4 n instead of
+    2 n (n + 1) + 1); its numbers are those of the whole Hessian's diagonal, edges and
+    all."""
+    a, neg = _edge_problem()
+    rng = np.random.default_rng(3)
+    for u in (np.zeros(3), rng.normal(size=3) * [1.0, 1.0, 1e-7]):
+        h = np.array([1e-6, 3e-4, 2e-7])
+        with np.errstate(over="ignore"):
+            whole = np.diag(_fd_hessian(neg, u, h))
+        assert np.array_equal(_fd_diagonal(neg, u, h), whole)
+    with pytest.raises(ValueError, match="positive and finite"):
+        _fd_diagonal(neg, np.zeros(3), np.array([1e-3, 0.0, 1e-3]))
 
 
 def _edge_problem():

@@ -179,3 +179,32 @@ def test_a_records_declared_or_settled_disturbance_bound_and_its_words():
         assert fast.rho_max == fast.rho_flat
         text = slow_disturbance_note(fast, fast.rho_flat)
         assert words in text and "kept fast" in text, text
+
+
+def test_the_search_cost_of_experiments_apart_is_the_joint_cost_to_the_bit(monkeypatch):
+    """The global search's cost of several experiments, their outputs given apart (no
+    concatenation), is :meth:`JointLikelihood.rms_cost`'s to the bit, for a record with
+    samples not observed and one without; and a sampled noise's filters run in threads
+    give the likelihood of one run after another, to the bit."""
+    from pmabayes.inference.likelihood import JointLikelihood
+
+    full = generate_chirp_dataset(n_trials=1, seed=5, chirp=CHIRP)
+    gappy = generate_chirp_dataset(n_trials=1, seed=6, chirp=CHIRP)
+    seen = np.ones(gappy.position_m.shape, dtype=bool)
+    seen[:, 100:130] = False
+    gappy = Dataset(time_s=gappy.time_s, input=gappy.input,
+                    position_m=np.where(seen, gappy.position_m, np.nan),
+                    trial_ids=gappy.trial_ids, input_name=gappy.input_name, source="gappy.csv",
+                    observed=seen)
+    liks = [Likelihood(pb.Model(), ds) for ds in (full, gappy)]
+    assert liks[1].observed is not None and liks[0].observed is None
+    joint = JointLikelihood(liks, ["full", "gappy"])
+    theta = pb.Model().theta({"K_e": np.linspace(550.0, 700.0, 9)})
+    xs = [lik.simulate(theta) for lik in liks]
+    assert np.array_equal(joint.rms_cost_parts(xs), joint.rms_cost(np.concatenate(xs, axis=1)))
+    sigma, rho, white = np.linspace(4e-5, 8e-5, 9), np.linspace(0.5, 0.9, 9), np.full(9, 5e-6)
+    monkeypatch.setattr("pmabayes.inference.noise.ar1.simulation_threads", lambda: 1)
+    one = liks[1].mean_log_likelihood(xs[1], sigma, rho, white)
+    monkeypatch.setattr("pmabayes.inference.noise.ar1.simulation_threads", lambda: 2)
+    monkeypatch.setattr("pmabayes.inference.noise.ar1._RUN_WORK", 1)  # threads however short
+    assert np.array_equal(liks[1].mean_log_likelihood(xs[1], sigma, rho, white), one)

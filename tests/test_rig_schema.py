@@ -24,6 +24,7 @@ from pmabayes.data.rig import (
 )
 from pmabayes.inference.fitfile import experiment_models, fit_info, model_from_fit
 from pmabayes.model.model import G_M_S2, PAPER_AREA_M2, Model, ModelError, Rig
+from pmabayes.model.parameters import LogNormal
 
 GOOD = Rig.characterisation().to_dict()
 
@@ -86,6 +87,23 @@ def test_a_rig_prior_passes_the_data_check_and_is_parsed_by_the_model(tmp_path):
     bad = read_csv(_csv(tmp_path, {**GOOD, "area_m2": "LogNorm(2e-4, 1.5)"}, "bad.csv"))
     with pytest.raises(ModelError, match=r"bad\.csv: metadata 'rig': 'area_m2'"):
         Model.for_dataset(bad)
+
+
+def test_a_rig_value_given_as_a_prior_holds_the_priors_median_however_made():
+    """``Rig(priors=...)`` made in Python holds each prior's median in the value's field,
+    as ``Rig.from_dict`` does: what prints or reads ``rig.area_m2`` (the start's scale,
+    the control layer, a report) agrees with the prior, not with the paper's area."""
+    area, mass = LogNormal(1e-4, 1.5), LogNormal(0.3, 1.0)
+    direct = Rig(0.25, priors=(("area_m2", area),))
+    assert direct.area_m2 == pytest.approx(1e-4, rel=1e-12) != PAPER_AREA_M2
+    assert direct == Rig.from_dict({"moving_mass_kg": 0.25, "area_m2": str(area)})
+    assert Rig.from_dict(direct.to_dict()) == direct
+    assert Model(rig=direct).defaults["rig_area_m2"] == direct.area_m2
+    both = Rig(0.25, area_m2=5e-4, priors=(("area_m2", area), ("moving_mass_kg", mass)))
+    assert (both.area_m2, both.moving_mass_kg) == pytest.approx((1e-4, 0.3), rel=1e-12)
+    assert both.gravity_force_n == pytest.approx(0.3 * G_M_S2)
+    # a rig's other values are untouched, and a rig without priors keeps its numbers
+    assert Rig(0.25, area_m2=5e-4).area_m2 == 5e-4 and direct.moving_mass_kg == 0.25
 
 
 def test_the_schema_and_the_models_rig_agree():

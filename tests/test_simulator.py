@@ -492,3 +492,26 @@ def test_reproducible_bit_for_bit():
     a = pb.simulate(model, theta, CHIRP, dt_s=DT)
     b = pb.simulate(model, theta, CHIRP, dt_s=DT)
     assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("effects", [[], ["maxwell_creep", "regulator_lag"]],
+                         ids=["base", "creep_and_lag"])
+def test_a_batch_in_threads_equals_one_kernel_call(effects, monkeypatch):
+    """A large batch is split between threads (the kernels release the GIL); each
+    member's arithmetic is its own, so the positions are those of one call, to the bit,
+    whatever the split (an odd batch, more threads than cores)."""
+    model = pb.Model(effects)
+    rng = np.random.default_rng(7)
+    defaults = np.array([model.defaults[n] for n in model.parameter_names])
+    theta = defaults * rng.uniform(0.8, 1.2, (61, defaults.size))
+    monkeypatch.setenv("PMABAYES_THREADS", "1")
+    one = pb.simulate(model, theta, CHIRP, dt_s=DT)
+    for threads in ("2", "3"):
+        monkeypatch.setenv("PMABAYES_THREADS", threads)
+        from pmabayes.model.simulator import _member_chunks
+
+        assert len(_member_chunks(61, CHIRP.size)) == int(threads)  # really split
+        assert np.array_equal(pb.simulate(model, theta, CHIRP, dt_s=DT), one)
+    monkeypatch.setenv("PMABAYES_THREADS", "many")
+    with pytest.raises(pb.SimulationError, match="PMABAYES_THREADS"):
+        pb.simulate(model, theta, CHIRP, dt_s=DT)

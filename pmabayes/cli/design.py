@@ -112,7 +112,10 @@ def _design_commands(sub, common) -> None:
     des.add_argument("--duration", type=float, default=None, metavar="S",
                      help="the experiment's length in s (default: the first data set's)")
     des.add_argument("--loads", type=_numbers, default=None, metavar="KG,KG",
-                     help="dead loads in kg the rig can carry (0: none; default none)")
+                     help="dead loads in kg the lab can hang for the next experiment (0: "
+                     "none), each in place of the first file's own, which its sidecar must "
+                     "declare (\"conditions\": {\"load_kg\": 0.1}); default: the first "
+                     "file's rig as it is")
     des.add_argument("--experiments", type=_positive, default=50,
                      help="candidate experiments scored (50)")
     des.add_argument("--draws", type=_positive, default=32,

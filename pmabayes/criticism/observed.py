@@ -26,7 +26,7 @@ import dataclasses
 import numpy as np
 
 from pmabayes.data import Dataset
-from pmabayes.inference.likelihood import Likelihood
+from pmabayes.inference.likelihood import Likelihood, full_start
 from pmabayes.model.model import Model
 from pmabayes.model.simulator import Simulation, simulate_dataset
 
@@ -169,8 +169,10 @@ def simulate_states(likelihood: Likelihood, model: Model, values: dict,
     values : dict
         Its parameters' values.
     start : numpy.ndarray or None
-        The experiment's estimated start ``(3,)`` (``x0_m``, ``v0_m_s``,
-        ``z0_offset_n``), None for a declared one.
+        The experiment's estimated start of ``model`` ``(3 + k,)`` (``x0_m``,
+        ``v0_m_s``, ``z0_offset_n``, the effects' states it estimates:
+        :meth:`~pmabayes.inference.likelihood.Likelihood.start_parameters`), None for a
+        declared one.
     substeps : int
         Simulator substeps per sample.
 
@@ -183,7 +185,8 @@ def simulate_states(likelihood: Likelihood, model: Model, values: dict,
         Each trial's model position ``(n_trials, n_samples)`` where the trials have
         their own inputs (for the noise floor of their residuals), else None.
     """
-    init = None if start is None else np.asarray(start, dtype=float).reshape(1, 3)
+    init = (None if start is None
+            else full_start(model, np.asarray(start, dtype=float).reshape(1, -1)))
     sim = simulate_dataset(model, values, likelihood.dataset, substeps=substeps, states=True,
                            per_trial=likelihood.own_inputs, initial_values=init)
     if not likelihood.own_inputs:

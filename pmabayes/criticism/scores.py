@@ -229,8 +229,10 @@ def _score_test(likelihoods: list, noises: list, points: list, starts: list,
         if e and points[e] is not points[0]:
             rows, steps, _ = _rows(ext_e, points[e], tested, free)
         ext_lik = Likelihood(ext_e, lik.dataset, substeps=lik.substeps)
-        start = (None if starts[e] is None else
-                 np.broadcast_to(np.asarray(starts[e], dtype=float), (len(rows), 3)))
+        # the base model's start in the extended model's columns (a state it adds at
+        # its prior mean: at the null tested it does not act)
+        start = ext_lik.start_from(starts[e], lik.model)
+        start = None if start is None else np.broadcast_to(start, (len(rows), start.shape[1]))
         x = model_mean(lik, ext_lik.simulate(np.array(rows), start))
         r_w = whiten(lik.y_mean - x[0])
         w = np.stack([whiten((x[k + 1] - x[0]) / steps[k]) for k in range(len(free))], axis=1)

@@ -38,13 +38,16 @@ noise-free position):
 
 Held-out data whose start is declared ``"estimate"`` (a record that starts mid-loop)
 have it estimated from the record itself, as MATLAB's ``compare`` does with estimated
-initial conditions: for each posterior draw, the position, velocity and hysteretic
-force at the first sample (:func:`pmabayes.simulate`'s ``initial_values``) that fit
-the first ``start_fraction`` of the record (5% by default) best in least squares, the
-velocity bounded by the record's own largest speed. A draw whose simulation from the
-start's prior means is not finite keeps those means, and is counted and said. The
-numbers above are over the whole record; ``start`` says how much of it the start
-used, and ``rmse_after_start_m`` is the error over the rest alone.
+initial conditions: for each posterior draw, every state at the first sample
+(:func:`pmabayes.simulate`'s ``initial_values``: the position, velocity and hysteretic
+force, and each effect's state its effect gives a prior for, such as a degrading
+law's dissipated energy) that fits the first ``start_fraction`` of the record (5% by
+default; with effects' states, extended to its first reversal of motion and as many
+samples after it) best in least squares, the velocity bounded by the largest speed
+of those samples. A draw whose simulation from the start's prior means is not finite
+keeps those means, and is counted and said. The numbers above are over the whole
+record; ``start`` says how much of it the start used and why, and
+``rmse_after_start_m`` is the error over the rest alone.
 
 Fits of several experiments (one noise per fitted experiment, the noise variables
 then having an ``experiment`` dimension): the noise of the fitted experiment whose
@@ -84,8 +87,14 @@ from pmabayes.inference.fitfile import (
     model_from_fit,
     noise_models,
 )
-from pmabayes.inference.likelihood import Likelihood, measurement_noise
+from pmabayes.inference.likelihood import (
+    Likelihood,
+    estimated_states,
+    full_start,
+    measurement_noise,
+)
 from pmabayes.inference.trials import keep_trials
+from pmabayes.model.codegen import state_effects
 from pmabayes.model.effects import EffectError
 from pmabayes.model.model import RIG_PREFIX, Model, ModelError, Rig
 from pmabayes.model.simulator import simulate, simulate_dataset
@@ -187,9 +196,11 @@ class ExperimentValidation:
     start : dict
         The held-out record's start: ``initial_state``, and for ``"estimate"`` how it
         was estimated (``samples`` and ``seconds`` of the record used, ``fraction``,
-        ``rmse_after_start_m``: the error of the trial mean after them, the
-        draws' median start, ``v0_bound_m_s``: the bound of the start velocity, the
-        record's largest speed, and ``v0_at_bound`` the draws that reached it, and
+        ``window``: why that many, ``rmse_after_start_m``: the error of the trial mean
+        after them, the draws' median start, ``states_estimated``: the effects' states
+        in it, ``states_at_rest``: those started at 0, ``v0_bound_m_s``: the bound of
+        the start velocity, the largest speed of those samples, and ``v0_at_bound``
+        the draws that reached it, and
         ``not_estimated``: the draws whose start could not be estimated, their
         simulation from the start's prior means not being finite, which start there).
     adequacy : Adequacy or None
@@ -267,14 +278,20 @@ class ExperimentValidation:
                 "the model-only band"
                 + (f"; start estimated from the first {self.start['samples']} samples "
                    f"({100 * self.start['fraction']:.3g}% of the record, "
-                   f"{self.start['seconds']:.3g} s), RMSE after them "
+                   f"{self.start['seconds']:.3g} s"
+                   + (f"; {self.start['window']}" if self.start.get("window", "").startswith(
+                       "the first reversal") else "")
+                   + ")"
+                   + (", with " + ", ".join(self.start.get("states_estimated", ()))
+                      if self.start.get("states_estimated") else "")
+                   + ", RMSE after them "
                    f"{self.start['rmse_after_start_m'] * 1e6:.3g} µm"
                    + (f"; the start of {self.start['not_estimated']} draw(s) could not be "
                       "estimated (not finite): they start from its prior means"
                       if self.start.get("not_estimated") else "")
                    + (f"; the start velocity of {self.start['v0_at_bound']} draw(s) at its "
-                      f"bound {self.start['v0_bound_m_s']:.3g} m/s (the record's largest "
-                      "speed)" if self.start.get("v0_at_bound") else "")
+                      f"bound {self.start['v0_bound_m_s']:.3g} m/s (the largest speed of "
+                      "those samples)" if self.start.get("v0_at_bound") else "")
                    if self.start.get("initial_state") == "estimate" else ""))
 
     def to_dict(self, *, arrays: bool = True) -> dict:
@@ -716,43 +733,132 @@ START_FRACTION = 0.05
 class _Starts:
     """Each draw's estimated start and what the estimate could not do."""
 
-    values: np.ndarray  # (draws, 3): x0_m, v0_m_s, z0_offset_n
+    values: np.ndarray  # (draws, 3 + k): x0_m, v0_m_s, z0_offset_n, the effects' states
+    names: tuple  # the columns' names (the start's parameters)
     samples: int  # the first samples of the record the start was fitted to
+    window: str  # why that many (_start_samples)
     speed_bound_m_s: float  # |v0| is kept below it
     at_bound: int  # draws whose v0 ended within 1% of that bound
     not_estimated: int  # draws simulated non-finite from the prior means: kept there
 
 
-def _speed_bound(ds: Dataset, v_prior: float, v_spread: float) -> float:
-    """The largest start velocity the record allows: its own largest speed (the trial
-    mean's differences), or the start's prior mean and spread if larger."""
-    y, t = ds.mean_position_m, ds.time_s
+#: The start velocity's bound over the largest speed of the samples the start is fitted
+#: to (:func:`_speed_bound`): a speed between two samples is an average, and the
+#: velocity at a sample of a record that starts at its fastest exceeds it.
+SPEED_MARGIN = 1.25
+
+
+def _speed_bound(ds: Dataset, n: int, v_prior: float) -> float:
+    """The largest start velocity the record allows: :data:`SPEED_MARGIN` times the
+    largest speed of its first ``n`` samples, where the start is fitted (the trial
+    mean's differences), or the start's prior mean if larger. (The record's largest
+    speed anywhere let a misfit of the first samples ask for a start 8 times faster
+    than they ever move.)"""
+    y, t = ds.mean_position_m[:n], ds.time_s[:n]
     with np.errstate(invalid="ignore"):
         speed = np.abs(np.diff(y)) / np.diff(t)
     seen = speed[np.isfinite(speed)]
-    return max(float(seen.max()) if seen.size else 0.0, abs(v_prior) + v_spread, 1e-12)
+    return max(SPEED_MARGIN * float(seen.max()) if seen.size else 0.0, 1.01 * abs(v_prior),
+               1e-12)
+
+
+#: The turn of motion that counts as a reversal where a start's window is extended to
+#: one (:func:`_start_samples`), as a fraction of the record's range.
+REVERSAL_FRACTION = 0.1
+
+
+def _first_reversal(y: np.ndarray, turn: float) -> tuple[int, int] | None:
+    """The first reversal of the motion ``y`` (NaN: not observed) by at least ``turn``:
+    the index of its extreme and the index where the motion had turned back by
+    ``turn``; None if the motion never turns so."""
+    hi = lo = None
+    i_hi = i_lo = 0
+    for i, v in enumerate(y):
+        if not np.isfinite(v):
+            continue
+        if hi is None:
+            hi = lo = v
+            i_hi = i_lo = i
+            continue
+        if v > hi:
+            hi, i_hi = v, i
+        if v < lo:
+            lo, i_lo = v, i
+        # an extreme at the first observed sample is where the record starts, not a turn
+        if v <= hi - turn and i_hi > i_lo:
+            return i_hi, i
+        if v >= lo + turn and i_lo > i_hi:
+            return i_lo, i
+    return None
+
+
+def _start_samples(ds: Dataset, fraction: float, states: bool) -> tuple[int, str]:
+    """The first samples of a record its start is fitted to, and why that many: the
+    first ``fraction`` of it (at least 10 samples), and with effects' states to
+    estimate at least its first reversal of motion (by :data:`REVERSAL_FRACTION` of
+    its range) and as many samples again after it: a degradation's state shows in the
+    stiffness just after a reversal, which a window in one direction of motion cannot
+    tell from the hysteretic force's (on the RC columns' last 30% a 5% window put
+    the dissipated energy at an eighth of what the first 70% had left)."""
+    n = min(ds.n_samples, max(int(round(fraction * ds.n_samples)), 10))
+    if not states:
+        return n, "start_fraction"
+    y = ds.mean_position_m
+    seen = y[np.isfinite(y)]
+    turn = REVERSAL_FRACTION * (float(np.ptp(seen)) if seen.size else 0.0)
+    found = _first_reversal(y, turn) if turn > 0 else None
+    if found is None:
+        return n, "start_fraction (the record does not reverse)"
+    extreme, back = found
+    m = min(ds.n_samples, max(n, back + 1, extreme + n))
+    return m, ("start_fraction" if m == n else
+               f"the first reversal of motion (sample {extreme}) and {m - extreme} after it")
+
+
+#: The effects' states' trial values at an estimated start, in their priors' spreads
+#: (a state bounded below: above its bound), from which the least squares starts too:
+#: a degradation's energy moves the fit of the first samples little near its prior
+#: mean, and one start from there alone stays in whatever basin it is in.
+STATE_TRIALS = (0.01, 0.1, 0.3, 1.0, 3.0)
+
+
+def _softplus(q: np.ndarray) -> np.ndarray:
+    return np.logaddexp(0.0, q)
 
 
 def _estimated_starts(model: Model, theta: np.ndarray, ds: Dataset, fraction: float,
                       substeps: int) -> _Starts:
-    """Each draw's start ``(draws, 3)`` fitted to the first ``fraction`` of the record.
+    """Each draw's start ``(draws, 3 + k)`` fitted to the first samples of the record
+    (:func:`_start_samples`: the first ``fraction``, with effects' states extended to
+    its first reversal of motion).
 
-    Levenberg-Marquardt on all draws at once, in coordinates scaled by the start's
-    prior spreads, from its prior means
-    (:meth:`pmabayes.inference.likelihood.Likelihood.start_parameters`), with
+    The start is every state of the model
+    (:meth:`pmabayes.inference.likelihood.Likelihood.start_parameters`): the position,
+    the velocity, the hysteretic force's offset from the balance, and each effect's
+    state that its effect gives a prior for (the dissipated energy of a degrading
+    law: restarted at 0, a column cut from a long test would be predicted as it was
+    before any damage). Levenberg-Marquardt on all draws at once, in coordinates
+    scaled by the start's prior spreads, from its prior means and, with effects'
+    states, from each of :data:`STATE_TRIALS` of them (the best kept per draw), with
     forward-difference Jacobians; it stops when no draw's step moves by more than
-    1e-6 of a spread, after at most 50 steps. The velocity is bounded by the record's
-    own largest speed (:func:`_speed_bound`; as ``V tanh(w)``), so that a few samples of
-    a misfit cannot ask for a start faster than anything the record does. A draw whose
+    1e-6 of a spread, after at most 50 steps. The velocity is bounded by the largest
+    speed of those samples (:func:`_speed_bound`; as ``V tanh(w)``), so that a misfit
+    cannot ask for a start faster than the record moves there; a state
+    bounded below stays above its bound (as ``lo + s softplus(w)``). A draw whose
     simulation from the prior means is not finite cannot be estimated: it keeps the
     prior means, and is counted (its bands then drop it if it fails on the record too).
     A step that is not finite is not taken.
     """
-    n = min(ds.n_samples, max(int(round(fraction * ds.n_samples)), 10))
     prior = Likelihood(model, ds).start_parameters()
+    k = len(prior)
+    n, why = _start_samples(ds, fraction, k > 3)
     s0 = np.array([p.default for p in prior])
     scale = np.array([p.prior.sigma for p in prior])
-    bound = _speed_bound(ds, s0[1], scale[1])
+    bound = _speed_bound(ds, n, s0[1])
+    # a state bounded below (an energy): lo + scale softplus(w); the others linear
+    lower = np.array([j >= 3 and np.isfinite(p.bounds[0]) and not np.isfinite(p.bounds[1])
+                      for j, p in enumerate(prior)])
+    lo = np.array([p.bounds[0] if lower[j] else 0.0 for j, p in enumerate(prior)])
     y = ds.mean_position_m[:n]
     seen = np.isfinite(y)
     batch = theta.shape[0]
@@ -762,43 +868,69 @@ def _estimated_starts(model: Model, theta: np.ndarray, ds: Dataset, fraction: fl
     def start_of(q: np.ndarray) -> np.ndarray:
         s = s0 + q * scale
         s[:, 1] = bound * np.tanh(q[:, 1])  # q[:, 1] is w, the bounded velocity's
+        s[:, lower] = lo[lower] + scale[lower] * _softplus(q[:, lower])
         return s
 
+    def coordinates(s: np.ndarray) -> np.ndarray:
+        q = (s - s0) / scale
+        q[:, 1] = np.arctanh(s[:, 1] / bound)
+        with np.errstate(divide="ignore"):  # softplus's inverse, exact far from 0
+            u = np.maximum((s[:, lower] - lo[lower]) / scale[lower], 1e-300)
+            q[:, lower] = u + np.log(-np.expm1(-u))
+        return q
+
     def residual(q: np.ndarray, th: np.ndarray) -> np.ndarray:
-        x = simulate(model, th, ds.input[0, :n], initial_values=start_of(q), **run)
+        x = simulate(model, th, ds.input[0, :n], initial_values=full_start(model, start_of(q)),
+                     **run)
         return (y - x)[:, seen]
 
-    q = np.zeros((batch, 3))
-    q[:, 1] = np.arctanh(s0[1] / bound)  # |s0[1]| < bound
-    r = residual(q, theta)
-    cost = np.sum(r * r, axis=1)
+    def least_squares(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = q.copy()
+        r = residual(q, theta)
+        cost = np.sum(r * r, axis=1)
+        lam = np.full(batch, 1e-3)
+        h = 1e-4
+        eye = np.eye(k)
+        tiled = np.tile(theta, (k + 1, 1))
+        for _ in range(50):
+            qs = np.concatenate([q] + [q + h * eye[j] for j in range(k)])
+            rs = residual(qs, tiled).reshape(k + 1, batch, -1)
+            jac = (rs[0][:, :, None] - np.stack(rs[1:], axis=2)) / h  # d(model)/dq
+            a = np.einsum("bkj,bkl->bjl", jac, jac)
+            g = np.einsum("bkj,bk->bj", jac, rs[0])
+            damped = a + lam[:, None, None] * (eye * np.diagonal(a, axis1=1, axis2=2)[:, None]
+                                                + 1e-12 * eye)
+            bad = ~(np.isfinite(damped).all(axis=(1, 2)) & np.isfinite(g).all(axis=1))
+            damped[bad], g[bad] = eye, 0.0  # a Jacobian that is not finite: no step
+            step = np.linalg.solve(damped, g[:, :, None])[:, :, 0]
+            step[~np.isfinite(step).all(axis=1)] = 0.0
+            r_new = residual(q + step, theta)
+            new = np.sum(r_new * r_new, axis=1)
+            better = np.isfinite(new) & (new < cost) & ~bad
+            q[better] += step[better]
+            cost[better] = new[better]
+            lam = np.where(better, lam / 3.0, lam * 4.0)
+            done = np.where(better, np.max(np.abs(step), axis=1) < 1e-6, lam > 1e8)
+            if done.all():
+                break
+        return q, cost
+
+    means = np.broadcast_to(s0, (batch, k)).copy()
+    means[:, 1] = np.clip(means[:, 1], -0.999 * bound, 0.999 * bound)
+    q, cost = least_squares(coordinates(means))
     lost = ~np.isfinite(cost)  # never better: these keep the prior means
-    lam = np.full(batch, 1e-3)
-    h = 1e-4
-    tiled = np.tile(theta, (4, 1))
-    for _ in range(50):
-        qs = np.concatenate([q] + [q + h * np.eye(3)[j] for j in range(3)])
-        rs = residual(qs, tiled).reshape(4, batch, -1)
-        jac = (rs[0][:, :, None] - np.stack(rs[1:], axis=2)) / h  # d(model)/dq
-        a = np.einsum("bkj,bkl->bjl", jac, jac)
-        g = np.einsum("bkj,bk->bj", jac, rs[0])
-        damped = a + lam[:, None, None] * (np.eye(3) * np.diagonal(a, axis1=1, axis2=2)[:, None]
-                                            + 1e-12 * np.eye(3))
-        bad = ~(np.isfinite(damped).all(axis=(1, 2)) & np.isfinite(g).all(axis=1))
-        damped[bad], g[bad] = np.eye(3), 0.0  # a Jacobian that is not finite: no step
-        step = np.linalg.solve(damped, g[:, :, None])[:, :, 0]
-        step[~np.isfinite(step).all(axis=1)] = 0.0
-        r_new = residual(q + step, theta)
-        new = np.sum(r_new * r_new, axis=1)
-        better = np.isfinite(new) & (new < cost) & ~bad
-        q[better] += step[better]
-        cost[better] = new[better]
-        lam = np.where(better, lam / 3.0, lam * 4.0)
-        done = np.where(better, np.max(np.abs(step), axis=1) < 1e-6, lam > 1e8)
-        if done.all():
-            break
+    for trial in STATE_TRIALS if k > 3 else ():
+        other = means.copy()
+        other[:, 3:] = np.where(lower[3:], lo[3:] + trial * scale[3:],
+                                s0[3:] + (trial - 1.0) * scale[3:])
+        q_other, c_other = least_squares(coordinates(other))
+        better = np.isfinite(c_other) & ~(c_other >= cost)  # a lost draw found too
+        q[better], cost[better] = q_other[better], c_other[better]
+        lost &= ~better
+    q[lost] = coordinates(means)[lost]
     at_bound = int(np.count_nonzero(~lost & (np.abs(np.tanh(q[:, 1])) > 0.99)))
-    return _Starts(start_of(q), n, bound, at_bound, int(np.count_nonzero(lost)))
+    return _Starts(start_of(q), tuple(p.name for p in prior), n, why, bound, at_bound,
+                   int(np.count_nonzero(lost)))
 
 
 #: Posterior draws simulated on the training data for its residual (evenly spaced over
@@ -842,7 +974,8 @@ def _residual_records(fit: _FitDraws, training: list, models: list, substeps: in
             starts = np.stack([_flat(fit.draws[v], v, where)[idx] for v in starts_named[e]],
                               axis=1)
         own = not bool(np.all(ds.input == ds.input[0]))
-        x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts,
+        x = simulate_dataset(model, theta, ds, substeps=substeps,
+                             initial_values=None if starts is None else full_start(model, starts),
                              per_trial=own)
         if own:  # each draw's trial mean, averaged as the trials are
             x = trials_mean(ds, x)
@@ -981,10 +1114,12 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
         est = _estimated_starts(model, theta, ds, start_fraction, substeps)
         starts, n_start = est.values, est.samples
         start.update(samples=n_start, fraction=n_start / ds.n_samples,
-                     seconds=float(ds.time_s[n_start - 1] - ds.time_s[0]),
+                     seconds=float(ds.time_s[n_start - 1] - ds.time_s[0]), window=est.window,
+                     states_estimated=list(est.names[3:]),
+                     states_at_rest=[e.state for e in state_effects(model)
+                                     if e not in estimated_states(model)],
                      **{f"{k}_median": float(v) for k, v in
-                        zip(("x0_m", "v0_m_s", "z0_offset_n"), np.median(starts, axis=0),
-                            strict=True)},
+                        zip(est.names, np.median(starts, axis=0), strict=True)},
                      v0_bound_m_s=est.speed_bound_m_s, v0_at_bound=est.at_bound,
                      not_estimated=est.not_estimated)
         if est.not_estimated:
@@ -994,7 +1129,8 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                           "start from those prior means", DataWarning, stacklevel=3)
     own = not bool(np.all(ds.input == ds.input[0]))
     # trials with their own inputs: each draw on each trial's input, (draws, trials, n)
-    x = simulate_dataset(model, theta, ds, substeps=substeps, initial_values=starts,
+    x = simulate_dataset(model, theta, ds, substeps=substeps,
+                         initial_values=None if starts is None else full_start(model, starts),
                          per_trial=own)
     sigma, rho, white, fit_dt, col = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
@@ -1015,17 +1151,23 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
         start["rmse_after_start_m"] = float(np.sqrt(np.mean(after[np.isfinite(after)]**2)))
         notes.append(f"the start was estimated for each draw from the first {start['samples']} "
                      f"samples ({100 * start['fraction']:.3g}% of the record, "
-                     f"{start['seconds']:.3g} s; start_fraction); the numbers are over the "
+                     f"{start['seconds']:.3g} s; {start['window']}); the numbers are over the "
                      "whole record, rmse_after_start_m over the rest")
+        if start["states_estimated"]:
+            notes.append("the start holds the effects' states too, estimated with it: "
+                         + ", ".join(start["states_estimated"]))
+        if start["states_at_rest"]:
+            notes.append("effects' states started at 0, at rest (their effects give no prior "
+                         "for an estimated start): " + ", ".join(start["states_at_rest"]))
         if start["not_estimated"]:
             notes.append(f"the start of {start['not_estimated']} of {pick.size} draws could not "
                          "be estimated (their simulation from the start's prior means is not "
                          "finite): they start from those prior means (not_estimated)")
         if start["v0_at_bound"]:
             notes.append(f"the start velocity of {start['v0_at_bound']} of {pick.size} draws "
-                         f"reached its bound, {start['v0_bound_m_s']:.3g} m/s (the record's "
-                         "largest speed): the first samples ask for a start the record does not "
-                         "allow, a sign of misfit there (v0_at_bound)")
+                         f"reached its bound, {start['v0_bound_m_s']:.3g} m/s (the largest "
+                         "speed of the samples it was fitted to): they ask for a start the "
+                         "record does not allow, a sign of misfit there (v0_at_bound)")
     if fit_dt is not None and abs(ds.dt_s - fit_dt) > 1e-9 * fit_dt:
         ratio = ds.dt_s / fit_dt
         rho = np.sign(rho) * np.abs(rho) ** ratio

@@ -28,11 +28,14 @@ from pmabayes.design.experiments import (
     DesignError,
     Experiment,
     candidate_experiments,
+    dead_load_kg,
     input_range,
+    loaded_mass_kg,
 )
-from pmabayes.design.fits import CandidateFit, does_not_act, fit_candidate
+from pmabayes.design.fits import GOOD_K_HAT, CandidateFit, does_not_act, fit_candidate
 from pmabayes.design.score import discrimination, shrinkage, whiten_rows
 from pmabayes.model.effects import get_effect
+from pmabayes.model.model import Model
 from pmabayes.model.simulator import position_reference, simulate
 from pmabayes.util import Progress
 
@@ -78,7 +81,8 @@ class DesignResult:
     fits : dict
         Each candidate's :class:`~pmabayes.design.fits.CandidateFit`, to give again.
     rig : dict
-        The rig the experiment runs on (before any dead load).
+        The first data set's rig (its dead load included; an experiment's load replaces
+        it: :func:`~pmabayes.design.experiments.loaded_mass_kg`).
     input_name : str
         ``pressure_pa`` or ``force_n``.
     units : dict
@@ -87,7 +91,8 @@ class DesignResult:
         Wall time of the design.
     notes : list of str
         What the fits of the data so far say that makes the scores less than they seem
-        (a poor fit, experiments that disagree, a stand-in Laplace covariance).
+        (a poor fit, experiments that disagree, a stand-in Laplace covariance, a fit
+        that did not converge), one line each.
     """
 
     goal: str
@@ -157,9 +162,13 @@ def _score_text(goal: str, s: dict) -> str:
     if not math.isfinite(s["score"]):
         return f"not scored: {s.get('failed', 'no finite score')}"
     if goal == "discriminate":
+        decisive = s.get("named_decisively_rate")
         return (f"expected log Bayes factor {s['score']:.3g} +- {s['mc_se']:.2g} (MC se); "
                 f"true model named {100 * s['named_rate']:.1f}% +- "
-                f"{100 * s['named_rate_mc_se']:.1f}%")
+                f"{100 * s['named_rate_mc_se']:.1f}%"
+                + ("" if decisive is None or not math.isfinite(decisive) else
+                   f", beyond two standard errors (as diagnose names it) "
+                   f"{100 * decisive:.1f}% +- {100 * s['named_decisively_mc_se']:.1f}%"))
     return (f"interval shrinkage x{s['factor']:.3g} (geometric mean; log {s['score']:.3g} "
             f"+- {s['mc_se']:.2g} MC se)")
 
@@ -193,14 +202,50 @@ def _checked_budget(first: Dataset, duration_s, n_experiments: int, n_draws: int
     return duration
 
 
-def _checked_loads(loads) -> tuple[float, ...]:
+def _checked_loads(loads) -> tuple[float | None, ...]:
+    """The dead loads to choose from; ``(None,)`` (the first data set's) where none are
+    given."""
     if loads is None:
-        return (0.0,)
+        return (None,)
     out = tuple(float(v) for v in loads)
     if not out or not all(math.isfinite(v) and v >= 0 for v in out):
         raise DesignError(f"loads must be dead loads in kg, each >= 0 (0: none), got "
                           f"{list(loads)!r}")
     return out
+
+
+def _first_load(first: Dataset, loads_kg: Sequence[float]) -> float:
+    """The first data set's declared dead load, which each of ``loads_kg`` replaces;
+    refused where it is not declared, where the rig's moving mass is not a number, or
+    where a load would leave the rig no moving mass.
+
+    A rig's ``moving_mass_kg`` is everything that moves, the dead load included; without
+    the load it was recorded with, the mass under another load is not known.
+    """
+    where = first.source or "the first data set"
+    declared = dead_load_kg(first)
+    if declared is None:
+        raise DesignError(
+            f"{where}: a dead load from --loads (loads=) hangs in place of the one this "
+            "record was made with, which its sidecar does not declare; declare it "
+            '("conditions": {"load_kg": 0.1}, kg, 0 for none), so that the moving mass '
+            "under another load is known")
+    rig = Model.for_dataset(first).rig
+    if rig.prior_of("moving_mass_kg") is not None:
+        raise DesignError(
+            f"{where}: its rig's moving mass is identified (a prior), not known, so no dead "
+            "load can replace its own; give no loads, or declare the moving mass as a "
+            "number")
+    for load in loads_kg:
+        mass = loaded_mass_kg(rig.moving_mass_kg, declared, load)
+        if not mass > 0:
+            raise DesignError(
+                f"{where}: a dead load of {load:g} kg in place of its {declared:g} kg leaves "
+                f"the rig a moving mass of {mass:.6g} kg (its moving_mass_kg "
+                f"{rig.moving_mass_kg:g} less {declared:g} plus {load:g}); give loads the "
+                "rig can carry, or declare a moving_mass_kg that includes the carriage and "
+                "the muscle")
+    return declared
 
 
 def _units(first: Dataset) -> dict:
@@ -236,8 +281,8 @@ def design(
     ----------
     datasets : Dataset or sequence of Dataset
         The data so far, one data set per experiment; the next experiment runs on the
-        first one's rig (plus a dead load), at its sample rate, with its number of
-        trials.
+        first one's rig (a dead load of ``loads`` in place of its own), at its sample
+        rate, with its number of trials.
     base_effects : sequence of str or comma-separated str
         The effects every candidate model has.
     candidates : sequence of str or comma-separated str
@@ -249,7 +294,10 @@ def design(
     parameters : sequence of str, optional
         With ``goal="parameters"``: the parameters whose intervals should shrink.
     loads : sequence of float, optional
-        Dead loads in kg the rig can carry (0: none; the default is none).
+        Dead loads in kg the lab can hang for the next experiment (0: none), each in
+        place of the one the first data set was recorded with, which its sidecar must
+        then declare (``"conditions": {"load_kg": ...}``; its rig's ``moving_mass_kg``
+        includes it); by default the rig as the first data set has it.
     duration_s : float, optional
         The experiment's length; the first data set's by default.
     input_range : (float, float), optional
@@ -324,6 +372,7 @@ def design(
         raise DesignError(f"goal must be one of {', '.join(GOALS)}, got {goal!r}")
     duration = _checked_budget(first, duration_s, n_experiments, n_draws)
     loads_kg = _checked_loads(loads)
+    first_load = dead_load_kg(first) if loads is None else _first_load(first, loads_kg)
     low, high = input_range_checked(datasets, input_range)
     left_out: dict[str, str] = {}
     if goal == "discriminate":
@@ -380,11 +429,12 @@ def design(
     noise_seed = int(noise_rng.integers(2**63))
     say.say(f"scoring {len(experiments)} candidate experiments")
     if goal == "discriminate":
-        scores, predictions = _discriminate(fitted, experiments, whiten, draw_rng,
-                                            int(n_draws), noise_seed)
+        scores, predictions, weights = _discriminate(fitted, experiments, whiten, draw_rng,
+                                                     int(n_draws), noise_seed, trials)
     else:
         scores, predictions = _parameters(ref, experiments, whiten, draw_rng, columns,
                                           list(parameters), int(n_draws))
+        weights = {}
     finite = [i for i, s in enumerate(scores) if math.isfinite(s["score"])]
     if not finite:
         raise DesignError("no candidate experiment could be scored: "
@@ -395,15 +445,17 @@ def design(
     settings = {"seed": recorded_seed, "n_draws": int(n_draws),
                 "n_experiments": len(experiments), "n_trials": trials,
                 "input_range": [low, high], "duration_s": duration,
-                "loads_kg": list(loads_kg), "base_effects": base,
+                "loads_kg": list(loads_kg), "first_load_kg": first_load,
+                "base_effects": base,
                 "parameters": list(parameters or []),
                 "noise": {"model": noise_model_obj.name, "values": list(noise)},
+                "importance": weights,
                 "fitted": {n: {"values": _plain_values(f.map.values)}
                            for n, f in fitted.items()}}
     return DesignResult(goal, list(models), left_out, experiments, scores, chosen,
                         chosen_predictions, settings, fitted, ref.model.rig.to_dict(),
                         first.input_name, _units(first), time.perf_counter() - start,
-                        _fit_notes(fitted))
+                        _fit_notes(fitted) + _weight_notes(weights))
 
 
 def _fit_notes(fitted: Mapping[str, CandidateFit]) -> list[str]:
@@ -433,7 +485,42 @@ def _fit_notes(fitted: Mapping[str, CandidateFit]) -> list[str]:
                 "says what differs between the experiments.")
         if fit.map.laplace_note:
             notes.append(f"{name}: {fit.map.laplace_note}")
+        note = _convergence_note(name, fit)
+        if note:
+            notes.append(note)
     return notes
+
+
+def _weight_notes(weights: Mapping[str, dict]) -> list[str]:
+    """One line per model whose Laplace approximation is too far from its posterior on
+    the data so far for importance resampling to mend (Pareto k-hat above
+    :data:`~pmabayes.design.fits.GOOD_K_HAT`)."""
+    return [f"{name}: its Laplace approximation is far from its posterior on the data so "
+            f"far (Pareto k-hat {w['k_hat']:.2f} of its draws' importance weights, above "
+            f"{GOOD_K_HAT:g}, even with its sds scaled by {w['scale']:g}; {w['ess']:.0f} "
+            f"effective draws of {w['pool']}), so the draws every score starts from are few "
+            "distinct ones: the expected factors are rough; fit it by `pmabayes fit` and "
+            "give the file with --fit (fits= in Python)."
+            for name, w in weights.items()
+            if math.isfinite(w["k_hat"]) and w["k_hat"] > GOOD_K_HAT]
+
+
+def _convergence_note(name: str, fit: CandidateFit) -> str | None:
+    """One line where a candidate's fit did not converge: what, why it matters for the
+    expected factors, and the fix; None where it converged or is not known to have."""
+    record = fit.convergence
+    if not record or record.get("converged", True):
+        return None
+    why = "; ".join(str(m) for m in record.get("messages") or []) or "no reason recorded"
+    if fit.samples_z is not None:
+        return (f"{name}: the fit file {fit.source} did NOT converge ({why}), so its draws, "
+                "which every score starts from, need not be this model's posterior: the "
+                "expected factors (and even their ranking) are not to be trusted; run "
+                "`pmabayes fit` longer (more --steps) and give the new file with --fit.")
+    return (f"{name}: its MAP search did NOT converge ({why}), so the draws every score "
+            "starts from are centred off this model's posterior: the expected factors are "
+            "biased; fit it by `pmabayes fit` and give the file with --fit (fits= in "
+            "Python).")
 
 
 def _plain_values(values: Mapping) -> dict:
@@ -563,11 +650,19 @@ def _failed(x: np.ndarray) -> str | None:
 
 
 def _discriminate(fitted: dict, experiments: list, whiten, rng: np.random.Generator,
-                  n_draws: int, noise_seed: int) -> tuple[list[dict], dict]:
+                  n_draws: int, noise_seed: int, n_trials: int = 1
+                  ) -> tuple[list[dict], dict, dict]:
     """Every experiment's discrimination score; each model's draws (the same for every
     experiment, and so is the noise: common random numbers make the experiments'
     scores differ by the experiments, not by the draws)."""
-    draws = {n: f.draws(rng.spawn(1)[0], 2 * n_draws) for n, f in fitted.items()}
+    # the truths and the predictive densities from two separate sets of draws of the
+    # posterior on the data so far (Laplace draws importance-resampled to it)
+    draws, weights = {}, {}
+    for n, f in fitted.items():
+        sets, w = f.weighted_draws(rng.spawn(1)[0], n_draws, sets=2)
+        draws[n] = np.vstack(sets)
+        if w is not None:
+            weights[n] = w
     names = list(fitted)
     scores: list[dict | None] = [None] * len(experiments)
     for chunk in _chunks(experiments, 2 * n_draws):
@@ -587,12 +682,13 @@ def _discriminate(fitted: dict, experiments: list, whiten, rng: np.random.Genera
                 continue
             d = discrimination([whiten(truth[n]) for n in names],
                                [whiten(evid[n]) for n in names],
-                               np.random.default_rng(noise_seed))
+                               np.random.default_rng(noise_seed), n_trials=n_trials)
             scores[i] = {"score": d.score, "mc_se": d.score_se, "named_rate": d.named_rate,
                          "named_rate_mc_se": d.named_se, "failed_draws": failed, **{
                              k: v for k, v in d.to_dict(names).items()
-                             if k in ("n_monte_carlo", "log_bayes_factor_when_true")}}
-    return scores, draws
+                             if k in ("n_monte_carlo", "log_bayes_factor_when_true",
+                                      "named_decisively_rate", "named_decisively_mc_se")}}
+    return scores, draws, weights
 
 
 def _parameters(fit: CandidateFit, experiments: list, whiten, rng: np.random.Generator,

@@ -2,8 +2,9 @@
 dead loads and the duration budget.
 
 An :class:`Experiment` is one input signal on the rig, in SI (Pa, or N on a force rig),
-sampled at the data's rate for the budget's duration, perhaps with a dead load added to
-the moving mass. Four families make the candidates (:func:`candidate_experiments`):
+sampled at the data's rate for the budget's duration, perhaps with another dead load
+hung in place of the first data set's (:func:`loaded_mass_kg`). Four families make the
+candidates (:func:`candidate_experiments`):
 
 ``chirp``
     ``offset - amplitude cos(2 pi (f0 t + (f1 - f0) t^2 / (2 T))``: a sweep of a band.
@@ -30,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["DesignError", "Experiment", "FAMILIES", "input_range", "candidate_experiments",
-           "MIN_SAMPLES"]
+           "MIN_SAMPLES", "dead_load_kg", "loaded_mass_kg"]
 
 #: the families a design draws candidates from
 FAMILIES = ("chirp", "steps", "noise", "sine")
@@ -60,15 +61,17 @@ class Experiment:
         The family's settings in SI (``f0_hz``, ``f1_hz``, ``amplitude``, ``offset``,
         ``levels``, ``hold_s``, ``seed``), or for ``repeat`` the input itself
         (``signal``).
-    load_kg : float
-        Dead load added to the rig's moving mass, kg.
+    load_kg : float or None
+        The dead load hung on the rig in this experiment, kg (0: none), in place of the
+        first data set's (:func:`loaded_mass_kg`); None: the rig as the first data set
+        has it.
     """
 
     family: str
     duration_s: float
     sample_rate_hz: float
     settings: dict = field(default_factory=dict)
-    load_kg: float = 0.0
+    load_kg: float | None = None
 
     @property
     def time_s(self) -> np.ndarray:
@@ -103,7 +106,7 @@ class Experiment:
     def label(self) -> str:
         """The experiment in a few words, in SI."""
         s = self.settings
-        load = f", +{self.load_kg:g} kg dead load" if self.load_kg else ""
+        load = "" if self.load_kg is None else f", {self.load_kg:g} kg dead load"
         if self.family == "repeat":
             return f"the first experiment's input again ({self.duration_s:g} s){load}"
         if self.family in ("chirp", "default_chirp", "noise"):
@@ -125,6 +128,61 @@ class Experiment:
         return {"family": self.family, "label": self.label(), "duration_s": self.duration_s,
                 "sample_rate_hz": self.sample_rate_hz, "load_kg": self.load_kg,
                 "settings": settings}
+
+
+def dead_load_kg(dataset) -> float | None:
+    """The dead load a data set was recorded with: its sidecar's ``"conditions":
+    {"load_kg": ...}``, kg; None where it declares none.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        A data set.
+
+    Returns
+    -------
+    float or None
+    """
+    from pmabayes.data.dataset import experiment_conditions
+
+    return experiment_conditions(dataset.metadata,
+                                 str(dataset.source or "the data")).get("load_kg")
+
+
+def loaded_mass_kg(moving_mass_kg: float, first_load_kg: float, load_kg: float | None
+                   ) -> float:
+    """The moving mass of the rig with ``load_kg`` hung in place of the first data set's
+    dead load.
+
+    A rig's ``moving_mass_kg`` is everything that moves with the muscle's free end, its
+    dead load included; a load from ``--loads`` is the one hung in the next experiment
+    (the lab's weights, as the first data set declares its own in ``"conditions"``), so
+    it replaces the first one: ``moving_mass_kg - first_load_kg + load_kg``.
+
+    Parameters
+    ----------
+    moving_mass_kg : float
+        The first data set's rig's moving mass.
+    first_load_kg : float
+        Its declared dead load (:func:`dead_load_kg`).
+    load_kg : float or None
+        The next experiment's dead load; None: the first one's.
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    The 100 g file of a muscle whose rig's moving mass is its load (the muscle's own
+    mass neglected), and the 300 g weight hung instead:
+
+    >>> loaded_mass_kg(0.1, 0.1, 0.3)
+    0.3
+    """
+    if load_kg is None:
+        return float(moving_mass_kg)
+    return float(moving_mass_kg) - float(first_load_kg) + float(load_kg)
 
 
 def _band_noise(n: int, rate_hz: float, f0_hz: float, f1_hz: float, seed: int) -> np.ndarray:
@@ -198,7 +256,7 @@ def _frequency_band(duration_s: float, rate_hz: float) -> tuple[float, float]:
 
 def candidate_experiments(rng: np.random.Generator, n: int, *, low: float, high: float,
                           duration_s: float, sample_rate_hz: float,
-                          loads: Sequence[float] = (0.0,),
+                          loads: Sequence[float | None] = (None,),
                           first_input: np.ndarray | None = None) -> list[Experiment]:
     """``n`` candidate experiments: the repeat of the first input and the default chirp
     first (where ``n`` allows), then random members of :data:`FAMILIES` in turn.
@@ -213,9 +271,9 @@ def candidate_experiments(rng: np.random.Generator, n: int, *, low: float, high:
         The input range, SI.
     duration_s, sample_rate_hz : float
         Each experiment's length and rate.
-    loads : sequence of float
-        Dead loads to choose from, kg (0: none); each candidate takes one at random,
-        the repeat and the default chirp the first.
+    loads : sequence of float or None
+        Dead loads to choose from, kg (0: none; None: the first data set's); each
+        candidate takes one at random, the repeat and the default chirp the first.
     first_input : numpy.ndarray, optional
         The first data set's input; its repeat is a candidate where it lies in the range.
 
@@ -226,7 +284,7 @@ def candidate_experiments(rng: np.random.Generator, n: int, *, low: float, high:
     f_lo, f_hi = _frequency_band(duration_s, sample_rate_hz)
     span = high - low
     out: list[Experiment] = []
-    load0 = float(loads[0])
+    load0 = loads[0]
     if first_input is not None and low <= float(np.min(first_input)) \
             and float(np.max(first_input)) <= high:
         out.append(Experiment("repeat", duration_s, sample_rate_hz,
@@ -241,7 +299,7 @@ def candidate_experiments(rng: np.random.Generator, n: int, *, low: float, high:
         amplitude = span * 0.5 * rng.uniform(0.2, 1.0)
         offset = rng.uniform(low + amplitude, high - amplitude)
         f = np.sort(np.exp(rng.uniform(np.log(f_lo), np.log(f_hi), 2)))
-        load = float(loads[int(rng.integers(len(loads)))])
+        load = loads[int(rng.integers(len(loads)))]
         if family == "chirp":
             settings = {"f0_hz": float(f[0]), "f1_hz": float(f[1]),
                         "amplitude": float(amplitude), "offset": float(offset)}

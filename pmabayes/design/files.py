@@ -5,8 +5,9 @@ the scores.
 scaled as the first data file's columns were (``time_ms``, ``pressure_kpa``, ...: the
 units it was read in); :func:`pmabayes.data.text.read_columns` reads it back in SI with the
 sidecar's ``"columns"``. ``next.json`` is its sidecar: the columns, the sample rate, the
-rig (with any dead load added to its moving mass), the trials to repeat and the
-experiment. ``design.json`` holds every candidate's score.
+rig (its moving mass with the experiment's dead load in place of the first record's),
+the dead load (``"conditions"``), the trials to repeat and the experiment.
+``design.json`` holds every candidate's score.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pmabayes.data.units import from_si
+from pmabayes.design.experiments import loaded_mass_kg
 from pmabayes.outputs import stamp, write_json
 
 __all__ = ["write_design_files", "NEXT_CSV", "NEXT_JSON", "DESIGN_JSON"]
@@ -49,9 +51,13 @@ def write_design_files(result, folder: str | Path) -> list[str]:
     lines += [f"{a!r},{b!r}" for a, b in zip(t.tolist(), u.tolist(), strict=True)]
     (folder / NEXT_CSV).write_text("\n".join(lines) + "\n")
     rig = dict(result.rig)
-    if exp.load_kg:
-        rig["moving_mass_kg"] = float(rig["moving_mass_kg"]) + exp.load_kg
-        rig["name"] = f"{rig.get('name', 'custom')}+{exp.load_kg:g}kg"
+    first_load = result.settings.get("first_load_kg")
+    load = first_load if exp.load_kg is None else exp.load_kg
+    if exp.load_kg is not None and exp.load_kg != first_load:
+        # the load hangs in place of the first record's (whose mass the rig's includes)
+        rig["moving_mass_kg"] = loaded_mass_kg(float(rig["moving_mass_kg"]), first_load,
+                                               exp.load_kg)
+        rig["name"] = f"{rig.get('name', 'custom')}_{exp.load_kg:g}kg"
     sidecar = {
         "pmabayes": stamp("design"),
         "description": (f"The next experiment pmabayes design chose: {exp.label()}. Run it "
@@ -60,6 +66,7 @@ def write_design_files(result, folder: str | Path) -> list[str]:
         "columns": {"1": time_col, "2": input_col},
         "sample_rate_hz": exp.sample_rate_hz,
         "rig": rig,
+        **({} if load is None else {"conditions": {"load_kg": load}}),
         "n_trials": result.settings["n_trials"],
         "experiment": exp.to_dict(),
     }

@@ -21,6 +21,18 @@ make the predictive densities, so a truth is never scored by its own draw. The M
 Carlo standard error is the spread over the truths over their number's square root (a
 truth's noise replicates averaged first: they are not independent of each other).
 
+A true model with the higher predictive density is not yet one ``pmabayes diagnose``
+names: it names the better of two candidates only where their difference, paired over
+the trials, exceeds two of its standard errors. So each Monte Carlo trial mean is also
+split into the experiment's ``R`` trials (its deviations from the mean drawn anew: for
+Gaussian noise they are independent of it), each trial scored by every model's
+predictive density of one trial (the draws' spread plus ``R`` times the unit noise),
+and the true model counts as *named decisively* where its sum of per-trial differences
+over each other model exceeds two of their standard errors, ``sqrt(R var)``, as
+:func:`pmabayes.criticism.elpd.paired_difference` takes it. That rate, not the rate of a
+higher density, is what a user's diagnose would report (on the next experiment's trials
+alone: the first experiment's trials, on which the candidates fit alike, add little).
+
 Parameters (:func:`shrinkage`). The Laplace covariance ``C`` of the data so far and the
 whitened sensitivities ``J`` of the experiment at a posterior draw give the covariance
 after it, ``(C^-1 + J^T J)^-1``; a parameter's 90% interval shrinks (in the fit's
@@ -84,6 +96,12 @@ class Discrimination:
         is true (0 on the diagonal).
     n_samples : int
         Monte Carlo samples (truths) behind the numbers.
+    decisive_rate : float
+        Expected rate at which the true model is named beyond two standard errors of
+        its per-trial differences from every other (diagnose's rule); NaN with fewer
+        than two trials.
+    decisive_se : float
+        Its Monte Carlo standard error.
     """
 
     score: float
@@ -92,12 +110,16 @@ class Discrimination:
     named_se: float
     pairs: np.ndarray
     n_samples: int
+    decisive_rate: float = math.nan
+    decisive_se: float = math.nan
 
     def to_dict(self, names: Sequence[str]) -> dict:
         """JSON-ready, the pairs by the candidates' names."""
         return {"expected_log_bayes_factor": self.score, "mc_se": self.score_se,
                 "named_rate": self.named_rate, "named_rate_mc_se": self.named_se,
                 "n_monte_carlo": self.n_samples,
+                "named_decisively_rate": self.decisive_rate,
+                "named_decisively_mc_se": self.decisive_se,
                 "log_bayes_factor_when_true": {
                     a: {b: float(self.pairs[i, j]) for j, b in enumerate(names) if j != i}
                     for i, a in enumerate(names)}}
@@ -116,7 +138,8 @@ def _log_predictive(evidence: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def discrimination(truths: Sequence[np.ndarray], evidence: Sequence[np.ndarray],
-                   rng: np.random.Generator, n_noise: int = 4) -> Discrimination:
+                   rng: np.random.Generator, n_noise: int = 4,
+                   n_trials: int = 1) -> Discrimination:
     """Monte Carlo of the expected discrimination between ``K`` candidate models.
 
     Parameters
@@ -131,6 +154,9 @@ def discrimination(truths: Sequence[np.ndarray], evidence: Sequence[np.ndarray],
         Draws the noise.
     n_noise : int
         Noise vectors per truth (cheap: they need no simulation).
+    n_trials : int
+        Trials whose mean the whitened responses are (``R``); with two or more, the
+        rate of a decisive naming is estimated too (module docstring).
 
     Returns
     -------
@@ -157,12 +183,50 @@ def discrimination(truths: Sequence[np.ndarray], evidence: Sequence[np.ndarray],
     per_named = named.reshape(-1, n_noise).mean(axis=1)
     n = per_margin.size
     rate = float(named.mean())
-    # at a rate of 0 or 1 the spread is 0, but n truths resolve no better than 1/n
-    named_se = float(per_named.std(ddof=1)) / math.sqrt(n) if 0 < rate < 1 else 1.0 / n
+    decisive_rate, decisive_se = math.nan, math.nan
+    if n_trials >= 2:
+        decisive = _decisive(y, labels, evidence, rng, int(n_trials))
+        decisive_rate = float(decisive.mean())
+        decisive_se = _rate_se(decisive.reshape(-1, n_noise).mean(axis=1), decisive_rate)
     return Discrimination(
         score=float(margin.mean()), score_se=float(per_margin.std(ddof=1) / math.sqrt(n)),
-        named_rate=rate, named_se=named_se,
-        pairs=pairs, n_samples=int(n))
+        named_rate=rate, named_se=_rate_se(per_named, rate),
+        pairs=pairs, n_samples=int(n), decisive_rate=decisive_rate,
+        decisive_se=decisive_se)
+
+
+def _rate_se(per_truth: np.ndarray, rate: float) -> float:
+    """The Monte Carlo standard error of a rate from its per-truth means; at a rate of 0
+    or 1 the spread is 0, but ``n`` truths resolve no better than ``1/n``."""
+    n = per_truth.size
+    return float(per_truth.std(ddof=1)) / math.sqrt(n) if 0 < rate < 1 else 1.0 / n
+
+
+def _decisive(y: np.ndarray, labels: np.ndarray, evidence: Sequence[np.ndarray],
+              rng: np.random.Generator, n_trials: int) -> np.ndarray:
+    """Whether each Monte Carlo trial mean ``y`` (rows) names its true model (``labels``)
+    beyond two standard errors of the per-trial differences from every other model.
+
+    The ``R`` trials are the mean plus deviations ``sqrt(R) (e_r - mean(e))``: one trial's
+    noise is ``sqrt(R)`` in units of the trial mean's. A trial's predictive density under
+    a model is N(mean of its draws, their covariance + R I), that of ``evidence / sqrt(R)``
+    at ``y_r / sqrt(R)`` less a constant the same for every model.
+    """
+    r = n_trials
+    e = rng.standard_normal((r, *y.shape))
+    trials = y[None] + math.sqrt(r) * (e - e.mean(axis=0))  # (R, samples, n)
+    flat = trials.reshape(-1, y.shape[1]) / math.sqrt(r)
+    lp = np.stack([_log_predictive(ev / math.sqrt(r), flat).reshape(r, -1)
+                   for ev in evidence], axis=2)  # (R, samples, K)
+    rows = np.arange(y.shape[0])
+    own = lp[:, rows, labels]  # (R, samples)
+    out = np.ones(y.shape[0], dtype=bool)
+    for k in range(len(evidence)):
+        d = own - lp[:, :, k]
+        total = d.sum(axis=0)
+        se = np.sqrt(r * d.var(axis=0))
+        out &= (labels == k) | (total > 2.0 * se)
+    return out
 
 
 def shrinkage(covariance: np.ndarray, jacobians: Sequence[np.ndarray],

@@ -389,7 +389,8 @@ class Posterior:
         return total
 
     def evaluate(
-        self, theta: np.ndarray, *, return_x: bool = True
+        self, theta: np.ndarray, *, return_x: bool = True,
+        outputs: list[np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Log prior, log likelihood and model output for natural values.
 
@@ -399,6 +400,11 @@ class Posterior:
             ``(batch, ndim)`` natural values.
         return_x : bool
             Whether to return the model output (the sampler does not need it).
+        outputs : list of numpy.ndarray, optional
+            Each experiment's model output ``(1, n_outputs)``, where every member shares
+            the model's parameters and start and only the sampled noise differs (the
+            noise's own search): used instead of simulating each member again, with the
+            same numbers.
 
         Returns
         -------
@@ -419,7 +425,8 @@ class Posterior:
         if not ok.any():
             return lp, ll, None
         sub = theta[ok]
-        xs = [self.simulate(sub, e) for e in range(self.n_experiments)]
+        xs = ([self.simulate(sub, e) for e in range(self.n_experiments)] if outputs is None
+              else [np.broadcast_to(x, (sub.shape[0], x.shape[-1])) for x in outputs])
         total = np.zeros(sub.shape[0])
         for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
             total += lik.mean_log_likelihood(x, *self.noise_of(e, sub))
@@ -432,11 +439,13 @@ class Posterior:
         x[ok] = np.concatenate(xs, axis=1)
         return lp, ll, x
 
-    def log_prob_z(self, z: np.ndarray) -> np.ndarray:
-        """Log posterior density in unconstrained coordinates (what emcee samples)."""
+    def log_prob_z(self, z: np.ndarray, outputs: list[np.ndarray] | None = None
+                   ) -> np.ndarray:
+        """Log posterior density in unconstrained coordinates (what emcee samples);
+        ``outputs`` as :meth:`evaluate`'s."""
         z = np.atleast_2d(z)
         theta = self.to_natural(z)
-        lp, ll, _ = self.evaluate(theta, return_x=False)
+        lp, ll, _ = self.evaluate(theta, return_x=False, outputs=outputs)
         out = lp + ll + self.log_jacobian(z)
         return np.where(np.isfinite(out), out, -np.inf)
 

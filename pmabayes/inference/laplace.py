@@ -65,6 +65,37 @@ def _fd_hessian(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
     return hess
 
 
+def _fd_diagonal(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The diagonal of :func:`_fd_hessian` ``(f, u0, h)``, to the bit, from its diagonal
+    entries' points alone (``4 n`` evaluations instead of ``2 n (n + 1) + 1``): each
+    point's value is its own arithmetic, whatever else is in the batch.
+
+    Raises
+    ------
+    ValueError
+        As :func:`_fd_hessian`.
+    """
+    u0 = np.asarray(u0, dtype=float)
+    h = np.broadcast_to(np.asarray(h, dtype=float), u0.shape)
+    bad = ~(np.isfinite(h) & (h > 0))
+    if bad.any():
+        raise ValueError(f"finite-difference steps must be positive and finite; coordinates "
+                         f"{np.flatnonzero(bad).tolist()} have {h[bad].tolist()} "
+                         "(choose them with pmabayes.inference.laplace.steps)")
+    n = u0.size
+    pts = []
+    for i in range(n):
+        for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):  # as _fd_hessian's (i, i)
+            u = u0.copy()
+            u[i] += si * h[i]
+            u[i] += sj * h[i]
+            pts.append(u)
+    vals = np.asarray(f(np.array(pts)), dtype=float).reshape(n, 4)
+    with np.errstate(over="ignore"):  # overflow to inf marks a step across the edge
+        return np.array([(pp - pm - mp_ + mm) / (4.0 * h[i] * h[i])
+                         for i, (pp, pm, mp_, mm) in enumerate(vals)])
+
+
 def steps(curvature: np.ndarray, u: np.ndarray, probe: float = PROBE_STEP) -> np.ndarray:
     """Central-difference steps of :data:`STEP_SHARE` of each coordinate's curvature
     length, never 0 or NaN.
@@ -101,7 +132,7 @@ def _scaled_hessian(neg_logpost, u: np.ndarray) -> np.ndarray:
     """The Hessian at ``u``, with steps of 0.2 of the curvature's length scale
     (:func:`steps`)."""
     probe = PROBE_STEP * np.maximum(1.0, np.abs(u))
-    hd = np.diag(_fd_hessian(neg_logpost, u, probe))
+    hd = _fd_diagonal(neg_logpost, u, probe)  # the probe needs the diagonal alone
     return _fd_hessian(neg_logpost, u, steps(hd, u))
 
 

@@ -54,6 +54,7 @@ from pmabayes.inference.noise.choice import (
     choose_noise_model,
     ljung_box_statistic,
 )
+from pmabayes.model.codegen import state_effects
 from pmabayes.model.model import Model
 from pmabayes.model.parameters import Normal, Parameter
 from pmabayes.model.simulator import position_reference, simulate_dataset, warmup_settings
@@ -539,9 +540,13 @@ class Likelihood:
         slope itself for the velocity, if larger), at least 0.1% of the motion for the
         position and the record's mean speed for the velocity; the force is normal
         about the balance with the actuator's whole range of force as its spread (area
-        times the pressure's range, or the force's range). Shared by the trials; the
-        global search keeps them at their prior means, the polish and the sampler
-        free them.
+        times the pressure's range, or the force's range). Then each effect state's
+        value there, with the prior its effect gives
+        (:meth:`~pmabayes.model.effects.base.Effect.start_state`: a degrading law's
+        dissipated energy, a creep element's stretch; a state its effect gives none is
+        at 0, at rest), in the kernel's order (:func:`full_start`). Shared by the
+        trials; the global search keeps them at their prior means, the polish and the
+        sampler free them.
 
         Returns
         -------
@@ -549,8 +554,38 @@ class Likelihood:
         """
         return self._start
 
+    def start_from(self, start: np.ndarray | None, model: Model) -> np.ndarray | None:
+        """A start of another model's likelihood on this data set (``(3 + k,)`` or
+        ``(batch, 3 + k)``, :meth:`start_parameters` of ``model``) in this one's
+        columns: the position, velocity and ``z`` offset as they are, each effect's
+        state from the same effect's, and a state ``model`` lacks at its prior mean
+        here (a candidate effect's, tested at its null where the state does not act).
+
+        Parameters
+        ----------
+        start : numpy.ndarray or None
+        model : Model
+            The model ``start`` is of.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            ``(batch, len(start_parameters()))``; None without a start or when this
+            data set's start is not estimated.
+        """
+        if start is None or not self._start:
+            return None
+        start = np.atleast_2d(np.asarray(start, dtype=float))
+        theirs = {e.name: 3 + j for j, e in enumerate(estimated_states(model))}
+        out = np.broadcast_to(self.start_defaults(), (start.shape[0], len(self._start))).copy()
+        out[:, :3] = start[:, :3]
+        for j, e in enumerate(estimated_states(self.model)):
+            if e.name in theirs:
+                out[:, 3 + j] = start[:, theirs[e.name]]
+        return out
+
     def start_defaults(self) -> np.ndarray:
-        """The start's prior means ``(3,)`` (an estimated start; empty otherwise)."""
+        """The start's prior means ``(3 + k,)`` (an estimated start; empty otherwise)."""
         return np.array([p.default for p in self._start])
 
     # -- the noise model ----------------------------------------------------------
@@ -696,11 +731,12 @@ class Likelihood:
         if self.columns is not None:
             theta = np.ascontiguousarray(theta[:, self.columns])
         if self._start and start is None:
-            start = np.broadcast_to(self.start_defaults(), (theta.shape[0], 3))
+            start = np.broadcast_to(self.start_defaults(), (theta.shape[0], len(self._start)))
         x = simulate_dataset(self.model, theta, self.dataset, substeps=self.substeps,
                              steady_state_tol_m=self.warmup[0],
                              max_warmup_periods=self.warmup[1], per_trial=self.own_inputs,
-                             initial_values=start if self._start else None)
+                             initial_values=(full_start(self.model, start) if self._start
+                                             else None))
         return x.reshape(x.shape[0], -1) if self.own_inputs else x
 
     def _by_trial(self, x: np.ndarray) -> np.ndarray:
@@ -945,6 +981,50 @@ class Likelihood:
         return out
 
 
+def estimated_states(model: Model) -> tuple:
+    """The effects whose states an estimated start estimates, in the kernel's order:
+    those whose :meth:`~pmabayes.model.effects.base.Effect.start_state` gives a prior.
+
+    Parameters
+    ----------
+    model : Model
+
+    Returns
+    -------
+    tuple of Effect classes
+    """
+    probe = dict(force_n=1.0, motion_m=1.0, work_j=1.0)
+    return tuple(e for e in state_effects(model) if e.start_state(**probe) is not None)
+
+
+def full_start(model: Model, start: np.ndarray) -> np.ndarray:
+    """An estimated start's values ``(batch, n)`` as the simulator takes them: its
+    effects' states that are not estimated (their effect gives no
+    :meth:`~pmabayes.model.effects.base.Effect.start_state`) put in at 0, at rest.
+
+    Parameters
+    ----------
+    model : Model
+        The model the start is of.
+    start : numpy.ndarray
+        ``(batch, 3 + k)``: position, velocity, ``z`` offset, then the ``k`` estimated
+        states in the kernel's order (:meth:`Likelihood.start_parameters`).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(batch, 3 + all states)``.
+    """
+    start = np.atleast_2d(np.asarray(start, dtype=float))
+    estimated = [e in estimated_states(model) for e in state_effects(model)]
+    if all(estimated):
+        return start
+    out = np.zeros((start.shape[0], 3 + len(estimated)))
+    out[:, :3] = start[:, :3]
+    out[:, 3 + np.flatnonzero(estimated)] = start[:, 3:]
+    return out
+
+
 #: Seconds at the start of a record whose samples set the priors of an estimated start
 #: (:meth:`Likelihood.start_parameters`).
 START_WINDOW_S = 0.05
@@ -984,7 +1064,23 @@ def _start_priors(lik: Likelihood) -> tuple[Parameter, ...]:
               r"\dot x_0"),
         start("z0_offset_n", "N", 0.0, sd_z, "hysteretic force at the first sample, as an "
               "offset from the balance of forces there", r"\Delta z_0"),
-    )
+    ) + _effect_start_states(lik.model, ds, sd_z, lik.motion_m)
+
+
+def _effect_start_states(model, ds, force_n: float, motion_m: float
+                         ) -> tuple[Parameter, ...]:
+    """The estimated start's parameters of the effects' states, in the kernel's order
+    (:func:`pmabayes.model.codegen.state_effects`), each from its effect's
+    :meth:`~pmabayes.model.effects.base.Effect.start_state`; a state its effect gives
+    no prior is not estimated (:func:`full_start` puts it at 0, at rest)."""
+    y = ds.mean_position_m
+    f = ds.input[0] * (model.rig.area_m2 if ds.input_name == "pressure_pa" else 1.0)
+    with np.errstate(invalid="ignore"):
+        step = 0.5 * (f[1:] + f[:-1]) * np.diff(y)
+    work = float(np.nansum(np.abs(step)))
+    given = (e.start_state(force_n=force_n, motion_m=motion_m, work_j=work)
+             for e in state_effects(model))
+    return tuple(p for p in given if p is not None)
 
 
 
@@ -1092,6 +1188,31 @@ class JointLikelihood:
             ``(batch,)``.
         """
         rel = self.rms_costs(x) / self.motions_m
+        return self.motions_m.mean() * np.sqrt(np.mean(rel * rel, axis=1))
+
+    def rms_cost_parts(self, xs: list[np.ndarray]) -> np.ndarray:
+        """:meth:`rms_cost` of the experiments' outputs given apart, to the bit: the
+        global search's cost without concatenating (and transposing) every member's
+        outputs of records with samples not observed (a lab's clock with gaps).
+
+        Parameters
+        ----------
+        xs : list of numpy.ndarray
+            Each experiment's model positions ``(batch, n_outputs)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(batch,)``.
+        """
+        # the masked route reads any layout alike; the unmasked one sums in an order
+        # that follows the layout, so it is given the concatenation's parts as before
+        masked = [lik.observed is not None or lik.own_inputs for lik in self.likelihoods]
+        if not all(masked):
+            whole = self.split(np.concatenate(xs, axis=1))
+            xs = [xe if m else w for xe, w, m in zip(xs, whole, masked, strict=True)]
+        rel = np.stack([lik.rms_cost(xe) for lik, xe in zip(self.likelihoods, xs, strict=True)],
+                       axis=1) / self.motions_m
         return self.motions_m.mean() * np.sqrt(np.mean(rel * rel, axis=1))
 
 

@@ -56,10 +56,14 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
     u0 = np.concatenate([starts[g][0] for g in order])
     shift = np.concatenate([starts[g][1] for g in order])
 
+    # the model's parameters and start stay at z's: its output, simulated once above,
+    # is every evaluation's (thousands of them), not simulated again each time
+    outputs = [np.atleast_2d(xe) for xe in parts]
+
     def neg(u: np.ndarray) -> np.ndarray:
         zz = np.repeat(z[None], np.atleast_2d(u).shape[0], axis=0)
         zz[:, cols] = np.atleast_2d(u)
-        return -posterior.log_prob_z(zz)
+        return -posterior.log_prob_z(zz, outputs=outputs)
 
     out = z.copy()
     out[cols] = _minimise_noise(neg, u0, shift)

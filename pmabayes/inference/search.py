@@ -23,7 +23,7 @@ from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.laplace import (
     PROBE_STEP,
-    _fd_hessian,
+    _fd_diagonal,
     _scaled_hessian,
     laplace_covariance,
 )
@@ -525,7 +525,7 @@ def _open_edges(hess: np.ndarray, neg_logpost, u: np.ndarray) -> tuple[np.ndarra
     edge |= ~np.all(np.isfinite(hess[:, ~edge]), axis=1)
     if not edge.any():
         return hess, False
-    near = np.diag(_fd_hessian(neg_logpost, u, PROBE_STEP * np.maximum(1.0, np.abs(u))))
+    near = _fd_diagonal(neg_logpost, u, PROBE_STEP * np.maximum(1.0, np.abs(u)))
     ok = np.isfinite(near) & (near > 0) & (near < _EDGE_CURVATURE)
     out = hess.copy()
     out[edge, :] = 0.0
@@ -607,7 +607,10 @@ def _global_search(posterior: Posterior, box: np.ndarray, rng: np.random.Generat
         out = np.full(theta.shape[0], 1.0)  # 1 m: worse than anything real
         ok = np.isfinite(lp)
         if ok.any():
-            cost = lik.rms_cost(posterior.output(theta[ok]))
+            some = theta[ok]
+            cost = (lik.rms_cost_parts([posterior.simulate(some, e)
+                                        for e in range(posterior.n_experiments)])
+                    if isinstance(lik, JointLikelihood) else lik.rms_cost(posterior.output(some)))
             out[ok] = np.where(np.isfinite(cost), cost, 1.0)
         return out
 
@@ -653,7 +656,7 @@ def _scaled_neg_log_posterior(posterior: Posterior, z0: np.ndarray, scale: np.nd
     def neg_logpost(u: np.ndarray) -> np.ndarray:
         z = z0 + np.atleast_2d(u) * scale
         theta = posterior.to_natural(z)
-        lp, ll, _ = posterior.evaluate(theta)
+        lp, ll, _ = posterior.evaluate(theta, return_x=False)  # the positions are not needed
         v = -(lp + ll)
         return np.where(np.isfinite(v), v, 1e300)
 
@@ -684,6 +687,7 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
         u = res.x
     # Newton polish with the finite-difference Hessian, whose inverse is the
     # Laplace covariance
+    hess = None
     for _ in range(5):
         hess = _scaled_hessian(neg_logpost, u)
         f0, g0 = fun_and_grad(u)
@@ -699,11 +703,13 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
         if t <= 1e-4:
             break
         u = u + t * step
+        curvature, hess = np.diag(hess), None  # measured where u was
         with np.errstate(invalid="ignore"):  # 0 * inf: a coordinate at the edge, unmoved
-            moved = np.abs(t * step) * np.sqrt(np.abs(np.diag(hess)))
+            moved = np.abs(t * step) * np.sqrt(np.abs(curvature))
         if np.max(np.nan_to_num(moved, nan=0.0, posinf=np.inf)) < 1e-3:
             break
-    return u, _scaled_hessian(neg_logpost, u)
+    # a loop left without a step has the Hessian at u already (the same numbers)
+    return u, _scaled_hessian(neg_logpost, u) if hess is None else hess
 
 
 def _no_map_message(posterior: Posterior, theta: np.ndarray) -> str:

@@ -22,7 +22,8 @@ from pmabayes.model import boucwen
 from pmabayes.model.boucwen import BoucWenColumns
 from pmabayes.model.model import Model
 
-__all__ = ["FASTMATH", "SimulationError", "PlantCode", "state_rows", "indent_lines",
+__all__ = ["FASTMATH", "SimulationError", "PlantCode", "state_rows", "state_effects",
+           "indent_lines",
            "module_text", "generate"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
@@ -66,7 +67,9 @@ def module_text(comments: list[str], inject: dict, name: str, args: str,
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
     for g in inject:
         text += f"{g} = None  # injected before the first call\n"
-    text += "\n\n@njit(cache=True, fastmath=FASTMATH, error_model='numpy')\n"
+    # nogil: the simulator runs a large batch's members in threads, side by side
+    # (:func:`pmabayes.model.simulator.simulation_threads`)
+    text += "\n\n@njit(cache=True, fastmath=FASTMATH, error_model='numpy', nogil=True)\n"
     text += f"def {name}({args}):\n"
     text += indent_lines(body, 4) + "\n"
     return text
@@ -112,6 +115,25 @@ def state_rows(model: Model) -> int:
     law = [e for e in model.effects if e.stage == "hysteresis"]
     return (3 + sum(1 for e in model.effects if e.stage == "force" and e.state is not None)
             + (1 if law else 0) + (2 if law and law[0].state is not None else 0))
+
+
+def state_effects(model: Model) -> tuple:
+    """The effects whose states a kernel holds, in the order a given start's extra
+    columns carry them (``initial_values`` after position, velocity and ``z``): each
+    force effect with a state, then a hysteresis law with one.
+
+    Parameters
+    ----------
+    model : Model
+        The composed model.
+
+    Returns
+    -------
+    tuple of Effect classes
+    """
+    force = [e for e, _ in model.effect_slices() if e.stage == "force" and e.state is not None]
+    law = [e for e, _ in model.effect_slices() if e.stage == "hysteresis" and e.state]
+    return tuple(force + law[:1])
 
 
 class PlantCode:
@@ -235,11 +257,13 @@ class PlantCode:
             return f"{area} * max({p} - {self.dead_zone_pa}, 0.0) - {f_grav}"
         return f"{area} * {p} - {f_grav}"
 
-    def balance(self, p: str, x: str, v: str, out: str) -> list[str]:
+    def balance(self, p: str, x: str, v: str, out: str, states: dict | None = None
+                ) -> list[str]:
         """Lines setting ``out`` to the hysteretic force ``z`` that balances the actuator,
-        the spring, the damper and the force effects (at ``z = 0``) at position ``x``,
-        velocity ``v`` and pressure ``p``: the ``z`` of zero acceleration."""
-        return [*self.forces(x, v, p, "fb", False),
+        the spring, the damper and the force effects (at ``z = 0``, their states at
+        ``states``, 0 by default) at position ``x``, velocity ``v`` and pressure ``p``:
+        the ``z`` of zero acceleration."""
+        return [*self.forces(x, v, p, "fb", False, "0.0", states),
                 f"{out} = {self.actuator(p)} - {self.col('k_e')} * {x} - {self.col('d')} * {v}"
                 " - fb"]
 
@@ -569,7 +593,14 @@ def _sample_loops(plant: PlantCode, record: bool, p_start: str, p_end: str, p_ne
                 "    xi = st[0, i]", "    out_x[start, i] = xi"]
     elif given:
         out += ["    xi = init[0, i]", "    st[1, i] = init[1, i]"]
-        out += ["    " + ln for ln in plant.balance("p0", "xi", "init[1, i]", "zi")]
+        # the effects' states after x, v and z (state_effects): given, not at rest
+        given_rows = {e: plant.state_row.get(e, (plant.law_row or 0) + 2)
+                      for e in state_effects(plant.model)}
+        out += [f"    st[{row}, i] = init[{3 + j}, i]"
+                for j, row in enumerate(given_rows.values())]
+        out += ["    " + ln for ln in plant.balance("p0", "xi", "init[1, i]", "zi",
+                                                    {e: f"st[{r}, i]" for e, r in
+                                                     plant.state_row.items()})]
         out += ["    st[2, i] = zi + init[2, i]"]
         out += ["    st[0, i] = xi", "    out_x[0, i] = xi"]
     else:

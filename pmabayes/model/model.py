@@ -229,8 +229,9 @@ class Rig:
         A label for reports.
     priors : tuple of (str, Prior)
         Rig values that are not known but identified (:data:`RIG_PRIOR_KEYS`), each
-        with its prior; the value's field then holds the prior's median. A model on
-        this rig has the parameter ``rig_KEY`` for each.
+        with its prior; the value's field then holds the prior's median (a number
+        given for it is replaced). A model on this rig has the parameter ``rig_KEY``
+        for each.
 
     Examples
     --------
@@ -273,6 +274,10 @@ class Rig:
                 _rig_parameter(key, prior).check_prior()
             except ValueError as err:
                 raise ModelError(f"{key!r}: {err}") from None
+            # the field is the prior's median however the rig was made (Rig.from_dict
+            # sets it; Rig(priors=...) would keep the paper's area), so that what reads
+            # or prints it agrees with the prior; the kernel reads the identified value
+            object.__setattr__(self, key, prior.quantile(0.5))
 
     @classmethod
     def characterisation(cls) -> Rig:

@@ -17,8 +17,10 @@ the period map. The documentation's page "The simulator"
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
+import multiprocessing
 import os
 import threading
 import warnings
@@ -35,6 +37,7 @@ from pmabayes.model.codegen import (  # noqa: F401
     PlantCode,
     SimulationError,
     indent_lines,
+    state_effects,
     state_rows,
 )
 from pmabayes.model.codegen import generate as _generate  # noqa: F401
@@ -47,13 +50,13 @@ from pmabayes.model.kernels import (  # noqa: F401
     structure_key,
 )
 from pmabayes.model.model import Model
-from pmabayes.util import fingerprint
+from pmabayes.util import fingerprint, local_cores
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
            "SimulationError", "SteadyStateWarning", "OverflowingStepWarning",
            "collect_steady_state_misses", "BETWEEN_SAMPLES", "INITIAL_STATES",
            "STEADY_STATE_TOL_M", "MAX_WARMUP_PERIODS", "POSITION_REFERENCES",
-           "warmup_settings", "position_reference"]
+           "warmup_settings", "position_reference", "simulation_threads", "side_by_side"]
 
 _LOCK = threading.Lock()  # guards the memo of reconstructed inputs
 
@@ -302,8 +305,11 @@ def simulate(
         ``(3,)`` shared or ``(B, 3)``: the position in m (before measurement effects),
         the velocity in m/s, and the hysteretic force ``z`` in N as an offset from the
         balance at that position and velocity (the ``z`` at which the actuator, spring,
-        damper and force effects leave no acceleration; 0 starts from that balance).
-        Force effects' own states start at 0.
+        damper and force effects leave no acceleration; 0 starts from that balance);
+        then, optionally, ``(3 + k,)`` or ``(B, 3 + k)``, the ``k`` effects' own states
+        (:func:`~pmabayes.model.codegen.state_effects`: each force effect with a state,
+        then a hysteresis law with one, such as the dissipated energy of a degrading
+        law), which otherwise start at 0, their value at rest.
 
     Returns
     -------
@@ -367,7 +373,8 @@ def simulate(
             raise SimulationError(
                 f"max_warmup_periods must be an integer >= 3, got {max_warmup_periods!r}")
     t, dt = _time_axis(n, dt_s, time_s)
-    init = _initial_values(initial_state, initial_values, theta.shape[0], steady_state)
+    init = _initial_values(initial_state, initial_values, theta.shape[0], steady_state,
+                           model)
     return _simulate_on_grid(model, theta, u, t, dt, substeps=int(substeps), states=states,
                              between_samples=between_samples,
                              period=_check_period(period_samples, steady_state, n),
@@ -376,9 +383,11 @@ def simulate(
                              initial_state=initial_state, init=init)
 
 
-def _initial_values(initial_state: str, values, batch: int, steady_state: bool
-                    ) -> np.ndarray | None:
-    """The kernel's ``init`` ``(3, batch)`` for a given start, checked; None otherwise."""
+def _initial_values(initial_state: str, values, batch: int, steady_state: bool,
+                    model: Model) -> np.ndarray | None:
+    """The kernel's ``init`` ``(3 + k, batch)`` for a given start, checked (``k``: the
+    model's effect states, :func:`~pmabayes.model.codegen.state_effects`; 0 where only
+    three values are given); None otherwise."""
     if initial_state != "estimate":
         if values is not None:
             raise SimulationError(
@@ -392,18 +401,28 @@ def _initial_values(initial_state: str, values, batch: int, steady_state: bool
         raise SimulationError(
             "initial_state='estimate' needs initial_values: (position m, velocity m/s, "
             "z offset N) per member, (3,) or (batch, 3)")
+    states = [e.state for e in state_effects(model)]
+    cols = 3 + len(states)
     v = np.asarray(values, dtype=float)
-    if v.shape == (3,):
-        v = np.broadcast_to(v, (batch, 3))
-    if v.shape != (batch, 3):
-        raise SimulationError(f"initial_values must be 3 values, or ({batch}, 3) for a batch "
-                              f"of {batch}; got shape {v.shape}")
+    if v.ndim in (1, 2) and v.shape[-1] == 3 and states:  # the effects' states at rest
+        v = np.concatenate([v, np.zeros(v.shape[:-1] + (len(states),))], axis=-1)
+    if v.shape == (cols,):
+        v = np.broadcast_to(v, (batch, cols))
+    if v.shape != (batch, cols):
+        if not states:
+            raise SimulationError(f"initial_values must be 3 values, or ({batch}, 3) for a "
+                                  f"batch of {batch}; got shape {v.shape}")
+        named = "position, velocity and z offset" + "".join(f", {n}" for n in states)
+        raise SimulationError(f"initial_values must be 3 or {cols} values ({named}), or "
+                              f"({batch}, 3 or {cols}) for a batch of {batch}; got shape "
+                              f"{v.shape}")
     bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
     if bad.size:
         shown = ", ".join(str(i) for i in bad[:10]) + (", ..." if bad.size > 10 else "")
         raise SimulationError(
             f"initial_values must be finite: {bad.size} of {batch} rows are not (rows "
-            f"{shown}; first {v[bad[0]].tolist()} as position m, velocity m/s, z offset N)")
+            f"{shown}; first {v[bad[0]].tolist()} as position m, velocity m/s, z offset N"
+            + "".join(f", {n}" for n in states) + ")")
     return np.ascontiguousarray(v.T)
 
 
@@ -660,7 +679,13 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
           else np.zeros((rows, batch)))
     extra = (io, ahead, state is None) if lead else ()
     if not states:
-        kernel_for(model, **kernel)(*args, *extra)
+        compiled = kernel_for(model, **kernel)
+        chunks = _member_chunks(batch, n + ahead)
+        if len(chunks) == 1:
+            compiled(*args, *extra)
+        else:
+            out_x, io = _run_in_threads(compiled, chunks, args, extra, shared,
+                                        init is not None)
         _say_overflow(model, theta, dt / substeps, out_x[-1])
         x = out_x.T[:, ahead:]
         return (x, io) if periodic_input else x
@@ -669,6 +694,121 @@ def _run(*, model: Model, theta: np.ndarray, u: np.ndarray, t: np.ndarray, dt: f
     _say_overflow(model, theta, dt / substeps, out_x[-1])
     v, z, p, f, true_x = (a.T[:, ahead:] for a in rec)
     return Simulation(t[ahead:], out_x.T[:, ahead:], true_x, v, z, p, f)
+
+
+#: A batch is simulated in threads only where each thread gets at least this many
+#: members and this many member-samples: below that, starting the threads costs more
+#: than it saves (a thread's start and join take some 50 us; a member-sample some 20 ns).
+_THREAD_MEMBERS, _THREAD_WORK = 4, 200_000
+
+_POOL: list = [None, 0, 0]  # the simulation threads' executor, its size, its process
+_POOL_LOCK = threading.Lock()
+_THREAD_PREFIX = "pmabayes-simulate"
+
+
+def simulation_threads() -> int:
+    """How many threads a large batch of members is simulated in.
+
+    Each member's simulation is its own arithmetic, so a batch split between threads
+    gives the same numbers, to the bit, as one kernel call. The cores this process may
+    use (:func:`pmabayes.util.local_cores`), or ``$PMABAYES_THREADS`` where set; one in
+    a worker process (the sampler's ensembles, a batch's fits), whose siblings use the
+    other cores already.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
+    env = os.environ.get("PMABAYES_THREADS")
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise SimulationError(f"PMABAYES_THREADS must be a whole number >= 1, got "
+                                  f"{env!r}") from None
+    if multiprocessing.parent_process() is not None:
+        return 1
+    return local_cores()
+
+
+def _member_chunks(batch: int, samples: int) -> list[tuple[int, int]]:
+    """The batch's members split into contiguous runs, one per thread (one run where
+    threads would not pay)."""
+    k = min(simulation_threads(), batch // _THREAD_MEMBERS,
+            (batch * samples) // _THREAD_WORK)
+    if k <= 1:
+        return [(0, batch)]
+    edges = np.linspace(0, batch, k + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _executor(k: int):
+    """The process's simulation threads (made once, again after a fork)."""
+    with _POOL_LOCK:
+        pool, size, pid = _POOL
+        if pool is None or pid != os.getpid() or size < k:
+            pool = concurrent.futures.ThreadPoolExecutor(
+                max_workers=k, thread_name_prefix=_THREAD_PREFIX)
+            _POOL[:] = [pool, k, os.getpid()]
+        return pool
+
+
+def side_by_side(fn, parts: list) -> list:
+    """``[fn(part) for part in parts]``, the parts in threads (:func:`simulation_threads`
+    of them at most) where there are several: for compiled kernels that release the GIL,
+    each part its own arithmetic, so that the results are those of one call after
+    another, to the bit.
+
+    Parameters
+    ----------
+    fn : callable
+        Called once per part.
+    parts : list
+        Its arguments.
+
+    Returns
+    -------
+    list
+        The results, in the order of ``parts``.
+    """
+    # one of the threads itself (fn simulating again) waits for none: no deadlock
+    if len(parts) <= 1 or threading.current_thread().name.startswith(_THREAD_PREFIX):
+        return [fn(p) for p in parts]
+    pool = _executor(len(parts))
+    return [f.result() for f in [pool.submit(fn, p) for p in parts]]
+
+
+def _run_in_threads(kernel, chunks: list[tuple[int, int]], args: tuple, extra: tuple,
+                    shared: bool, has_init: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """One kernel call per run of members, side by side in threads (the kernels release
+    the GIL); the positions ``(n, batch)`` and the final state rows put together.
+
+    ``args`` and ``extra`` are the whole batch's (:func:`_run`); each run gets its own
+    contiguous slices, since a strided view would compile (and run) another kernel.
+    """
+    theta, p_in, t, dt, substeps, mass, f_grav, area, *rest = args
+    init = rest[0] if has_init else None
+    out_x = rest[-1]
+    io = extra[0] if extra else None
+
+    def part(a: int, b: int) -> tuple[np.ndarray, np.ndarray | None]:
+        own_x = np.empty((out_x.shape[0], b - a)) if not extra else np.zeros(
+            (out_x.shape[0], b - a))
+        own_io = None if io is None else np.ascontiguousarray(io[:, a:b])
+        head = (np.ascontiguousarray(theta[a:b]),
+                p_in if shared else np.ascontiguousarray(p_in[a:b]),
+                t, dt, substeps, mass, f_grav, area)
+        mid = () if init is None else (np.ascontiguousarray(init[:, a:b]),)
+        tail = () if io is None else (own_io, *extra[1:])
+        kernel(*head, *mid, own_x, *tail)
+        return own_x, own_io
+
+    parts = side_by_side(lambda ab: part(*ab), chunks)
+    x = np.concatenate([px for px, _ in parts], axis=1)
+    if io is not None:
+        io[:] = np.concatenate([pio for _, pio in parts], axis=1)
+    return x, io
 
 
 class SteadyStateWarning(RuntimeWarning):
@@ -820,7 +960,8 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
         (member ``r * B + b``).
     initial_values : array_like, optional
         For a data set whose start is estimated (``initial_state == "estimate"``):
-        ``(B, 3)`` starts, as :func:`simulate` takes them (shared by the trials).
+        ``(B, 3)`` or ``(B, 3 + k)`` starts, as :func:`simulate` takes them (shared by
+        the trials).
 
     Returns
     -------
@@ -854,7 +995,7 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
     relative = position_reference(dataset) == "start"
     theta = model.theta(params)
     batch = theta.shape[0]
-    init = _initial_values(dataset.initial_state, initial_values, batch, steady)
+    init = _initial_values(dataset.initial_state, initial_values, batch, steady, model)
     u = dataset.input[0]
     if per_trial:
         trials = dataset.n_trials
@@ -870,8 +1011,10 @@ def simulate_dataset(model: Model, params, dataset, *, substeps: int = 1,
                             max_warmup_periods=budget, initial_state=dataset.initial_state,
                             init=init)
     if relative:
-        out = (dataclasses.replace(out, position_m=out.position_m - out.position_m[:, :1])
-               if states else out - out[:, :1])
+        if states:
+            out = dataclasses.replace(out, position_m=out.position_m - out.position_m[:, :1])
+        else:  # in place: the simulation's own array, not copied again (same numbers)
+            out -= out[:, :1].copy()
     if not per_trial or states:
         return out
     return out.reshape(trials, batch, -1).transpose(1, 0, 2)

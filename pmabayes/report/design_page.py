@@ -54,11 +54,14 @@ def write_design(result, out_dir: str | Path) -> Path:
     ]
     for name, why in result.left_out.items():
         body.append(f'<p class="note">{html.escape(name)} was left out: {html.escape(why)}</p>')
+    for note in result.notes:
+        body.append(f'<p class="note">Note: {html.escape(note)}</p>')
     body.append(html_figure(png, "predicted responses to the chosen input",
                             "Top: the chosen input. Middle: each candidate's response at its "
                             "MAP, with the 5%-95% band of its posterior draws. Bottom: each "
                             "MAP response less the first candidate's: where they differ."))
-    head = (["#", "experiment", "score", "MC se", "true model named", "named MC se"]
+    head = (["#", "experiment", "score", "MC se", "true model named", "named MC se",
+             "named beyond 2 se", "MC se"]
             if discriminate else ["#", "experiment", "log shrinkage", "MC se",
                                   "shrinkage factor"])
     rows = []
@@ -70,7 +73,8 @@ def write_design(result, out_dir: str | Path) -> Path:
         label = e.label() + (" (chosen)" if i == result.chosen else "")
         if discriminate:
             rows.append([i, label, sc["score"], sc["mc_se"], sc.get("named_rate"),
-                         sc.get("named_rate_mc_se")])
+                         sc.get("named_rate_mc_se"), sc.get("named_decisively_rate"),
+                         sc.get("named_decisively_mc_se")])
         else:
             rows.append([i, label, sc["score"], sc["mc_se"], sc.get("factor")])
     body.append("<h2>Every candidate experiment</h2>")
@@ -79,8 +83,10 @@ def write_design(result, out_dir: str | Path) -> Path:
 
 
 def _score_words(result) -> str:
-    """The chosen experiment's score beside repeating the first input's."""
-    return " ".join(result.lines()[1:])
+    """The chosen experiment's score beside repeating the first input's (the notes and
+    the candidates left out have their own paragraphs)."""
+    return " ".join(line for line in result.lines()[1:]
+                    if not line.startswith(("  note: ", "  left out ")))
 
 
 def _method_words(discriminate: bool) -> str:
@@ -90,7 +96,10 @@ def _method_words(discriminate: bool) -> str:
                 "the fitted noise; each model's predictive density of the new trial mean is "
                 "Gaussian, its draws' spread added to the noise (Box and Hill's criterion). "
                 "'True model named': the expected rate at which the true candidate has the "
-                "highest predictive density. MC se: the Monte Carlo standard error.")
+                "highest predictive density; 'beyond 2 se': the rate at which its sum of "
+                "per-trial differences from every other exceeds two of their standard "
+                "errors, as pmabayes diagnose names a candidate. MC se: the Monte Carlo "
+                "standard error.")
     return ("Score: the mean log factor by which the experiment is expected to shrink the "
             "parameters' 90% intervals (in the fit's unconstrained coordinates), from the "
             "Laplace covariance of the data so far and the experiment's Fisher information "

@@ -193,8 +193,9 @@ class LinearProblem:
         start (of ``likelihood``'s model, the problem's by default)."""
         lik = likelihood or self.lik
         rows = np.atleast_2d(rows)
-        start = (None if self.start is None
-                 else np.broadcast_to(np.asarray(self.start, float), (rows.shape[0], 3)))
+        start = lik.start_from(self.start, self.lik.model)
+        start = None if start is None else np.broadcast_to(start, (rows.shape[0],
+                                                                   start.shape[1]))
         return model_mean(lik, lik.simulate(rows, start))
 
     def whiten_cols(self, cols: np.ndarray) -> np.ndarray:

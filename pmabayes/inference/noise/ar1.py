@@ -18,6 +18,7 @@ import numpy as np
 
 from pmabayes.inference.noise.base import NoiseModel, register_noise_model
 from pmabayes.model.parameters import LogNormal, Parameter, Uniform
+from pmabayes.model.simulator import side_by_side, simulation_threads
 
 if TYPE_CHECKING:
     from pmabayes.inference.likelihood import Likelihood
@@ -286,7 +287,7 @@ def _masked_gains(sigma, rho, white, seen, gains, variances):
     return const, count
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)  # members' runs side by side
 def _kalman_loglik_masked_fixed(y, xt, scale, sigma, rho, white, obs):
     """Exact log-likelihood of ``scale * (y[m] - xt[:, m or 0, b])`` with samples not
     seen, for a batch that shares one noise (scalars).
@@ -331,6 +332,12 @@ def _kalman_loglik_masked_fixed(y, xt, scale, sigma, rho, white, obs):
     return out
 
 
+#: The fewest member-samples per thread for which a sampled noise's filters (one per
+#: member) run in threads (:func:`_masked_loglik`): some 2 ms of work against a thread's
+#: start of some 50 us.
+_RUN_WORK = 100_000
+
+
 def _masked_loglik(y: np.ndarray, x3: np.ndarray, scale: float, sigma: np.ndarray,
                    rho: np.ndarray, white: np.ndarray, obs: np.ndarray) -> np.ndarray:
     """The log-likelihood of ``scale * (y[m] - x3[b, m or 0])`` with samples not seen,
@@ -343,10 +350,18 @@ def _masked_loglik(y: np.ndarray, x3: np.ndarray, scale: float, sigma: np.ndarra
     change = (np.diff(sigma) != 0) | (np.diff(rho) != 0) | (np.diff(white) != 0)
     edges = [0, *(np.flatnonzero(change) + 1).tolist(), sigma.size]
     out = np.empty((sigma.size, y.shape[0]))
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        out[a:b] = _kalman_loglik_masked_fixed(
-            y, np.ascontiguousarray(xt[:, :, a:b]), scale, float(sigma[a]), float(rho[a]),
-            float(white[a]), obs).T
+    runs = list(zip(edges[:-1], edges[1:], strict=True))
+
+    def filtered(some: list) -> None:  # each run's filter is its own arithmetic
+        for a, b in some:
+            out[a:b] = _kalman_loglik_masked_fixed(
+                y, np.ascontiguousarray(xt[:, :, a:b]), scale, float(sigma[a]),
+                float(rho[a]), float(white[a]), obs).T
+
+    # runs of members with their own noise (a sampled noise) in threads, where there
+    # are enough of them to pay for the threads
+    k = min(simulation_threads(), len(runs) // 2, (len(runs) * y.shape[1]) // _RUN_WORK)
+    side_by_side(filtered, [runs[i::k] for i in range(k)] if k > 1 else [runs])
     return out
 
 

@@ -24,7 +24,7 @@ from pmabayes.model.effects.force import (
     StribeckFriction,
 )
 from pmabayes.model.effects.hysteresis import BoucWenBaberNoori, BoucWenExponent
-from pmabayes.model.effects.measurement import PositionOffset
+from pmabayes.model.effects.measurement import PositionOffset, QuadraticSensor
 from pmabayes.model.effects.pressure import (
     RegulatorLag,
     RegulatorSecondOrder,
@@ -47,7 +47,7 @@ BUILTIN: tuple[type[Effect], ...] = (
     RegulatorLag, TransportDelay, CoulombFriction, CubicStiffness, PressureStiffness,
     PositionOffset, StribeckFriction, McKibbenForce, RegulatorSecondOrder,
     PressureHysteresis, MaxwellCreep, BoucWenExponent, ForceLengthMap, LengthStiffness,
-    BoucWenBaberNoori,
+    BoucWenBaberNoori, QuadraticSensor,
 )
 for _effect in BUILTIN:
     register_effect(_effect)
@@ -82,4 +82,5 @@ __all__ = [
     "ForceLengthMap",
     "LengthStiffness",
     "BoucWenBaberNoori",
+    "QuadraticSensor",
 ]

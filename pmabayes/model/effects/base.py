@@ -54,7 +54,8 @@ class Effect:
     state : str or None
         Optional, force and hysteresis effects: the name of the effect's one internal
         state (starting at 0 at rest); ``physics`` then has the extended signature
-        and ``advance`` must be set.
+        and ``advance`` must be set. From an estimated start the state is estimated
+        too where :meth:`start_state` gives it a prior.
     advance : callable or None
         With ``state``: for a force effect the state's exact change over one step,
         ``advance(q, state, x0_m, x1_m, h_s) -> (new_state, dnew_state_dx1)``; for a
@@ -240,6 +241,36 @@ class Effect:
             Parameter name to :class:`~pmabayes.model.parameters.Prior`.
         """
         return {}
+
+    @classmethod
+    def start_state(cls, *, force_n: float, motion_m: float, work_j: float
+                    ) -> Parameter | None:
+        """The effect's state at an estimated start, as a parameter with its prior.
+
+        A record that starts mid-test (``"initial_state": "estimate"``) has its start
+        estimated: the position, velocity and hysteretic force, and each effect's
+        state through this method. An effect with a :attr:`state` whose value there
+        the data can say returns it as a parameter, its prior on the data's scale
+        (a degradation's dissipated energy, a creep element's stretch); None (the
+        default) keeps the state at 0, its value at rest, which the start's report
+        then says.
+
+        Parameters
+        ----------
+        force_n : float
+            The record's range of force on the actuator (area times the pressure's
+            range on a pressure rig).
+        motion_m : float
+            The record's range of motion.
+        work_j : float
+            The work the actuator's force does over the record, summed in absolute
+            value (the sum of ``|F dx|`` of the trial mean).
+
+        Returns
+        -------
+        Parameter or None
+        """
+        return None
 
     @classmethod
     def history_s(cls, q: np.ndarray) -> np.ndarray:

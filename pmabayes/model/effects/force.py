@@ -298,6 +298,16 @@ class MaxwellCreep(Effect):
     physics = staticmethod(_maxwell_creep)
     advance = staticmethod(_maxwell_creep_advance)
 
+    @classmethod
+    def start_state(cls, *, force_n, motion_m, work_j):
+        """The dashpot's stretch at an estimated start: normal about 0 (relaxed) with
+        the record's motion as its spread."""
+        sd = max(float(motion_m), 1e-300)
+        return Parameter(
+            "u_m0_m", "m", 0.0, Normal(0.0, sd), bounds=(-1e3 * sd, 1e3 * sd),
+            description="stretch of the creep element's dashpot at the first sample (its "
+            "state u_m there; an estimated start)", latex=r"u_{\mathrm{m},0}")
+
 
 @numba.njit(cache=True, error_model="numpy")
 def _force_length_map(q, x, v, p):
