@@ -24,6 +24,19 @@ MIN_STEP, MAX_STEP = 1e-8, 1.0
 STEP_SHARE = 0.2
 
 
+def _checked_steps(u0, h) -> tuple[np.ndarray, np.ndarray]:
+    """``u0`` as floats and ``h`` broadcast to it, refused where a step is not a positive
+    finite number (a step of 0 or NaN would make the Hessian NaN)."""
+    u0 = np.asarray(u0, dtype=float)
+    h = np.broadcast_to(np.asarray(h, dtype=float), u0.shape)
+    bad = ~(np.isfinite(h) & (h > 0))
+    if bad.any():
+        raise ValueError(f"finite-difference steps must be positive and finite; coordinates "
+                         f"{np.flatnonzero(bad).tolist()} have {h[bad].tolist()} "
+                         "(choose them with pmabayes.inference.laplace.steps)")
+    return u0, h
+
+
 def _fd_hessian(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Central-difference Hessian of ``f`` (batched callable) at ``u0`` with steps ``h``.
 
@@ -37,13 +50,7 @@ def _fd_hessian(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
         If a step is not a positive finite number (a step of 0 or NaN would make the
         Hessian NaN; :func:`steps` chooses them).
     """
-    u0 = np.asarray(u0, dtype=float)
-    h = np.broadcast_to(np.asarray(h, dtype=float), u0.shape)
-    bad = ~(np.isfinite(h) & (h > 0))
-    if bad.any():
-        raise ValueError(f"finite-difference steps must be positive and finite; coordinates "
-                         f"{np.flatnonzero(bad).tolist()} have {h[bad].tolist()} "
-                         "(choose them with pmabayes.inference.laplace.steps)")
+    u0, h = _checked_steps(u0, h)
     n = u0.size
     pts = [u0]
     for i in range(n):
@@ -75,13 +82,7 @@ def _fd_diagonal(f, u0: np.ndarray, h: np.ndarray) -> np.ndarray:
     ValueError
         As :func:`_fd_hessian`.
     """
-    u0 = np.asarray(u0, dtype=float)
-    h = np.broadcast_to(np.asarray(h, dtype=float), u0.shape)
-    bad = ~(np.isfinite(h) & (h > 0))
-    if bad.any():
-        raise ValueError(f"finite-difference steps must be positive and finite; coordinates "
-                         f"{np.flatnonzero(bad).tolist()} have {h[bad].tolist()} "
-                         "(choose them with pmabayes.inference.laplace.steps)")
+    u0, h = _checked_steps(u0, h)
     n = u0.size
     pts = []
     for i in range(n):
