@@ -227,3 +227,18 @@ def test_a_proposal_its_own_refit_makes_worse_is_not_advised():
     assert "RMS error 552 µm against 310 µm" in worse
     better = _text(*args, "left-out trials", 9e-4)
     assert "To add it: pmabayes --plugin proposed_shape_v.py" in better
+
+
+def test_an_adequate_verdict_says_a_failed_refit_once():
+    # the score test flags an effect whose refit failed, on an adequate model: the words
+    # say "refit failed" once, never "refit refit failed"
+    why = refit_failure(-1000.0, -1015.3, "force_length_map")
+    failed = _refit("force_length_map", -15.3, 2.0, 0.0, failed=why)
+    findings = [SimpleNamespace(effect="force_length_map", refit=failed, significant=True,
+                                p_value=2e-11)]
+    exp = SimpleNamespace(name="d", signature=_sig(1e-3, 1e-3, energy=1.0), adequate=True,
+                          floor_note=lambda: "")
+    text = verdict_text("base", (), (exp,), True, None, {"force_length_map": failed},
+                        findings, 0.9, None, None)
+    assert "force_length_map (p = 2e-11, refit failed (its search ended" in text
+    assert "refit refit" not in text

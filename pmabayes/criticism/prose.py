@@ -276,9 +276,12 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
                 "See the residual signature figures, and register an effect that describes "
                 "it.")
     if adequate:
+        def refit_text(refit) -> str:  # elpd_text of a failed refit says "refit" itself
+            text = elpd_text(refit)
+            return text if text.startswith("refit") else f"refit {text}"
+
         named = ", ".join(f"{f.effect} (p = {f.p_value:.2g}" + (
-            f", refit {elpd_text(f.refit)})"
-            if f.refit else ")") for f in significant)
+            f", {refit_text(f.refit)})" if f.refit else ")") for f in significant)
         return (f"{name} is adequate: the residual is consistent with the noise floor ({sig}). "
                 f"The score test flags {named}, but no refit predicts left-out trials "
                 "clearly better, so nothing is named; with a family-wise level of 5%, this "
