@@ -48,7 +48,8 @@ JOBS: dict[str, str] = {
     "effects": "the old import path of model/effects, kept so that older plugins load; it "
                "warns once and will be removed",
     "inference": "likelihood and noise, checks of repeated trials, the posterior density, "
-                 "the fit file, the sampler (MAP and emcee) and batches",
+                 "the fit file, the sampler (MAP and emcee), batches, and Pareto-smoothed "
+                 "importance weights",
     "outputs": "the rules of outputs, for the command line and the API alike: every output "
                "path checked before any work, never over a file pmabayes did not make, "
                "pages written whole",

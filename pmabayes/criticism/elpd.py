@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
+from pmabayes.inference.importance import smoothed_log_weights
+
 __all__ = ["paired_difference", "laplace_loo", "LaplaceLoo", "good_k", "plugin_difference",
            "psis_loo", "loo_table"]
 
@@ -288,26 +290,7 @@ def plugin_difference(a: LaplaceLoo, b: LaplaceLoo) -> tuple[float, float]:
 def _pareto_k(log_weights: np.ndarray) -> float:
     """Pareto k-hat of importance weights given by their logs (NaN where their tail has
     no spread: then they are alike, and need no smoothing)."""
-    from arviz_stats.base import array_stats
-
-    try:
-        return float(array_stats.psislw(-(log_weights - np.max(log_weights)), r_eff=1.0)[1])
-    except ValueError:
-        return math.nan
-
-
-def _psis_log_weights(log_ratios: np.ndarray) -> tuple[np.ndarray, float]:
-    """Pareto-smoothed, normalised log weights of one unit's log importance ratios and
-    their k-hat; where the ratios' tail has no spread (ArviZ raises), the plain
-    normalised weights and NaN."""
-    from arviz_stats.base import array_stats
-
-    lr = log_ratios - np.max(log_ratios)
-    try:
-        lw, k = array_stats.psislw(-lr, r_eff=1.0)
-        return np.asarray(lw, dtype=float), float(k)
-    except ValueError:
-        return lr - logsumexp(lr), math.nan
+    return smoothed_log_weights(log_weights)[1]
 
 
 def psis_loo(pointwise: np.ndarray, log_weights: np.ndarray | None = None, *,
@@ -353,7 +336,7 @@ def psis_loo(pointwise: np.ndarray, log_weights: np.ndarray | None = None, *,
     elpd_i = np.empty(pointwise.shape[1])
     k = np.empty(pointwise.shape[1])
     for i in range(pointwise.shape[1]):
-        smoothed, k[i] = _psis_log_weights(lw - pointwise[:, i])
+        smoothed, k[i] = smoothed_log_weights(lw - pointwise[:, i])
         elpd_i[i] = logsumexp(smoothed + pointwise[:, i])
     if with_k:
         return float(elpd_i.sum()), elpd_i, k

@@ -19,6 +19,7 @@ import numpy as np
 
 from pmabayes.design.experiments import DesignError, dead_load_kg, loaded_mass_kg
 from pmabayes.inference.density import Posterior
+from pmabayes.inference.importance import smoothed_log_weights
 from pmabayes.inference.posterior import build_posterior
 from pmabayes.inference.search import MapResult, find_map
 from pmabayes.model.model import Model, ModelError
@@ -204,7 +205,7 @@ class CandidateFit:
             if int(ok.sum()) < n * sets:
                 continue
             lr = log_ratio[ok] - np.max(log_ratio[ok])
-            log_w, k_hat = _smoothed_log_weights(lr)
+            log_w, k_hat = smoothed_log_weights(lr)
             w = np.exp(log_w - np.max(log_w))
             w /= w.sum()
             ess = float(1.0 / np.sum(w**2))
@@ -245,21 +246,6 @@ GOOD_K_HAT = 0.7
 #: Scales of the Laplace sds tried as importance proposals, the approximation itself
 #: first (:meth:`CandidateFit.weighted_draws`).
 _PROPOSAL_SCALES = (1.0, 0.25, 0.0625, 0.015625)
-
-
-def _smoothed_log_weights(log_ratios: np.ndarray) -> tuple[np.ndarray, float]:
-    """Pareto-smoothed log importance weights and their k-hat; the plain ratios and NaN
-    where their tail has no spread (all alike: nothing to smooth)."""
-    from arviz_stats.base import array_stats
-
-    try:
-        # a tail far from Pareto (k-hat of several) overflows the smoothing's quantiles:
-        # the k-hat says so, and the weights are then not relied on
-        with np.errstate(over="ignore", invalid="ignore"):
-            log_w, k = array_stats.psislw(-log_ratios, r_eff=1.0)
-        return np.asarray(log_w, dtype=float), float(k)
-    except ValueError:
-        return log_ratios, math.nan
 
 
 def does_not_act(datasets: Sequence, base: Sequence[str], effect: str) -> str | None:
