@@ -64,7 +64,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         print(check_trials(ds).summary())
     model = _model_for(datasets[0], args)
     settings = DiagnoseSettings(candidates=args.candidates or None,
-                                noise_model=args.noise_model, substeps=args.substeps)
+                                noise_model=args.noise_model, substeps=args.substeps,
+                                refit_search=args.refit_search)
     # a proposed effect's file goes where the options say; without one it is checked
     # in a temporary folder and not kept (nothing is written into the current folder)
     plugin_dir = args.proposal_dir or out or False
@@ -183,6 +184,11 @@ def _criticism_commands(sub, common) -> None:
     diag.add_argument("--substeps", type=_substeps, default="auto",
                       help="simulator steps per sample interval, or 'auto' (the default, as "
                       "for fit)")
+    diag.add_argument("--refit-search", default="nested",
+                      help="how each candidate's refit finds its MAP: 'nested' (the "
+                      "default) runs one global search and also polishes from the model's "
+                      "MAP with the effect at its null (each experiment's own MAP "
+                      "likewise); 'global' runs the fit's searches in full (slower)")
     _noise_model_option(diag)
     _prior_option(diag)
     _exclude_option(diag)

@@ -256,10 +256,15 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
                 for lik in base.likelihoods]
     for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
         ext.use_noise(lik.noise)
-    ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng,
-                                 base.noise_choices, refer=False)
     ext = ext_liks[0].model
     eff = ext.effects[-1]
+    if s.refit_search == "global":
+        ext_post, ext_map = _fit_map(ext_liks, base.repeat_noise, base.names, rng,
+                                     base.noise_choices, refer=False)
+    else:
+        ext_post = Posterior(ext_liks, base.repeat_noise, names=base.names,
+                             noise_choices=base.noise_choices)
+        ext_map = _nested_map(ext_post, base, eff, rng)
     tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
     loo = laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob, tested)
     e_elpd, e_elpd_i, interval = loo.elpd, loo.elpd_i, loo.interval
@@ -311,6 +316,49 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
         elpd_note=_difference_note(loo, base.loo),
         plugin_diff=plugin, plugin_diff_se=plugin_se, loo=loo,
     )
+
+
+def _nested_map(posterior: Posterior, base: BaseFit, effect, rng: np.random.Generator):
+    """The refit's MAP: one global search, and polishes from the diagnosed model's MAP,
+    which the refit nests, with the effect at its null and at its default (a step away
+    from a null that is a flat point); the highest kept, so the refit's likelihood is
+    at least the model's wherever a polish climbs. Each experiment's own MAP (the
+    agreement test, and a start of the joint polish) likewise: one search, and polishes
+    from its own under the model (:func:`pmabayes.inference.search.find_map`'s
+    ``starts`` and ``own``)."""
+    starts = np.repeat(np.array([[p.default for p in posterior.parameters]]), 2, axis=0)
+    for j, name in enumerate(posterior.names):
+        if name in base.values:
+            starts[:, j] = base.values[name]
+    _at_null(posterior, starts, effect)
+    own = None
+    if base.agreement is not None and posterior.n_experiments > 1:
+        own = []
+        for e, name in enumerate(posterior.experiment_names):
+            alone = posterior.alone(e)
+            z_own = base.agreement["experiments"][name]["z_own"]
+            z = np.array([[p.default for p in alone.parameters]])
+            z = alone.to_unconstrained(z)
+            for j, n in enumerate(alone.names):
+                if n in z_own:
+                    z[0, j] = z_own[n][0]
+            point = np.repeat(alone.to_natural(z), 2, axis=0)
+            own.append(_at_null(alone, point, effect))
+    return find_map(posterior, rng=rng, refer=False, searches=1, starts=starts, own=own)
+
+
+def _at_null(posterior: Posterior, starts: np.ndarray, effect) -> np.ndarray:
+    """``starts`` (two rows, natural) with the effect's parameters at their null in the
+    first row and at their default in the second, in every experiment; changed in place."""
+    for p in effect.parameters:
+        for ident in posterior.identified:
+            name = ident.get(p.name)
+            if name is None or name not in posterior.names:
+                continue
+            j = posterior.names.index(name)
+            starts[0, j] = p.default if p.null is None else p.null
+            starts[1, j] = p.default
+    return starts
 
 
 def _difference_note(refit: LaplaceLoo, base: LaplaceLoo | None) -> str | None:

@@ -15,6 +15,10 @@ from pmabayes.model.effects import get_effect
 __all__ = ["DiagnoseSettings"]
 
 
+#: how a refit finds its MAP (:attr:`DiagnoseSettings.refit_search`)
+REFIT_SEARCHES = ("nested", "global")
+
+
 @dataclass(frozen=True)
 class DiagnoseSettings:
     """How to diagnose: levels, thresholds, refits, draws and the noise model.
@@ -61,6 +65,13 @@ class DiagnoseSettings:
         Estimate the missing force from the data when the model is above the floor
         and no candidate accounts for it
         (:func:`pmabayes.criticism.discrepancy.estimate_discrepancy`).
+    refit_search : str
+        How each refit finds its MAP. ``"nested"`` (the default): one global search,
+        and polishes from the diagnosed model's MAP, which the refit nests (the
+        effect at its null, and at its default), the highest kept; with several
+        experiments, each one's own MAP (for the agreement test) likewise, from its
+        own under the model. ``"global"``: the fit's searches in full for each refit
+        (two global searches, and two more per experiment for its own MAP).
 
     Raises
     ------
@@ -81,6 +92,7 @@ class DiagnoseSettings:
     candidates: tuple[str, ...] | None = None
     noise_model: str = "auto"
     discrepancy: bool = True
+    refit_search: str = "nested"
 
     def __post_init__(self) -> None:
         if self.candidates is not None and not isinstance(self.candidates, tuple):
@@ -99,6 +111,9 @@ class DiagnoseSettings:
                 raise ValueError(f"{name} must be a whole number, at least {least}; "
                                  f"got {value!r}")
         check_noise_model_name(self.noise_model)
+        if self.refit_search not in REFIT_SEARCHES:
+            raise ValueError(f"refit_search must be one of {', '.join(REFIT_SEARCHES)}; "
+                             f"got {self.refit_search!r}")
         for c in self.candidates or ():
             get_effect(c)  # unknown names fail here, before any fitting
 

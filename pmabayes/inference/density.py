@@ -7,6 +7,7 @@ posterior says why.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -286,6 +287,25 @@ class Posterior:
         """An experiment's estimated start ``(batch, 3)`` in identified values, or None."""
         cols = self.start_columns.get(experiment)
         return None if cols is None else np.atleast_2d(theta)[:, cols]
+
+    def alone(self, experiment: int) -> Posterior:
+        """One experiment's posterior: its data alone, under this one's noise for it.
+
+        Its likelihood is a copy, so that this posterior's keeps its columns.
+
+        Parameters
+        ----------
+        experiment : int
+            The experiment's index.
+
+        Returns
+        -------
+        Posterior
+        """
+        g = self.groups[experiment]
+        return Posterior(copy.copy(self.likelihoods[experiment]), self.group_noise[g],
+                         names=[self.experiment_names[experiment]],
+                         noise_choices=[self.noise_choices[experiment]])
 
     def experiment_point(self, experiment: int, values: dict
                          ) -> tuple[dict, np.ndarray | None]:

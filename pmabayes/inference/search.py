@@ -11,7 +11,6 @@ parameter set (:func:`experiments_agreement`).
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 
@@ -153,6 +152,9 @@ def find_map(
     maxiter: int = 300,
     refer: bool = True,
     own_starts: bool = True,
+    searches: int = 2,
+    starts: np.ndarray | None = None,
+    own: list[np.ndarray] | None = None,
 ) -> MapResult:
     """Global search on the paper's RMS cost, then the MAP by local polish.
 
@@ -201,6 +203,17 @@ def find_map(
     own_starts : bool
         With several experiments, also start from each experiment's own MAP and test
         their agreement. False searches the joint posterior alone (as before).
+    searches : int
+        Global searches, each on its own stream (1 or 2).
+    starts : numpy.ndarray or None
+        Natural points ``(k, ndim)`` polished as well as the search's optimum, the
+        highest kept: for example a model this posterior's nests, at its MAP, with
+        the added parameters at their null (:func:`pmabayes.criticism.diagnose`'s
+        refits). A value with no unconstrained coordinate (0 on a log scale) starts
+        at the plausible box's edge.
+    own : list of numpy.ndarray or None
+        With several experiments, each one's ``starts`` for the search of its own MAP
+        (``searches`` searches, as here).
 
     Returns
     -------
@@ -225,16 +238,17 @@ def find_map(
     n_model = posterior.n_model
     say = Progress()
     z_model, global_cost = _global_search(posterior, box[:n_model], rng, popsize, maxiter,
-                                          say, "1 of 2")
+                                          say, f"1 of {searches}")
     # a second search on its own stream (spawning leaves rng's draws as they were): a
     # short record can hold a second basin of the hysteresis loop's shape (beta and
     # gamma traded at a near-constant beta + gamma), where one search may end
-    z_other, other_cost = _global_search(posterior, box[:n_model], rng.spawn(1)[0], popsize,
-                                         maxiter, say, "2 of 2")
+    if searches > 1:
+        z_other, other_cost = _global_search(posterior, box[:n_model], rng.spawn(1)[0],
+                                             popsize, maxiter, say, "2 of 2")
+        if other_cost < (1.0 - _OTHER_BASIN) * global_cost:
+            z_model, global_cost = z_other, other_cost
     say.end()
     say.say("polishing the MAP (L-BFGS-B, then Newton steps for the Laplace covariance)")
-    if other_cost < (1.0 - _OTHER_BASIN) * global_cost:
-        z_model, global_cost = z_other, other_cost
     # the base physics contains the static line (a linear lag): a search that ends worse
     # than it has failed, so the polish starts from the line's nested model instead
     z_model, global_cost, nested = _nested_start(posterior, box, z_model, global_cost)
@@ -243,32 +257,37 @@ def find_map(
     # optimise in coordinates scaled to the plausible box
     scale = box[:, 1] - box[:, 0]
     z_map, cov_z, note = _polish_from(posterior, z_global, scale)
-    own, best_start = [], "joint search"
-    if own_starts and posterior.n_experiments > 1:
-        own = _own_optima(posterior, rng.spawn(1)[0], popsize, maxiter)
-        z_map, cov_z, note, best_start = _best_of_starts(posterior, z_map, cov_z, note, own,
-                                                         scale)
+    if starts is not None:
+        z_map, cov_z, note = _best_polish(
+            posterior, scale, [*_starts_z(posterior, box, starts)], (z_map, cov_z, note))
+    agreement_of = None
+    if posterior.n_experiments > 1 and (own is not None or own_starts):
+        results = _own_optima(posterior, rng.spawn(1)[0], popsize, maxiter, searches, own)
+        z_map, cov_z, note, agreement_of = _best_of_starts(posterior, z_map, cov_z, note,
+                                                           results, scale)
     return _finish(posterior, z_map, cov_z, note, scale, rng, refer=refer,
-                   global_point=(z_global, global_cost),
-                   agreement_of=(own, best_start) if own else None, nested_start=nested)
+                   global_point=(z_global, global_cost), agreement_of=agreement_of,
+                   nested_start=nested)
 
 
 def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Generator,
                refer: bool = True) -> MapResult:
-    """The MAP polished from a given point instead of a global search.
+    """The MAP polished from given points instead of a global search.
 
     For a posterior that differs from one already searched only where the search
     does not look (a sampled noise's bounds; :mod:`pmabayes.inference.disturbance`):
     the polish, the noise learnt again at it (``refer``) and the fit's quality check
-    run as in :func:`find_map`.
+    run as in :func:`find_map`. A value with no unconstrained coordinate (0 on a log
+    scale) starts at the prior's plausible box's edge.
 
     Parameters
     ----------
     posterior : Posterior
         The target.
     theta : numpy.ndarray
-        The start, natural units, one value per ``posterior.names``; its global-search
-        record in the result.
+        The start, natural units, one value per ``posterior.names``; or several starts,
+        one per row, each polished and the highest kept. The first is the result's
+        global-search record.
     rng : numpy.random.Generator
         Seeds the plausible box (the polish's scale) and the climb out of a saddle.
     refer : bool
@@ -285,16 +304,37 @@ def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Genera
     """
     box = posterior.plausible_box(rng, posterior.names)
     scale = box[:, 1] - box[:, 0]
-    # a sampled noise starts at its mode given the start's model (as after the search):
-    # from where another bound held it, a polish can stay there
-    z0 = _noise_start(posterior, posterior.to_unconstrained(
-        np.asarray(theta, dtype=float)[None])[0])
-    _, ll, x = posterior.evaluate(np.asarray(theta, dtype=float)[None])
+    first, *rest = _starts_z(posterior, box, theta)
+    _, _, x = posterior.evaluate(posterior.to_natural(first[None]))
     cost = (float(posterior.likelihood.rms_cost(np.atleast_2d(x[0]))[0]) if x is not None
             else math.inf)
-    z_map, cov_z, note = _polish_from(posterior, z0, scale)
+    z_map, cov_z, note = _best_polish(posterior, scale, rest,
+                                      _polish_from(posterior, first, scale))
     return _finish(posterior, z_map, cov_z, note, scale, rng, refer=refer,
-                   global_point=(z0, cost), agreement_of=None)
+                   global_point=(first, cost), agreement_of=None)
+
+
+def _starts_z(posterior: Posterior, box: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Natural starts ``theta`` (one row, or several) in unconstrained coordinates, a
+    value with none (an effect's null at the end of a log scale) at the plausible
+    ``box``'s nearer edge (unconstrained, one row per ``posterior.names``), and a sampled
+    noise at its mode given the start's model (as after the search: from where another
+    bound held it, a polish can stay there)."""
+    z = posterior.to_unconstrained(np.atleast_2d(np.asarray(theta, dtype=float)))
+    z = np.where(np.isfinite(z), z, np.where(z < 0, box[:, 0], box[:, 1]))
+    return np.array([_noise_start(posterior, row) for row in z])
+
+
+def _best_polish(posterior: Posterior, scale: np.ndarray, starts, best: tuple) -> tuple:
+    """The highest, by log posterior, of ``best`` (a polished ``(z, cov, note)``) and the
+    polishes from each unconstrained start in ``starts``."""
+    lp = float(posterior.log_prob_z(best[0][None])[0])
+    for z0 in starts:
+        polished = _polish_from(posterior, z0, scale)
+        lp_k = float(posterior.log_prob_z(polished[0][None])[0])
+        if lp_k > lp or not math.isfinite(lp):
+            best, lp = polished, lp_k
+    return best
 
 
 def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, note: str | None,
@@ -345,24 +385,17 @@ def _finish(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, note: st
     )
 
 
-def _alone(posterior: Posterior, experiment: int) -> Posterior:
-    """One experiment's posterior: its data alone, under the joint's noise for it.
-
-    Its likelihood is a copy, so that the joint's keeps its columns.
-    """
-    g = posterior.groups[experiment]
-    return Posterior(copy.copy(posterior.likelihoods[experiment]), posterior.group_noise[g],
-                     names=[posterior.experiment_names[experiment]],
-                     noise_choices=[posterior.noise_choices[experiment]])
-
-
 def _own_optima(posterior: Posterior, rng: np.random.Generator, popsize: int,
-                maxiter: int) -> list[MapResult]:
-    """Each experiment's own MAP (:func:`find_map` on its data alone, its noise kept),
-    each search on its own stream spawned from ``rng``."""
-    return [find_map(_alone(posterior, e), rng=r, popsize=popsize, maxiter=maxiter,
-                     refer=False)
-            for e, r in enumerate(rng.spawn(posterior.n_experiments))]
+                maxiter: int, searches: int = 2, starts: list | None = None
+                ) -> list[MapResult]:
+    """Each experiment's own MAP (:func:`find_map` on its data alone, its noise kept,
+    with its ``starts`` where given), each search on its own stream spawned from
+    ``rng``."""
+    starts = starts if starts is not None else [None] * posterior.n_experiments
+    return [find_map(posterior.alone(e), rng=r, popsize=popsize, maxiter=maxiter,
+                     refer=False, searches=searches, starts=start)
+            for e, (r, start) in enumerate(zip(rng.spawn(posterior.n_experiments), starts,
+                                               strict=True))]
 
 
 def _joint_point(posterior: Posterior, z_joint: np.ndarray, experiment: int,
@@ -383,10 +416,10 @@ def _joint_point(posterior: Posterior, z_joint: np.ndarray, experiment: int,
 
 def _best_of_starts(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray,
                     note: str | None, own: list[MapResult], scale: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, str | None, str]:
+                    ) -> tuple[np.ndarray, np.ndarray, str | None, tuple]:
     """The highest of the joint MAP and the joint MAPs polished from each
-    experiment's own MAP; its covariance (and why it is a stand-in, or None), and which
-    start it came from."""
+    experiment's own MAP; its covariance (and why it is a stand-in, or None), and the
+    own MAPs with which start it came from (:func:`_finish`'s ``agreement_of``)."""
     best = (float(posterior.log_prob_z(z_map[None])[0]), z_map, cov_z, note, "joint search")
     for e, result in enumerate(own):
         z_e, cov_e, note_e = _polish_from(posterior, _joint_point(posterior, z_map, e, result),
@@ -394,7 +427,7 @@ def _best_of_starts(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray,
         lp = float(posterior.log_prob_z(z_e[None])[0])
         if lp > best[0]:
             best = (lp, z_e, cov_e, note_e, f"own MAP of {posterior.experiment_names[e]}")
-    return best[1], best[2], best[3], best[4]
+    return best[1], best[2], best[3], (own, best[4])
 
 
 def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
@@ -432,7 +465,7 @@ def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
     gain, df = 0.0, -posterior.ndim
     for e, (name, lik, result) in enumerate(zip(posterior.experiment_names,
                                                 posterior.likelihoods, own, strict=True)):
-        alone = _alone(posterior, e)
+        alone = posterior.alone(e)
         own_theta = alone.to_natural(result.z[None])
         _, ll_own, x_own = alone.evaluate(own_theta)
         x = posterior.simulate(theta, e)
@@ -814,10 +847,8 @@ def _nested_start(posterior: Posterior, box: np.ndarray, z_model: np.ndarray,
     rest = _default_noise_z(posterior, n_model)
     theta = posterior.to_natural(np.concatenate([z_model, rest])[None])[0]
     points = _nested_points(posterior, theta, line)
-    edges = posterior.to_natural(np.column_stack([
-        np.concatenate([box[:n_model, j], rest]) for j in (0, 1)]).T)
-    lo, hi = edges.min(axis=0), edges.max(axis=0)
-    points[:, :n_model] = np.clip(points[:, :n_model], lo[:n_model], hi[:n_model])
+    edges = posterior.to_natural(box.T)
+    points[:, :n_model] = np.clip(points, edges.min(axis=0), edges.max(axis=0))[:, :n_model]
     z = posterior.to_unconstrained(points)
     z[:, n_model:] = rest
     theta = posterior.to_natural(z)
