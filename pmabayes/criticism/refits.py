@@ -285,8 +285,12 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
     over = sum((b.energy - 1.0) * n for b, n in zip(base.signatures, sizes, strict=True))
     explained = float(np.clip(gain / base.excess, 0.0, 1.0)) if over > 0 else 0.0
     nxt = None
-    if explained < s.min_explained and not s.all_adequate(sigs):
-        # one step of look-ahead: does another candidate account for what is left?
+    # one step of look-ahead: does another candidate account for what is left? Only
+    # the share judges it, and only where every experiment has a noise floor
+    # (:func:`_explaining`); elsewhere it would compile and score every candidate for
+    # nothing
+    if (explained < s.min_explained and not s.all_adequate(sigs)
+            and _has_floors(sigs)):
         following = [e for e in rank_effects(ext_liks, ext_noises, [own for own, _ in points],
                                              candidates=s.candidates, level=s.level,
                                              starts=[start for _, start in points])
@@ -462,10 +466,14 @@ def ranking_key(refit: Refit) -> tuple:
     return (not usable, -refit.elpd_diff if usable else 0.0)
 
 
+def _has_floors(signatures) -> bool:
+    """Whether every experiment of these residual signatures has a noise floor."""
+    return all(math.isfinite(sig.bands[-1].floor_m) for sig in signatures)
+
+
 def _floors(refits: dict) -> bool:
     """Whether every experiment has a noise floor (else none of the shares means much)."""
-    return all(math.isfinite(sig.bands[-1].floor_m) for r in refits.values()
-               for sig in r.signatures)
+    return all(_has_floors(r.signatures) for r in refits.values())
 
 
 def _explaining(refits: dict, s: DiagnoseSettings) -> list[Refit]:

@@ -197,6 +197,15 @@ class Posterior:
         self._template = np.array(template, dtype=float)
         self._free_cols = np.array([slot[n] for n in names], dtype=int)
 
+    def members(self, group: int) -> list[int]:
+        """The experiments of a noise group, by index."""
+        return [e for e, g in enumerate(self.groups) if g == group]
+
+    def noise_columns(self, group: int) -> list[int]:
+        """The columns of a noise group's sampled noise parameters (none where its noise
+        comes from repeats)."""
+        return list(self._noise_cols.get(group, []))
+
     def noise_of(self, experiment: int, theta: np.ndarray | None = None) -> tuple:
         """The noise parameters of an experiment: ``(sigma, rho, white)`` for AR(1) +
         white, its noise model's (:meth:`noise_names`) for a sampled one.
@@ -410,7 +419,7 @@ class Posterior:
 
     def evaluate(
         self, theta: np.ndarray, *, return_x: bool = True,
-        outputs: list[np.ndarray] | None = None,
+        outputs: list[np.ndarray] | None = None, experiments: list[int] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Log prior, log likelihood and model output for natural values.
 
@@ -425,6 +434,10 @@ class Posterior:
             the model's parameters and start and only the sampled noise differs (the
             noise's own search): used instead of simulating each member again, with the
             same numbers.
+        experiments : list of int, optional
+            Only these experiments' likelihoods (all by default): where only their
+            noise varies, the others' are a constant (the noise's own search, group by
+            group). Needs ``return_x`` false.
 
         Returns
         -------
@@ -438,6 +451,8 @@ class Posterior:
             experiments' outputs concatenated along time), or None if no member was
             valid or ``return_x`` is false.
         """
+        if experiments is not None and return_x:
+            raise ValueError("the output of some experiments only is not returned")
         theta = np.atleast_2d(theta)
         lp = self.log_prior(theta)
         ll = np.full(theta.shape[0], -np.inf)
@@ -445,11 +460,13 @@ class Posterior:
         if not ok.any():
             return lp, ll, None
         sub = theta[ok]
-        xs = ([self.simulate(sub, e) for e in range(self.n_experiments)] if outputs is None
-              else [np.broadcast_to(x, (sub.shape[0], x.shape[-1])) for x in outputs])
+        chosen = range(self.n_experiments) if experiments is None else experiments
+        xs = ([self.simulate(sub, e) for e in chosen] if outputs is None
+              else [np.broadcast_to(outputs[e], (sub.shape[0], outputs[e].shape[-1]))
+                    for e in chosen])
         total = np.zeros(sub.shape[0])
-        for e, (lik, x) in enumerate(zip(self.likelihoods, xs, strict=True)):
-            total += lik.mean_log_likelihood(x, *self.noise_of(e, sub))
+        for e, x in zip(chosen, xs, strict=True):
+            total += self.likelihoods[e].mean_log_likelihood(x, *self.noise_of(e, sub))
         # a failed simulation (non-finite output) has a non-finite likelihood: each
         # member's filter is its own arithmetic, so the others are unchanged
         ll[ok] = np.where(np.isfinite(total), total, -np.inf)
@@ -459,13 +476,14 @@ class Posterior:
         x[ok] = np.concatenate(xs, axis=1)
         return lp, ll, x
 
-    def log_prob_z(self, z: np.ndarray, outputs: list[np.ndarray] | None = None
-                   ) -> np.ndarray:
+    def log_prob_z(self, z: np.ndarray, outputs: list[np.ndarray] | None = None,
+                   experiments: list[int] | None = None) -> np.ndarray:
         """Log posterior density in unconstrained coordinates (what emcee samples);
-        ``outputs`` as :meth:`evaluate`'s."""
+        ``outputs`` and ``experiments`` as :meth:`evaluate`'s."""
         z = np.atleast_2d(z)
         theta = self.to_natural(z)
-        lp, ll, _ = self.evaluate(theta, return_x=False, outputs=outputs)
+        lp, ll, _ = self.evaluate(theta, return_x=False, outputs=outputs,
+                                  experiments=experiments)
         out = lp + ll + self.log_jacobian(z)
         return np.where(np.isfinite(out), out, -np.inf)
 

@@ -76,7 +76,7 @@ def _pinned_groups(posterior: Posterior, theta: np.ndarray) -> list[int]:
     bound, and whose records declare no bound of their own."""
     out = []
     for g in sorted(set(posterior.groups)):
-        members = [e for e, gg in enumerate(posterior.groups) if gg == g]
+        members = posterior.members(g)
         liks = [posterior.likelihoods[e] for e in members]
         if posterior.group_noise[g] is not None or any(
                 "disturbance_max_s" in lik.dataset.metadata for lik in liks):

@@ -37,13 +37,12 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
     noise model starts the search, over the noise coordinates only, of the posterior
     from it (:meth:`~pmabayes.inference.noise.NoiseModel.start`).
     """
-    cols = np.arange(posterior.n_searched, posterior.ndim)
-    if cols.size == 0:
+    if posterior.n_searched == posterior.ndim:
         return z
     x = posterior.output(posterior.to_natural(z[None]))
     # several experiments are seen as one JointLikelihood, which splits the output
     parts = posterior.likelihood.split(x) if posterior.n_experiments > 1 else [x]
-    # per sampled group, from its first experiment: (start, shift, noise model, its lik)
+    # per sampled group, from its first experiment: (start, shift, noise model)
     starts: dict[int, tuple] = {}
     for e, (lik, xe) in enumerate(zip(posterior.likelihoods, parts, strict=True)):
         g = posterior.groups[e]
@@ -52,27 +51,24 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
             if lik.observed is not None:  # a single record: its samples observed
                 r = np.where(lik.observed[0], r, 0.0)
             starts[g] = (*lik.noise.start(r, lik.observed, lik), lik.noise)
-    order = sorted(starts)  # the columns' order
-    u0 = np.concatenate([starts[g][0] for g in order])
-    shift = np.concatenate([starts[g][1] for g in order])
-
     # the model's parameters and start stay at z's: its output, simulated once above,
     # is every evaluation's (thousands of them), not simulated again each time
     outputs = [np.atleast_2d(xe) for xe in parts]
-
-    def neg(u: np.ndarray) -> np.ndarray:
-        zz = np.repeat(z[None], np.atleast_2d(u).shape[0], axis=0)
-        zz[:, cols] = np.atleast_2d(u)
-        return -posterior.log_prob_z(zz, outputs=outputs)
-
     out = z.copy()
-    out[cols] = _minimise_noise(neg, u0, shift)
-    a = posterior.n_searched
-    for g in order:
-        width = starts[g][0].size
-        sl = slice(a, a + width)
-        out[sl] = starts[g][2].clip_start(out[sl], posterior.upper[sl])
-        a += width
+    # given the output, each group's noise enters only its own experiments' likelihood
+    # and its own prior: the search splits into one small search per group (a few
+    # hundred evaluations of one experiment each, where one search over all of them
+    # took thousands of all)
+    for g, (u0, shift, noise) in sorted(starts.items()):
+        gcols = np.asarray(posterior.noise_columns(g))
+        members = posterior.members(g)
+
+        def neg(u: np.ndarray, gcols=gcols, members=members) -> np.ndarray:
+            zz = np.repeat(out[None], np.atleast_2d(u).shape[0], axis=0)
+            zz[:, gcols] = np.atleast_2d(u)
+            return -posterior.log_prob_z(zz, outputs=outputs, experiments=members)
+
+        out[gcols] = noise.clip_start(_minimise_noise(neg, u0, shift), posterior.upper[gcols])
     return out
 
 
@@ -108,7 +104,7 @@ def refer_periods(posterior: Posterior, z: np.ndarray) -> bool:
     for e in shaken:
         liks[e].refer_periods_to(posterior.simulate(theta, e)[0])
     for g in sorted({posterior.groups[e] for e in shaken}):
-        members = [e for e, gg in enumerate(posterior.groups) if gg == g]
+        members = posterior.members(g)
         est, choice = group_noise([liks[e] for e in members],
                                    posterior.noise_choices[members[0]].requested)
         posterior.set_group_noise(g, est, choice)
