@@ -41,7 +41,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from pmabayes.util import _SHOWN, local_cores
 
-__all__ = ["Runner"]
+__all__ = ["Runner", "background"]
 
 _PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
 _WATCH_INTERVAL_S = 0.5
@@ -70,6 +70,43 @@ def _start_worker(parent_pid: int, initializer: Callable | None, initargs: tuple
                      name="pmabayes-parent-watch").start()
     if initializer is not None:
         initializer(*initargs)
+
+
+def _background_main(parent_pid: int, fn: Callable, args: tuple) -> None:
+    _start_worker(parent_pid, None, ())
+    fn(*args)
+
+
+def background(fn: Callable, *args) -> mp.process.BaseProcess | None:
+    """Run ``fn(*args)`` in one forked local process that dies with this one.
+
+    For work whose only product is a side effect that this process can do without, such
+    as compiling simulators into numba's disk cache ahead of their use: a fork shares
+    everything this process has loaded, and nothing is sent back.
+
+    Parameters
+    ----------
+    fn : callable
+        Called in the child; whatever it raises ends the child only.
+    *args
+        Its arguments (inherited, not pickled).
+
+    Returns
+    -------
+    multiprocessing.Process or None
+        The started child (end it with ``terminate()`` when its work is no longer
+        wanted); None where processes cannot be forked.
+    """
+    if "fork" not in mp.get_all_start_methods():
+        return None
+    with warnings.catch_warnings():  # as in Runner.map: the fork of a threaded process
+        warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
+                                category=DeprecationWarning)
+        proc = mp.get_context("fork").Process(target=_background_main,
+                                              args=(os.getpid(), fn, args), daemon=True,
+                                              name="pmabayes-background")
+        proc.start()
+    return proc
 
 
 class Runner:

@@ -47,7 +47,7 @@ from pmabayes.criticism.refits import (
     refit_significant,
 )
 from pmabayes.criticism.results import Diagnosis, ExperimentDiagnosis, Finding
-from pmabayes.criticism.scores import rank_effects
+from pmabayes.criticism.scores import compile_candidates, rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.data import Dataset
 from pmabayes.inference.posterior import choose_substeps, data_scaled_priors
@@ -272,11 +272,16 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     label = " + ".join(["base", *models[0].effect_names])
     where = " and ".join(str(ds.source or "the data") for ds in datasets)
     say.say(f"fitting {label} to {where} (MAP)")
-    base = fit_base(models, datasets, names, s, rng)
-    say.say("ranking the candidate effects (score test)")
-    ranked = rank_effects(base.likelihoods, base.noises, [own for own, _ in base.points],
-                          candidates=s.candidates, level=s.level,
-                          starts=[start for _, start in base.points])
+    compiling = compile_candidates(models, datasets, s.substeps, s.candidates)
+    try:
+        base = fit_base(models, datasets, names, s, rng)
+        say.say("ranking the candidate effects (score test)")
+        ranked = rank_effects(base.likelihoods, base.noises, [own for own, _ in base.points],
+                              candidates=s.candidates, level=s.level,
+                              starts=[start for _, start in base.points])
+    finally:
+        if compiling is not None:
+            compiling.terminate()
     refits = refit_significant(base, ranked, s, rng, say)
     findings = _findings(ranked, refits, base, s.ci_prob)
     say.say("fitting the yardsticks (linear output-error, Prandtl-Ishlinskii)")

@@ -330,25 +330,30 @@ def _nested_map(posterior: Posterior, base: BaseFit, effect, rng: np.random.Gene
     agreement test, and a start of the joint polish) likewise: one search, and polishes
     from its own under the model (:func:`pmabayes.inference.search.find_map`'s
     ``starts`` and ``own``)."""
-    starts = np.repeat(np.array([[p.default for p in posterior.parameters]]), 2, axis=0)
-    for j, name in enumerate(posterior.names):
-        if name in base.values:
-            starts[:, j] = base.values[name]
-    _at_null(posterior, starts, effect)
+    starts = _starts_at(posterior, base.values, effect)
     own = None
     if base.agreement is not None and posterior.n_experiments > 1:
-        own = []
-        for e, name in enumerate(posterior.experiment_names):
-            alone = posterior.alone(e)
-            z_own = base.agreement["experiments"][name]["z_own"]
-            z = np.array([[p.default for p in alone.parameters]])
-            z = alone.to_unconstrained(z)
-            for j, n in enumerate(alone.names):
-                if n in z_own:
-                    z[0, j] = z_own[n][0]
-            point = np.repeat(alone.to_natural(z), 2, axis=0)
-            own.append(_at_null(alone, point, effect))
+        mine = base.agreement["experiments"]
+        own = [_starts_at(posterior.alone(e), {n: z[0] for n, z in mine[name]["z_own"].items()},
+                          effect, unconstrained=True)
+               for e, name in enumerate(posterior.experiment_names)]
     return find_map(posterior, rng=rng, refer=False, searches=1, starts=starts, own=own)
+
+
+def _starts_at(posterior: Posterior, known: dict[str, float], effect, *,
+               unconstrained: bool = False) -> np.ndarray:
+    """Two natural starts at the parameters' defaults, with ``known``'s values where it
+    names a column (given in unconstrained coordinates where ``unconstrained``), and the
+    effect's parameters at their null in the first and their default in the second."""
+    row = np.array([[p.default for p in posterior.parameters]])
+    if unconstrained:
+        row = posterior.to_unconstrained(row)
+    for j, name in enumerate(posterior.names):
+        if name in known:
+            row[0, j] = known[name]
+    if unconstrained:
+        row = posterior.to_natural(row)
+    return _at_null(posterior, np.repeat(row, 2, axis=0), effect)
 
 
 def _at_null(posterior: Posterior, starts: np.ndarray, effect) -> np.ndarray:

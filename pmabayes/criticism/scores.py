@@ -5,6 +5,7 @@ from a model, at the model's MAP and with no refit (:func:`rank_effects`).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -14,10 +15,11 @@ from scipy import stats
 from pmabayes.criticism.observed import model_mean
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.effects import registered_effects
-from pmabayes.model.model import ModelError
+from pmabayes.model.model import Model, ModelError
+from pmabayes.parallel import background
 from pmabayes.util import Progress
 
-__all__ = ["EffectEvidence", "rank_effects", "significance_threshold"]
+__all__ = ["EffectEvidence", "rank_effects", "significance_threshold", "compile_candidates"]
 
 #: A tested parameter whose Fisher information is at most this fraction of the largest
 #: one's has no effect on the output: the effect cannot act on the data.
@@ -161,6 +163,50 @@ def rank_effects(
     out = [EffectEvidence(**{**e.__dict__, "significant": e.p_value < threshold}) for e in out]
     return sorted(out, key=lambda e: (e.left_out is not None,
                                       0.0 if e.left_out is not None else -e.statistic))
+
+
+def compile_candidates(models: Sequence[Model], datasets: Sequence, substeps,
+                       candidates=None):
+    """Compile the simulators that :func:`rank_effects` will need, in a background process.
+
+    Each candidate effect added to the model is a new simulator, compiled at its first
+    use (seconds each, a minute or more for all of them); compiled in a forked process
+    while this one fits the model, they are in numba's disk cache by the time the
+    score tests load them. Nothing depends on it: a simulator not compiled yet is
+    compiled where it is needed, as without it.
+
+    Parameters
+    ----------
+    models, datasets : sequence
+        Each experiment's model (as diagnosed) and data set.
+    substeps : int
+        The simulator's substeps per sample.
+    candidates : iterable of str, optional
+        As :func:`rank_effects`'s.
+
+    Returns
+    -------
+    multiprocessing.Process or None
+        The process (terminate it once the score tests are done), or None where
+        processes cannot be forked.
+    """
+    present = set(models[0].effect_names)
+    names = [n for n in (candidates or registered_effects()) if n not in present]
+    return background(_compile_all, list(models), list(datasets), substeps, names)
+
+
+def _compile_all(models: list, datasets: list, substeps, names: list[str]) -> None:
+    """Simulate each experiment once at the defaults with each candidate added (which
+    compiles its simulator); a candidate that fails is left to the score test, which
+    says why."""
+    warnings.simplefilter("ignore")  # this process's; what it meets, the user hears there
+    for name in names:
+        for model, dataset in zip(models, datasets, strict=True):
+            try:
+                ext = model.with_effects(name)
+                Likelihood(ext, dataset, substeps=substeps).simulate(ext.theta(ext.defaults))
+            except Exception:  # noqa: BLE001 - the score test meets it and reports it
+                break
 
 
 def _left_out(name: str, tested: list, why: str) -> EffectEvidence:
