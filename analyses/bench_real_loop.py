@@ -18,10 +18,11 @@ are after the first run):
 The issue's targets: steps 1-3 under 15 minutes on this machine, step 4 under 2. The
 machine may be shared, so each step's CPU time (the command's and its worker
 processes') is printed beside its wall time: it is the honest figure. Each command runs
-under :mod:`cProfile`; the table of where the time goes (the package's stages, from the
-profile of the command's own process: the sampler's ensembles run in worker processes and
-show only as the time waited for them) is printed per step, and the top entries of the
-slowest step's profile. ``total_seconds: <wall> (CPU <cpu>)`` is printed last. A
+under :mod:`cProfile` (not with ``--no-profile``, which gives the times a user sees);
+the table of where the time goes (the package's stages, from the profile of the
+command's own process: the sampler's ensembles run in worker processes and show only
+as the time waited for them) is printed per step, and the top entries of the slowest
+step's profile. ``total_seconds: <wall> (CPU <cpu>)`` is printed last. A
 benchmark, not a test: the data stay in ``../shared/external/real/cavatappi``
 (read-only, never copied); the sidecars, links, fits and profiles go into ``--out``.
 
@@ -29,6 +30,7 @@ Usage::
 
     python analyses/bench_real_loop.py [--sample 1] [--rounds 3] [--steps 600]
         [--effects A,B] [--out DIR] [--seed 0] [--top 25] [--only fit_one] [--warm]
+        [--no-profile]
 
 ``--effects maxwell_creep,force_length_map --rounds 0`` times the final fit, the
 validation and the fit of one load with the effects sample 1's diagnoses named, without
@@ -107,8 +109,9 @@ def warm(path: Path, effects: list[str], out: Path) -> float:
     return time.perf_counter() - started
 
 
-def run(name: str, args: list[str], out: Path) -> dict:
-    """Run one pmabayes command under cProfile in its own process; its wall and CPU time.
+def run(name: str, args: list[str], out: Path, profile: bool = True) -> dict:
+    """Run one pmabayes command (under cProfile unless ``profile`` is false) in its own
+    process; its wall and CPU time.
 
     Parameters
     ----------
@@ -118,19 +121,21 @@ def run(name: str, args: list[str], out: Path) -> dict:
         The command and its arguments.
     out : Path
         Folder of the profile and the command's stderr (``NAME.log``).
+    profile : bool
+        Profile the command (which slows its Python parts).
 
     Returns
     -------
     dict
-        ``name``, ``command``, ``wall_s``, ``cpu_s`` and ``profile`` (its path).
+        ``name``, ``command``, ``wall_s``, ``cpu_s`` and ``profile`` (its path, or None).
     """
-    prof = out / f"{name}.prof"
+    prof = out / f"{name}.prof" if profile else None
     print("$ pmabayes " + " ".join(args), flush=True)
+    profiler = ["-m", "cProfile", "-o", str(prof)] if profile else []
     cpu, wall = _children_cpu(), time.perf_counter()
     with open(out / f"{name}.log", "w") as log:
-        done = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), "-m",
-                               "pmabayes", *args], cwd=out, stdout=log, stderr=log,
-                              check=False)
+        done = subprocess.run([sys.executable, *profiler, "-m", "pmabayes", *args], cwd=out,
+                              stdout=log, stderr=log, check=False)
     wall, cpu = time.perf_counter() - wall, _children_cpu() - cpu
     if done.returncode != 0:
         raise SystemExit(f"pmabayes {args[0]} failed (exit status {done.returncode}); see "
@@ -175,7 +180,8 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[dict], list[str]
         fx = ["--effects", ",".join(effects)] if effects else []
         diag = out / f"diagnose_{round_}.json"
         steps.append(run(f"diagnose_{round_}", ["diagnose", *train, "--json", str(diag), *fx,
-                                                "--proposal-dir", str(out), *seed, *quiet], out))
+                                                "--proposal-dir", str(out), *seed, *quiet], out,
+                         args.profile))
         d = json.loads(diag.read_text())
         print(f"  verdict: {d['verdict']}", flush=True)
         effect = named_effect(d, effects)
@@ -188,15 +194,15 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[dict], list[str]
     if only is None or "fit" in only or "validate" in only:
         fit = out / "fit_final.nc"
         steps.append(run("fit", ["fit", *train, "--out", str(fit), "--restart", *fx, *sampler],
-                         out))
+                         out, args.profile))
         val = out / "validate_final.json"
         steps.append(run("validate", ["validate", str(fit), *held, "--json", str(val),
-                                      "--draws", "200", *seed, *quiet], out))
+                                      "--draws", "200", *seed, *quiet], out, args.profile))
         rows = rows_of(json.loads(val.read_text()), "+".join(["base", *effects]))
     if only is None or "fit_one" in only:
         steps.append(run("fit_one", ["fit", str(paths[ONE_G]), "--out",
                                      str(out / f"fit_{ONE_G}g.nc"), "--restart", *fx,
-                                     *sampler], out))
+                                     *sampler], out, args.profile))
     return steps, effects, rows
 
 
@@ -217,6 +223,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warm", action="store_true",
                     help="compile the kernels of the starting effects, and of each registered "
                          "effect added to them, before the clock starts")
+    ap.add_argument("--no-profile", dest="profile", action="store_false",
+                    help="run the commands without the profiler (no table of where the time "
+                         "goes)")
     args = ap.parse_args(argv)
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -230,13 +239,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  held out {r['held_out']}: NRMSE {r['nrmse']:.3f} (linear "
               f"{r['linear_nrmse']:.3f}, play {r['play_nrmse']:.3f}, narx "
               f"{r['narx_nrmse']:.3f}), 90% band {100 * r['coverage']:.1f}%")
-    print("\nwhere the time goes (wall, under the profiler, the command's own process):")
-    for s in steps:
-        print(f"  {s['name']}: wall {s['wall_s']:.1f} s, CPU {s['cpu_s']:.1f} s")
-        print("\n".join(stages(s["profile"])))
-    slowest = max(steps, key=lambda s: s["cpu_s"])
-    print(f"\ntop {args.top} entries by internal time of the slowest step ({slowest['name']}):")
-    print(top(slowest["profile"], args.top))
+    if args.profile:
+        print("\nwhere the time goes (wall, under the profiler, the command's own process):")
+        for s in steps:
+            print(f"  {s['name']}: wall {s['wall_s']:.1f} s, CPU {s['cpu_s']:.1f} s")
+            print("\n".join(stages(s["profile"])))
+        slowest = max(steps, key=lambda s: s["cpu_s"])
+        print(f"\ntop {args.top} entries by internal time of the slowest step "
+              f"({slowest['name']}):")
+        print(top(slowest["profile"], args.top))
     loop_steps = [s for s in steps if s["name"] != "fit_one"]
     print("\nstep              wall (s)   CPU (s)")
     for s in steps:

@@ -40,7 +40,14 @@ def test_the_noise_search_by_group_reaches_the_joint_search_optimum():
         return -post.log_prob_z(zz, outputs=outputs)
 
     joint = z.copy()
-    joint[cols] = _minimise_noise(neg, split[cols] + 0.3)
+    # from the split's optimum moved in the noise's scales (unbounded coordinates)
+    scales = [c for g in (0, 1) for c in np.array(post.noise_columns(g))[[0, 2]]]
+    u0 = split.copy()
+    u0[scales] += 0.5
+    joint[cols] = _minimise_noise(neg, u0[cols])
+    for g in (0, 1):  # kept off a bound, as the split's start is
+        gc = post.noise_columns(g)
+        joint[gc] = post.likelihoods[g].noise.clip_start(joint[gc], post.upper[gc])
     lp_split, lp_joint = post.log_prob_z(np.stack([split, joint]))
     assert np.array_equal(split[: post.n_searched], z[: post.n_searched])
     assert lp_split >= lp_joint - 1e-6
