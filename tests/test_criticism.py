@@ -493,7 +493,8 @@ def test_diagnose_rejects_bad_settings(perfect):
                        ({"min_explained": float("nan")}, "min_explained"),
                        ({"candidates": "regulator_lag"}, "split a comma-separated"),
                        ({"noise_model": "ar2"}, "noise_model"),
-                       ({"refit_search": "local"}, "refit_search must be one of nested")):
+                       ({"refit_search": "local"}, "refit_search must be one of nested"),
+                       ({"processes": 0}, "processes must be a whole number, at least 1")):
         with pytest.raises(ValueError, match=words):
             DiagnoseSettings(**bad)
     with pytest.raises(EffectError):
@@ -508,4 +509,5 @@ def test_diagnose_rejects_bad_settings(perfect):
     assert s.candidates == ("regulator_lag",) and s.to_dict()["candidates"] == ["regulator_lag"]
     assert set(s.to_dict()) == {"level", "level_adequate", "energy_tolerance", "max_refits",
                                 "min_explained", "ci_prob", "n_draws", "substeps",
-                                "candidates", "noise_model", "discrepancy", "refit_search"}
+                                "candidates", "noise_model", "discrepancy", "refit_search",
+                                "processes"}

@@ -78,3 +78,23 @@ def test_candidate_simulators_compile_in_the_background(tmp_path, monkeypatch):
     proc.join(timeout=300)
     assert proc.exitcode == 0
     assert list((tmp_path / "kernels").rglob("*.nbi")), "nothing in numba's disk cache"
+
+
+def test_refits_in_worker_processes_give_the_numbers_of_refits_here():
+    import json
+
+    from pmabayes.criticism.diagnosis import diagnose
+    from pmabayes.criticism.settings import DiagnoseSettings
+
+    ds = generate_chirp_dataset(n_trials=4, seed=3, effects={"regulator_lag": 0.045},
+                                chirp=Chirp(duration_s=4.0, f0_hz=0.3, f1_hz=3.0,
+                                            sample_rate_hz=200.0))
+    runs = []
+    for processes in (1, 2):
+        s = DiagnoseSettings(candidates=("regulator_lag", "transport_delay"), max_refits=2,
+                             processes=processes, discrepancy=False)
+        d = diagnose(ds, settings=s, seed=0).to_dict()
+        d["settings"].pop("processes")
+        runs.append(json.dumps(d, sort_keys=True, default=str))
+    assert runs[0] == runs[1]
+    assert json.loads(runs[0])["missing"] == "regulator_lag"

@@ -65,7 +65,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     model = _model_for(datasets[0], args)
     settings = DiagnoseSettings(candidates=args.candidates or None,
                                 noise_model=args.noise_model, substeps=args.substeps,
-                                refit_search=args.refit_search)
+                                refit_search=args.refit_search, processes=args.processes)
     # a proposed effect's file goes where the options say; without one it is checked
     # in a temporary folder and not kept (nothing is written into the current folder)
     plugin_dir = args.proposal_dir or out or False
@@ -189,6 +189,9 @@ def _criticism_commands(sub, common) -> None:
                       "default) runs one global search and also polishes from the model's "
                       "MAP with the effect at its null (each experiment's own MAP "
                       "likewise); 'global' runs the fit's searches in full (slower)")
+    diag.add_argument("--processes", type=_positive, default=None,
+                      help="local worker processes for the candidates' refits, one each "
+                      "(all cores); the numbers do not depend on it")
     _noise_model_option(diag)
     _prior_option(diag)
     _exclude_option(diag)

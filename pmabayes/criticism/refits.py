@@ -7,6 +7,7 @@ one.
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,7 @@ from pmabayes.inference.noise import NoiseEstimate, group_noise
 from pmabayes.inference.search import find_map
 from pmabayes.model.model import Model
 from pmabayes.model.simulator import Simulation
+from pmabayes.parallel import Runner
 from pmabayes.util import Progress, side_stream
 
 __all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "partial_effect",
@@ -409,21 +411,42 @@ def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
     s : DiagnoseSettings
         The settings.
     rng : numpy.random.Generator
-        Seeds the refits' searches and draws.
+        Seeds the refits' searches and draws: each refit has its own stream spawned
+        from it, so the numbers do not depend on ``s.processes``.
     progress : Progress
-        Says which refit is running.
+        Says which refits are running, and where.
 
     Returns
     -------
     dict
         Effect name to its :class:`~pmabayes.criticism.results.Refit`.
     """
-    refits: dict[str, Refit] = {}
-    for ev in [e for e in ranked if e.significant][: int(s.max_refits)]:
-        progress.say(f"refitting with {ev.effect} ({len(refits) + 1} of at most "
-                     f"{s.max_refits})")
-        refits[ev.effect] = _refit(base, ev.effect, s, rng)
-    return refits
+    chosen = [e.effect for e in ranked if e.significant][: int(s.max_refits)]
+    if not chosen:
+        return {}
+    # the workers are forked, and read the model from here rather than be sent it
+    processes = s.processes if "fork" in mp.get_all_start_methods() else 1
+    _REFIT_JOB[:] = [(base, s)]
+    try:
+        with Runner(processes, tasks=len(chosen)) as runner:
+            progress.say(f"refitting with {', '.join(chosen)} ({runner.description})")
+            done = list(runner.map(_refit_task, zip(chosen, rng.spawn(len(chosen)),
+                                                    strict=True)))
+    finally:
+        _REFIT_JOB.clear()
+    return dict(zip(chosen, done, strict=True))
+
+
+#: the diagnosed model and the settings of the refits running (a forked worker inherits
+#: them: a model with its data sets is not pickled for each candidate)
+_REFIT_JOB: list = []
+
+
+def _refit_task(job: tuple[str, np.random.Generator]) -> Refit:
+    """One candidate's refit, in a worker or here: ``(effect, its own stream)``."""
+    effect, rng = job
+    base, s = _REFIT_JOB[0]
+    return _refit(base, effect, s, rng)
 
 
 def improves(refit: Refit) -> bool:

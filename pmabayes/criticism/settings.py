@@ -72,6 +72,10 @@ class DiagnoseSettings:
         experiments, each one's own MAP (for the agreement test) likewise, from its
         own under the model. ``"global"``: the fit's searches in full for each refit
         (two global searches, and two more per experiment for its own MAP).
+    processes : int or None
+        Local worker processes the refits run in, one candidate each (all cores by
+        default; 1 runs them here). The numbers do not depend on it: each refit has
+        its own random stream.
 
     Raises
     ------
@@ -93,6 +97,7 @@ class DiagnoseSettings:
     noise_model: str = "auto"
     discrepancy: bool = True
     refit_search: str = "nested"
+    processes: int | None = None
 
     def __post_init__(self) -> None:
         if self.candidates is not None and not isinstance(self.candidates, tuple):
@@ -102,9 +107,11 @@ class DiagnoseSettings:
         _check_range("min_explained", self.min_explained, 0.0, 1.0, "in [0, 1]")
         _check_range("energy_tolerance", self.energy_tolerance, 0.0, math.inf, "positive",
                      open_=True)
-        for name, least in (("max_refits", 0), ("n_draws", 50), ("substeps", 1)):
+        for name, least in (("max_refits", 0), ("n_draws", 50), ("substeps", 1),
+                            ("processes", 1)):
             value = getattr(self, name)
-            if name == "substeps" and value == "auto":
+            if (name == "substeps" and value == "auto") or (name == "processes"
+                                                             and value is None):
                 continue
             if isinstance(value, bool) or not isinstance(value, numbers.Real) \
                     or int(value) != value or value < least:
