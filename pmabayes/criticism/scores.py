@@ -236,17 +236,24 @@ def _rows(ext, values: dict, tested: list, free: list) -> tuple[list, list, dict
     point = dict(ext.defaults)
     point.update({k: v for k, v in values.items() if k in point})  # not the noise
     point.update({n: ext.parameter(n).null for n in tested})
-    base = ext.theta(point)[0]
-    steps, rows = [], [base]
-    for n in free:
-        j = ext.index(n)
-        p = ext.parameter(n)
-        h = 1e-6 * max(abs(base[j]), abs(p.default), 1e-12)
+    rows, steps = _stepped_rows(ext, ext.theta(point)[0], free)
+    return rows, steps, point
+
+
+def _stepped_rows(model: Model, base: np.ndarray, names: Sequence[str]
+                  ) -> tuple[list[np.ndarray], list[float]]:
+    """``base`` and, for each of ``names``, ``base`` with that parameter moved by a small
+    forward step: the rows (``base`` first) and the steps."""
+    rows, steps = [base], []
+    for name in names:
+        j = model.index(name)
+        # the default sets the scale where the value is 0 (an effect at its null)
+        h = 1e-6 * max(abs(base[j]), abs(model.parameter(name).default), 1e-12)
         up = base.copy()
         up[j] += h
         rows.append(up)
         steps.append(h)
-    return rows, steps, point
+    return rows, steps
 
 
 def _score_test(likelihoods: list, noises: list, points: list, starts: list,

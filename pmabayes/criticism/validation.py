@@ -954,6 +954,18 @@ def _column(values: np.ndarray, e: int) -> np.ndarray:
     return values if values.ndim == 1 else values[:, min(e, values.shape[1] - 1)]
 
 
+def _draw_positions(model: Model, theta: np.ndarray, ds: Dataset, substeps: int,
+                    starts: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """The draws' positions on a data set from their starts (None: its declared one),
+    and whether its trials have their own inputs: then each draw on each trial's input,
+    ``(draws, trials, n)``."""
+    own = not bool(np.all(ds.input == ds.input[0]))
+    x = simulate_dataset(model, theta, ds, substeps=substeps,
+                         initial_values=None if starts is None else full_start(model, starts),
+                         per_trial=own)
+    return x, own
+
+
 def _residual_records(fit: _FitDraws, training: list, models: list, substeps: int,
                       where: str, identified: list, starts_named: list
                       ) -> list[ResidualRecord]:
@@ -973,10 +985,7 @@ def _residual_records(fit: _FitDraws, training: list, models: list, substeps: in
         if starts_named[e]:  # the draws' own estimated starts
             starts = np.stack([_flat(fit.draws[v], v, where)[idx] for v in starts_named[e]],
                               axis=1)
-        own = not bool(np.all(ds.input == ds.input[0]))
-        x = simulate_dataset(model, theta, ds, substeps=substeps,
-                             initial_values=None if starts is None else full_start(model, starts),
-                             per_trial=own)
+        x, own = _draw_positions(model, theta, ds, substeps, starts)
         if own:  # each draw's trial mean, averaged as the trials are
             x = trials_mean(ds, x)
         ok = np.all(np.isfinite(x), axis=1)
@@ -1127,11 +1136,7 @@ def _one(fit: _FitDraws, ds: Dataset, *, n_draws: int, ci_prob: float, noise_fro
                           "draws could not be estimated (their simulation from the start's "
                           f"prior means is not finite over the first {n_start} samples): they "
                           "start from those prior means", DataWarning, stacklevel=3)
-    own = not bool(np.all(ds.input == ds.input[0]))
-    # trials with their own inputs: each draw on each trial's input, (draws, trials, n)
-    x = simulate_dataset(model, theta, ds, substeps=substeps,
-                         initial_values=None if starts is None else full_start(model, starts),
-                         per_trial=own)
+    x, own = _draw_positions(model, theta, ds, substeps, starts)
     sigma, rho, white, fit_dt, col = _noise_draws(fit, pick, columns, rng)
     notes: list[str] = []
     ok = np.all(np.isfinite(x.reshape(x.shape[0], -1)), axis=1)

@@ -151,13 +151,22 @@ def _noise_repeats(dataset: Dataset, model_position_m: np.ndarray | None = None
     y = dataset.position_m[0]
     if model_position_m is not None and not dataset.starts_in_steady_state:
         y = y - np.asarray(model_position_m, dtype=float).reshape(-1)
-    period, n_per = dataset.period_samples, dataset.n_periods
-    if period is not None and n_per is not None:
-        first = 0 if dataset.starts_in_steady_state else 1
-        if n_per - first >= 2:
-            segs = y[first * period: n_per * period].reshape(n_per - first, period)
-            return "periods", np.ascontiguousarray(segs)
+    segs = _record_periods(dataset, y)
+    if segs is not None:
+        return "periods", np.ascontiguousarray(segs)
     return "record", np.ascontiguousarray(y[None, :])
+
+
+def _record_periods(dataset: Dataset, series: np.ndarray) -> np.ndarray | None:
+    """A single record's ``series`` (``(n_samples,)``) cut into the periods that are its
+    repeats, ``(periods, period_samples)``; None when it has fewer than two."""
+    period, n_per = dataset.period_samples, dataset.n_periods
+    if period is None or n_per is None:
+        return None
+    first = 0 if dataset.starts_in_steady_state else 1  # from rest: the first is a transient
+    if n_per - first < 2:
+        return None
+    return series[first * period: n_per * period].reshape(n_per - first, period)
 
 
 def _repeat_mask(dataset: Dataset, observed: np.ndarray | None) -> np.ndarray | None:
@@ -165,12 +174,8 @@ def _repeat_mask(dataset: Dataset, observed: np.ndarray | None) -> np.ndarray | 
     the trials', ``(n_trials, n_samples)``), in their shape; None when all are."""
     if observed is None or dataset.n_trials >= 2:
         return observed
-    period, n_per = dataset.period_samples, dataset.n_periods
-    if period is not None and n_per is not None:
-        first = 0 if dataset.starts_in_steady_state else 1
-        if n_per - first >= 2:
-            return observed[0, first * period: n_per * period].reshape(n_per - first, period)
-    return observed[:1]
+    segs = _record_periods(dataset, observed[0])
+    return observed[:1] if segs is None else segs
 
 
 def at_fast_bound(likelihood: Likelihood, rho: float) -> bool:

@@ -437,6 +437,15 @@ class PlantCode:
         return step
 
 
+def _check_initial_state(initial_state: str) -> None:
+    """Refuse a start that is not one of :data:`~pmabayes.data.INITIAL_STATES`
+    (:class:`SimulationError`)."""
+    if initial_state not in INITIAL_STATES:
+        raise SimulationError(
+            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
+            f"{initial_state!r}")
+
+
 def generate(model: Model, record: bool, shared_input: bool,
              between_samples: str = "hold", initial_state: str = "rest",
              resume: bool = False) -> tuple[str, dict]:
@@ -462,10 +471,7 @@ def generate(model: Model, record: bool, shared_input: bool,
         its globals with what to set them to; :func:`pmabayes.model.kernels.kernel_for`
         documents the kernel's arguments.
     """
-    if initial_state not in INITIAL_STATES:
-        raise SimulationError(
-            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
-            f"{initial_state!r}")
+    _check_initial_state(initial_state)
     plant = PlantCode(model)
     zero = initial_state == "zero"
     # a given start (``init``: (3, batch)) is an argument only where it is used

@@ -36,6 +36,7 @@ from pmabayes.model.codegen import (  # noqa: F401
     FASTMATH,
     PlantCode,
     SimulationError,
+    _check_initial_state,
     indent_lines,
     state_effects,
     state_rows,
@@ -350,10 +351,7 @@ def simulate(
             f"{between_samples!r}")
     if not (isinstance(substeps, int | np.integer) and substeps >= 1):
         raise SimulationError(f"substeps must be an integer >= 1, got {substeps!r}")
-    if initial_state not in INITIAL_STATES:
-        raise SimulationError(
-            f"initial_state must be one of {', '.join(map(repr, INITIAL_STATES))}, got "
-            f"{initial_state!r}")
+    _check_initial_state(initial_state)
     theta = model.theta(params)
     u = np.asarray(input_signal, dtype=float)
     if not (u.ndim == 1 or (u.ndim == 2 and u.shape[0] == theta.shape[0])):

@@ -13,6 +13,7 @@ from scipy.interpolate import BSpline
 from pmabayes.criticism.discrepancy.linalg import at_b
 from pmabayes.criticism.discrepancy.response import force_response, linearised_plant
 from pmabayes.criticism.observed import counted_samples, model_mean, residual
+from pmabayes.criticism.scores import _stepped_rows
 from pmabayes.inference.likelihood import Likelihood
 from pmabayes.model.simulator import Simulation
 
@@ -205,16 +206,8 @@ class LinearProblem:
         model = self.model
         point = dict(model.defaults)
         point.update({k: v for k, v in self.values.items() if k in point})
-        base = model.theta(point)[0]
-        rows, steps = [base], []
         names = list(model.free_names)
-        for name in names:
-            j = model.index(name)
-            h = 1e-6 * max(abs(base[j]), abs(model.parameter(name).default), 1e-12)
-            up = base.copy()
-            up[j] += h
-            rows.append(up)
-            steps.append(h)
+        rows, steps = _stepped_rows(model, model.theta(point)[0], names)
         x = self.simulate(np.array(rows))
         cols = np.stack([(x[k + 1] - x[0]) / steps[k] for k in range(len(names))], axis=1)
         return cols, names

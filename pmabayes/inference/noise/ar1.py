@@ -112,6 +112,25 @@ def measurement_noise(n_series: int, n_samples: int, sigma, rho, white,
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _kalman_gains(sigma, rho, white, gains, variances):
+    """Fill the filter's gains and innovation variances (``(n,)`` each) for complete data
+    and one noise (scalars); returns the sum of the log variances."""
+    s2 = sigma * sigma
+    q = s2 * (1.0 - rho * rho)
+    r = white * white
+    p = s2
+    const = 0.0
+    for k in range(gains.shape[0]):
+        s_k = p + r
+        gain = p / s_k
+        const += math.log(s_k)
+        variances[k] = s_k
+        gains[k] = gain
+        p = rho * rho * (1.0 - gain) * p + q
+    return const
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _kalman_loglik(y, x, scale, sigma, rho, white):
     """Exact log-likelihood of ``scale * (y[r] - x[b])`` under the noise model.
 
@@ -135,18 +154,7 @@ def _kalman_loglik(y, x, scale, sigma, rho, white):
     for b in range(batch):
         if b == 0 or not (sigma[b] == sigma[b - 1] and rho[b] == rho[b - 1]
                           and white[b] == white[b - 1]):
-            s2 = sigma[b] * sigma[b]
-            q = s2 * (1.0 - rho[b] * rho[b])
-            r = white[b] * white[b]
-            p = s2
-            const = 0.0
-            for k in range(n):
-                s_k = p + r
-                gain = p / s_k
-                const += math.log(s_k)
-                variances[k] = s_k
-                gains[k] = gain
-                p = rho[b] * rho[b] * (1.0 - gain) * p + q
+            const = _kalman_gains(sigma[b], rho[b], white[b], gains, variances)
         for m in range(n_series):
             est[m] = 0.0
         for k in range(n):
@@ -178,18 +186,7 @@ def _kalman_loglik_fixed_noise(y, xt, scale, sigma, rho, white):
     est = np.empty(batch)
     gains = np.empty(n)
     variances = np.empty(n)
-    s2 = sigma * sigma
-    q = s2 * (1.0 - rho * rho)
-    r = white * white
-    p = s2
-    const = 0.0
-    for k in range(n):
-        s_k = p + r
-        gain = p / s_k
-        const += math.log(s_k)
-        variances[k] = s_k
-        gains[k] = gain
-        p = rho * rho * (1.0 - gain) * p + q
+    const = _kalman_gains(sigma, rho, white, gains, variances)
     for m in range(n_series):
         est[:] = 0.0
         acc = out[m]
