@@ -147,8 +147,9 @@ def diagnose(
        correlation with the model's states and with the command's rate.
     3. Every candidate effect is ranked by the score test
        (:func:`~pmabayes.criticism.scores.rank_effects`), which needs no refit.
-    4. The significant candidates (at most ``settings.max_refits``, strongest first) are
-       added one at a time and refitted; each refit is judged by the excess
+    4. The significant candidates (``settings.max_refits`` of them, strongest first;
+       the next as many where none of those is named) are added one at a time and
+       refitted, in worker processes; each refit is judged by the excess
        residual it removes and by its leave-one-trial-out ELPD (PSIS-LOO over
        draws from the refit's Laplace approximation). The refit also gives the
        effect's size with an interval. This separates effects that the first-order

@@ -400,7 +400,8 @@ def _difference_note(refit: LaplaceLoo, base: LaplaceLoo | None) -> str | None:
 
 def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
                       rng: np.random.Generator, progress: Progress) -> dict[str, Refit]:
-    """Refit the strongest significant candidates, at most ``max_refits`` of them.
+    """Refit the strongest significant candidates, ``max_refits`` of them; where none of
+    those is named (missing, or a partial step), the next ``max_refits`` once.
 
     Parameters
     ----------
@@ -421,9 +422,21 @@ def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
     dict
         Effect name to its :class:`~pmabayes.criticism.results.Refit`.
     """
-    chosen = [e.effect for e in ranked if e.significant][: int(s.max_refits)]
-    if not chosen:
-        return {}
+    significant = [e.effect for e in ranked if e.significant]
+    size = int(s.max_refits)
+    refits: dict[str, Refit] = {}
+    # the score test is first order: where none of its strongest candidates, refitted,
+    # is named, the next ones are refitted (once), before the verdict gives up
+    for batch in (significant[:size], significant[size:2 * size]):
+        if not batch or (refits and (missing_effect(refits, s) or partial_effect(refits))):
+            break
+        refits.update(_refit_batch(base, batch, s, rng, progress))
+    return refits
+
+
+def _refit_batch(base: BaseFit, chosen: list[str], s: DiagnoseSettings,
+                 rng: np.random.Generator, progress: Progress) -> dict[str, Refit]:
+    """Refit each of ``chosen`` in worker processes (or here), each on its own stream."""
     # the workers are forked, and read the model from here rather than be sent it
     processes = s.processes if "fork" in mp.get_all_start_methods() else 1
     _REFIT_JOB[:] = [(base, s)]

@@ -40,7 +40,10 @@ class DiagnoseSettings:
         twice the chi-squared spread, so an exact test would reject correct
         models. 0.1 means a model error below about a third of the noise level.
     max_refits : int
-        Significant candidates refitted at most (0 or more).
+        Significant candidates refitted at once (0 or more), in the score test's order;
+        where none of them is named, the next ``max_refits`` are refitted (once): the
+        score test is first order, and its strongest candidates are not always those
+        that, refitted, predict best.
     min_explained : float
         Fraction of the excess residual, in [0, 1], that a refit (alone or with
         the next candidate) must remove for its effect to be named missing.
