@@ -98,3 +98,29 @@ def test_refits_in_worker_processes_give_the_numbers_of_refits_here():
         runs.append(json.dumps(d, sort_keys=True, default=str))
     assert runs[0] == runs[1]
     assert json.loads(runs[0])["missing"] == "regulator_lag"
+
+
+def test_the_next_candidates_are_refitted_where_none_of_the_first_is_named(monkeypatch):
+    import pmabayes.criticism.refits as refits
+    from pmabayes.criticism.scores import EffectEvidence
+    from pmabayes.criticism.settings import DiagnoseSettings
+    from pmabayes.util import Progress
+
+    ranked = [EffectEvidence(n, 10.0, 1, 1e-6, True, {}, {}, 0.0)
+              for n in ("a", "b", "c", "d", "e")] + [EffectEvidence("f", 0.1, 1, 0.9, False,
+                                                                    {}, {}, 0.0)]
+    seen = []
+    monkeypatch.setattr(refits, "_refit", lambda base, effect, s, rng: seen.append(effect)
+                        or effect)
+    s = DiagnoseSettings(max_refits=2, processes=1)
+    rng = np.random.default_rng(0)
+    # none of the first two named: the next two are refitted, and no more
+    monkeypatch.setattr(refits, "missing_effect", lambda r, s: None)
+    monkeypatch.setattr(refits, "partial_effect", lambda r, missing=None: None)
+    assert list(refits.refit_significant(None, ranked, s, rng, Progress())) == ["a", "b", "c",
+                                                                                "d"]
+    # the first named: nothing more
+    seen.clear()
+    monkeypatch.setattr(refits, "partial_effect", lambda r, missing=None: "a")
+    assert list(refits.refit_significant(None, ranked, s, rng, Progress())) == ["a", "b"]
+    assert seen == ["a", "b"]
