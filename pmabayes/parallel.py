@@ -41,7 +41,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from pmabayes.util import _SHOWN, local_cores
 
-__all__ = ["Runner", "background"]
+__all__ = ["Runner", "background", "can_fork"]
 
 _PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
 _WATCH_INTERVAL_S = 0.5
@@ -77,6 +77,17 @@ def _background_main(parent_pid: int, fn: Callable, args: tuple) -> None:
     fn(*args)
 
 
+def can_fork() -> bool:
+    """Whether local workers can be forked here (they then inherit what this process has
+    loaded, rather than be sent it).
+
+    Returns
+    -------
+    bool
+    """
+    return "fork" in mp.get_all_start_methods()
+
+
 def background(fn: Callable, *args) -> mp.process.BaseProcess | None:
     """Run ``fn(*args)`` in one forked local process that dies with this one.
 
@@ -97,7 +108,7 @@ def background(fn: Callable, *args) -> mp.process.BaseProcess | None:
         The started child (end it with ``terminate()`` when its work is no longer
         wanted); None where processes cannot be forked.
     """
-    if "fork" not in mp.get_all_start_methods():
+    if not can_fork():
         return None
     with warnings.catch_warnings():  # as in Runner.map: the fork of a threaded process
         warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
@@ -166,7 +177,7 @@ class Runner:
 
     def _local_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+            method = "fork" if can_fork() else "spawn"
             self._pool = ProcessPoolExecutor(
                 self.processes, mp_context=mp.get_context(method), initializer=_start_worker,
                 initargs=(os.getpid(), self._initializer, self._initargs))

@@ -35,6 +35,7 @@ from pmabayes.criticism.prose import (
     contribution_text,
     describe_signatures,
     explanation_text,
+    transfer_words,
     verdict_text,
 )
 from pmabayes.criticism.refits import (
@@ -298,7 +299,8 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     if s.discrepancy and not adequate and missing is None:
         found, found_in, words = _discrepancy_step(base, experiments, plugin_dir, say)
     agreement = _agreement(base, refits)
-    verdict += words + _yardstick_words(experiments) + agreement_words(agreement)
+    verdict += (transfer_words(refits, missing or partial) + words
+                + _yardstick_words(experiments) + agreement_words(agreement))
     say.say("diagnosis done: " + ("adequate" if adequate else f"{missing} is missing"
                                   if missing else f"{partial} helps in part" if partial
                                   else "not adequate"))

@@ -301,7 +301,8 @@ def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: 
     return (f"{name}: the residual is {above} ({sig}); candidates are significant but no "
             "refit predicts held-out data clearly better (ΔELPD above two standard errors, "
             "a reliable estimate or one its in-sample witness confirms, plausible estimates, "
-            f"a search that succeeded){detail}. Something outside the library is missing; no "
+            "a search that succeeded and, where experiments are left out in turn, a better "
+            f"prediction of them){detail}. Something outside the library is missing; no "
             "candidate is named.")
 
 
@@ -322,3 +323,30 @@ def _partial_text(name: str, effects: tuple, sig: str, r: Refit, names: list, fl
             "and diagnose again; "
             + ("it is a step, not all that is missing." if floors else
                "what it leaves shows there."))
+
+
+def transfer_words(refits: dict, named: str | None) -> str:
+    """The verdict's sentences on the experiments left out in turn
+    (:attr:`~pmabayes.criticism.refit.Refit.transfer`): how the effect named predicts
+    them, and each candidate passed over because it predicts them worse.
+
+    Parameters
+    ----------
+    refits : dict
+        Effect name to refit.
+    named : str or None
+        The effect the verdict names (missing, or the partial step).
+
+    Returns
+    -------
+    str
+        Empty where no experiment was left out.
+    """
+    words = ""
+    if named is not None and refits[named].transfer is not None:
+        words += f" {named} carries to the experiments it was not fitted to: {refits[named].transfer.text()}."
+    for r in sorted(refits.values(), key=lambda r: -r.elpd_diff):
+        if r.transfer is not None and r.transfer.carries is False:
+            words += (f" {r.effect} ({elpd_text(r)}) is not named: {r.transfer.text()}, "
+                      "so it fits the experiments it was given and not the next one.")
+    return words

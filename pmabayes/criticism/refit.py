@@ -11,9 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from pmabayes.criticism.elpd import LaplaceLoo
+from pmabayes.criticism.transfer import Transfer
 from pmabayes.util import finite_or_none
 
-__all__ = ["Refit", "se_note", "witnessed"]
+__all__ = ["Refit", "carries", "se_note", "witnessed"]
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,11 @@ class Refit:
     loo : LaplaceLoo or None
         The refit's own ELPD estimate (its reliability, its units' log likelihoods at
         the MAP), to compare refits with each other; not in :meth:`to_dict`.
+    transfer : Transfer or None
+        With several experiments, the refit and the model each fitted to all but one
+        and predicting the one left out, in turn
+        (:func:`pmabayes.criticism.transfer.leave_experiments_out`); a refit that
+        predicts them worse is never named. None where not checked.
 
     Notes
     -----
@@ -119,6 +125,7 @@ class Refit:
     plugin_diff: float = math.nan
     plugin_diff_se: float = math.nan
     loo: LaplaceLoo | None = None
+    transfer: Transfer | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary: ``rms_m`` (pooled), ``explained`` (whitened energy),
@@ -127,8 +134,9 @@ class Refit:
         left-out unit), ``elpd_diff_se_note`` (why it is None, else None),
         ``elpd_note`` (why the ΔELPD is not reliable, else None), ``plugin_diff`` and
         ``plugin_diff_se`` (its in-sample witness, None where not computed),
-        ``implausible``, ``failed`` and ``experiments``, one ``{"rms_m", "noise_ratio",
-        "ljung_box_p", "energy"}`` each.
+        ``implausible``, ``failed``, ``experiments``, one ``{"rms_m", "noise_ratio",
+        "ljung_box_p", "energy"}`` each, and ``left_out_experiments``
+        (:meth:`~pmabayes.criticism.transfer.Transfer.to_dict`, None where not checked).
 
         Returns
         -------
@@ -146,7 +154,9 @@ class Refit:
                 "experiments": [{"rms_m": sig.bands[-1].rms_m,
                                  "noise_ratio": finite_or_none(sig.ratio),
                                  "ljung_box_p": sig.ljung_box_p, "energy": sig.energy}
-                                for sig in self.signatures]}
+                                for sig in self.signatures],
+                "left_out_experiments": (None if self.transfer is None
+                                         else self.transfer.to_dict())}
 
 
 def se_note(refit: Refit) -> str | None:
@@ -188,3 +198,20 @@ def witnessed(refit: Refit) -> bool:
     if not math.isfinite(d):
         return False
     return bool(d > 2.0 * se if math.isfinite(se) else d > 0.0)
+
+
+def carries(refit: Refit) -> bool:
+    """Whether nothing says a refit predicts experiments it was not fitted to worse:
+    not checked, not decidable, or a lower mean NRMSE on each experiment left out
+    (:attr:`Refit.transfer`).
+
+    Parameters
+    ----------
+    refit : Refit
+        The refit.
+
+    Returns
+    -------
+    bool
+    """
+    return refit.transfer is None or refit.transfer.carries is not False

@@ -6,21 +6,23 @@ one.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import multiprocessing as mp
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pmabayes.criticism.bands import excess_removed
 from pmabayes.criticism.elpd import LaplaceLoo, laplace_loo, paired_difference, plugin_difference
+from pmabayes.criticism.experiments import experiment_conditions_table
 from pmabayes.criticism.observed import counted_samples, residual, simulate_states
 from pmabayes.criticism.plausibility import implausible
-from pmabayes.criticism.refit import witnessed
+from pmabayes.criticism.refit import carries, witnessed
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
 from pmabayes.criticism.signature import residual_signature
+from pmabayes.criticism.transfer import Transfer, leave_experiments_out
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.disturbance import settle_disturbance
 from pmabayes.inference.likelihood import Likelihood
@@ -28,7 +30,7 @@ from pmabayes.inference.noise import NoiseEstimate, group_noise
 from pmabayes.inference.search import find_map
 from pmabayes.model.model import Model
 from pmabayes.model.simulator import Simulation
-from pmabayes.parallel import Runner
+from pmabayes.parallel import Runner, can_fork
 from pmabayes.util import Progress, side_stream
 
 __all__ = ["BaseFit", "fit_base", "refit_significant", "missing_effect", "partial_effect",
@@ -254,10 +256,7 @@ def refit_failure(base_log_likelihood: float, log_likelihood: float, effect: str
 def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Generator) -> Refit:
     """Add one effect, refit over every experiment, and measure what it explains and how
     it predicts."""
-    ext_liks = [Likelihood(lik.model.with_effects(effect), lik.dataset, substeps=s.substeps)
-                for lik in base.likelihoods]
-    for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
-        ext.use_noise(lik.noise)
+    ext_liks = _extended(base, effect, s.substeps)
     ext = ext_liks[0].model
     eff = ext.effects[-1]
     if s.refit_search == "global":
@@ -322,6 +321,15 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
         elpd_note=_difference_note(loo, base.loo),
         plugin_diff=plugin, plugin_diff_se=plugin_se, loo=loo,
     )
+
+
+def _extended(base: BaseFit, effect: str, substeps: int) -> list[Likelihood]:
+    """Each experiment's likelihood with ``effect`` added to its model, under its noise."""
+    ext_liks = [Likelihood(lik.model.with_effects(effect), lik.dataset, substeps=substeps)
+                for lik in base.likelihoods]
+    for ext, lik in zip(ext_liks, base.likelihoods, strict=True):
+        ext.use_noise(lik.noise)
+    return ext_liks
 
 
 def _nested_map(posterior: Posterior, base: BaseFit, effect, rng: np.random.Generator):
@@ -425,20 +433,91 @@ def refit_significant(base: BaseFit, ranked: list, s: DiagnoseSettings,
     significant = [e.effect for e in ranked if e.significant]
     size = int(s.max_refits)
     refits: dict[str, Refit] = {}
+    check = _TransferCheck(base, s, rng, progress) if leaves_out(base, s) else None
     # the score test is first order: where none of its strongest candidates, refitted,
     # is named, the next ones are refitted (once), before the verdict gives up
     for batch in (significant[:size], significant[size:2 * size]):
-        if not batch or (refits and (missing_effect(refits, s) or partial_effect(refits))):
+        if not batch or (refits and named(refits, s)):
             break
         refits.update(_refit_batch(base, batch, s, rng, progress))
+        if check is not None:
+            check.until_one_carries(refits)
     return refits
+
+
+def named(refits: dict, s: DiagnoseSettings) -> str | None:
+    """The effect a diagnosis names: the missing one, else the best partial step.
+
+    Parameters
+    ----------
+    refits : dict
+        Effect name to refit.
+    s : DiagnoseSettings
+        The settings.
+
+    Returns
+    -------
+    str or None
+    """
+    return missing_effect(refits, s) or partial_effect(refits)
+
+
+def leaves_out(base: BaseFit, s: DiagnoseSettings) -> bool:
+    """Whether the candidates named are checked on each experiment left out in turn
+    (:attr:`DiagnoseSettings.leave_experiments_out`; by default where two or more
+    experiments differ in a declared condition).
+
+    Parameters
+    ----------
+    base : BaseFit
+        The diagnosed model.
+    s : DiagnoseSettings
+        The settings.
+
+    Returns
+    -------
+    bool
+    """
+    if len(base.likelihoods) < 2 or s.leave_experiments_out is False:
+        return False
+    return bool(s.leave_experiments_out) or bool(
+        experiment_conditions_table([lik.dataset for lik in base.likelihoods]))
+
+
+class _TransferCheck:
+    """Leaves each experiment out for the model once, and for each candidate about to be
+    named, until one predicts them better (or none is left to name)."""
+
+    def __init__(self, base: BaseFit, s: DiagnoseSettings, rng: np.random.Generator,
+                 progress: Progress) -> None:
+        self.base, self.s, self.progress = base, s, progress
+        self.rng = side_stream(rng, 2)  # the refits' streams stay as they were
+        self.model_nrmse: tuple[float, ...] | None = None
+
+    def _left_out(self, likelihoods: list, values: dict) -> tuple[float, ...]:
+        b = self.base
+        return leave_experiments_out(likelihoods, b.repeat_noise, b.names, b.noise_choices,
+                                     values, substeps=self.s.substeps,
+                                     rng=self.rng.spawn(1)[0], processes=self.s.processes)
+
+    def until_one_carries(self, refits: dict[str, Refit]) -> None:
+        """Check the effect named, in place, until one carries or none is named."""
+        while (name := named(refits, self.s)) is not None and refits[name].transfer is None:
+            if self.model_nrmse is None:
+                self.progress.say("leaving each experiment out in turn: the model")
+                self.model_nrmse = self._left_out(self.base.likelihoods, self.base.values)
+            self.progress.say(f"leaving each experiment out in turn: with {name}")
+            nrmse = self._left_out(_extended(self.base, name, self.s.substeps),
+                                   refits[name].values)
+            refits[name] = dataclasses.replace(refits[name], transfer=Transfer(
+                tuple(self.base.names), self.model_nrmse, nrmse))
 
 
 def _refit_batch(base: BaseFit, chosen: list[str], s: DiagnoseSettings,
                  rng: np.random.Generator, progress: Progress) -> dict[str, Refit]:
     """Refit each of ``chosen`` in worker processes (or here), each on its own stream."""
     # the workers are forked, and read the model from here rather than be sent it
-    processes = s.processes if "fork" in mp.get_all_start_methods() else 1
+    processes = s.processes if can_fork() else 1
     _REFIT_JOB[:] = [(base, s)]
     try:
         with Runner(processes, tasks=len(chosen)) as runner:
@@ -473,7 +552,9 @@ def improves(refit: Refit) -> bool:
     Pareto k-hats of its importance weights) does not decide on its own: the in-sample
     log likelihoods at the two MAPs, less the added parameters
     (:func:`pmabayes.criticism.elpd.plugin_difference`), must also rise by more than two
-    of their standard errors.
+    of their standard errors. Where experiments were left out in turn
+    (:attr:`~pmabayes.criticism.results.Refit.transfer`), the refit must also predict
+    them better on average (:func:`~pmabayes.criticism.refit.carries`).
 
     Parameters
     ----------
@@ -486,7 +567,8 @@ def improves(refit: Refit) -> bool:
     """
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 2.0 * refit.elpd_diff_se and witnessed(refit))
+                and refit.elpd_diff > 2.0 * refit.elpd_diff_se and witnessed(refit)
+                and carries(refit))
 
 
 def ranking_key(refit: Refit) -> tuple:
@@ -541,7 +623,7 @@ def _gains_without_se(refit: Refit) -> bool:
     account for the misfit."""
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and not math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 0.0 and witnessed(refit))
+                and refit.elpd_diff > 0.0 and witnessed(refit) and carries(refit))
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:

@@ -79,6 +79,14 @@ class DiagnoseSettings:
         Local worker processes the refits run in, one candidate each (all cores by
         default; 1 runs them here). The numbers do not depend on it: each refit has
         its own random stream.
+    leave_experiments_out : bool or None
+        Before a candidate is named, leave each experiment out in turn, fit the model
+        with and without it to the others and predict the one left out
+        (:mod:`~pmabayes.criticism.transfer`): a candidate that predicts them worse is
+        not named, as one that predicts left-out trials worse is not. The ELPD leaves
+        out trials, or stretches of a record, so it cannot see an effect that fits each
+        load it was given and none it was not. None (the default): where two or more
+        experiments differ in a declared condition (a dead load, a moving mass).
 
     Raises
     ------
@@ -101,6 +109,7 @@ class DiagnoseSettings:
     discrepancy: bool = True
     refit_search: str = "nested"
     processes: int | None = None
+    leave_experiments_out: bool | None = None
 
     def __post_init__(self) -> None:
         if self.candidates is not None and not isinstance(self.candidates, tuple):
@@ -121,6 +130,10 @@ class DiagnoseSettings:
                 raise ValueError(f"{name} must be a whole number, at least {least}; "
                                  f"got {value!r}")
         check_noise_model_name(self.noise_model)
+        if self.leave_experiments_out not in (None, True, False):
+            raise ValueError("leave_experiments_out must be True, False or None (where "
+                             "the experiments' declared conditions differ); got "
+                             f"{self.leave_experiments_out!r}")
         if self.refit_search not in REFIT_SEARCHES:
             raise ValueError(f"refit_search must be one of {', '.join(REFIT_SEARCHES)}; "
                              f"got {self.refit_search!r}")

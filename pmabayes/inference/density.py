@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -311,10 +312,48 @@ class Posterior:
         -------
         Posterior
         """
-        g = self.groups[experiment]
-        return Posterior(copy.copy(self.likelihoods[experiment]), self.group_noise[g],
-                         names=[self.experiment_names[experiment]],
-                         noise_choices=[self.noise_choices[experiment]])
+        return self.subset([experiment])[0]
+
+    def subset(self, keep: Sequence[int]) -> tuple[Posterior, np.ndarray]:
+        """Some experiments' posterior: their data alone, under this one's noise for them.
+
+        Their likelihoods are copies, so that this posterior's keep their columns. A
+        parameter may be named otherwise there (one experiment's own offset has no
+        suffix alone; a rig value is named after its first experiment kept): the
+        returned columns say where each of its parameters is here.
+
+        Parameters
+        ----------
+        keep : sequence of int
+            The experiments kept, by index, in their order.
+
+        Returns
+        -------
+        posterior : Posterior
+            The experiments' posterior.
+        columns : numpy.ndarray
+            For each of its parameters (its :attr:`names`), the column of the same
+            parameter here.
+        """
+        keep = [int(e) for e in keep]
+        groups = sorted({self.groups[e] for e in keep})
+        sub = Posterior([copy.copy(self.likelihoods[e]) for e in keep],
+                        [self.group_noise[g] for g in groups],
+                        names=[self.experiment_names[e] for e in keep],
+                        noise_groups=[groups.index(self.groups[e]) for e in keep],
+                        noise_choices=[self.noise_choices[e] for e in keep])
+        columns = np.full(sub.ndim, -1, dtype=int)
+        for j, e in enumerate(keep):
+            for n in sub.likelihoods[j].model.free_names:
+                columns[sub.names.index(sub.identified[j][n])] = self.names.index(
+                    self.identified[e][n])
+            for mine, theirs in zip(sub.start_columns.get(j, []),
+                                    self.start_columns.get(e, []), strict=True):
+                columns[mine] = theirs
+        for mine, theirs in enumerate(groups):
+            for a, b in zip(sub.noise_columns(mine), self.noise_columns(theirs), strict=True):
+                columns[a] = b
+        return sub, columns
 
     def experiment_point(self, experiment: int, values: dict
                          ) -> tuple[dict, np.ndarray | None]:
