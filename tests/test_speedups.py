@@ -112,7 +112,7 @@ def test_the_next_candidates_are_refitted_where_none_of_the_first_is_named(monke
     seen = []
     monkeypatch.setattr(refits, "_refit", lambda base, effect, s, rng: seen.append(effect)
                         or effect)
-    s = DiagnoseSettings(max_refits=2, processes=1)
+    s = DiagnoseSettings(max_refits=2, processes=1, leave_experiments_out=False)
     rng = np.random.default_rng(0)
     # none of the first two named: the next two are refitted, and no more
     monkeypatch.setattr(refits, "missing_effect", lambda r, s: None)

@@ -48,6 +48,10 @@ def _print_ranking(ranking: Sequence, limit: int = 5) -> None:
         print(f"  ... and {len(ranking) - limit} more (all in --json and --out)")
 
 
+#: ``diagnose --leave-experiments-out`` to :attr:`DiagnoseSettings.leave_experiments_out`
+_LEAVE_OUT = {"auto": None, "yes": True, "no": False}
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     inputs = list(args.data)
@@ -65,7 +69,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     model = _model_for(datasets[0], args)
     settings = DiagnoseSettings(candidates=args.candidates or None,
                                 noise_model=args.noise_model, substeps=args.substeps,
-                                refit_search=args.refit_search, processes=args.processes)
+                                refit_search=args.refit_search, processes=args.processes,
+                                leave_experiments_out=_LEAVE_OUT[args.leave_experiments_out])
     # a proposed effect's file goes where the options say; without one it is checked
     # in a temporary folder and not kept (nothing is written into the current folder)
     plugin_dir = args.proposal_dir or out or False
@@ -192,6 +197,11 @@ def _criticism_commands(sub, common) -> None:
     diag.add_argument("--processes", type=_positive, default=None,
                       help="local worker processes for the candidates' refits, one each "
                       "(all cores); the numbers do not depend on it")
+    diag.add_argument("--leave-experiments-out", choices=tuple(_LEAVE_OUT), default="auto",
+                      help="before naming a candidate, fit it to all experiments but one and "
+                      "predict the one left out, in turn; one that predicts them worse is "
+                      "not named ('auto', the default: where the experiments' declared "
+                      "conditions differ)")
     _noise_model_option(diag)
     _prior_option(diag)
     _exclude_option(diag)

@@ -344,7 +344,8 @@ def transfer_words(refits: dict, named: str | None) -> str:
     """
     words = ""
     if named is not None and refits[named].transfer is not None:
-        words += f" {named} carries to the experiments it was not fitted to: {refits[named].transfer.text()}."
+        words += (f" {named} carries to the experiments it was not fitted to: "
+                  f"{refits[named].transfer.text()}.")
     for r in sorted(refits.values(), key=lambda r: -r.elpd_diff):
         if r.transfer is not None and r.transfer.carries is False:
             words += (f" {r.effect} ({elpd_text(r)}) is not named: {r.transfer.text()}, "

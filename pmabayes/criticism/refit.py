@@ -14,7 +14,7 @@ from pmabayes.criticism.elpd import LaplaceLoo
 from pmabayes.criticism.transfer import Transfer
 from pmabayes.util import finite_or_none
 
-__all__ = ["Refit", "carries", "se_note", "witnessed"]
+__all__ = ["Refit", "se_note", "witnessed"]
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ class Refit:
         With several experiments, the refit and the model each fitted to all but one
         and predicting the one left out, in turn
         (:func:`pmabayes.criticism.transfer.leave_experiments_out`); a refit that
-        predicts them worse is never named. None where not checked.
+        predicts them worse is never named (:attr:`carries`). None where not checked.
 
     Notes
     -----
@@ -126,6 +126,13 @@ class Refit:
     plugin_diff_se: float = math.nan
     loo: LaplaceLoo | None = None
     transfer: Transfer | None = None
+
+    @property
+    def carries(self) -> bool:
+        """Whether nothing says the refit predicts experiments it was not fitted to
+        worse: not checked, not decidable, or a lower mean NRMSE on the experiments
+        left out (:attr:`transfer`)."""
+        return self.transfer is None or self.transfer.carries is not False
 
     def to_dict(self) -> dict:
         """JSON-ready summary: ``rms_m`` (pooled), ``explained`` (whitened energy),
@@ -199,19 +206,3 @@ def witnessed(refit: Refit) -> bool:
         return False
     return bool(d > 2.0 * se if math.isfinite(se) else d > 0.0)
 
-
-def carries(refit: Refit) -> bool:
-    """Whether nothing says a refit predicts experiments it was not fitted to worse:
-    not checked, not decidable, or a lower mean NRMSE on each experiment left out
-    (:attr:`Refit.transfer`).
-
-    Parameters
-    ----------
-    refit : Refit
-        The refit.
-
-    Returns
-    -------
-    bool
-    """
-    return refit.transfer is None or refit.transfer.carries is not False

@@ -17,7 +17,7 @@ from pmabayes.criticism.elpd import LaplaceLoo, laplace_loo, paired_difference, 
 from pmabayes.criticism.experiments import experiment_conditions_table
 from pmabayes.criticism.observed import counted_samples, residual, simulate_states
 from pmabayes.criticism.plausibility import implausible
-from pmabayes.criticism.refit import carries, witnessed
+from pmabayes.criticism.refit import witnessed
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
@@ -450,14 +450,13 @@ def named(refits: dict, s: DiagnoseSettings) -> str | None:
 
     Parameters
     ----------
-    refits : dict
-        Effect name to refit.
-    s : DiagnoseSettings
-        The settings.
+    refits, s
+        As :func:`missing_effect`'s.
 
     Returns
     -------
     str or None
+        :func:`missing_effect`, else :func:`partial_effect`.
     """
     return missing_effect(refits, s) or partial_effect(refits)
 
@@ -478,7 +477,7 @@ def leaves_out(base: BaseFit, s: DiagnoseSettings) -> bool:
     -------
     bool
     """
-    if len(base.likelihoods) < 2 or s.leave_experiments_out is False:
+    if s.leave_experiments_out is False or len(base.likelihoods) < 2:
         return False
     return bool(s.leave_experiments_out) or bool(
         experiment_conditions_table([lik.dataset for lik in base.likelihoods]))
@@ -554,7 +553,7 @@ def improves(refit: Refit) -> bool:
     (:func:`pmabayes.criticism.elpd.plugin_difference`), must also rise by more than two
     of their standard errors. Where experiments were left out in turn
     (:attr:`~pmabayes.criticism.results.Refit.transfer`), the refit must also predict
-    them better on average (:func:`~pmabayes.criticism.refit.carries`).
+    them better on average (:attr:`~pmabayes.criticism.results.Refit.carries`).
 
     Parameters
     ----------
@@ -568,7 +567,7 @@ def improves(refit: Refit) -> bool:
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)
                 and refit.elpd_diff > 2.0 * refit.elpd_diff_se and witnessed(refit)
-                and carries(refit))
+                and refit.carries)
 
 
 def ranking_key(refit: Refit) -> tuple:
@@ -623,7 +622,7 @@ def _gains_without_se(refit: Refit) -> bool:
     account for the misfit."""
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and not math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 0.0 and witnessed(refit) and carries(refit))
+                and refit.elpd_diff > 0.0 and witnessed(refit) and refit.carries)
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:
