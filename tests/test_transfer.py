@@ -105,9 +105,14 @@ def test_a_candidate_that_predicts_the_experiments_left_out_worse_is_not_named()
     better = Transfer(names, (0.20, 0.18, 0.25), (0.15, 0.16, 0.20))
     assert worse.carries is False and better.carries is True
     assert worse.means == pytest.approx((0.21, 0.29))
+    assert worse.ratio == pytest.approx((1.5 * 0.17 / 0.18 * 1.6) ** (1 / 3))
+    # one load neither predicts does not decide: relative to each experiment's own
+    far = Transfer(names, (0.20, 0.18, 3.0), (0.30, 0.27, 2.5))
+    assert far.means[1] < far.means[0] and far.carries is False
     # one experiment the model could not be fitted without: compared where both predict
     gap = Transfer(names, (math.nan, 0.18, 0.25), (0.1, 0.17, 0.30))
     assert gap.means == pytest.approx((0.215, 0.235)) and gap.carries is False
+    assert gap.ratio == pytest.approx((0.17 / 0.18 * 0.30 / 0.25) ** 0.5)
     assert Transfer(names, (math.nan,) * 3, (0.1,) * 3).carries is None
     record = worse.to_dict()
     assert record["carries"] is False and record["experiments"]["load_300g"] == {
@@ -122,10 +127,10 @@ def test_a_candidate_that_predicts_the_experiments_left_out_worse_is_not_named()
     assert named(refits, DiagnoseSettings()) == "maxwell_creep"
     words = transfer_words(refits, "maxwell_creep")
     assert "maxwell_creep carries to the experiments it was not fitted to" in words
-    assert "mean NRMSE of 0.17 against 0.21" in words
+    assert "with 0.811 times the NRMSE without it (geometric mean; load_100g 0.15" in words
     assert ("pressure_hysteresis (ΔELPD +500.0 ± 10.0) is not named: fitted to all "
-            "experiments but one, it predicts the one left out with a mean NRMSE of 0.29 "
-            "against 0.21") in words
+            "experiments but one, it predicts the one left out with 1.31 times the NRMSE "
+            "without it") in words
     # not checked: the ELPD alone decides, as before
     assert improves(_refit("a", 500.0)) and transfer_words({"a": _refit("a", 500.0)}, "a") == ""
 

@@ -61,23 +61,31 @@ class Transfer:
         return (float(a.mean()), float(b.mean())) if a.size else (math.nan, math.nan)
 
     @property
+    def ratio(self) -> float:
+        """The refit's NRMSE over the model's, geometric mean over the experiments left
+        out (those both predict; NaN where there is none): each experiment weighs alike,
+        so one that neither predicts (an extrapolation far off) does not decide."""
+        a, b = self._both()
+        return float(np.exp(np.mean(np.log(b / a)))) if a.size else math.nan
+
+    @property
     def carries(self) -> bool | None:
-        """Whether the effect predicts the experiments left out better on average (a
-        lower mean NRMSE); None where no experiment could be predicted by both."""
-        model, refit = self.means
-        return None if not math.isfinite(model) else bool(refit < model)
+        """Whether the effect predicts the experiments left out better (:attr:`ratio`
+        below 1); None where no experiment could be predicted by both."""
+        ratio = self.ratio
+        return None if not math.isfinite(ratio) else bool(ratio < 1.0)
 
     def text(self) -> str:
         """The comparison in words, for the verdict."""
-        model, refit = self.means
         each = ", ".join(f"{n} {r:.3g} against {m:.3g}" for n, m, r in
                          zip(self.names, self.model_nrmse, self.refit_nrmse, strict=True))
-        return (f"fitted to all experiments but one, it predicts the one left out with a "
-                f"mean NRMSE of {refit:.3g} against {model:.3g} without it ({each})")
+        return (f"fitted to all experiments but one, it predicts the one left out with "
+                f"{self.ratio:.3g} times the NRMSE without it (geometric mean; {each})")
 
     def to_dict(self) -> dict:
         """JSON-ready: ``experiments`` (name to ``{"model_nrmse", "refit_nrmse"}``, None
-        where not predicted), ``mean_model_nrmse``, ``mean_refit_nrmse`` and ``carries``.
+        where not predicted), ``mean_model_nrmse``, ``mean_refit_nrmse``, ``ratio`` and
+        ``carries``.
 
         Returns
         -------
@@ -89,7 +97,8 @@ class Transfer:
                                 for n, m, r in zip(self.names, self.model_nrmse,
                                                    self.refit_nrmse, strict=True)},
                 "mean_model_nrmse": finite_or_none(model),
-                "mean_refit_nrmse": finite_or_none(refit), "carries": self.carries}
+                "mean_refit_nrmse": finite_or_none(refit),
+                "ratio": finite_or_none(self.ratio), "carries": self.carries}
 
 
 def leave_experiments_out(likelihoods: list[Likelihood], repeat_noise: list,
