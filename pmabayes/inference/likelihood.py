@@ -210,7 +210,7 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
     likelihood : Likelihood
         The record's.
     rho : float
-        The identified noise's lag-one correlation.
+        Its noise's lag-one correlation, as for :func:`at_fast_bound`.
 
     Returns
     -------
@@ -848,12 +848,12 @@ class Likelihood:
         x : numpy.ndarray
             Model positions ``(batch, n_outputs)``.
         *noise : array_like
-            The noise parameters, scalars or ``(batch,)``.
+            As :meth:`mean_log_likelihood`'s.
 
         Returns
         -------
         numpy.ndarray
-            ``(batch,)``.
+            ``(batch,)``, the total.
         """
         x = np.atleast_2d(x)
         mean = self.mean_log_likelihood(x, *noise)
@@ -932,14 +932,13 @@ class Likelihood:
 
         Parameters
         ----------
-        x : numpy.ndarray
-            Model positions ``(batch, n_outputs)``.
-        *noise : array_like
-            The noise parameters, scalars or ``(batch,)``.
+        x, *noise : numpy.ndarray, array_like
+            As :meth:`mean_log_likelihood`'s.
 
         Returns
         -------
         numpy.ndarray
+            ``(batch, n_trials)``.
         """
         x = np.atleast_2d(x)
         return self.noise.log_likelihood(self._trials, self._by_trial(x), 1.0,

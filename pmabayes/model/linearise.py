@@ -241,10 +241,8 @@ def linearise(model: Model, theta: np.ndarray, x_m: np.ndarray, v_m_s: np.ndarra
 
     Parameters
     ----------
-    model : Model
-        The model.
-    theta : numpy.ndarray
-        One member's parameters, ``(n_parameters,)`` (or ``(1, n_parameters)``).
+    model, theta : Model, numpy.ndarray
+        The model and one member's parameters, as for :func:`effect_forces`.
     x_m, v_m_s, p_pa, z_n : numpy.ndarray
         The trajectory, as in :func:`effect_forces`.
     dt_s : float
