@@ -113,7 +113,7 @@ def is_simulated(path: str | Path) -> bool:
     Parameters
     ----------
     path : str or Path
-        Any path (a data file there is loaded).
+        Any path; only a data file that loads can be one.
 
     Returns
     -------

@@ -188,7 +188,7 @@ def judged_whiteness(likelihood: Likelihood, model_position_m: np.ndarray, noise
 
     Parameters
     ----------
-    likelihood, model_position_m, noise
+    likelihood, model_position_m, noise : Likelihood, numpy.ndarray, object
         As :func:`innovations`'s.
 
     Returns
@@ -314,7 +314,7 @@ class NoiseModelCheck:
         Parameters
         ----------
         residual_m : numpy.ndarray
-            As :meth:`whiten_residual`'s.
+            Trial mean minus model, as for :meth:`whiten_residual`.
 
         Returns
         -------

@@ -207,10 +207,8 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
 
     Parameters
     ----------
-    likelihood : Likelihood
-        The record's.
-    rho : float
-        Its noise's lag-one correlation, as for :func:`at_fast_bound`.
+    likelihood, rho : Likelihood, float
+        As :func:`at_fast_bound`'s.
 
     Returns
     -------
