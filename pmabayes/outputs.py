@@ -78,7 +78,7 @@ def json_kind(path: str | Path) -> str | None:
     Parameters
     ----------
     path : str or Path
-        Any path.
+        Any path (a JSON file there is read).
 
     Returns
     -------
@@ -113,7 +113,7 @@ def is_simulated(path: str | Path) -> bool:
     Parameters
     ----------
     path : str or Path
-        Any path.
+        Any path; only a data file that loads can be one.
 
     Returns
     -------
@@ -220,6 +220,7 @@ def check_file(path: str | Path, kind: str, option: str,
     Returns
     -------
     Path
+        ``path``, checked.
 
     Raises
     ------
@@ -253,6 +254,13 @@ def check_file(path: str | Path, kind: str, option: str,
     return path
 
 
+def _not_a_file(out: Path, option: str) -> None:
+    """Refuse an output folder's name that a file has."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{option} {out}: this is a file, not a folder; give the name of a "
+                          "folder (it is created if missing)")
+
+
 def check_folder(path: str | Path, kind: str, option: str = "--out",
                  inputs: Sequence[str | Path] = ()) -> Path:
     """An output folder's path, checked before any work.
@@ -274,6 +282,7 @@ def check_folder(path: str | Path, kind: str, option: str = "--out",
     Returns
     -------
     Path
+        ``path``, checked; :func:`created` or :func:`staged` makes it.
 
     Raises
     ------
@@ -281,9 +290,7 @@ def check_folder(path: str | Path, kind: str, option: str = "--out",
         Naming the folder, why it is refused, and the fix.
     """
     out = Path(path)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{option} {out}: this is a file, not a folder; give the name of a "
-                          "folder (it is created if missing)")
+    _not_a_file(out, option)
     if out.is_dir() and any(out.iterdir()):
         for item in inputs:
             if Path(item).resolve().is_relative_to(out.resolve()):
@@ -312,6 +319,7 @@ def check_folder_for_new_files(path: str | Path, option: str) -> Path:
     Returns
     -------
     Path
+        ``path``, checked; the writer makes it where missing.
 
     Raises
     ------
@@ -362,6 +370,7 @@ def check_fits_folder(out: str | Path, fits: Mapping[str, str], option: str = "-
     Returns
     -------
     Path
+        ``out``, checked.
 
     Raises
     ------
@@ -370,9 +379,7 @@ def check_fits_folder(out: str | Path, fits: Mapping[str, str], option: str = "-
         nothing can be written there.
     """
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{option} {out}: this is a file, not a folder; give the name of a "
-                          "folder (it is created if missing)")
+    _not_a_file(out, option)
     for name, source in fits.items():
         path = out / name
         if path.is_dir() or (path.exists() and not _is_fit(path)):
@@ -435,7 +442,7 @@ def staged(out: str | Path, kind: str, written: list[str]) -> Iterator[Path]:
     Parameters
     ----------
     out : str or Path
-        A folder checked by :func:`check_folder`.
+        The folder the page goes to, checked by :func:`check_folder`.
     kind : str
         The command whose output it is.
     written : list of str

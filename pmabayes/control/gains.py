@@ -482,14 +482,8 @@ def resolve_gains(controllers: Sequence[str], gains: Mapping | None = None, *,
         The controllers that will run.
     gains : mapping, optional
         ``{"pid": {...}, "ct": {...}}``, in full or in part.
-    model : Model, optional
-        The nominal model; the base model on :meth:`Rig.control` by default.
-    params : mapping or numpy.ndarray, optional
-        Its parameters; the model's defaults by default.
-    timing : Timing, optional
-        Rates, limits and sensor.
-    reference_mean_m : float, optional
-        Mean of the reference the rule tunes at; :data:`REFERENCE_MEAN_M` by default.
+    model, params, timing, reference_mean_m : optional
+        The nominal model and what the rule tunes it at, as :func:`nominal_gains`'s.
 
     Returns
     -------

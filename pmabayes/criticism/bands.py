@@ -295,7 +295,7 @@ def input_bands(dataset: Dataset) -> tuple[tuple[float, float], ...]:
     Parameters
     ----------
     dataset : Dataset
-        The data.
+        The data; :func:`excited_band` reads its input.
 
     Returns
     -------

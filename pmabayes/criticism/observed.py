@@ -256,6 +256,7 @@ def shared_input(dataset: Dataset) -> np.ndarray:
     Parameters
     ----------
     dataset : Dataset
+        Its trials share one input or each has its own.
 
     Returns
     -------

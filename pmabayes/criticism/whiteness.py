@@ -188,12 +188,8 @@ def judged_whiteness(likelihood: Likelihood, model_position_m: np.ndarray, noise
 
     Parameters
     ----------
-    likelihood : Likelihood
-        Data and noise model.
-    model_position_m : numpy.ndarray
-        Model output ``(n_samples,)``.
-    noise : object
-        Identified noise (``sigma``, ``rho``, ``white``).
+    likelihood, model_position_m, noise : Likelihood, numpy.ndarray, object
+        As :func:`innovations`'s.
 
     Returns
     -------
@@ -318,7 +314,7 @@ class NoiseModelCheck:
         Parameters
         ----------
         residual_m : numpy.ndarray
-            Trial mean minus model, ``(n_samples,)``.
+            Trial mean minus model, as for :meth:`whiten_residual`.
 
         Returns
         -------

@@ -13,7 +13,7 @@ import json
 import math
 import numbers
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -430,6 +430,38 @@ def _check_rig(metadata: dict, input_name: str, where: str) -> None:
         f"(a {other}-driven rig has \"input_kind\": \"{other}\") or the data's input "
         f"(rename the column to {expected!r} if it really holds "
         f"{'pressure in Pa' if kind == 'pressure' else 'force in N'}).")
+
+
+def dataset_list(datasets: Dataset | Iterable[Dataset], none_given: Exception
+                 ) -> list[Dataset]:
+    """One data set or several, as a list of at least one, each checked to be a Dataset.
+
+    Parameters
+    ----------
+    datasets : Dataset or iterable of Dataset
+        The data, one data set per experiment.
+    none_given : Exception
+        Raised when ``datasets`` is empty (its type and message are the caller's).
+
+    Returns
+    -------
+    list of Dataset
+
+    Raises
+    ------
+    Exception
+        ``none_given``, with no data set.
+    TypeError
+        If an item is not a Dataset.
+    """
+    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
+    if not datasets:
+        raise none_given
+    for ds in datasets:
+        if not isinstance(ds, Dataset):
+            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
+                            f"{type(ds).__name__}")
+    return datasets
 
 
 def check_same_input_kind(datasets: Sequence[Dataset]) -> str:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pmabayes.data import Dataset
+from pmabayes.data.dataset import dataset_list
 from pmabayes.design.experiments import (
     MIN_SAMPLES,
     DesignError,
@@ -171,17 +172,6 @@ def _score_text(goal: str, s: dict) -> str:
                    f"{100 * decisive:.1f}% +- {100 * s['named_decisively_mc_se']:.1f}%"))
     return (f"interval shrinkage x{s['factor']:.3g} (geometric mean; log {s['score']:.3g} "
             f"+- {s['mc_se']:.2g} MC se)")
-
-
-def _checked_datasets(datasets) -> list[Dataset]:
-    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
-    if not datasets:
-        raise DesignError("no data: give the data so far (one data set per experiment)")
-    for ds in datasets:
-        if not isinstance(ds, Dataset):
-            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
-                            f"{type(ds).__name__}")
-    return datasets
 
 
 def _checked_budget(first: Dataset, duration_s, n_experiments: int, n_draws: int
@@ -362,7 +352,8 @@ def design(
     to a file with a report.
     """
     start = time.perf_counter()
-    datasets = _checked_datasets(datasets)
+    datasets = dataset_list(datasets, DesignError("no data: give the data so far (one "
+                                                  "data set per experiment)"))
     first = datasets[0]
     base = _names(base_effects)
     cands = list(dict.fromkeys(_names(candidates)))

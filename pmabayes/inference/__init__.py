@@ -37,30 +37,30 @@ from pmabayes.inference.fitfile import (
 )
 from pmabayes.inference.likelihood import (
     GUARD_FACTOR,
+    NOISE_SOURCES,
+    JointLikelihood,
+    Likelihood,
+    LikelihoodError,
+)
+from pmabayes.inference.noise import (
     LEVEL_ADEQUATE,
     LJUNG_BOX_LAGS,
     MAX_AR_ORDER,
     NOISE_MODELS,
     NOISE_PARAMETERS,
-    NOISE_SOURCES,
     ArNoise,
-    JointLikelihood,
-    Likelihood,
-    LikelihoodError,
     NoiseChoice,
+    NoiseEstimate,
     ar1_noise,
     ar1_whiteness_of_repeats,
     ar_noise_from_repeats,
     check_noise_model_name,
     choose_noise_model,
+    estimate_noise,
+    group_noise,
     levinson,
     ljung_box_statistic,
     measurement_noise,
-)
-from pmabayes.inference.noise import (
-    NoiseEstimate,
-    estimate_noise,
-    group_noise,
 )
 from pmabayes.inference.noise_start import refer_periods
 from pmabayes.inference.posterior import (

@@ -527,7 +527,7 @@ def experiment_datasets(tree: xr.DataTree) -> list[Dataset]:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit.
+        A fit; its groups ``observed_data`` and ``constant_data`` hold the data.
 
     Returns
     -------
@@ -583,7 +583,7 @@ def experiment_models(tree: xr.DataTree) -> list[Model]:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit.
+        A fit; its metadata names the model and each experiment's rig.
 
     Returns
     -------
@@ -611,7 +611,7 @@ def noise_models(tree: xr.DataTree) -> list[ArNoise | None]:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit.
+        A fit, read as by :func:`fit_noise_models`.
 
     Returns
     -------
@@ -629,7 +629,7 @@ def fit_noise_models(tree: xr.DataTree) -> list[NoiseModel]:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit.
+        A fit; its metadata records each experiment's noise model.
 
     Returns
     -------
@@ -688,7 +688,7 @@ def is_fit_file(path: str | Path) -> bool:
     Parameters
     ----------
     path : str or Path
-        Any path.
+        Any path, a fit or not.
 
     Returns
     -------
@@ -756,7 +756,7 @@ def fit_info(tree: xr.DataTree) -> dict:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit.
+        A fit (:func:`load_fit`).
 
     Returns
     -------
@@ -790,7 +790,7 @@ def model_from_fit(tree: xr.DataTree) -> Model:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit.
+        A fit; its metadata names the effects, the rig and the fixed values.
 
     Returns
     -------

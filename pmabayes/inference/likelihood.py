@@ -207,10 +207,8 @@ def slow_disturbance_note(likelihood: Likelihood, rho: float) -> str:
 
     Parameters
     ----------
-    likelihood : Likelihood
-        The record's.
-    rho : float
-        The identified noise's lag-one correlation.
+    likelihood, rho : Likelihood, float
+        As :func:`at_fast_bound`'s.
 
     Returns
     -------
@@ -848,12 +846,12 @@ class Likelihood:
         x : numpy.ndarray
             Model positions ``(batch, n_outputs)``.
         *noise : array_like
-            The noise parameters, scalars or ``(batch,)``.
+            As :meth:`mean_log_likelihood`'s.
 
         Returns
         -------
         numpy.ndarray
-            ``(batch,)``.
+            ``(batch,)``, the total.
         """
         x = np.atleast_2d(x)
         mean = self.mean_log_likelihood(x, *noise)
@@ -932,14 +930,13 @@ class Likelihood:
 
         Parameters
         ----------
-        x : numpy.ndarray
-            Model positions ``(batch, n_outputs)``.
-        *noise : array_like
-            The noise parameters, scalars or ``(batch,)``.
+        x, *noise : numpy.ndarray, array_like
+            As :meth:`mean_log_likelihood`'s.
 
         Returns
         -------
         numpy.ndarray
+            ``(batch, n_trials)``.
         """
         x = np.atleast_2d(x)
         return self.noise.log_likelihood(self._trials, self._by_trial(x), 1.0,

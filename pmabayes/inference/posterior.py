@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from pmabayes.data import Dataset, check_same_input_kind
+from pmabayes.data.dataset import dataset_list
 from pmabayes.inference.density import Posterior
 from pmabayes.inference.errors import FitError
 from pmabayes.inference.fitfile import experiment_names
@@ -58,13 +59,7 @@ def experiments(datasets: Dataset | Sequence[Dataset], model: Model
     ModelError
         If a data set records a rig that is not valid.
     """
-    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
-    if not datasets:
-        raise ValueError("no data: give at least one data set")
-    for ds in datasets:
-        if not isinstance(ds, Dataset):
-            raise TypeError(f"datasets must be pmabayes.data.Dataset objects, got "
-                            f"{type(ds).__name__}")
+    datasets = dataset_list(datasets, ValueError("no data: give at least one data set"))
     check_same_input_kind(datasets)
     models = [model] if len(datasets) == 1 else [model.on_rig(ds) for ds in datasets]
     return datasets, models, experiment_names([ds.source for ds in datasets])

@@ -218,6 +218,7 @@ def find_map(
     Returns
     -------
     MapResult
+        The optimum, its searches' records and the fit's quality and agreement.
 
     Raises
     ------
@@ -296,6 +297,7 @@ def polish_map(posterior: Posterior, theta: np.ndarray, *, rng: np.random.Genera
     Returns
     -------
     MapResult
+        The highest polished start.
 
     Raises
     ------

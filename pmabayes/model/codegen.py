@@ -125,7 +125,7 @@ def state_effects(model: Model) -> tuple:
     Parameters
     ----------
     model : Model
-        The composed model.
+        As :func:`state_rows`'s.
 
     Returns
     -------

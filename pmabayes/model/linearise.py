@@ -99,6 +99,11 @@ class Linearisation:
     dt_s: float
 
 
+def _flat(*arrays) -> tuple[np.ndarray, ...]:
+    """Each array as a 1-D float array (a member's parameters, a trajectory)."""
+    return tuple(np.asarray(a, dtype=float).reshape(-1) for a in arrays)
+
+
 def _phis(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(e^y - 1) / y`` and ``(e^y - 1 - y) / y^2``, without cancellation near 0."""
     y = np.asarray(y, dtype=float)
@@ -171,8 +176,7 @@ def effect_forces(model: Model, theta: np.ndarray, x_m: np.ndarray, v_m_s: np.nd
     -------
     EffectForces
     """
-    th = np.asarray(theta, dtype=float).reshape(-1)
-    x, v, p, z = (np.asarray(a, dtype=float).reshape(-1) for a in (x_m, v_m_s, p_pa, z_n))
+    th, x, v, p, z = _flat(theta, x_m, v_m_s, p_pa, z_n)
     n = x.size
     out = {k: np.zeros(n) for k in ("f", "fx", "fv", "fz")}
     names, states, dstate, rates = [], [], [], []
@@ -237,10 +241,8 @@ def linearise(model: Model, theta: np.ndarray, x_m: np.ndarray, v_m_s: np.ndarra
 
     Parameters
     ----------
-    model : Model
-        The model.
-    theta : numpy.ndarray
-        One member's parameters, ``(n_parameters,)`` (or ``(1, n_parameters)``).
+    model, theta : Model, numpy.ndarray
+        The model and one member's parameters, as for :func:`effect_forces`.
     x_m, v_m_s, p_pa, z_n : numpy.ndarray
         The trajectory, as in :func:`effect_forces`.
     dt_s : float
@@ -250,8 +252,7 @@ def linearise(model: Model, theta: np.ndarray, x_m: np.ndarray, v_m_s: np.ndarra
     -------
     Linearisation
     """
-    th = np.asarray(theta, dtype=float).reshape(-1)
-    x, v, p, z = (np.asarray(a, dtype=float).reshape(-1) for a in (x_m, v_m_s, p_pa, z_n))
+    th, x, v, p, z = _flat(theta, x_m, v_m_s, p_pa, z_n)
     ef = effect_forces(model, th, x, v, p, z, dt_s)
     rig = model.rig_columns
     mass = float(th[rig["moving_mass_kg"]] if "moving_mass_kg" in rig

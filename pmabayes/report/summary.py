@@ -229,7 +229,7 @@ def map_note(rows: Sequence[Mapping]) -> str:
     Parameters
     ----------
     rows : sequence of dict
-        Rows of :func:`summary_table`.
+        As :func:`map_outside_hdi`'s.
 
     Returns
     -------

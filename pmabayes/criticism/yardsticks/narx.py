@@ -220,7 +220,7 @@ class NarxBaseline(Fitted):
         u : numpy.ndarray
             ``(n,)`` input.
         dt_s : float
-            Its sample interval.
+            The input's sample interval, in s.
         load_kg : float, optional
             Its declared load (needed when the model has the load as an input).
         where : str

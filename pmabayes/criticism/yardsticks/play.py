@@ -149,7 +149,8 @@ def fit_play(records: Sequence[Record]) -> PlayBaseline:
     Parameters
     ----------
     records : sequence of Record
-        The training experiments.
+        The training experiments, as for
+        :func:`~pmabayes.criticism.yardsticks.linear.fit_linear`.
 
     Returns
     -------

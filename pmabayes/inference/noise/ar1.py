@@ -54,6 +54,29 @@ NOISE_PARAMETERS: tuple[Parameter, ...] = (
 NOISE_PER_AMPLITUDE = 5e-5 / 0.04
 
 
+def scaled_to_motion(parameter: Parameter, likelihood: Likelihood, per_amplitude: float
+                     ) -> Parameter:
+    """A noise scale centred on ``per_amplitude`` times the data's amplitude of motion
+    (half its range), for a force-input rig whose scale is the data's.
+
+    Parameters
+    ----------
+    parameter : Parameter
+        The noise scale, with a log-normal prior.
+    likelihood : Likelihood
+        The record's (its ``motion_m``).
+    per_amplitude : float
+        Noise per metre of amplitude (:data:`NOISE_PER_AMPLITUDE` for the disturbance).
+
+    Returns
+    -------
+    Parameter
+        ``parameter`` with that default and prior median, the prior's width kept.
+    """
+    s = per_amplitude * (0.5 * likelihood.motion_m)
+    return dataclasses.replace(parameter, default=s, prior=LogNormal(s, parameter.prior.sigma))
+
+
 def ar1_noise(
     n_series: int, n_samples: int, sigma, rho, rng: np.random.Generator
 ) -> np.ndarray:
@@ -420,19 +443,18 @@ class Ar1White(NoiseModel):
         Parameters
         ----------
         likelihood : Likelihood
+            The record's.
 
         Returns
         -------
         tuple of Parameter
+            ``sigma_noise_m``, ``rho_noise`` and ``sigma_white_m``.
         """
         sig, rho, white = NOISE_PARAMETERS
         force = likelihood.model.rig.input_kind == "force"
         if force:  # an oscillator's scale is the data's
-            amplitude = 0.5 * likelihood.motion_m
-            sig, white = (dataclasses.replace(p, default=f * amplitude,
-                                              prior=LogNormal(f * amplitude, p.prior.sigma))
-                          for p, f in ((sig, NOISE_PER_AMPLITUDE), (white,
-                                                                    0.1 * NOISE_PER_AMPLITUDE)))
+            sig = scaled_to_motion(sig, likelihood, NOISE_PER_AMPLITUDE)
+            white = scaled_to_motion(white, likelihood, 0.1 * NOISE_PER_AMPLITUDE)
         if likelihood.noise_source != "record":
             return (sig, rho, white) if force else NOISE_PARAMETERS
         r = likelihood.rho_max

@@ -12,14 +12,13 @@ noise is not Student-t). Selected by ``noise_model="student_t"``
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import special, stats
 
-from pmabayes.inference.noise.ar1 import NOISE_PER_AMPLITUDE
+from pmabayes.inference.noise.ar1 import NOISE_PER_AMPLITUDE, scaled_to_motion
 from pmabayes.inference.noise.base import NoiseModel, register_noise_model
 from pmabayes.model.parameters import LogNormal, Parameter
 
@@ -75,8 +74,7 @@ class StudentT(NoiseModel):
         """
         sig, nu = STUDENT_T_PARAMETERS
         if likelihood.model.rig.input_kind == "force":  # an oscillator's scale is the data's
-            s = NOISE_PER_AMPLITUDE * 0.5 * likelihood.motion_m
-            sig = dataclasses.replace(sig, default=s, prior=LogNormal(s, sig.prior.sigma))
+            sig = scaled_to_motion(sig, likelihood, NOISE_PER_AMPLITUDE)
         return (sig, nu)
 
     def log_likelihood(self, y: np.ndarray, x: np.ndarray, scale: float, noise: tuple,

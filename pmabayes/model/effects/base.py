@@ -302,7 +302,7 @@ class Effect:
         Parameters
         ----------
         q : numpy.ndarray
-            The effect's parameter values, ``(batch, n_params)``.
+            As :meth:`history_s`'s.
 
         Returns
         -------

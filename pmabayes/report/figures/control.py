@@ -33,7 +33,7 @@ def plot_figure5(run: ClosedLoop, *, path: str | Path | None = None) -> Figure:
     Returns
     -------
     matplotlib.figure.Figure
-        The figure.
+        Two panels per frequency: the positions over the reference, and the errors.
     """
     freqs = list(dict.fromkeys(float(f) for f in run.frequency_hz))
     fig = Figure(figsize=(8, 3.2 * len(freqs)))
@@ -74,7 +74,8 @@ def plot_robustness(summary, *, path: str | Path | None = None) -> Figure:
     Returns
     -------
     matplotlib.figure.Figure
-        The figure.
+        Against the reference frequency: RMS error and phase lag (median and 90% band
+        per controller), and P(CT beats PID) with its Monte Carlo error.
     """
     if "p_ct_beats_pid" not in summary:
         summary = summarise_robustness(summary)

@@ -129,7 +129,7 @@ def plot_rank(tree: xr.DataTree, path: str | Path) -> tuple[int, str | None]:
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.inference.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`); its draws per walker.
     path : str or Path
         Where to save the figure.
 
@@ -232,7 +232,7 @@ def plot_pair(tree: xr.DataTree, path: str | Path, rows: Sequence[Mapping],
     Parameters
     ----------
     tree : xarray.DataTree
-        A fit (layout of :mod:`pmabayes.inference.posterior`).
+        A fit (layout of :mod:`pmabayes.inference.posterior`); its pooled draws.
     path : str or Path
         Where to save the figure.
     rows : sequence of dict
