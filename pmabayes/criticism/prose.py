@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmabayes.criticism.bands import band_label, band_rms
-from pmabayes.criticism.refit import Refit, se_note, witnessed
+from pmabayes.criticism.refit import Refit
 from pmabayes.criticism.signature import Signature
 from pmabayes.util import format_together
 
@@ -122,7 +122,7 @@ def explanation_text(eff, evidence: float, p_value: float, significant: bool,
 def elpd_text(refit, verb: str = "") -> str:
     """``ΔELPD +d ± se`` of a refit; ``± n/a`` with the reason where the standard error
     cannot be estimated; that the estimate is not reliable, why, and what its in-sample
-    witness says (:func:`pmabayes.criticism.refits.witnessed`); that the refit failed
+    witness says (:attr:`pmabayes.criticism.results.Refit.witnessed`); that the refit failed
     (its numbers are not the effect's), or that its ELPD could not be estimated
     (PSIS-LOO over the refit's Laplace draws gave no finite value, e.g. when its draws
     do not simulate).
@@ -144,7 +144,7 @@ def elpd_text(refit, verb: str = "") -> str:
     if not math.isfinite(refit.elpd_diff):
         return "ΔELPD not estimable: PSIS-LOO over the refit's Laplace draws gave no finite value"
     head = f"ELPD {verb} " if verb else "ΔELPD "
-    note = se_note(refit)
+    note = refit.se_note
     if note:
         text = f"{head}{refit.elpd_diff:+.1f} ± n/a ({note})"
     else:
@@ -163,7 +163,7 @@ def _reliability_text(refit) -> str:
     if not math.isfinite(d):
         return f" (not reliable: {why}; with no in-sample witness it names nothing)"
     pm = f"{se:.1f}" if math.isfinite(se) else "n/a"
-    verdict = ("agrees" if witnessed(refit) else
+    verdict = ("agrees" if refit.witnessed else
                "does not clear two standard errors, so it names nothing")
     return (f" (not reliable: {why}; the in-sample log likelihood at the two MAPs less the "
             f"added parameters, {d:+.1f} ± {pm}, {verdict})")

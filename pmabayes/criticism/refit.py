@@ -1,6 +1,6 @@
-"""A model refitted with one more effect (:class:`Refit`), why its ΔELPD may have no
-standard error (:func:`se_note`) and whether an unreliable one is confirmed
-(:func:`witnessed`): below the diagnosis' results and its prose, which both read refits.
+"""A model refitted with one more effect (:class:`Refit`), with why its ΔELPD may have no
+standard error, whether an unreliable one is confirmed and whether it carries to
+experiments left out: below the diagnosis' results and its prose, which both read refits.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pmabayes.criticism.elpd import LaplaceLoo
 from pmabayes.criticism.transfer import Transfer
 from pmabayes.util import finite_or_none
 
-__all__ = ["Refit", "se_note", "witnessed"]
+__all__ = ["Refit"]
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,27 @@ class Refit:
     transfer: Transfer | None = None
 
     @property
+    def se_note(self) -> str | None:
+        """Why the ΔELPD has no standard error, or None when it has one (or no ΔELPD)."""
+        if math.isfinite(self.elpd_diff_se) or not math.isfinite(self.elpd_diff):
+            return None
+        return ("one left-out unit (a single record whose noise model cannot leave out "
+                "stretches of it): no spread to estimate a standard error from")
+
+    @property
+    def witnessed(self) -> bool:
+        """Whether the ΔELPD may be read as it stands: its estimate is reliable, or the
+        in-sample witness (:attr:`plugin_diff`) agrees that it rises (by more than two
+        standard errors; where there is no standard error, one left-out unit, above
+        zero)."""
+        if self.elpd_note is None:
+            return True
+        d, se = self.plugin_diff, self.plugin_diff_se
+        if not math.isfinite(d):
+            return False
+        return bool(d > 2.0 * se if math.isfinite(se) else d > 0.0)
+
+    @property
     def carries(self) -> bool:
         """Whether nothing says the refit predicts experiments it was not fitted to
         worse: not checked, not decidable, or a lower mean NRMSE on the experiments
@@ -153,7 +174,7 @@ class Refit:
                 "explained_rms": self.explained_rms, "adequate": self.adequate,
                 "elpd_diff": finite_or_none(self.elpd_diff),
                 "elpd_diff_se": finite_or_none(self.elpd_diff_se),
-                "elpd_diff_se_note": se_note(self),
+                "elpd_diff_se_note": self.se_note,
                 "elpd_note": self.elpd_note,
                 "plugin_diff": finite_or_none(self.plugin_diff),
                 "plugin_diff_se": finite_or_none(self.plugin_diff_se),
@@ -164,45 +185,4 @@ class Refit:
                                 for sig in self.signatures],
                 "left_out_experiments": (None if self.transfer is None
                                          else self.transfer.to_dict())}
-
-
-def se_note(refit: Refit) -> str | None:
-    """Why a refit's ΔELPD has no standard error, or None when it has one.
-
-    Parameters
-    ----------
-    refit : Refit
-        The refit.
-
-    Returns
-    -------
-    str or None
-    """
-    if math.isfinite(refit.elpd_diff_se) or not math.isfinite(refit.elpd_diff):
-        return None
-    return ("one left-out unit (a single record whose noise model cannot leave out "
-            "stretches of it): no spread to estimate a standard error from")
-
-
-def witnessed(refit: Refit) -> bool:
-    """Whether a refit's ΔELPD may be read as it stands: its estimate is reliable, or the
-    in-sample witness (:attr:`~pmabayes.criticism.results.Refit.plugin_diff`) agrees
-    that it rises (by more than two standard errors; where there is no standard error,
-    one left-out unit, above zero).
-
-    Parameters
-    ----------
-    refit : Refit
-        The refit.
-
-    Returns
-    -------
-    bool
-    """
-    if refit.elpd_note is None:
-        return True
-    d, se = refit.plugin_diff, refit.plugin_diff_se
-    if not math.isfinite(d):
-        return False
-    return bool(d > 2.0 * se if math.isfinite(se) else d > 0.0)
 

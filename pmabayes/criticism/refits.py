@@ -17,7 +17,6 @@ from pmabayes.criticism.elpd import LaplaceLoo, laplace_loo, paired_difference, 
 from pmabayes.criticism.experiments import experiment_conditions_table
 from pmabayes.criticism.observed import counted_samples, residual, simulate_states
 from pmabayes.criticism.plausibility import implausible
-from pmabayes.criticism.refit import witnessed
 from pmabayes.criticism.results import Refit, pooled_rms
 from pmabayes.criticism.scores import rank_effects
 from pmabayes.criticism.settings import DiagnoseSettings
@@ -558,15 +557,16 @@ def improves(refit: Refit) -> bool:
     Parameters
     ----------
     refit : Refit
-        The refit.
+        A candidate refitted, with its ELPD, its witness and its checks.
 
     Returns
     -------
     bool
+        True where it clearly predicts held-out data better.
     """
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 2.0 * refit.elpd_diff_se and witnessed(refit)
+                and refit.elpd_diff > 2.0 * refit.elpd_diff_se and refit.witnessed
                 and refit.carries)
 
 
@@ -622,7 +622,7 @@ def _gains_without_se(refit: Refit) -> bool:
     account for the misfit."""
     return bool(refit.failed is None and refit.implausible is None
                 and math.isfinite(refit.elpd_diff) and not math.isfinite(refit.elpd_diff_se)
-                and refit.elpd_diff > 0.0 and witnessed(refit) and refit.carries)
+                and refit.elpd_diff > 0.0 and refit.witnessed and refit.carries)
 
 
 def missing_effect(refits: dict, s: DiagnoseSettings) -> str | None:
