@@ -169,3 +169,30 @@ def test_the_check_runs_until_a_candidate_carries(monkeypatch, loads):
 def test_the_setting_is_checked():
     with pytest.raises(ValueError, match="leave_experiments_out must be True, False or None"):
         DiagnoseSettings(leave_experiments_out="yes")
+
+
+def test_the_command_line_turns_the_check_on_or_off(tmp_path, monkeypatch, loads):
+    """``--leave-experiments-out yes|no|auto`` reaches the settings; another word is an
+    argparse error that lists the choices."""
+    import pmabayes.criticism.diagnosis as diagnosis
+    from pmabayes.cli import main
+
+    files = []
+    for ds in loads[:2]:
+        path = tmp_path / (ds.source or "x.csv")
+        pb.data.write_csv(ds, path)
+        files.append(str(path))
+    seen = []
+
+    def stop(datasets, model=None, effects=(), *, settings=None, **_):
+        seen.append(settings.leave_experiments_out)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(diagnosis, "diagnose", stop)
+    for word in ("yes", "no", "auto"):
+        with pytest.raises(SystemExit):
+            main(["diagnose", *files, "--leave-experiments-out", word])
+    assert seen == [True, False, None]
+    with pytest.raises(SystemExit) as err:
+        main(["diagnose", *files, "--leave-experiments-out", "maybe"])
+    assert err.value.code == 2
