@@ -5,7 +5,8 @@ sample's 100, 300 and 500 g loads together.
 ``diagnose`` gives each refit its own stream spawned from the seed. This fits the
 diagnosed model once (``--effects``, seed 0, as ``pmabayes diagnose --seed 0``), then
 refits each candidate (``--candidates``) on ``--streams`` other streams, each as
-``diagnose`` refits it (one global search and polishes from the model's MAP), and
+``diagnose`` refits it (``--searches`` global searches, one by default, and polishes
+from the model's MAP), and
 leaves each load out in turn for the model and for each refit
 (:func:`pmabayes.criticism.transfer.leave_experiments_out`). It prints one row per
 refit: the stream, the ΔELPD with its standard error, the in-sample witness, the NRMSE
@@ -19,7 +20,8 @@ sidecars and links go into ``--out``.
 Usage::
 
     python analyses/refit_streams.py [--sample 1] [--effects force_length_map]
-        [--candidates maxwell_creep,stribeck_friction] [--streams 3] [--out DIR]
+        [--candidates maxwell_creep,stribeck_friction] [--streams 3] [--searches 1]
+        [--out DIR]
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--candidates", type=_names,
                     default=["maxwell_creep", "stribeck_friction", "pressure_hysteresis"])
     ap.add_argument("--streams", type=int, default=3, help="refit streams per candidate")
+    ap.add_argument("--searches", type=int, default=1, choices=(1, 2),
+                    help="global searches per refit (DiagnoseSettings.refit_searches)")
     ap.add_argument("--out", type=Path, default=None, help="folder for the sidecars")
     args = ap.parse_args(argv)
     out = args.out or Path(tempfile.mkdtemp(prefix="refit_streams_"))
@@ -62,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.simplefilter("ignore")
         data = [read_csv(files[g]) for g in TRAIN_G]
     datasets, models, names = _experiments(data, None, args.effects)
-    s = DiagnoseSettings()
+    s = DiagnoseSettings(refit_searches=args.searches)
     s = dataclasses.replace(s, substeps=choose_substeps(models, datasets)["chosen"])
     start = time.time()
     base = refits.fit_base(models, datasets, names, s, np.random.default_rng(0))

@@ -510,4 +510,4 @@ def test_diagnose_rejects_bad_settings(perfect):
     assert set(s.to_dict()) == {"level", "level_adequate", "energy_tolerance", "max_refits",
                                 "min_explained", "ci_prob", "n_draws", "substeps",
                                 "candidates", "noise_model", "discrepancy", "refit_search",
-                                "processes", "leave_experiments_out"}
+                                "processes", "leave_experiments_out", "refit_searches"}

@@ -166,14 +166,17 @@ def test_the_check_runs_until_a_candidate_carries(monkeypatch, loads):
     assert missing_effect(refits, s) is None  # no floor here: a partial step
 
 
-def test_the_setting_is_checked():
+def test_the_settings_are_checked():
     with pytest.raises(ValueError, match="leave_experiments_out must be True, False or None"):
         DiagnoseSettings(leave_experiments_out="yes")
+    for bad in (0, 3, True, 1.5):
+        with pytest.raises(ValueError, match="refit_searches must be 1 or 2"):
+            DiagnoseSettings(refit_searches=bad)
 
 
 def test_the_command_line_turns_the_check_on_or_off(tmp_path, monkeypatch, loads):
-    """``--leave-experiments-out yes|no|auto`` reaches the settings; another word is an
-    argparse error that lists the choices."""
+    """``--leave-experiments-out yes|no|auto`` and ``--refit-searches`` reach the
+    settings; another word is an argparse error that lists the choices."""
     import pmabayes.criticism.diagnosis as diagnosis
     from pmabayes.cli import main
 
@@ -182,10 +185,11 @@ def test_the_command_line_turns_the_check_on_or_off(tmp_path, monkeypatch, loads
         path = tmp_path / (ds.source or "x.csv")
         pb.data.write_csv(ds, path)
         files.append(str(path))
-    seen = []
+    seen, searches = [], []
 
     def stop(datasets, model=None, effects=(), *, settings=None, **_):
         seen.append(settings.leave_experiments_out)
+        searches.append(settings.refit_searches)
         raise SystemExit(0)
 
     monkeypatch.setattr(diagnosis, "diagnose", stop)
@@ -193,6 +197,9 @@ def test_the_command_line_turns_the_check_on_or_off(tmp_path, monkeypatch, loads
         with pytest.raises(SystemExit):
             main(["diagnose", *files, "--leave-experiments-out", word])
     assert seen == [True, False, None]
+    with pytest.raises(SystemExit):
+        main(["diagnose", *files, "--refit-searches", "2"])
+    assert searches == [1, 1, 1, 2]
     with pytest.raises(SystemExit) as err:
         main(["diagnose", *files, "--leave-experiments-out", "maybe"])
     assert err.value.code == 2

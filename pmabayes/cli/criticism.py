@@ -69,7 +69,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     model = _model_for(datasets[0], args)
     settings = DiagnoseSettings(candidates=args.candidates or None,
                                 noise_model=args.noise_model, substeps=args.substeps,
-                                refit_search=args.refit_search, processes=args.processes,
+                                refit_search=args.refit_search,
+                                refit_searches=args.refit_searches, processes=args.processes,
                                 leave_experiments_out=_LEAVE_OUT[args.leave_experiments_out])
     # a proposed effect's file goes where the options say; without one it is checked
     # in a temporary folder and not kept (nothing is written into the current folder)
@@ -194,6 +195,10 @@ def _criticism_commands(sub, common) -> None:
                       "default) runs one global search and also polishes from the model's "
                       "MAP with the effect at its null (each experiment's own MAP "
                       "likewise); 'global' runs the fit's searches in full (slower)")
+    diag.add_argument("--refit-searches", type=int, choices=(1, 2), default=1,
+                      help="global searches of each refit's MAP on the nested path, each "
+                      "on its own stream (1, the default; 2 takes about twice as long and "
+                      "depends less on the stream)")
     diag.add_argument("--processes", type=_positive, default=None,
                       help="local worker processes for the candidates' refits, one each "
                       "(all cores); the numbers do not depend on it")

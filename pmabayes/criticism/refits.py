@@ -264,7 +264,7 @@ def _refit(base: BaseFit, effect: str, s: DiagnoseSettings, rng: np.random.Gener
     else:
         ext_post = Posterior(ext_liks, base.repeat_noise, names=base.names,
                              noise_choices=base.noise_choices)
-        ext_map = _nested_map(ext_post, base, eff, rng)
+        ext_map = _nested_map(ext_post, base, eff, rng, s.refit_searches)
     tested = tuple(p.name for p in eff.parameters if p.vary and p.name in ext.free_names)
     loo = laplace_loo(ext_post, ext_map, rng, s.n_draws, s.ci_prob, tested)
     e_elpd, e_elpd_i, interval = loo.elpd, loo.elpd_i, loo.interval
@@ -331,8 +331,9 @@ def _extended(base: BaseFit, effect: str, substeps: int) -> list[Likelihood]:
     return ext_liks
 
 
-def _nested_map(posterior: Posterior, base: BaseFit, effect, rng: np.random.Generator):
-    """The refit's MAP: one global search, and polishes from the diagnosed model's MAP,
+def _nested_map(posterior: Posterior, base: BaseFit, effect, rng: np.random.Generator,
+                searches: int = 1):
+    """The refit's MAP: ``searches`` global searches, and polishes from the diagnosed model's MAP,
     which the refit nests, with the effect at its null and at its default (a step away
     from a null that is a flat point); the highest kept, so the refit's likelihood is
     at least the model's wherever a polish climbs. Each experiment's own MAP (the
@@ -346,7 +347,8 @@ def _nested_map(posterior: Posterior, base: BaseFit, effect, rng: np.random.Gene
         own = [_starts_at(posterior.alone(e), {n: z[0] for n, z in mine[name]["z_own"].items()},
                           effect, unconstrained=True)
                for e, name in enumerate(posterior.experiment_names)]
-    return find_map(posterior, rng=rng, refer=False, searches=1, starts=starts, own=own)
+    return find_map(posterior, rng=rng, refer=False, searches=searches, starts=starts,
+                    own=own)
 
 
 def _starts_at(posterior: Posterior, known: dict[str, float], effect, *,

@@ -75,6 +75,11 @@ class DiagnoseSettings:
         experiments, each one's own MAP (for the agreement test) likewise, from its
         own under the model. ``"global"``: the fit's searches in full for each refit
         (two global searches, and two more per experiment for its own MAP).
+    refit_searches : int
+        Global searches of each refit's MAP on the nested path (1 or 2), each on its
+        own stream, the highest kept (with several experiments, each one's own MAP
+        likewise). On real data a refit's optimum can move from one stream to the next
+        (``analyses/refit_streams.py``); two cost about twice the time.
     processes : int or None
         Local worker processes the refits run in, one candidate each (all cores by
         default; 1 runs them here). The numbers do not depend on it: each refit has
@@ -108,6 +113,7 @@ class DiagnoseSettings:
     noise_model: str = "auto"
     discrepancy: bool = True
     refit_search: str = "nested"
+    refit_searches: int = 1
     processes: int | None = None
     leave_experiments_out: bool | None = None
 
@@ -130,6 +136,8 @@ class DiagnoseSettings:
                 raise ValueError(f"{name} must be a whole number, at least {least}; "
                                  f"got {value!r}")
         check_noise_model_name(self.noise_model)
+        if self.refit_searches not in (1, 2) or isinstance(self.refit_searches, bool):
+            raise ValueError(f"refit_searches must be 1 or 2, got {self.refit_searches!r}")
         if self.leave_experiments_out not in (None, True, False):
             raise ValueError("leave_experiments_out must be True, False or None (where "
                              "the experiments' declared conditions differ); got "
