@@ -197,8 +197,8 @@ def _criticism_commands(sub, common) -> None:
                       "likewise); 'global' runs the fit's searches in full (slower)")
     diag.add_argument("--refit-searches", type=int, choices=(1, 2), default=1,
                       help="global searches of each refit's MAP on the nested path, each "
-                      "on its own stream (1, the default; 2 takes about twice as long and "
-                      "depends less on the stream)")
+                      "on its own stream, the highest kept (1, the default; 2 takes about "
+                      "twice as long)")
     diag.add_argument("--processes", type=_positive, default=None,
                       help="local worker processes for the candidates' refits, one each "
                       "(all cores); the numbers do not depend on it")

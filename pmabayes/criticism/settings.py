@@ -78,8 +78,9 @@ class DiagnoseSettings:
     refit_searches : int
         Global searches of each refit's MAP on the nested path (1 or 2), each on its
         own stream, the highest kept (with several experiments, each one's own MAP
-        likewise). On real data a refit's optimum can move from one stream to the next
-        (``analyses/refit_streams.py``); two cost about twice the time.
+        likewise); two cost about twice the time. On real data a refit's optimum can
+        move from one stream to the next (``analyses/refit_streams.py``), with one
+        search or two.
     processes : int or None
         Local worker processes the refits run in, one candidate each (all cores by
         default; 1 runs them here). The numbers do not depend on it: each refit has
