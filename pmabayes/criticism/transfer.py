@@ -170,9 +170,8 @@ def _left_out_task(job: tuple[int, np.random.Generator]) -> float:
     point[columns] = [fitted.values[n] for n in others.names]
     own, start = joint.experiment_point(left, dict(zip(joint.names, point, strict=True)))
     lik = joint.likelihoods[left]
-    model = lik.model
-    sim, _ = simulate_states(lik, model, {k: v for k, v in own.items()
-                                          if k in model.parameter_names}, start, substeps)
+    # ``own`` holds the model's free parameters only (no noise): simulated as it is
+    sim, _ = simulate_states(lik, lik.model, own, start, substeps)
     resid = residual(lik, sim.position_m[0])
     if not np.isfinite(resid).any():
         return math.nan
