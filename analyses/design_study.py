@@ -20,7 +20,7 @@ that stiffens with the position, and the issue's quadratic sensor error
 (``quadratic_sensor``) against a quadratic spring (``length_stiffness`` with no change
 of the hysteresis).
 
-Usage: ``python analyses/design_study.py [--seeds N] [--pairs 0,1,2,3,4] [--experiments N]
+Usage: ``python analyses/design_study.py [--seeds N] [--first-seed K] [--pairs 0,1,2,3,4] [--experiments N]
 [--draws N]``; ``--quick`` is one seed, 10 experiments and 16 draws. ``--first-only``
 designs nothing: it says, for the same cases, whether the first experiment alone
 already names the true effect (a case where it does is no near twin to begin with).
@@ -105,6 +105,8 @@ def main() -> None:
                         help="one seed (unless --seeds), 10 candidate experiments, 16 draws")
     parser.add_argument("--seeds", type=int, default=None,
                         help="seeds per pair (4; 1 with --quick); the truth alternates")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="the first seed (0), so that a run can add seeds to an earlier one")
     parser.add_argument("--pairs", default=None,
                         help=f"comma-separated indices into the {len(PAIRS)} pairs (all)")
     parser.add_argument("--experiments", type=int, default=None,
@@ -126,7 +128,7 @@ def main() -> None:
     for k in chosen:
         pair = PAIRS[k]
         names = [p[0] for p in pair]
-        for seed in range(seeds):
+        for seed in range(args.first_seed, args.first_seed + seeds):
             truth_name, value = pair[seed % 2]
             truth = {truth_name: value}
             first = generate_chirp_dataset(n_trials=4, seed=100 + seed, chirp=chirp,

@@ -35,6 +35,7 @@ from pmabayes.criticism.prose import (
     contribution_text,
     describe_signatures,
     explanation_text,
+    paragraphs,
     transfer_words,
     verdict_text,
 )
@@ -255,7 +256,8 @@ def diagnose(
     >>> pmabayes.diagnose(data, effects=[d.missing]).adequate  # doctest: +SKIP
     True
 
-    ``d.verdict`` says it in a sentence; ``d.ranking`` holds every candidate.
+    ``d.verdict`` says it in paragraphs, the conclusion and its next command first;
+    ``d.ranking`` holds every candidate.
     """
     if plugin_dir is not None and plugin_dir is not False:
         check_folder_for_new_files(plugin_dir, "plugin_dir")
@@ -299,8 +301,8 @@ def _diagnose(datasets, model: Model | None, effects: Iterable[str], s: Diagnose
     if s.discrepancy and not adequate and missing is None:
         found, found_in, words = _discrepancy_step(base, experiments, plugin_dir, say)
     agreement = _agreement(base, refits)
-    verdict += (transfer_words(refits, missing or partial) + words
-                + _yardstick_words(experiments) + agreement_words(agreement))
+    verdict = paragraphs(verdict, transfer_words(refits, missing or partial), words,
+                         _yardstick_words(experiments), agreement_words(agreement))
     say.say("diagnosis done: " + ("adequate" if adequate else f"{missing} is missing"
                                   if missing else f"{partial} helps in part" if partial
                                   else "not adequate"))

@@ -223,18 +223,42 @@ def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
         sig = _sig_text(experiments[0].signature)
     else:
         sig = "; ".join(f"{e.name}: {_sig_text(e.signature)}" for e in experiments)
-    notes = " ".join(f"({e.floor_note()}.)" for e in experiments if e.floor_note())
     where = ""
     if len(experiments) > 1 and not adequate:
         bad = [e.name for e in experiments if not e.adequate]
         good = [e.name for e in experiments if e.adequate]
-        where = (f" The misfit shows in {', '.join(bad)}"
+        where = (f"The misfit shows in {', '.join(bad)}"
                  + (f"; {', '.join(good)} {'is' if len(good) == 1 else 'are'} consistent with "
                     "the noise." if good else "."))
     floors = all(math.isfinite(e.signature.bands[-1].floor_m) for e in experiments)
     text = _verdict_core(name, effects, sig, adequate, missing, refits, findings,
                          min_explained, names, twins, partial, floors, data)
-    return text + where + (f" {notes}" if notes else "")
+    return paragraphs(text, where, *(f"{e.floor_note()}." for e in experiments
+                                     if e.floor_note()))
+
+
+def paragraphs(*parts: str) -> str:
+    """The verdict's parts as paragraphs: the conclusion and its next command first, then
+    each finding that qualifies it on its own, so that a reader can stop after the first.
+
+    Parameters
+    ----------
+    *parts : str
+        Sentences; empty ones are left out.
+
+    Returns
+    -------
+    str
+        The parts, stripped, separated by blank lines.
+
+    Examples
+    --------
+    >>> print(paragraphs("base: adequate.", "", " The misfit shows in a."))
+    base: adequate.
+    <BLANKLINE>
+    The misfit shows in a.
+    """
+    return "\n\n".join(p.strip() for p in parts if p.strip())
 
 
 def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,

@@ -53,7 +53,9 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
         f'<p class="meta">{_meta(exps)} · model: {html.escape(label)} · '
         f"seed {html.escape(str(d.settings.get('seed')))}</p>",
         *dict.fromkeys(synthetic_note(e.dataset) for e in exps),
-        f'<div class="banner {cls}">{html.escape(d.verdict)}</div>',
+        f'<div class="banner {cls}">'
+        + "".join(f"<p>{html.escape(part)}</p>" for part in d.verdict.split("\n\n"))
+        + "</div>",
     ]
     figs: dict[str, str] = {}
     for e in exps:

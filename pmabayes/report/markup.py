@@ -41,6 +41,8 @@ body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,Helvetica,Arial,sans-
 h1{font-size:1.6em;margin-bottom:.2em} h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
 .meta{color:#555;font-size:.92em}
 .banner{padding:.8em 1.1em;border-radius:6px;margin:1em 0;font-size:1.05em}
+.banner p{margin:.4em 0}
+.banner p:first-child{margin-top:0;font-weight:600}
 .banner.bad{background:#fde2e1;border:3px solid #c62828;color:#7f0000}
 .banner.bad strong{font-size:1.3em}
 .banner.ok{background:#e6f4ea;border:1px solid #2e7d32;color:#1b5e20}
