@@ -427,11 +427,7 @@ class Ar1White(NoiseModel):
     from_repeats = True
     description = ("AR(1) disturbance plus white sensor noise per trial, stationary, "
                    "independent between trials")
-
-    @property
-    def label(self) -> str:
-        """``"AR(1) + white"``."""
-        return "AR(1) + white"
+    label = "AR(1) + white"
 
     def parameters(self, likelihood: Likelihood) -> tuple[Parameter, ...]:
         """:data:`NOISE_PARAMETERS`, with the noise's scale on the data's for a

@@ -46,6 +46,9 @@ class NoiseModel(ABC):
         sampled with the model's.
     description : str
         The model in a sentence, for the fit file's ``noise.model``.
+    label : str
+        The model in words, for progress lines and reports (a class attribute where it
+        is fixed; by default the name).
     """
 
     name: ClassVar[str] = ""

@@ -54,11 +54,7 @@ class StudentT(NoiseModel):
     splits_mean = False
     description = ("Student-t white noise per sample (heavy tails for outliers), "
                    "independent between samples and trials")
-
-    @property
-    def label(self) -> str:
-        """``"Student-t white"``."""
-        return "Student-t white"
+    label = "Student-t white"
 
     def parameters(self, likelihood: Likelihood) -> tuple[Parameter, ...]:
         """:data:`STUDENT_T_PARAMETERS`, the scale on the data's for a force-input rig
