@@ -11,6 +11,11 @@ command (``bash -e``). A command may end with an instruction for CI:
     check that the program accepts its options (``tests/_options_only.py`` lets
     argparse parse them and stops), without running it.
 
+The output shown under a command that CI runs as written is checked too: each line
+must stand in what the command prints (anywhere: standard error follows standard
+output), ``[...]`` standing for any text, so a page cannot show numbers that a
+change has made stale.
+
 The test commands (``python -m pytest``) are CI's own: ``.ci/run`` runs the README's
 first one verbatim, and the harness, which runs inside that suite, checks that
 rather than running the suite again. ``docs/develop.md`` says all this to readers.
@@ -18,12 +23,14 @@ rather than running the suite again. ``docs/develop.md`` says all this to reader
 
 from __future__ import annotations
 
+import difflib
+import math
 import re
 import shlex
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,12 +57,15 @@ class Command:
         The command as shown, without the prompt and the ``# ci:`` instruction.
     ci : str or None
         The ``# ci:`` instruction, if any.
+    shown : tuple of str
+        The output lines shown under it, stripped (``[...]`` stands for any text).
     """
 
     page: str
     line: int
     text: str
     ci: str | None = None
+    shown: tuple[str, ...] = ()
 
     @property
     def where(self) -> str:
@@ -116,6 +126,7 @@ def extract(text: str, page: str) -> list[Command]:
     script: list[str] | None = None
     pending: list[str] = []
     start = 0
+    output = False  # lines after a command in its block are its output
     for number, line in enumerate(text.splitlines(), start=1):
         match = _FENCE.match(line)
         if fence is None and match:
@@ -126,7 +137,7 @@ def extract(text: str, page: str) -> list[Command]:
         if fence is not None and line.strip() == fence:
             if script:
                 commands.append(Command(page, start, "set -e\n" + "\n".join(script)))
-            fence, in_console, script = None, False, None
+            fence, in_console, script, output = None, False, None, False
             continue
         if script is not None:
             script.append(line)
@@ -136,14 +147,16 @@ def extract(text: str, page: str) -> list[Command]:
         if pending:
             pending.append(line.strip())
         elif line.startswith("$ "):
-            pending, start = [line[2:].strip()], number
+            pending, start, output = [line[2:].strip()], number, False
+        elif output and line.strip():
+            commands[-1] = replace(commands[-1], shown=(*commands[-1].shown, line.strip()))
         if pending and not pending[-1].endswith("\\"):
             joined = " ".join(part.removesuffix("\\").strip() for part in pending)
             ci = _CI.search(joined)
             command = joined[:ci.start()] if ci else joined
             commands.append(Command(page, start, command.strip(),
                                     ci.group("what") if ci else None))
-            pending = []
+            pending, output = [], True
     return commands
 
 
@@ -204,6 +217,51 @@ def options_only(command: Command) -> str:
     return shlex.join([*env, *program, *args])
 
 
+_NUMBER = r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
+
+
+def shows(shown: str, printed: str, rel_tol: float = 1e-3) -> bool:
+    """Whether a line a page shows stands in a printed line: ``[...]`` stands for any
+    text, and each number for one that agrees with it to ``rel_tol`` (the last digit of
+    a seven-digit ELPD may move with the machine's arithmetic; a stale value does not
+    pass).
+
+    Parameters
+    ----------
+    shown : str
+        The page's line.
+    printed : str
+        A line of the command's output.
+    rel_tol : float
+        Relative tolerance of the numbers.
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> shows("ΔELPD +1740342.7 ± 482.1 ([...] s)", "ΔELPD +1740342.6 ± 482.1 (3.2 s)")
+    True
+    >>> shows("RMS 41.8 µm", "RMS 40.0 µm")
+    False
+    """
+    numbers: list[float] = []
+    parts = []
+    for piece in re.split(r"(\[\.\.\.\]|" + _NUMBER + ")", shown.strip()):
+        if piece == "[...]":
+            parts.append(".*")
+        elif re.fullmatch(_NUMBER, piece):
+            numbers.append(float(piece))
+            parts.append(f"({_NUMBER})")
+        else:
+            parts.append(re.escape(piece))
+    found = re.search("".join(parts), printed)
+    return found is not None and all(
+        math.isclose(float(got), want, rel_tol=rel_tol)
+        for got, want in zip(found.groups(), numbers, strict=True))
+
+
 @dataclass
 class Outcome:
     """What running one command gave."""
@@ -247,7 +305,7 @@ def run(command: Command, cwd: Path, env: dict, timeout_s: float = 1200.0) -> Ou
 
 def check(outcome: Outcome) -> None:
     """Fail with the page, the line, the command and its output's tail, unless it
-    exited 0.
+    exited 0 and, run as written, printed every line the page shows under it.
 
     Parameters
     ----------
@@ -257,10 +315,22 @@ def check(outcome: Outcome) -> None:
     Raises
     ------
     AssertionError
-        When the command failed.
+        When the command failed, or printed other than the page shows.
     """
+    tail = "\n".join(outcome.output.splitlines()[-40:])
     if outcome.returncode != 0:
-        tail = "\n".join(outcome.output.splitlines()[-40:])
         raise AssertionError(
             f"{outcome.command.where}: the command shown there failed "
             f"(exit {outcome.returncode}, {outcome.mode}):\n$ {outcome.command.text}\n{tail}")
+    if outcome.command.ci is not None:
+        return  # run otherwise than shown: its output may differ
+    printed = [line.strip() for line in outcome.output.splitlines()]
+    stale = [f"shown:   {shown}\nclosest: "
+             + "".join(difflib.get_close_matches(shown, printed, n=1, cutoff=0.0))
+             for shown in outcome.command.shown
+             if not any(shows(shown, line) for line in printed)]
+    if stale:
+        raise AssertionError(
+            f"{outcome.command.where}: the page shows {len(stale)} line(s) the command does "
+            f"not print (update the page, or elide what varies with [...]):\n$ "
+            f"{outcome.command.text}\n" + "\n".join(stale) + f"\nprinted:\n{tail}")

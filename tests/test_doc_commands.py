@@ -105,6 +105,22 @@ def test_a_broken_command_fails_the_harness(tmp_path):
     assert (tmp_path / "ran").read_text() == "the study ran"
 
 
+def test_the_output_a_page_shows_is_what_the_command_prints(tmp_path):
+    """A shown line must stand in the output (``[...]`` for what varies); a stale number
+    fails, and a command run with other options than shown is not held to it."""
+    page = ("```console\n$ echo 'RMS 41.8 µm (12.3 s)'\nRMS 41.8 µm ([...] s)\n[...]\n"
+            "$ echo 'RMS 41.8 µm'  # ci: -n\nRMS 40.0 µm\n```\n")
+    shown, other = extract(page, "p.md")
+    assert shown.shown == ("RMS 41.8 µm ([...] s)", "[...]") and other.shown == ("RMS 40.0 µm",)
+    env = dict(os.environ)
+    check(run(shown, tmp_path, env))
+    check(run(other, tmp_path, env))
+    stale = Command("p.md", 2, shown.text, shown=("RMS 40.0 µm ([...] s)",))
+    with pytest.raises(AssertionError, match=r"p\.md:2: the page shows 1 line\(s\) the command "
+                       r"does not print(.|\n)*shown:   RMS 40\.0"):
+        check(run(stale, tmp_path, env))
+
+
 def test_the_pages_hold_the_commands_they_should():
     """The harness finds the pages' commands (a test that finds none would pass on
     nothing), the README starts with the main job and CI's test command, and no
