@@ -31,8 +31,8 @@ class NoiseModel(ABC):
     1 or series, n)`` the model's positions, and ``noise`` the noise parameters as
     :meth:`parameters` lists them, each broadcast to ``(batch,)``.
 
-    Class attributes
-    ----------------
+    Attributes
+    ----------
     name : str
         The registry's key, the value of ``noise_model`` that selects it.
     splits_mean : bool
