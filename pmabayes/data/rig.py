@@ -51,8 +51,9 @@ RIG_KEYS: dict[str, KeyDoc] = {
         "`M + m`: everything that moves with the muscle's free end (carriage, load, muscle).",
         "guide/rig_priors"),
     "gravity_sign": KeyDoc(
-        "1, 0 or -1", "", "1", "`s_g`: +1 gravity opposes extension, -1 it pulls toward "
-        "extension (a hanging load), 0 none (a horizontal rig).", "guide/rig_priors"),
+        "1, 0 or -1", "", "1", "`s_g`: +1 gravity pulls against extension (positive x, the "
+        "direction the pressure drives: a muscle lifting a hanging load), -1 along it, 0 none "
+        "(a horizontal rig).", "guide/rig_priors"),
     "area_m2": KeyDoc(
         'number > 0, or a prior (`"LogNormal(1e-4, 1.5)"`)', "m^2",
         "0.000218311 (derived from the paper's muscle)",
