@@ -586,6 +586,10 @@ def test_the_ranking_says_what_orders_it(capsys):
                         "then the others, ordered by the score test's evidence):")
     assert [line.split()[0] for line in lines[1:]] == ["b", "a", "c", "d"]
     assert "ΔELPD     +120.0 ± 5.0" in lines[1]
+    implausible = finding("e", 2.0)
+    implausible.implausible = "F_k = 1971 lies outside its plausible range (0 to 6.6)"
+    cli._print_ranking([implausible])
+    assert capsys.readouterr().out.splitlines()[1].endswith("k=1 (implausible)")
 
 
 def test_fix_holds_a_parameter_at_a_value(tmp_path, capsys):

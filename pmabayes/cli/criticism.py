@@ -40,6 +40,8 @@ def _print_ranking(ranking: Sequence, limit: int = 5) -> None:
           if refitted else "candidates, ordered by the score test's evidence:")
     for f in ranking[:limit]:
         est = ", ".join(f"{k}={v:.4g}" for k, v in f.estimate.items())
+        if getattr(f, "implausible", None):  # outside the plausible range: not physics
+            est += " (implausible)"
         gain = (f"ΔELPD {elpd_short(f.refit):>16s}  " if f.refit is not None
                 else " " * 24 if refitted else "")
         print(f"  {f.effect:<22s} {gain}evidence {f.evidence:10.4g}  "
