@@ -20,9 +20,9 @@ that stiffens with the position, and the issue's quadratic sensor error
 (``quadratic_sensor``) against a quadratic spring (``length_stiffness`` with no change
 of the hysteresis).
 
-Usage: ``python analyses/design_study.py [--seeds N] [--first-seed K] [--pairs 0,1,2,3,4] [--experiments N]
-[--draws N]``; ``--quick`` is one seed, 10 experiments and 16 draws. ``--first-only``
-designs nothing: it says, for the same cases, whether the first experiment alone
+Usage: ``python analyses/design_study.py [--seeds N] [--first-seed K] [--pairs 0,1,2,3,4]
+[--experiments N] [--draws N]``; ``--quick`` is one seed, 10 experiments and 16 draws.
+``--first-only`` designs nothing: it says, for the same cases, whether the first experiment alone
 already names the true effect (a case where it does is no near twin to begin with).
 """
 

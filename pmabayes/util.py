@@ -185,8 +185,10 @@ def local_cores() -> int:
 
 #: the progress switch: the task whose progress is shown, or None for silence
 _SHOWN: list[str | None] = [None]
-#: a status line (:meth:`Progress.status`) is redrawn at most this often
+#: a status line (:meth:`Progress.status`) is redrawn at most this often on a terminal,
+#: and written as a line of its own at most this often elsewhere (a log, a pipe)
 _STATUS_EVERY_S = 0.5
+_LOGGED_EVERY_S = 10.0
 #: whether a bar is drawn on the current line (a line said meanwhile starts a new one)
 _BAR_OPEN: list[bool] = [False]
 
@@ -234,7 +236,10 @@ class Progress:
     """Progress lines and bars on stderr, all with one prefix: ``[pmabayes TASK]``.
 
     A stage makes one where it starts; it prints when the switch is on
-    (:func:`show_progress`) or when ``enabled`` is True, and nothing otherwise.
+    (:func:`show_progress`) or when ``enabled`` is True, and nothing otherwise. On a
+    terminal a status line and a bar are redrawn in place; written to a file or a pipe,
+    each state is a line of its own, a status at most every 10 s and a bar at its start,
+    each quarter and its end, so that a log stays readable.
 
     Parameters
     ----------
@@ -272,6 +277,13 @@ class Progress:
     def _out(self):
         return self.stream if self.stream is not None else sys.stderr
 
+    def _live(self) -> bool:
+        """Whether the output is a terminal, where a line can be redrawn."""
+        try:
+            return bool(self._out().isatty())
+        except (AttributeError, ValueError):
+            return False
+
     def say(self, text: str) -> None:
         """Print one line.
 
@@ -295,9 +307,14 @@ class Progress:
             The state, without the prefix.
         """
         now = time.perf_counter()
-        if self.enabled and now - getattr(self, "_shown", -math.inf) >= _STATUS_EVERY_S:
+        live = self._live()
+        every = _STATUS_EVERY_S if live else _LOGGED_EVERY_S
+        if self.enabled and now - getattr(self, "_shown", -math.inf) >= every:
             self._shown = now
             line = f"{self.prefix} {text}"
+            if not live:
+                self.say(text)
+                return
             pad = " " * max(getattr(self, "_width", 0) - len(line), 0)
             self._width = len(line)
             _BAR_OPEN[0] = True
@@ -322,7 +339,7 @@ class Progress:
             Shown after the count.
         """
         self.total, self.done, self.unit, self.label = int(total), 0, unit, label
-        self.t0 = time.perf_counter()
+        self.t0, self._quarter = time.perf_counter(), 0
         self._draw()
 
     def advance(self, n: int = 1) -> None:
@@ -346,7 +363,13 @@ class Progress:
         left = ""
         if 0 < self.done < self.total:  # the pace so far, for what remains
             left = f", about {elapsed / self.done * (self.total - self.done):.0f} s left"
+        line = (f"{self.prefix} [{bar:-<30}] {self.done}/{self.total} {self.unit} "
+                f"({elapsed:.0f} s{left}) {self.label}".rstrip())
+        if not self._live():
+            quarter = int(4 * frac)
+            if self.done == 0 or finished or quarter > getattr(self, "_quarter", 0):
+                self._quarter = quarter
+                self.say(line.removeprefix(f"{self.prefix} "))
+            return
         _BAR_OPEN[0] = not finished
-        print(f"\r{self.prefix} [{bar:-<30}] {self.done}/{self.total} {self.unit} "
-              f"({elapsed:.0f} s{left}) {self.label}".rstrip(), end="\n" if finished else "",
-              file=self._out(), flush=True)
+        print(f"\r{line}", end="\n" if finished else "", file=self._out(), flush=True)

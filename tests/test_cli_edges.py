@@ -343,15 +343,36 @@ def test_a_first_compile_is_announced(tmp_path, capsys, monkeypatch):
     assert capsys.readouterr().err == ""
 
 
-def test_a_status_line_is_redrawn_in_place_and_ended(capsys):
+def test_a_status_line_is_redrawn_in_place_and_ended(capsys, monkeypatch):
     from pmabayes.util import Progress, show_progress
 
+    monkeypatch.setattr(Progress, "_live", lambda self: True)  # a terminal
     with show_progress("demo"):
         p = Progress()
         p.status("generation 1")
         p.status("generation 2")  # within 0.5 s of the last: not drawn
         p.end()
     assert capsys.readouterr().err == "\r[pmabayes demo] generation 1\n"
+
+
+def test_progress_into_a_log_is_lines_not_redraws(capsys):
+    """Written to a file or a pipe (pytest's capture is one), no line is redrawn: a
+    status is a line at most every 10 s, a bar a line at its start, quarters and end."""
+    from pmabayes.util import Progress, show_progress
+
+    with show_progress("demo"):
+        p = Progress()
+        p.status("generation 1")
+        p.status("generation 2")  # within 10 s of the last: not written
+        p.start(8, "runs")
+        for _ in range(8):
+            p.advance()
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert lines[0] == "[pmabayes demo] generation 1"
+    assert [line.split("] ")[2].split()[0] for line in lines[1:]] == [
+        "0/8", "2/8", "4/8", "6/8", "8/8"]
 
 
 # ----------------------------------------------------------------------------- 6. time units
