@@ -15,7 +15,7 @@ are after the first run):
 3. ``pmabayes validate`` of that fit on the held-out 200 and 400 g loads;
 4. ``pmabayes fit`` of one load alone (300 g) with the same effects.
 
-The issue's targets: steps 1-3 under 15 minutes on this machine, step 4 under 2. The
+The targets: steps 1-3 under 15 minutes on this machine, step 4 under 2. The
 machine may be shared, so each step's CPU time (the command's and its worker
 processes') is printed beside its wall time: it is the honest figure. Each command runs
 under :mod:`cProfile` (not with ``--no-profile``, which gives the times a user sees);

@@ -1,5 +1,5 @@
-"""How long ``pmabayes design`` takes to score candidate experiments (issue 30's target:
-about 50 in under 5 minutes).
+"""How long ``pmabayes design`` takes to score candidate experiments (the target:
+about 50 in under 5 minutes on two cores).
 
 A synthetic first experiment (a 0.1-3 Hz chirp over 100-400 kPa, ``--duration`` s at
 ``--rate`` Hz, ``--trials`` trials, made with the first candidate at its defaults) is

@@ -16,7 +16,7 @@ place of the designed experiment. Printed last: the three rates.
 The pairs: a regulator's lag against a transport delay, Coulomb against Stribeck
 friction (the two the design was built on), and three it was not shaped on: a
 first-order regulator lag against a second-order regulator, a cubic spring against one
-that stiffens with the position, and the issue's quadratic sensor error
+that stiffens with the position, and a quadratic sensor error
 (``quadratic_sensor``) against a quadratic spring (``length_stiffness`` with no change
 of the hysteresis).
 
@@ -45,7 +45,7 @@ PAIRS = [
     (("coulomb_friction", 1.0), ("stribeck_friction", {"F_k": 0.6, "F_s": 0.8})),
     (("regulator_lag", 0.03), ("regulator_second_order", {"tau_n": 0.012, "zeta_reg": 1.2})),
     (("cubic_stiffness", 5.0e4), ("length_stiffness", {"K_L": 4000.0, "kappa_L": 0.0})),
-    # the pair: a sensor reading x + c_qs x^2 against a quadratic spring
+    # a sensor reading x + c_qs x^2 against a quadratic spring
     # (length_stiffness's K_L, force K_L x^2 / 2, no change of the loop's width); at
     # c_qs = -2.5 1/m and K_L = 4000 N/m^2 the first experiment alone named the truth
     # on seeds 0 and 1 (no twins), at these on none of seeds 0-3

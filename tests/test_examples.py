@@ -1,5 +1,5 @@
 """The Examples sections of the docstrings run, and every public function or class the
-user guide points to has one (issue 29).
+user guide points to has one.
 
 Every docstring of the package with a ``>>>`` line is executed by :mod:`doctest`, so an
 example that no longer runs, or no longer prints what it shows, fails here. The
