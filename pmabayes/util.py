@@ -311,10 +311,10 @@ class Progress:
         every = _STATUS_EVERY_S if live else _LOGGED_EVERY_S
         if self.enabled and now - getattr(self, "_shown", -math.inf) >= every:
             self._shown = now
-            line = f"{self.prefix} {text}"
             if not live:
                 self.say(text)
                 return
+            line = f"{self.prefix} {text}"
             pad = " " * max(getattr(self, "_width", 0) - len(line), 0)
             self._width = len(line)
             _BAR_OPEN[0] = True

@@ -237,6 +237,10 @@ def verdict_text(name: str, effects: tuple, experiments: tuple, adequate: bool,
                                      if e.floor_note()))
 
 
+#: what separates the paragraphs of a verdict (:func:`paragraphs`; a page splits on it)
+PARAGRAPH_BREAK = "\n\n"
+
+
 def paragraphs(*parts: str) -> str:
     """The verdict's parts as paragraphs: the conclusion and its next command first, then
     each finding that qualifies it on its own, so that a reader can stop after the first.
@@ -258,7 +262,7 @@ def paragraphs(*parts: str) -> str:
     <BLANKLINE>
     The misfit shows in a.
     """
-    return "\n\n".join(p.strip() for p in parts if p.strip())
+    return PARAGRAPH_BREAK.join(p.strip() for p in parts if p.strip())
 
 
 def _verdict_core(name: str, effects: tuple, sig: str, adequate: bool, missing: str | None,

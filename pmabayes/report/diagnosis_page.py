@@ -7,7 +7,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from pmabayes.criticism.prose import elpd_short
+from pmabayes.criticism.prose import PARAGRAPH_BREAK, elpd_short
 from pmabayes.report.markup import (
     BAND_HEADER,
     band_rows,
@@ -54,7 +54,7 @@ def write_diagnosis(diagnosis, out_dir: str | Path) -> Path:
         f"seed {html.escape(str(d.settings.get('seed')))}</p>",
         *dict.fromkeys(synthetic_note(e.dataset) for e in exps),
         f'<div class="banner {cls}">'
-        + "".join(f"<p>{html.escape(part)}</p>" for part in d.verdict.split("\n\n"))
+        + "".join(f"<p>{html.escape(part)}</p>" for part in d.verdict.split(PARAGRAPH_BREAK))
         + "</div>",
     ]
     figs: dict[str, str] = {}
