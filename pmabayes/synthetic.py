@@ -349,6 +349,22 @@ def hidden_effects_model(
     >>> from pmabayes.synthetic import hidden_effects_model
     >>> hidden_effects_model({"regulator_lag": 0.045})
     (Model(rig=characterisation, effects=regulator_lag, parameters=7), {'tau_reg': 0.045})
+
+    The effects in no library are hidden the same way; the generator records them, and
+    a fitted model does not know them:
+
+    >>> from pmabayes.synthetic import (Chirp, HiddenCompressionSpring, HiddenDetent,
+    ...                                 HiddenDrag, HiddenZForce, generate_chirp_dataset)
+    >>> hidden = {HiddenDetent: 2.0, HiddenDrag: 300.0, HiddenCompressionSpring: 800.0,
+    ...           HiddenZForce: 0.005}
+    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
+    ...                               effects=hidden, seed=1)
+    >>> for name, values in data.metadata["generator"]["effects"].items():
+    ...     print(name, values)
+    hidden_detent {'F_det': 2.0}
+    hidden_drag {'c_hidden': 300.0}
+    hidden_compression_spring {'k_cs': 800.0}
+    hidden_z_force {'c_hz': 0.005}
     """
     effects = dict(effects or {})
     model = Model(list(effects), rig=rig)
@@ -562,15 +578,18 @@ def _detent(q, x, v, p):
 class HiddenDetent(Effect):
     """A rail's detent force, periodic in position (in no library).
 
+    Hidden in synthetic data by :func:`generate_chirp_dataset` (see
+    :func:`hidden_effects_model`'s example); a fitted model does not know it.
+
     Examples
     --------
-    Hidden in synthetic data (the generator records it; a fitted model does not know it):
+    A quarter of a period in, the detent pushes with its full amplitude:
 
-    >>> from pmabayes.synthetic import Chirp, HiddenDetent, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
-    ...                               effects={HiddenDetent: 2.0}, seed=1)
-    >>> data.metadata["generator"]["effects"]
-    {'hidden_detent': {'F_det': 2.0}}
+    >>> import numpy as np
+    >>> from pmabayes.synthetic import HiddenDetent
+    >>> force_n, _, _ = HiddenDetent.force_n(np.array([2.0, 0.01]), 0.0025, 0.0, 0.0)
+    >>> round(force_n, 9)
+    2.0
     """
 
     __test__ = False  # not a pytest class
@@ -593,15 +612,15 @@ def _drag(q, x, v, p):
 class HiddenDrag(Effect):
     """A quadratic drag, ``c_hidden v |v|`` (in no library).
 
+    Hidden in synthetic data by :func:`generate_chirp_dataset` (see
+    :func:`hidden_effects_model`'s example); a fitted model does not know it.
+
     Examples
     --------
-    Hidden in synthetic data (the generator records it; a fitted model does not know it):
-
-    >>> from pmabayes.synthetic import Chirp, HiddenDrag, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
-    ...                               effects={HiddenDrag: 300.0}, seed=1)
-    >>> data.metadata["generator"]["effects"]
-    {'hidden_drag': {'c_hidden': 300.0}}
+    >>> import numpy as np
+    >>> from pmabayes.synthetic import HiddenDrag
+    >>> round(HiddenDrag.force_n(np.array([300.0]), 0.0, 0.1, 0.0)[0], 9)  # N at 0.1 m/s
+    3.0
     """
 
     __test__ = False
@@ -624,15 +643,18 @@ def _compression(q, x, v, p):
 class HiddenCompressionSpring(Effect):
     """A spring acting only below ``x_cs``, in compression (in no library).
 
+    Hidden in synthetic data by :func:`generate_chirp_dataset` (see
+    :func:`hidden_effects_model`'s example); a fitted model does not know it.
+
     Examples
     --------
-    Hidden in synthetic data (the generator records it; a fitted model does not know it):
+    1 mm below ``x_cs`` it pushes back; above, it is slack:
 
-    >>> from pmabayes.synthetic import Chirp, HiddenCompressionSpring, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
-    ...                               effects={HiddenCompressionSpring: 800.0}, seed=1)
-    >>> data.metadata["generator"]["effects"]
-    {'hidden_compression_spring': {'k_cs': 800.0}}
+    >>> import numpy as np
+    >>> from pmabayes.synthetic import HiddenCompressionSpring
+    >>> q = np.array([800.0, 0.005])
+    >>> [round(HiddenCompressionSpring.force_n(q, x, 0.0, 0.0)[0], 9) for x in (0.004, 0.01)]
+    [-0.8, 0.0]
     """
 
     __test__ = False
@@ -655,15 +677,15 @@ def _z_force(q, x, v, p, z, s):
 class HiddenZForce(Effect):
     """A hysteretic force growing as ``z |z|``: a loop that fattens faster than z.
 
+    Hidden in synthetic data by :func:`generate_chirp_dataset` (see
+    :func:`hidden_effects_model`'s example); a fitted model does not know it.
+
     Examples
     --------
-    Hidden in synthetic data (the generator records it; a fitted model does not know it):
-
-    >>> from pmabayes.synthetic import Chirp, HiddenZForce, generate_chirp_dataset
-    >>> data = generate_chirp_dataset(n_trials=2, chirp=Chirp(duration_s=2.0, sample_rate_hz=200.0),
-    ...                               effects={HiddenZForce: 0.005}, seed=1)
-    >>> data.metadata["generator"]["effects"]
-    {'hidden_z_force': {'c_hz': 0.005}}
+    >>> import numpy as np
+    >>> from pmabayes.synthetic import HiddenZForce
+    >>> HiddenZForce.force_n(np.array([0.005]), 0.0, 0.0, 0.0, z_n=100.0)[0]  # N at z = 100 N
+    50.0
     """
 
     __test__ = False

@@ -260,3 +260,20 @@ def test_the_study_a_wrong_models_band_holds_with_its_discrepancy():
     assert ok["chirp"]["sigma_d_um"] == 0.0
     assert ok["chirp"]["coverage"] == ok["chirp"]["coverage_parameters_only"]
     assert 0.8 <= ok["chirp"]["coverage"] <= 0.97
+
+
+@pytest.mark.parametrize(("name", "entry", "orders", "described"), [
+    ("linear", {"order": 2, "n_parameters": 5}, "order 2, 5 parameters",
+     "a linear output-error model of order 2 (5 parameters)"),
+    ("play", {"n_operators": 3, "n_parameters": 5}, "3 play operator(s), 5 parameters",
+     "a Prandtl-Ishlinskii model of 3 play operator(s) (5 parameters)"),
+    ("narx", {"lag_y": 2, "lag_u": 1, "degree": 2, "n_terms": 6},
+     "lags 2/1, degree 2, 6 terms", "a polynomial NARX model of lags 2/1, degree 2 (6 terms)"),
+])
+def test_each_yardstick_names_its_orders_in_words(name, entry, orders, described):
+    from pmabayes.criticism.yardsticks import REGISTRY
+
+    assert REGISTRY[name].orders(entry) == orders
+    assert REGISTRY[name].describe(entry) == described
+    # an entry without its orders (an older file) says so instead of failing
+    assert "None" in REGISTRY[name].orders({})

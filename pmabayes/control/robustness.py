@@ -46,6 +46,7 @@ import xarray as xr
 
 from pmabayes.control import (
     CONTROLLERS,
+    DEFAULT_GAINS,
     METRICS,
     REFERENCE_AMPLITUDE_M,
     ControlError,
@@ -72,6 +73,7 @@ __all__ = [
     "robustness_sweep",
     "summarise_robustness",
     "write_robustness",
+    "example_sweep",
 ]
 
 #: 8 frequencies, geometrically spaced from 0.25 to 3 Hz.
@@ -444,14 +446,11 @@ def summarise_robustness(ds: xr.Dataset) -> xr.Dataset:
 
     Examples
     --------
-    The sweep of :func:`robustness_sweep`'s example, summarised:
+    The sweep of :func:`robustness_sweep`'s example (:func:`example_sweep`), summarised:
 
     >>> from pmabayes.synthetic import example_fit
-    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
-    >>> from pmabayes.control import DEFAULT_GAINS
-    >>> from pmabayes.control.robustness import robustness_sweep
-    >>> sweep = robustness_sweep(tree, samples=4, frequencies_hz=[1.0], duration_s=4.0,
-    ...                          gains=DEFAULT_GAINS, reference_mean_m=0.1, processes=1)
+    >>> from pmabayes.control.robustness import example_sweep
+    >>> sweep = example_sweep(example_fit())  # warns: the fit has not converged
     >>> from pmabayes.control.robustness import summarise_robustness
     >>> summary = summarise_robustness(sweep)
     >>> float(summary["p_ct_beats_pid"].sel(frequency=1.0))
@@ -497,14 +496,11 @@ def write_robustness(ds: xr.Dataset, out_dir) -> dict[str, Path]:
 
     Examples
     --------
-    The sweep of :func:`robustness_sweep`'s example, written:
+    The sweep of :func:`robustness_sweep`'s example (:func:`example_sweep`), written:
 
     >>> from pmabayes.synthetic import example_fit
-    >>> tree = example_fit()  # a short fit of synthetic chirps (warns: not converged)
-    >>> from pmabayes.control import DEFAULT_GAINS
-    >>> from pmabayes.control.robustness import robustness_sweep
-    >>> sweep = robustness_sweep(tree, samples=4, frequencies_hz=[1.0], duration_s=4.0,
-    ...                          gains=DEFAULT_GAINS, reference_mean_m=0.1, processes=1)
+    >>> from pmabayes.control.robustness import example_sweep
+    >>> sweep = example_sweep(example_fit())  # warns: the fit has not converged
     >>> from pmabayes.control.robustness import write_robustness
     >>> paths = write_robustness(sweep, "robustness")
     >>> sorted(str(p) for p in paths.values())
@@ -539,3 +535,30 @@ def write_robustness(ds: xr.Dataset, out_dir) -> dict[str, Path]:
         f"Robustness sweep: {ds.sizes['sample']} samples, mode '{ds.attrs.get('mode')}', "
         f"seed {ds.attrs.get('seed')}, fit {ds.attrs.get('fit')}\n\n" + "\n".join(md) + "\n")
     return paths
+
+
+def example_sweep(tree: xr.DataTree) -> xr.Dataset:
+    """The sweep of :func:`robustness_sweep`'s example, for examples and tests.
+
+    Four plants drawn from a fit, each tracking 1 Hz for 4 s with both controllers at
+    the paper's gains, in this process.
+
+    Parameters
+    ----------
+    tree : xarray.DataTree
+        A fit (:func:`pmabayes.synthetic.example_fit` in the examples).
+
+    Returns
+    -------
+    xarray.Dataset
+        As :func:`robustness_sweep` returns it (seed 0).
+
+    Examples
+    --------
+    >>> from pmabayes.synthetic import example_fit
+    >>> from pmabayes.control.robustness import example_sweep
+    >>> dict(example_sweep(example_fit()).sizes)  # warns: the fit has not converged
+    {'sample': 4, 'frequency': 1, 'controller': 2, 'parameter': 6}
+    """
+    return robustness_sweep(tree, samples=4, frequencies_hz=[1.0], duration_s=4.0,
+                            gains=DEFAULT_GAINS, reference_mean_m=0.1, processes=1)

@@ -171,8 +171,9 @@ class Fitted(ABC):
 class Yardstick(ABC):
     """One kind of yardstick: defining a subclass with a ``name`` registers it.
 
-    Subclasses define :attr:`name`, :attr:`colour`, :meth:`fit` and :meth:`orders`
-    and :meth:`describe`; :meth:`unavailable` when it needs an optional package.
+    Subclasses define :attr:`name`, :attr:`colour`, :meth:`fit`, and the words that
+    name it (:attr:`kind`, :attr:`order_words`, :attr:`size_words`);
+    :meth:`unavailable` when it needs an optional package.
 
     Examples
     --------
@@ -200,12 +201,8 @@ class Yardstick(ABC):
     ...         (gain, offset_m), *_ = np.linalg.lstsq(np.c_[u, np.ones_like(u)], y)
     ...         rmse_m = float(np.sqrt(np.mean((gain * u + offset_m - y) ** 2)))
     ...         return StaticLine(gain, offset_m, rmse_m)
-    ...     @staticmethod
-    ...     def orders(entry):
-    ...         return "2 parameters"
-    ...     @staticmethod
-    ...     def describe(entry):
-    ...         return "a static line of position on input"
+    ...     kind = "a static line of position on input"
+    ...     order_words = "no dynamics"
     >>> from pmabayes.synthetic import example_data
     >>> data = example_data()  # three synthetic 4 s chirps at 200 Hz
     >>> fitted = fit_baselines(data)
@@ -221,6 +218,12 @@ class Yardstick(ABC):
     name: ClassVar[str]
     #: Colour of its prediction in the figures.
     colour: ClassVar[str] = "k"
+    #: What it is, for the report (``"a linear output-error model"``).
+    kind: ClassVar[str] = "a black-box model"
+    #: Its chosen orders, a format string over its JSON entry (``"order {order}"``).
+    order_words: ClassVar[str] = "its own orders"
+    #: Its size, likewise (the number of fitted parameters by default).
+    size_words: ClassVar[str] = "{n_parameters} parameters"
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -251,14 +254,24 @@ class Yardstick(ABC):
             When these records cannot fit it (the message names the file and the fix).
         """
 
-    @staticmethod
-    @abstractmethod
-    def orders(entry: dict) -> str:
+    @classmethod
+    def orders(cls, entry: dict) -> str:
         """Its orders in a few words (``"order 2, 5 parameters"``) from its JSON entry
-        (:meth:`Fitted.to_dict`)."""
+        (:meth:`Fitted.to_dict`): :attr:`order_words` and :attr:`size_words` filled in."""
+        return f"{_fill(cls.order_words, entry)}, {_fill(cls.size_words, entry)}"
 
-    @staticmethod
-    @abstractmethod
-    def describe(entry: dict) -> str:
+    @classmethod
+    def describe(cls, entry: dict) -> str:
         """What it is, in words, from its JSON entry (``"a linear output-error model of
-        order 2 (5 parameters)"``)."""
+        order 2 (5 parameters)"``): :attr:`kind` of its orders."""
+        return (f"{cls.kind} of {_fill(cls.order_words, entry)} "
+                f"({_fill(cls.size_words, entry)})")
+
+
+class _Entry(dict):
+    def __missing__(self, key: str) -> None:
+        return None
+
+
+def _fill(words: str, entry: dict) -> str:
+    return words.format_map(_Entry(entry))

@@ -294,18 +294,10 @@ class LinearYardstick(Yardstick):
 
     name = "linear"
     colour = "tab:green"
+    kind = "a linear output-error model"
+    order_words = "order {order}"
 
     def fit(self, records: Sequence[Record]) -> LinearBaseline:
         """:func:`fit_linear`."""
         return fit_linear(list(records))
 
-    @staticmethod
-    def orders(entry: dict) -> str:
-        """``"order n, 2 n + 1 parameters"``."""
-        return f"order {entry.get('order')}, {entry.get('n_parameters')} parameters"
-
-    @staticmethod
-    def describe(entry: dict) -> str:
-        """``"a linear output-error model of order n (2 n + 1 parameters)"``."""
-        return (f"a linear output-error model of order {entry.get('order')} "
-                f"({entry.get('n_parameters')} parameters)")

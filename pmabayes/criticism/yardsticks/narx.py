@@ -450,19 +450,11 @@ class NarxYardstick(Yardstick):
 
     name = "narx"
     colour = "tab:orange"
+    kind = "a polynomial NARX model"
+    order_words = "lags {lag_y}/{lag_u}, degree {degree}"
+    size_words = "{n_terms} terms"
 
     def fit(self, records: Sequence[Record]) -> NarxBaseline:
         """:func:`fit_narx`."""
         return fit_narx(records)
 
-    @staticmethod
-    def orders(entry: dict) -> str:
-        """``"lags 2/2, degree 2, 5 terms"``."""
-        return (f"lags {entry.get('lag_y')}/{entry.get('lag_u')}, degree "
-                f"{entry.get('degree')}, {entry.get('n_terms')} terms")
-
-    @staticmethod
-    def describe(entry: dict) -> str:
-        """``"a polynomial NARX model of lags 2/2, degree 2 (5 terms)"``."""
-        return (f"a polynomial NARX model of lags {entry.get('lag_y')}/{entry.get('lag_u')}, "
-                f"degree {entry.get('degree')} ({entry.get('n_terms')} terms)")

@@ -185,19 +185,10 @@ class PlayYardstick(Yardstick):
 
     name = "play"
     colour = "tab:purple"
+    kind = "a Prandtl-Ishlinskii model"
+    order_words = "{n_operators} play operator(s)"
 
     def fit(self, records: Sequence[Record]) -> PlayBaseline:
         """:func:`fit_play`."""
         return fit_play(list(records))
 
-    @staticmethod
-    def orders(entry: dict) -> str:
-        """``"k play operator(s), k + 2 parameters"``."""
-        return (f"{entry.get('n_operators')} play operator(s), "
-                f"{entry.get('n_parameters')} parameters")
-
-    @staticmethod
-    def describe(entry: dict) -> str:
-        """``"a Prandtl-Ishlinskii model of k play operator(s) (k + 2 parameters)"``."""
-        return (f"a Prandtl-Ishlinskii model of {entry.get('n_operators')} play operator(s) "
-                f"({entry.get('n_parameters')} parameters)")
