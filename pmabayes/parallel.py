@@ -39,7 +39,7 @@ import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-from pmabayes.util import _SHOWN, local_cores
+from pmabayes.util import _BUSY, _SHOWN, local_cores
 
 __all__ = ["Runner", "background", "can_fork"]
 
@@ -54,8 +54,11 @@ def _watch_parent(parent_pid: int) -> None:
             os._exit(1)  # no cleanup: the parent that would read our results is gone
 
 
-def _start_worker(parent_pid: int, initializer: Callable | None, initargs: tuple) -> None:
-    """Tie a local worker's life to its parent, then run the caller's initializer."""
+def _start_worker(parent_pid: int, initializer: Callable | None, initargs: tuple,
+                  busy=None) -> None:
+    """Tie a local worker's life to its parent, share its siblings' count of running
+    tasks (``busy``), then run the caller's initializer."""
+    _BUSY[0] = busy
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(None, use_errno=True)
@@ -70,6 +73,18 @@ def _start_worker(parent_pid: int, initializer: Callable | None, initargs: tuple
                      name="pmabayes-parent-watch").start()
     if initializer is not None:
         initializer(*initargs)
+
+
+def _counted(fn: Callable, job):
+    """``fn(job)`` in a worker, counted among its siblings' running tasks meanwhile."""
+    busy = _BUSY[0]
+    with busy.get_lock():
+        busy.value += 1
+    try:
+        return fn(job)
+    finally:
+        with busy.get_lock():
+            busy.value -= 1
 
 
 def _background_main(parent_pid: int, fn: Callable, args: tuple) -> None:
@@ -161,6 +176,7 @@ class Runner:
         self._initializer = initializer
         self._initargs = tuple(initargs)
         self._pool: ProcessPoolExecutor | None = None
+        self._busy = None  # the workers' count of running tasks
         self._initialised_here = False
 
     @property
@@ -177,10 +193,11 @@ class Runner:
 
     def _local_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            method = "fork" if can_fork() else "spawn"
+            context = mp.get_context("fork" if can_fork() else "spawn")
+            self._busy = context.Value("i", 0)
             self._pool = ProcessPoolExecutor(
-                self.processes, mp_context=mp.get_context(method), initializer=_start_worker,
-                initargs=(os.getpid(), self._initializer, self._initargs))
+                self.processes, mp_context=context, initializer=_start_worker,
+                initargs=(os.getpid(), self._initializer, self._initargs, self._busy))
         return self._pool
 
     def map(self, fn: Callable, jobs: Iterable, *, ordered: bool = True) -> Iterator:
@@ -218,7 +235,7 @@ class Runner:
             warnings.filterwarnings("ignore", message=r"This process .* is multi-threaded",
                                     category=DeprecationWarning)
             pool = self._local_pool()
-            futures = [pool.submit(fn, job) for job in jobs]
+            futures = [pool.submit(_counted, fn, job) for job in jobs]
         for fut in (futures if ordered else as_completed(futures)):
             yield fut.result()
 

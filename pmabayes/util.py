@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy
 
-__all__ = ["fingerprint", "source_text", "local_cores", "Progress", "show_progress",
+__all__ = ["fingerprint", "source_text", "local_cores", "busy_workers", "Progress", "show_progress",
            "progress_shown", "finite_or_none", "side_stream", "format_together"]
 
 
@@ -181,6 +181,27 @@ def local_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not on Linux
         return os.cpu_count() or 1
+
+
+#: in a local worker of :class:`pmabayes.parallel.Runner`: the count, shared between
+#: its workers, of their tasks running now (a ``multiprocessing`` value); else None
+_BUSY: list = [None]
+
+
+def busy_workers() -> int | None:
+    """How many tasks the workers of this process's runner are running now (this one's
+    among them); None outside a runner's worker.
+
+    A worker simulates in the cores its busy siblings leave
+    (:func:`pmabayes.model.simulator.simulation_threads`): at the end of a batch of
+    uneven tasks, the last one left takes the idle cores.
+
+    Returns
+    -------
+    int or None
+    """
+    busy = _BUSY[0]
+    return None if busy is None else max(1, int(busy.value))
 
 
 #: the progress switch: the task whose progress is shown, or None for silence

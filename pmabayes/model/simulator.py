@@ -51,7 +51,7 @@ from pmabayes.model.kernels import (  # noqa: F401
     structure_key,
 )
 from pmabayes.model.model import Model
-from pmabayes.util import fingerprint, local_cores
+from pmabayes.util import busy_workers, fingerprint, local_cores
 
 __all__ = ["simulate", "simulate_dataset", "Simulation", "kernel_for", "cache_dir",
            "SimulationError", "SteadyStateWarning", "OverflowingStepWarning",
@@ -709,9 +709,11 @@ def simulation_threads() -> int:
 
     Each member's simulation is its own arithmetic, so a batch split between threads
     gives the same numbers, to the bit, as one kernel call. The cores this process may
-    use (:func:`pmabayes.util.local_cores`), or ``$PMABAYES_THREADS`` where set; one in
-    a worker process (the sampler's ensembles, a batch's fits), whose siblings use the
-    other cores already.
+    use (:func:`pmabayes.util.local_cores`), or ``$PMABAYES_THREADS`` where set. In a
+    worker process (the sampler's ensembles, a batch's fits, the refits of ``diagnose``)
+    the cores its busy siblings leave, shared evenly (:func:`pmabayes.util.busy_workers`):
+    one while they all run, more for the last tasks of an uneven batch; one in any
+    other child process.
 
     Returns
     -------
@@ -726,7 +728,8 @@ def simulation_threads() -> int:
             raise SimulationError(f"PMABAYES_THREADS must be a whole number >= 1, got "
                                   f"{env!r}") from None
     if multiprocessing.parent_process() is not None:
-        return 1
+        busy = busy_workers()
+        return 1 if busy is None else max(1, local_cores() // busy)
     return local_cores()
 
 
