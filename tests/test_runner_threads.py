@@ -22,6 +22,7 @@ _BOTH: list = [None]
 def _task(long: bool) -> tuple[int | None, int, int | None, int | None]:
     _BOTH[0].wait(timeout=30)
     together = (busy_workers(), simulation_threads())
+    _BOTH[0].wait(timeout=30)  # both have looked before either ends
     if not long:
         return (*together, None, None)
     deadline = time.monotonic() + 30
