@@ -22,14 +22,21 @@ from pmabayes.model import boucwen
 from pmabayes.model.boucwen import BoucWenColumns
 from pmabayes.model.model import Model
 
-__all__ = ["FASTMATH", "SimulationError", "PlantCode", "state_rows", "state_effects",
-           "indent_lines",
-           "module_text", "generate"]
+__all__ = ["FASTMATH", "LLVM_OPTIONS", "SimulationError", "PlantCode", "state_rows",
+           "state_effects", "indent_lines", "module_text", "generate"]
 
 #: numba fastmath flags of every generated kernel. ``contract`` (fused multiply-add)
 #: and ``afn`` (approximate functions) let results differ in the last bits between
 #: CPUs and numba/LLVM versions, never between runs on one machine and install.
 FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
+
+#: LLVM options every kernel is compiled under (set by :mod:`pmabayes.model.kernels`
+#: when imported). LLVM's loop vectoriser gives up on a loop that needs more run-time
+#: checks that its arrays do not overlap than its defaults allow; the member loop of a
+#: kernel with many state rows (the degrading, pinching law's) needs more, and ran
+#: scalar, five times slower (``analyses/law_kernel_speed.py``).
+LLVM_OPTIONS = ("--runtime-memory-check-threshold=200",
+                "--vectorize-memory-check-threshold=800")
 
 #: Rows of ``cst`` (:class:`PlantCode`): 8 discretisation coefficients, then these.
 _ALPHA_ROW, _BETA_ROW, _GAMMA_ROW, _DEAD_ZONE_ROW, _AREA_ROW, _GRAVITY_ROW = range(8, 14)
@@ -65,6 +72,7 @@ def module_text(comments: list[str], inject: dict, name: str, args: str,
     # the one compiled helper the plant's setup calls
     text += "from pmabayes.model.kernels import discretise as _discretise\n"
     text += f"FASTMATH = set({sorted(FASTMATH)!r})\n"
+    text += f"# compiled under the LLVM options {' '.join(LLVM_OPTIONS)}\n"
     for g in inject:
         text += f"{g} = None  # injected before the first call\n"
     # nogil: the simulator runs a large batch's members in threads, side by side

@@ -17,15 +17,21 @@ import tempfile
 import threading
 from pathlib import Path
 
+import llvmlite.binding as llvm  # numba's own binding to LLVM, installed with it
 import numba
 import numpy as np
 
-from pmabayes.model.codegen import generate
+from pmabayes.model.codegen import LLVM_OPTIONS, generate
 from pmabayes.model.model import Model
 from pmabayes.util import Progress, fingerprint, source_text
 
 __all__ = ["discretise", "cache_dir", "structure_key", "kernel_for", "cached_kernel",
            "compile_kernel"]
+
+# LLVM's options are the process's, read when a function compiles: set on import, before
+# any of pmabayes's compiled functions (all imported through this layer) first runs
+for _option in LLVM_OPTIONS:
+    llvm.set_option("pmabayes", _option)
 
 
 @numba.njit(cache=True)

@@ -707,8 +707,9 @@ _THREAD_PREFIX = "pmabayes-simulate"
 def simulation_threads() -> int:
     """How many threads a large batch of members is simulated in.
 
-    Each member's simulation is its own arithmetic, so a batch split between threads
-    gives the same numbers, to the bit, as one kernel call. The cores this process may
+    The threads never change the numbers: a batch is split into runs of members by its
+    size and the machine's cores alone (:func:`_member_chunks`), and the runs are shared
+    out between the threads. The cores this process may
     use (:func:`pmabayes.util.local_cores`), or ``$PMABAYES_THREADS`` where set. In a
     worker process (the sampler's ensembles, a batch's fits, the refits of ``diagnose``)
     the cores its busy siblings leave, shared evenly (:func:`pmabayes.util.busy_workers`):
@@ -734,10 +735,14 @@ def simulation_threads() -> int:
 
 
 def _member_chunks(batch: int, samples: int) -> list[tuple[int, int]]:
-    """The batch's members split into contiguous runs, one per thread (one run where
-    threads would not pay)."""
-    k = min(simulation_threads(), batch // _THREAD_MEMBERS,
-            (batch * samples) // _THREAD_WORK)
+    """The batch's members split into contiguous runs, one per core this process may use
+    (one run where threads would not pay).
+
+    The split depends on the batch, its length and the machine's cores, never on how
+    many threads run it now (:func:`simulation_threads`): a kernel whose member loop LLVM
+    vectorises may round a member differently in the loop's vector body than in its
+    remainder, so the split is part of the numbers and must not follow the load."""
+    k = min(local_cores(), batch // _THREAD_MEMBERS, (batch * samples) // _THREAD_WORK)
     if k <= 1:
         return [(0, batch)]
     edges = np.linspace(0, batch, k + 1).round().astype(int)
@@ -773,11 +778,15 @@ def side_by_side(fn, parts: list) -> list:
     list
         The results, in the order of ``parts``.
     """
+    k = min(len(parts), simulation_threads())
     # one of the threads itself (fn simulating again) waits for none: no deadlock
-    if len(parts) <= 1 or threading.current_thread().name.startswith(_THREAD_PREFIX):
+    if k <= 1 or threading.current_thread().name.startswith(_THREAD_PREFIX):
         return [fn(p) for p in parts]
-    pool = _executor(len(parts))
-    return [f.result() for f in [pool.submit(fn, p) for p in parts]]
+    pool = _executor(k)
+    # k threads at most, each running every k-th part in turn
+    groups = [pool.submit(lambda i: [fn(p) for p in parts[i::k]], i) for i in range(k)]
+    done = [g.result() for g in groups]
+    return [done[i % k][i // k] for i in range(len(parts))]
 
 
 def _run_in_threads(kernel, chunks: list[tuple[int, int]], args: tuple, extra: tuple,
