@@ -66,3 +66,61 @@ def test_every_route_of_the_likelihood_gives_the_same_bits():
                               _kalman_loglik(y, one, 2.0, *noise))
     assert not np.array_equal(_noise_loglik(y, x, 2.0, *fixed),
                               _noise_loglik(y, x, 2.0, *sampled))
+
+
+def test_the_gains_copied_at_the_recursions_cycle_are_the_ones_computed():
+    """The Riccati recursion's steps are copied once it repeats itself (a fixed point or a
+    cycle of two, met to the bit): every gain, variance and the log sum are the bits of
+    the recursion computed at every sample, with gaps."""
+    import math
+
+    import numba
+
+    from pmabayes.inference.noise.ar1 import _kalman_gains, _masked_gains
+
+    @numba.njit(error_model="numpy")
+    def every_step(sigma, rho, white, seen, gains, variances):  # the recursion, computed
+        s2 = sigma * sigma
+        q = s2 * (1.0 - rho * rho)
+        r = white * white
+        p = s2
+        const = 0.0
+        count = 0
+        for k in range(seen.shape[0]):
+            if seen[k]:
+                s_k = p + r
+                gain = p / s_k
+                const += math.log(s_k)
+                count += 1
+                variances[k] = s_k
+                gains[k] = gain
+                p = rho * rho * (1.0 - gain) * p + q
+            else:
+                p = rho * rho * p + q
+        return const, count
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    cases = [(1e-4, 0.9, 1e-5), (1e-4, 0.99, 1e-5), (2e-6, 0.5, 1e-6), (1e-5, 0.0, 1e-6),
+             (1e-5, 0.999999, 1e-7), (1e-5, -0.7, 1e-6), (1e-5, 0.6, 0.0), (0.0, 0.5, 1e-6),
+             (1e-5, np.nan, 1e-6)]
+    cases += [(10 ** rng.uniform(-7, -3), rng.uniform(-1, 1), 10 ** rng.uniform(-8, -3))
+              for _ in range(200)]
+    masks = [np.ones(n, bool), rng.random(n) > 0.3]
+    gap = np.ones(n, bool)
+    gap[500:900] = False
+    gap[2000] = False
+    masks.append(gap)
+    for sigma, rho, white in cases:
+        for seen in masks:
+            want_g, want_v = np.full(n, -1.0), np.full(n, -1.0)
+            got_g, got_v = np.full(n, -1.0), np.full(n, -1.0)
+            want = every_step(sigma, rho, white, seen, want_g, want_v)
+            got = _masked_gains(sigma, rho, white, seen, got_g, got_v)
+            assert want[1] == got[1]
+            assert np.array_equal([want[0]], [got[0]], equal_nan=True), (sigma, rho, white)
+            assert np.array_equal(got_g, want_g, equal_nan=True), (sigma, rho, white)
+            assert np.array_equal(got_v, want_v, equal_nan=True), (sigma, rho, white)
+        g, v = np.empty(n), np.empty(n)
+        full = every_step(sigma, rho, white, masks[0], np.empty(n), np.empty(n))[0]
+        assert np.array_equal([_kalman_gains(sigma, rho, white, g, v)], [full], equal_nan=True)

@@ -208,3 +208,27 @@ def test_the_search_cost_of_experiments_apart_is_the_joint_cost_to_the_bit(monke
     monkeypatch.setattr("pmabayes.inference.noise.ar1.simulation_threads", lambda: 2)
     monkeypatch.setattr("pmabayes.inference.noise.ar1._RUN_WORK", 1)  # threads however short
     assert np.array_equal(liks[1].mean_log_likelihood(xs[1], sigma, rho, white), one)
+
+
+def test_prior_terms_known_before_give_the_same_log_prior_to_the_bit():
+    """The noise's own search evaluates the other columns' prior terms once
+    (``Posterior.prior_terms``): its log prior is the one evaluated in full, bit for bit,
+    also out of bounds; and the columns it knows are not evaluated again."""
+    from pmabayes.inference.posterior import build_posterior
+
+    ds = generate_chirp_dataset(n_trials=1, chirp=Chirp(duration_s=1.0), seed=3)
+    posterior = build_posterior(pb.Model(["coulomb_friction"]), ds, substeps=1)
+    rng = np.random.default_rng(4)
+    box = posterior.plausible_box(rng, posterior.names)
+    z = rng.uniform(box[:, 0] - 1.0, box[:, 1] + 1.0, size=(50, posterior.ndim))
+    theta = posterior.to_natural(z)
+    theta[3, 0] = -1.0  # out of its domain: -inf either way
+    cols = list(range(0, posterior.ndim, 2))
+    for row in theta:
+        row = row[None]
+        known = posterior.prior_terms(row, cols)
+        assert np.array_equal(posterior.log_prior(row, known=known), posterior.log_prior(row))
+    # a known term is used as given, not evaluated again
+    inside = posterior.to_natural(box.mean(axis=1)[None])
+    shifted = posterior.log_prior(inside, known={0: np.array([123.0])})
+    assert np.isfinite(shifted[0]) and shifted[0] != posterior.log_prior(inside)[0]

@@ -443,22 +443,44 @@ class Posterior:
         return full
 
     # -- densities ----------------------------------------------------------------
-    def log_prior(self, theta: np.ndarray) -> np.ndarray:
+    def log_prior(self, theta: np.ndarray, *, known: dict[int, np.ndarray] | None = None
+                  ) -> np.ndarray:
         """Log prior density in natural coordinates, ``-inf`` outside the bounds.
 
         The one joint log prior of pmabayes: the sum of each parameter's
         :meth:`~pmabayes.model.parameters.Parameter.log_prior` under the model's priors.
+
+        Parameters
+        ----------
+        theta : numpy.ndarray
+            ``(batch, ndim)`` natural values.
+        known : dict of int to numpy.ndarray, optional
+            Terms already evaluated (:meth:`prior_terms`) for the columns where every
+            row of a one-row ``theta`` has the values they were evaluated at: a search
+            over a few columns (the noise's own) then evaluates only theirs, with the
+            same numbers in the same order.
         """
         theta = np.atleast_2d(theta)
+        known = known or {}
         total = np.zeros(theta.shape[0])
         with np.errstate(all="ignore"):  # densities are evaluated out of bounds too
             for j, (p, prior) in enumerate(zip(self.parameters, self.priors, strict=True)):
-                total = total + p.log_prior(theta[:, j], prior)
+                term = known.get(j)
+                total = total + (p.log_prior(theta[:, j], prior) if term is None else term)
         return total
+
+    def prior_terms(self, theta: np.ndarray, columns) -> dict[int, np.ndarray]:
+        """Each of ``columns``' term of :meth:`log_prior` at one row ``theta`` (``(1,
+        ndim)``), as :meth:`log_prior`'s ``known``."""
+        theta = np.atleast_2d(theta)
+        with np.errstate(all="ignore"):
+            return {int(j): self.parameters[j].log_prior(theta[:, j], self.priors[j])
+                    for j in columns}
 
     def evaluate(
         self, theta: np.ndarray, *, return_x: bool = True,
         outputs: list[np.ndarray] | None = None, experiments: list[int] | None = None,
+        prior_terms: dict[int, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Log prior, log likelihood and model output for natural values.
 
@@ -477,6 +499,8 @@ class Posterior:
             Only these experiments' likelihoods (all by default): where only their
             noise varies, the others' are a constant (the noise's own search, group by
             group). Needs ``return_x`` false.
+        prior_terms : dict of int to numpy.ndarray, optional
+            :meth:`log_prior`'s ``known``.
 
         Returns
         -------
@@ -493,7 +517,7 @@ class Posterior:
         if experiments is not None and return_x:
             raise ValueError("the output of some experiments only is not returned")
         theta = np.atleast_2d(theta)
-        lp = self.log_prior(theta)
+        lp = self.log_prior(theta, known=prior_terms)
         ll = np.full(theta.shape[0], -np.inf)
         ok = np.isfinite(lp)
         if not ok.any():
@@ -516,13 +540,14 @@ class Posterior:
         return lp, ll, x
 
     def log_prob_z(self, z: np.ndarray, outputs: list[np.ndarray] | None = None,
-                   experiments: list[int] | None = None) -> np.ndarray:
+                   experiments: list[int] | None = None,
+                   prior_terms: dict[int, np.ndarray] | None = None) -> np.ndarray:
         """Log posterior density in unconstrained coordinates (what emcee samples);
-        ``outputs`` and ``experiments`` as :meth:`evaluate`'s."""
+        ``outputs``, ``experiments`` and ``prior_terms`` as :meth:`evaluate`'s."""
         z = np.atleast_2d(z)
         theta = self.to_natural(z)
         lp, ll, _ = self.evaluate(theta, return_x=False, outputs=outputs,
-                                  experiments=experiments)
+                                  experiments=experiments, prior_terms=prior_terms)
         out = lp + ll + self.log_jacobian(z)
         return np.where(np.isfinite(out), out, -np.inf)
 

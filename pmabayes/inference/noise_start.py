@@ -62,11 +62,16 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
     for g, (u0, shift, noise) in sorted(starts.items()):
         gcols = np.asarray(posterior.noise_columns(g))
         members = posterior.members(g)
+        # the other columns' prior terms do not change in this search (one point at a
+        # time): evaluated once, not at each of its thousands of points
+        fixed = posterior.prior_terms(posterior.to_natural(out[None]),
+                                      np.setdiff1d(np.arange(out.size), gcols))
 
-        def neg(u: np.ndarray, gcols=gcols, members=members) -> np.ndarray:
+        def neg(u: np.ndarray, gcols=gcols, members=members, fixed=fixed) -> np.ndarray:
             zz = np.repeat(out[None], np.atleast_2d(u).shape[0], axis=0)
             zz[:, gcols] = np.atleast_2d(u)
-            return -posterior.log_prob_z(zz, outputs=outputs, experiments=members)
+            return -posterior.log_prob_z(zz, outputs=outputs, experiments=members,
+                                         prior_terms=fixed if zz.shape[0] == 1 else None)
 
         out[gcols] = noise.clip_start(_minimise_noise(neg, u0, shift), posterior.upper[gcols])
     return out

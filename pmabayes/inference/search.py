@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
@@ -257,15 +258,14 @@ def find_map(
                                                        _default_noise_z(posterior, n_model)]))
     # optimise in coordinates scaled to the plausible box
     scale = box[:, 1] - box[:, 0]
-    z_map, cov_z, note = _polish_from(posterior, z_global, scale)
+    best = _polish_from(posterior, z_global, scale)
     if starts is not None:
-        z_map, cov_z, note = _best_polish(
-            posterior, scale, [*_starts_z(posterior, box, starts)], (z_map, cov_z, note))
+        best = _best_polish(posterior, scale, [*_starts_z(posterior, box, starts)], best)
     agreement_of = None
     if posterior.n_experiments > 1 and (own is not None or own_starts):
         results = _own_optima(posterior, rng.spawn(1)[0], popsize, maxiter, searches, own)
-        z_map, cov_z, note, agreement_of = _best_of_starts(posterior, z_map, cov_z, note,
-                                                           results, scale)
+        best, agreement_of = _best_of_starts(posterior, best, results, scale)
+    z_map, cov_z, note = best
     return _finish(posterior, z_map, cov_z, note, scale, rng, refer=refer,
                    global_point=(z_global, global_cost), agreement_of=agreement_of,
                    nested_start=nested)
@@ -327,13 +327,14 @@ def _starts_z(posterior: Posterior, box: np.ndarray, theta: np.ndarray) -> np.nd
     return np.array([_noise_start(posterior, row) for row in z])
 
 
-def _best_polish(posterior: Posterior, scale: np.ndarray, starts, best: tuple) -> tuple:
-    """The highest, by log posterior, of ``best`` (a polished ``(z, cov, note)``) and the
-    polishes from each unconstrained start in ``starts``."""
-    lp = float(posterior.log_prob_z(best[0][None])[0])
+def _best_polish(posterior: Posterior, scale: np.ndarray, starts, best: _Polished
+                 ) -> _Polished:
+    """The highest, by log posterior, of ``best`` and the polishes from each
+    unconstrained start in ``starts``."""
+    lp = float(posterior.log_prob_z(best.z[None])[0])
     for z0 in starts:
         polished = _polish_from(posterior, z0, scale)
-        lp_k = float(posterior.log_prob_z(polished[0][None])[0])
+        lp_k = float(posterior.log_prob_z(polished.z[None])[0])
         if lp_k > lp or not math.isfinite(lp):
             best, lp = polished, lp_k
     return best
@@ -416,20 +417,18 @@ def _joint_point(posterior: Posterior, z_joint: np.ndarray, experiment: int,
     return _noise_start(posterior, posterior.to_unconstrained(theta[None])[0])
 
 
-def _best_of_starts(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray,
-                    note: str | None, own: list[MapResult], scale: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, str | None, tuple]:
+def _best_of_starts(posterior: Posterior, joint: _Polished, own: list[MapResult],
+                    scale: np.ndarray) -> tuple[_Polished, tuple]:
     """The highest of the joint MAP and the joint MAPs polished from each
-    experiment's own MAP; its covariance (and why it is a stand-in, or None), and the
-    own MAPs with which start it came from (:func:`_finish`'s ``agreement_of``)."""
-    best = (float(posterior.log_prob_z(z_map[None])[0]), z_map, cov_z, note, "joint search")
+    experiment's own MAP, and the own MAPs with which start it came from
+    (:func:`_finish`'s ``agreement_of``)."""
+    best = (float(posterior.log_prob_z(joint.z[None])[0]), joint, "joint search")
     for e, result in enumerate(own):
-        z_e, cov_e, note_e = _polish_from(posterior, _joint_point(posterior, z_map, e, result),
-                                          scale)
-        lp = float(posterior.log_prob_z(z_e[None])[0])
+        polished = _polish_from(posterior, _joint_point(posterior, joint.z, e, result), scale)
+        lp = float(posterior.log_prob_z(polished.z[None])[0])
         if lp > best[0]:
-            best = (lp, z_e, cov_e, note_e, f"own MAP of {posterior.experiment_names[e]}")
-    return best[1], best[2], best[3], (own, best[4])
+            best = (lp, polished, f"own MAP of {posterior.experiment_names[e]}")
+    return best[1], (own, best[2])
 
 
 def experiments_agreement(posterior: Posterior, z_map: np.ndarray,
@@ -521,16 +520,45 @@ def disagreement_text(agreement: dict) -> str:
             "that could make them agree")
 
 
-def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, str | None]:
-    """The MAP polished from ``z0`` in coordinates scaled by ``scale``, and its Laplace
-    covariance, both unconstrained; and why that covariance is a stand-in (None where it
-    is the inverse Hessian)."""
+class _Polished:
+    """A polished point ``z`` (unconstrained); unpacked, ``(z, cov, note)``: its Laplace
+    covariance and why that is a stand-in (None where it is the inverse Hessian).
+
+    The covariance is measured when first asked for: of several polishes only the
+    highest's is kept, and its Hessians (one at the point, up to two more along their
+    eigenvectors where it is indefinite) cost as much as the polish. Measured later, it
+    is the same numbers: the log posterior it differences does not change in between
+    (a record from rest's noise is learnt again only after the winner is unpacked).
+    """
+
+    def __init__(self, z: np.ndarray, *, laplace: tuple | None = None, neg_logpost=None,
+                 u: np.ndarray | None = None, hess: np.ndarray | None = None,
+                 scale: np.ndarray | None = None) -> None:
+        self.z = z
+        self._at = (neg_logpost, u, hess, scale)
+        if laplace is not None:
+            self.laplace = laplace
+
+    @cached_property
+    def laplace(self) -> tuple[np.ndarray, str | None]:
+        """The Laplace covariance (unconstrained) and its note."""
+        neg_logpost, u, hess, scale = self._at
+        if hess is None:
+            hess = _scaled_hessian(neg_logpost, u)
+        hess, edges = _open_edges(hess, neg_logpost, u)
+        cov, note = laplace_covariance(hess, None if edges else neg_logpost, u)
+        return cov * np.outer(scale, scale), note
+
+    def __iter__(self):
+        return iter((self.z, *self.laplace))
+
+
+def _polish_from(posterior: Posterior, z0: np.ndarray, scale: np.ndarray) -> _Polished:
+    """The MAP polished from ``z0`` in coordinates scaled by ``scale``, and (unpacked) its
+    Laplace covariance, both unconstrained, and why that covariance is a stand-in."""
     neg_logpost = _scaled_neg_log_posterior(posterior, z0, scale)
     u, hess = _polish(neg_logpost, posterior.ndim)
-    hess, edges = _open_edges(hess, neg_logpost, u)
-    cov, note = laplace_covariance(hess, None if edges else neg_logpost, u)
-    return z0 + u * scale, cov * np.outer(scale, scale), note
+    return _Polished(z0 + u * scale, neg_logpost=neg_logpost, u=u, hess=hess, scale=scale)
 
 
 #: A curvature (in units of the plausible box) above which a finite difference has
@@ -595,10 +623,12 @@ def _climb(posterior: Posterior, z_map: np.ndarray, cov_z: np.ndarray, note: str
         k = int(np.argmax(lp))
         if not lp[k] > best + _CLIMB_GAIN:
             break
-        z_new, cov_new, note_new = _polish_from(posterior, draws[k], scale)
-        lp_new = float(posterior.log_prob_z(z_new[None])[0])
-        z_map, cov_z, note, best = ((z_new, cov_new, note_new, lp_new) if lp_new >= lp[k]
-                                    else (draws[k], cov_z, note, float(lp[k])))
+        polished = _polish_from(posterior, draws[k], scale)
+        lp_new = float(posterior.log_prob_z(polished.z[None])[0])
+        if lp_new >= lp[k]:
+            (z_map, cov_z, note), best = polished, lp_new
+        else:
+            z_map, best = draws[k], float(lp[k])
     return z_map, cov_z, note
 
 
@@ -698,8 +728,9 @@ def _scaled_neg_log_posterior(posterior: Posterior, z0: np.ndarray, scale: np.nd
     return neg_logpost
 
 
-def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
-    """L-BFGS-B from ``u = 0``, then Newton steps; the optimum and the Hessian there."""
+def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """L-BFGS-B from ``u = 0``, then Newton steps; the optimum and the Hessian there, or
+    None where the last step moved it (:class:`_Polished` measures it when asked)."""
     h = np.full(ndim, 1e-7)
 
     def fun_and_grad(u: np.ndarray) -> tuple[float, np.ndarray]:
@@ -744,7 +775,7 @@ def _polish(neg_logpost, ndim: int) -> tuple[np.ndarray, np.ndarray]:
         if np.max(np.nan_to_num(moved, nan=0.0, posinf=np.inf)) < 1e-3:
             break
     # a loop left without a step has the Hessian at u already (the same numbers)
-    return u, _scaled_hessian(neg_logpost, u) if hess is None else hess
+    return u, hess
 
 
 def _no_map_message(posterior: Posterior, theta: np.ndarray) -> str:

@@ -138,19 +138,7 @@ def measurement_noise(n_series: int, n_samples: int, sigma, rho, white,
 def _kalman_gains(sigma, rho, white, gains, variances):
     """Fill the filter's gains and innovation variances (``(n,)`` each) for complete data
     and one noise (scalars); returns the sum of the log variances."""
-    s2 = sigma * sigma
-    q = s2 * (1.0 - rho * rho)
-    r = white * white
-    p = s2
-    const = 0.0
-    for k in range(gains.shape[0]):
-        s_k = p + r
-        gain = p / s_k
-        const += math.log(s_k)
-        variances[k] = s_k
-        gains[k] = gain
-        p = rho * rho * (1.0 - gain) * p + q
-    return const
+    return _masked_gains(sigma, rho, white, np.empty(0, dtype=np.bool_), gains, variances)[0]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -285,25 +273,54 @@ def _kalman_innovations(y, scale, sigma, rho, white, seen):
 
 @numba.njit(cache=True, error_model="numpy")
 def _masked_gains(sigma, rho, white, seen, gains, variances):
-    """Fill the filter's gains and innovation variances for one mask ``seen`` (``(n,)``);
-    returns the sum of the log variances and the number of samples seen."""
+    """Fill the filter's gains and innovation variances for one mask ``seen`` (``(n,)``,
+    or empty where every sample is seen); returns the sum of the log variances and the
+    number of samples seen.
+
+    The Riccati recursion of the state's variance ``p`` meets, to the bit, a fixed
+    point or a cycle of two values within some hundred samples; from there every step
+    repeats one already taken, so its numbers are copied, not computed again (a
+    division and a logarithm a sample, most of a likelihood's time on a long record):
+    the same numbers, in the same order.
+    """
     s2 = sigma * sigma
     q = s2 * (1.0 - rho * rho)
     r = white * white
     p = s2
     const = 0.0
     count = 0
-    for k in range(seen.shape[0]):
-        if seen[k]:
-            s_k = p + r
-            gain = p / s_k
-            const += math.log(s_k)
+    every = seen.shape[0] == 0
+    # the last two steps taken: their p on entry, s_k, gain and log s_k
+    p_a = s_a = g_a = l_a = math.nan
+    p_b = s_b = g_b = l_b = math.nan
+    period = 0  # 0: computing; 1 or 2: repeating the last one or two steps
+    for k in range(gains.shape[0]):
+        if every or seen[k]:
+            if period == 0:
+                s_k = p + r
+                gain = p / s_k
+                log_s = math.log(s_k)
+                p_next = rho * rho * (1.0 - gain) * p + q
+                # the step before entered at p_b: one entering there again repeats it
+                period = 1 if p_next == p else (2 if p_next == p_b else 0)
+                p_a, s_a, g_a, l_a = p_b, s_b, g_b, l_b
+                p_b, s_b, g_b, l_b = p, s_k, gain, log_s
+                p = p_next
+            elif period == 1:
+                s_k, gain, log_s = s_b, g_b, l_b
+            else:  # p is p_a or p_b: take that step, and enter the other
+                if p == p_a:
+                    s_k, gain, log_s, p = s_a, g_a, l_a, p_b
+                else:
+                    s_k, gain, log_s, p = s_b, g_b, l_b, p_a
+            const += log_s
             count += 1
             variances[k] = s_k
             gains[k] = gain
-            p = rho * rho * (1.0 - gain) * p + q
         else:
             p = rho * rho * p + q
+            period = 0
+            p_b = math.nan  # the step before is no longer the last
     return const, count
 
 
