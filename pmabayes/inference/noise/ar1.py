@@ -278,7 +278,8 @@ def _masked_gains(sigma, rho, white, seen, gains, variances):
     number of samples seen.
 
     The Riccati recursion of the state's variance ``p`` meets, to the bit, a fixed
-    point or a cycle of two values within some hundred samples; from there every step
+    point or a cycle of two values within a few samples (hundreds with a correlation
+    near 1); from there every step
     repeats one already taken, so its numbers are copied, not computed again (a
     division and a logarithm a sample, most of a likelihood's time on a long record):
     the same numbers, in the same order.
