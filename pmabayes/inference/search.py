@@ -531,13 +531,10 @@ class _Polished:
     (a record from rest's noise is learnt again only after the winner is unpacked).
     """
 
-    def __init__(self, z: np.ndarray, *, laplace: tuple | None = None, neg_logpost=None,
-                 u: np.ndarray | None = None, hess: np.ndarray | None = None,
-                 scale: np.ndarray | None = None) -> None:
+    def __init__(self, z: np.ndarray, *, neg_logpost, u: np.ndarray,
+                 hess: np.ndarray | None, scale: np.ndarray) -> None:
         self.z = z
         self._at = (neg_logpost, u, hess, scale)
-        if laplace is not None:
-            self.laplace = laplace
 
     @cached_property
     def laplace(self) -> tuple[np.ndarray, str | None]:
