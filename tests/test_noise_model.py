@@ -6,6 +6,7 @@ against itself (bit for bit) where the repeats accept it.
 """
 
 import math
+import warnings
 
 import arviz as az
 import numpy as np
@@ -316,3 +317,32 @@ def test_diagnose_refits_with_the_repeats_noise_model():
     assert runs["auto"].missing == "regulator_lag"
     assert runs["auto"].settings["noise_model"][0].startswith("AR(")
     assert runs["ar1"].settings["noise_model"] == ["AR(1) + white"]
+
+
+def test_the_noise_search_outside_its_support_warns_of_nothing_and_finds_the_optimum():
+    # a cost that is inf on half the plane, starting where scipy's first simplex has
+    # two vertices there: its convergence test then subtracts inf from inf
+    from pmabayes.inference.noise.repeats import _minimise_noise
+
+    def neg(u):
+        u = np.atleast_2d(u)
+        inside = u[:, 0] < 0.0
+        return np.where(inside, np.sum((u - [-1.0, 0.5, 0.0]) ** 2, axis=1), np.inf)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        best = _minimise_noise(neg, np.array([-1e-4, 0.5, 0.0]), shift=np.zeros(3))
+    assert np.allclose(best, [-1.0, 0.5, 0.0], atol=1e-6)
+
+
+def test_the_noise_search_keeps_the_costs_own_warnings():
+    from pmabayes.inference.noise.repeats import _minimise_noise
+
+    def neg(u):
+        u = np.atleast_2d(u)
+        return np.sum(u**2, axis=1) + (np.zeros(1) / np.zeros(1) if u[0, 0] > 5 else 0.0)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _minimise_noise(neg, np.array([6.0, 0.0, 0.0]), shift=np.zeros(3))
+    assert any("invalid value" in str(w.message) for w in caught)

@@ -124,3 +124,35 @@ def test_the_next_candidates_are_refitted_where_none_of_the_first_is_named(monke
     monkeypatch.setattr(refits, "partial_effect", lambda r, missing=None: "a")
     assert list(refits.refit_significant(None, ranked, s, rng, Progress())) == ["a", "b"]
     assert seen == ["a", "b"]
+
+
+def test_a_noise_search_that_cannot_leave_its_start_is_not_run():
+    # a stiffness whose exact step overflows: each record's output is NaN, so its noise
+    # start is not finite and the cost inf at every noise; the second group's search
+    # also meets the first group's non-finite noise among its fixed prior terms
+    import warnings
+
+    _, _, post = _two_records()
+    theta = np.array([[p.default for p in post.parameters]])
+    theta[0, post.names.index("K_e")] = 1e300
+    z = post.to_unconstrained(theta)[0]
+    calls = []
+    log_prob_z = post.log_prob_z
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return log_prob_z(*args, **kwargs)
+
+    post.log_prob_z = counted
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the overflow is said once, elsewhere
+        found = _noise_start(post, z)
+        # what the search would have returned: its simplex never leaves the start
+        lik = post.likelihoods[0]
+        r = lik.y_mean - post.likelihood.split(post.output(theta))[0][0]
+        u0, _ = lik.noise.start(r, lik.observed, lik)
+    assert len(calls) == 0
+    cols = np.asarray(post.noise_columns(0))
+    assert np.array_equal(found[cols], lik.noise.clip_start(u0, post.upper[cols]), equal_nan=True)
+    assert not np.all(np.isfinite(found[cols]))
+    assert np.array_equal(found[: post.n_searched], z[: post.n_searched])

@@ -73,7 +73,14 @@ def _noise_start(posterior: Posterior, z: np.ndarray) -> np.ndarray:
             return -posterior.log_prob_z(zz, outputs=outputs, experiments=members,
                                          prior_terms=fixed if zz.shape[0] == 1 else None)
 
-        out[gcols] = noise.clip_start(_minimise_noise(neg, u0, shift), posterior.upper[gcols])
+        # a start that is not finite (a member's output is not: its simulation
+        # overflowed) or another column's prior term that is not (an earlier group's
+        # noise left at such a start) makes the cost inf at every point the search can
+        # reach: its simplex would not leave the start in 60,000 evaluations
+        stuck = not (np.all(np.isfinite(u0))
+                     and all(np.all(np.isfinite(t)) for t in fixed.values()))
+        found = u0 if stuck else _minimise_noise(neg, u0, shift)
+        out[gcols] = noise.clip_start(found, posterior.upper[gcols])
     return out
 
 

@@ -857,7 +857,8 @@ def _say_overflow(model: Model, theta: np.ndarray, h: float, last: np.ndarray) -
             f"stiffness K_e + alpha = {stiffness:.4g} N/m on a moving mass of {mass:.4g} kg "
             f"has no finite step of {h:.4g} s: its stiffness or damping over the mass "
             "overflows. Such parameter sets simulate to NaN and a likelihood gives them "
-            "-inf (said once; a prior that allows such values is far wider than any muscle).",
+            "-inf, so a search or a sampler that steps there moves on; this is news only "
+            "where a fit's estimates end near them (said once).",
             OverflowingStepWarning, stacklevel=2)
         return
 
