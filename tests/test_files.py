@@ -386,8 +386,9 @@ def test_unit_checks_and_declarations_apply_to_mat_files(tmp_path: Path) -> None
 
 
 def test_unsupported_suffix_lists_the_formats(tmp_path: Path) -> None:
-    with pytest.raises(DataError, match=r"use one of \.csv, \.txt, \.dat, \.nc, \.mat "
-                                        r"\(\.txt and \.dat: text read like \.csv; \.mat: MATLAB"):
+    with pytest.raises(DataError, match=r"use one of \.csv, \.txt, \.dat, \.tsv, \.lvm, \.nc, "
+                                        r"\.mat \(\.txt, \.dat, \.tsv and LabVIEW's \.lvm: text "
+                                        r"read like \.csv; \.mat: MATLAB"):
         load(tmp_path / "x.xlsx")
     ds = load(v5(tmp_path / "w.mat", {"t": T, "p": P, "x": X}), time_s="t",
               pressure_pa="p", position_m="x", check_units=False)

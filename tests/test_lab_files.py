@@ -177,6 +177,126 @@ def test_one_value_a_line_and_a_sample_rate(tmp_path: Path) -> None:
     np.testing.assert_array_equal(ds.position_m[0], x)
 
 
+
+# ----------------------------------------------------------------------------- separators
+
+
+def _as_saved(rows: list[str], sep: str, decimal: str = ".") -> list[str]:
+    return [r.replace(",", sep).replace(".", decimal) for r in rows]
+
+
+@pytest.mark.parametrize(("sep", "decimal", "said"), [
+    (";", ",", "decimal mark"),  # a spreadsheet in a locale that writes 0,5
+    (";", ".", None),
+    ("\t", ".", None),  # LabVIEW's spreadsheet file
+    ("\t", ",", "decimal mark"),
+])
+def test_semicolons_tabs_and_decimal_commas_read_as_the_comma_file(
+        tmp_path: Path, sep: str, decimal: str, said: str | None) -> None:
+    t = np.arange(300) * 2e-3
+    rows = clock_rows(t)
+    ref = load(lab_file(tmp_path, "ref.csv", ["Time (s),Pressure (kPa),Position (mm)", *rows],
+                        pressure_reference="gauge"))
+    header = sep.join(["Time (s)", "Pressure (kPa)", "Position (mm)"])
+    path = lab_file(tmp_path, "saved.csv", [header, *_as_saved(rows, sep, decimal)],
+                    pressure_reference="gauge")
+    ds, notes = read_quietly(path)
+    assert ds == ref
+    decimal_notes = [n for n in notes if "decimal mark" in n]
+    assert len(decimal_notes) == (1 if said else 0)
+    # a headerless file named by "columns" is split the same way
+    bare = lab_file(tmp_path, "bare.txt", _as_saved(rows, sep, decimal),
+                    columns={"1": "time_s", "2": "pressure_kpa", "3": "position_mm"},
+                    pressure_reference="gauge")
+    np.testing.assert_array_equal(load(bare).position_m, ref.position_m)
+
+
+def test_quoted_fields_and_a_preamble_are_read_through_and_lines_still_count(
+        tmp_path: Path) -> None:
+    t = np.arange(50) * 2e-3
+    rows = clock_rows(t)
+    ref = load(lab_file(tmp_path, "ref.csv", ["time_s,pressure_kpa,position_mm", *rows],
+                        pressure_reference="gauge"))
+    quoted = ['"time_s","pressure_kpa","position_mm"',
+              *('"' + r.replace(",", '","') + '"' for r in rows)]
+    preamble = ["# exported by the rig's logger", "# operator: A. N. Other"]
+    path = lab_file(tmp_path, "logged.csv", [*preamble, *quoted], pressure_reference="gauge")
+    ds, notes = read_quietly(path)
+    assert ds == ref
+    assert any("lines 1-2 start with '#'" in n and "line 3 is read" in n for n in notes)
+    bad = [*preamble, *quoted]
+    bad[9] = bad[9].replace(bad[9].split(",")[1], '"abc"')  # file line 10
+    with pytest.raises(DataError, match=at(tmp_path / "bad.csv",
+                                           r": line 10, column pressure_kpa: 'abc'")):
+        load(lab_file(tmp_path, "bad.csv", bad, pressure_reference="gauge"))
+
+
+
+
+@pytest.mark.parametrize(("names", "units"), [
+    ("Time,Pressure,Position", "s,kPa,mm"),
+    ('"Time";"Pressure";"Position"', '"[s]";"[kPa]";"[mm]"'),
+])
+def test_a_line_of_units_under_the_names_is_read_with_them(tmp_path: Path, names: str,
+                                                           units: str) -> None:
+    rows = clock_rows(np.arange(50) * 2e-3)
+    ref = load(lab_file(tmp_path, "ref.csv", ["time_s,pressure_kpa,position_mm", *rows],
+                        pressure_reference="gauge"))
+    sep = ";" if ";" in names else ","
+    path = lab_file(tmp_path, "named.csv", [names, units, *_as_saved(rows, sep)],
+                    pressure_reference="gauge")
+    assert load(path) == ref
+    bad = [names, units, *_as_saved(rows, sep)]
+    bad[4] = bad[4].replace(bad[4].split(sep)[0], "t")  # file line 5
+    with pytest.raises(DataError, match=at(tmp_path / "bad.csv", r": line 5, column time_s")):
+        load(lab_file(tmp_path, "bad.csv", bad, pressure_reference="gauge"))
+    # names that are not read with their units either: the error names both
+    with pytest.raises(DataError, match=r"line 1 \(header\): unexpected column 'Stroke \(mm\)' "
+                                        r"\('Stroke \(mm\)' looks like 'position_mm'\)"):
+        load(lab_file(tmp_path, "stroke.csv", ["Time,Pressure,Stroke", units.replace(";", ","),
+                                               *rows], pressure_reference="gauge"))
+
+
+def test_a_labview_measurement_file_is_read_below_its_header_block(tmp_path: Path) -> None:
+    t = np.arange(100) * 1e-3
+    rows = [r.replace(",", "\t") + "\t" for r in clock_rows(t)]  # an empty comment column
+    block = ["LabVIEW Measurement\t", "Writer_Version\t2", "Separator\tTab",
+             "Decimal_Separator\t.", "***End_of_Header***\t", "", "Channels\t2\t",
+             "Samples\t100\t100\t", "X_Dimension\tTime\tTime\t",
+             "***End_of_Header***\t", "X_Value\tPressure\tDisplacement\tComment"]
+    path = lab_file(tmp_path, "run.lvm", [*block, *rows],
+                    columns={"1": "time_s", "2": "pressure_kpa", "3": "position_mm"},
+                    pressure_reference="gauge")
+    ds, notes = read_quietly(path)
+    np.testing.assert_array_equal(ds.time_s, t)
+    assert ds.position_m[0, 5] == float(rows[5].split()[2]) * 1e-3
+    assert any("lines 1-11 are not rows of numbers" in n and "line 12 is the first" in n
+               for n in notes)
+    rows[40] = rows[40].replace(rows[40].split()[1], "x")  # file line 52
+    with pytest.raises(DataError, match=at(tmp_path / "bad.lvm",
+                                           r": line 52, column 2 \(pressure_kpa\): 'x'")):
+        load(lab_file(tmp_path, "bad.lvm", [*block, *rows],
+                      columns={"1": "time_s", "2": "pressure_kpa", "3": "position_mm"},
+                      pressure_reference="gauge"))
+
+
+def test_a_spreadsheet_is_told_to_be_saved_as_csv(tmp_path: Path) -> None:
+    path = tmp_path / "run.xlsx"
+    path.write_bytes(b"PK")
+    with pytest.raises(DataError, match=r"unsupported file type '\.xlsx'.*save the sheet as CSV"):
+        load(path)
+
+
+def test_a_number_with_both_decimal_marks_is_refused_on_its_line(tmp_path: Path) -> None:
+    rows = _as_saved(clock_rows(np.arange(20) * 2e-3), ";", ",")
+    rows[6] = rows[6] + ".5"  # file line 8
+    path = lab_file(tmp_path, "mixed.csv", ["time_s;pressure_kpa;position_mm", *rows],
+                    pressure_reference="gauge")
+    with pytest.raises(DataError, match=at(path, r": line 8: numbers written with both '\.' "
+                                                 r"and ','.*one decimal mark")):
+        load(path)
+
+
 def test_a_position_sign_negates_and_a_zero_at_rest_refers_the_positions(tmp_path: Path
                                                                           ) -> None:
     """A sensor whose negative is the muscle's contraction, not zeroed before the record:

@@ -14,8 +14,9 @@ CSV
     (:data:`UNITS`: ``time_ms``, ``pressure_psi``, ``position_mm``, ``force_kn``,
     ...), converted to SI on reading, said once in a :class:`DataWarning` and
     recorded in the metadata (``"converted_units"``).
-Headerless text (``.csv``, ``.txt``, ``.dat``)
-    Comma- or whitespace-separated numbers, one value a line included; the sidecar's
+Headerless text (``.csv``, ``.txt``, ``.dat``, ``.tsv``, LabVIEW's ``.lvm``)
+    Comma-, semicolon-, tab- or whitespace-separated numbers, one value a line
+    included, below any lines of text (the file's own header); the sidecar's
     ``"columns"`` names the columns read by number from 1 (``{"columns": {"3":
     "time_s", "4": "pressure_psi", "5": "position_mm"}}``); columns it does not name
     are not read. :func:`read_columns` reads named columns of any such file, for
@@ -34,8 +35,10 @@ MATLAB (read only)
     ``"sample_rate_hz"`` gives the grid. Values must be SI; see
     :mod:`pmabayes.data.matlab` for the full schema.
 
-:func:`load` picks the reader from the suffix (``.csv``, ``.txt``, ``.dat``, ``.nc``,
-``.mat``).
+:func:`load` picks the reader from the suffix (``.csv``, ``.txt``, ``.dat``, ``.tsv``,
+``.lvm``, ``.nc``, ``.mat``). Text fields may be separated by commas, semicolons or
+tabs (a comma in a number is then its decimal mark, said once per file) and quoted;
+``#`` lines above the header are skipped and said.
 
 A lab's clock: times within 10% of a step of a uniform grid (a DAQ's jitter) are that
 grid, and a gap in the clock is samples not observed, never invented ones:

@@ -187,7 +187,8 @@ def _late_block(t: np.ndarray, j: int, where: Callable[[int], str]) -> str:
     step = float(t[j - 1] - t[j])
     d = np.diff(t[:j])
     # a block of samples stepping back by several intervals, not one sample out of place
-    if step <= 2 * float(np.median(d)) or not where(j).startswith("line "):
+    # (at the second sample there is no interval before it to compare)
+    if not d.size or step <= 2 * float(np.median(d)) or not where(j).startswith("line "):
         return ""
     longer = np.flatnonzero(d > step)
     if longer.size == 0:

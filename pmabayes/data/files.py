@@ -71,8 +71,11 @@ def read_csv(path: PathLike, *, check_units: bool = True) -> Dataset:
         ``position_mm``, ...), converted to SI once, with one :class:`DataWarning`
         naming each conversion and the metadata's ``"converted_units"`` recording
         them. ``trial`` may be left out (one trial, id 1), and ``time_s`` when the
-        sidecar gives ``sample_rate_hz``. A file without a header (comma- or
-        whitespace-separated, ``.txt`` and ``.dat`` too) is read through the sidecar's
+        sidecar gives ``sample_rate_hz``. Fields may be separated by commas,
+        semicolons or tabs (a comma in a number is then its decimal mark, said once),
+        fields may be quoted, and ``#`` lines above the header are skipped (said).
+        A file without a header (``.txt`` and ``.dat`` too; white space may separate
+        its fields) is read through the sidecar's
         ``"columns"``, which names its columns by number from 1, e.g. ``{"columns":
         {"3": "time_s", "4": "pressure_psi", "5": "position_mm"}}``; columns not
         named are not read (the metadata records the map as ``"read_columns"``).
@@ -271,6 +274,8 @@ _READERS: dict[str, Callable[..., Dataset]] = {
     ".csv": read_csv,
     ".txt": read_csv,
     ".dat": read_csv,
+    ".tsv": read_csv,
+    ".lvm": read_csv,
     ".nc": read_netcdf,
     ".mat": read_mat,
 }
@@ -282,15 +287,21 @@ _WRITERS: dict[str, Callable[[Dataset, PathLike], None]] = {
 }
 
 
+_SHEETS = (".xlsx", ".xls", ".xlsm", ".ods", ".numbers")
+
+
 def _suffix(path: Path, table: dict[str, Any]) -> str:
     suffix = path.suffix.lower()
     if suffix not in table:
         kinds = ", ".join(table)
         writes = ("" if table is _WRITERS else
-                  " (.txt and .dat: text read like .csv; .mat: MATLAB v4 to v7.3)")
+                  " (.txt, .dat, .tsv and LabVIEW's .lvm: text read like .csv; .mat: "
+                  "MATLAB v4 to v7.3)")
+        sheet = (" A spreadsheet's own format is not read: save the sheet as CSV "
+                 "(File > Save As), one column per signal." if suffix in _SHEETS else "")
         raise DataError(
             f"{path}: unsupported file type {path.suffix or '(no suffix)'!r}; use one of "
-            f"{kinds}{writes}."
+            f"{kinds}{writes}.{sheet}"
         )
     return suffix
 
@@ -301,7 +312,8 @@ def load(path: PathLike, **kwargs: Any) -> Dataset:
     Three formats are read, each with an optional JSON sidecar of the same stem
     (``foo.csv`` -> ``foo.json``) holding the metadata:
 
-    - ``.csv``, ``.txt``, ``.dat`` (:func:`read_csv`): ``trial,time_s,pressure_pa,position_m``
+    - ``.csv``, ``.txt``, ``.dat``, ``.tsv``, ``.lvm`` (:func:`read_csv`):
+      ``trial,time_s,pressure_pa,position_m``
       (or ``force_n``, or the same in other units), one row per sample; or a
       headerless file whose columns the sidecar's ``"columns"`` names;
     - ``.nc`` (:func:`read_netcdf`): NetCDF written by :func:`write_netcdf`;
@@ -313,7 +325,7 @@ def load(path: PathLike, **kwargs: Any) -> Dataset:
     Parameters
     ----------
     path : str or os.PathLike
-        ``.csv``, ``.txt``, ``.dat``, ``.nc`` or ``.mat``, any case.
+        ``.csv``, ``.txt``, ``.dat``, ``.tsv``, ``.lvm``, ``.nc`` or ``.mat``, any case.
     **kwargs
         Forwarded to the reader (e.g. ``check_units=False``; for ``.mat`` also
         ``time_s=``, ``pressure_pa=``, ``position_m=``, ...); unknown names raise

@@ -13,6 +13,13 @@ refused with a sidecar ``"columns"`` map for it as the alternative. A headerless
 trial ids); columns it does not name are not read, and a first line that is not
 numbers (the lab's own header) is skipped. :func:`read_columns` reads named columns of
 any such file, for records whose signals are in separate files.
+
+Fields may be separated by commas, semicolons, tabs or (a headerless file) white
+space, as the first line shows (:func:`_separator`); where they are not separated by
+commas, a comma in a number is its decimal mark (``0,5``, as a spreadsheet saves in
+many locales; said once per file). Lines starting with ``#`` above the header (an
+instrument's preamble) are skipped and said; double quotes around fields are CSV's
+own syntax and are read through.
 """
 
 from __future__ import annotations
@@ -100,12 +107,78 @@ def _read_text(path: Path, where: str) -> str:
         ) from None
 
 
-def _lines(path: Path, where: str) -> list[str]:
-    """The file's lines, trailing blank lines dropped."""
+def _lines(path: Path, where: str) -> tuple[list[str], int]:
+    """The file's lines below its preamble (lines starting with ``#`` at the top, said
+    once), trailing blank lines dropped, and how many preamble lines there were."""
     lines = _read_text(path, where).replace("\r\n", "\n").split("\n")
     while lines and not lines[-1].strip():
         lines.pop()
-    return lines
+    skipped = 0
+    while skipped < len(lines) and lines[skipped].lstrip().startswith("#"):
+        skipped += 1
+    if skipped:
+        say_once(where, "preamble", DataWarning(
+            f"{where}: lines 1-{skipped} start with '#' (the instrument's or the lab's "
+            f"notes above the data) and were skipped; line {skipped + 1} is read as the "
+            "first line."), _HERE)
+    return lines[skipped:], skipped
+
+
+#: Field separators looked for in a file's first line, in this order: a file that has
+#: semicolons or tabs there is separated by them (a spreadsheet's export where the comma
+#: is the decimal mark; LabVIEW's spreadsheet files), else by commas; a line with none
+#: is split at white space.
+_SEPARATORS = (";", "\t", ",")
+_SEPARATOR_NAMES = {";": "semicolon", "\t": "tab", ",": "comma", None: "whitespace"}
+
+
+def _separator(line: str) -> str | None:
+    """The field separator of a file whose first line (header or data) is ``line``:
+    :data:`_SEPARATORS`' first that it holds, or None (white space)."""
+    return next((sep for sep in _SEPARATORS if sep in line), None)
+
+
+def _headerless_separator(line: str) -> str | None:
+    # numbers only: tabs are white space, however many stand between two columns
+    separator = _separator(line)
+    return None if separator == "\t" else separator
+
+
+def _numeric(line: str, columns: list[int]) -> bool:
+    """Whether ``line`` holds numbers in those of ``columns`` (from 1) it has, however it
+    is separated (a column beyond its width is the caller's clearer error)."""
+    separator = _headerless_separator(line)
+    probe = line.replace('"', "")
+    probe = probe if separator == "," else probe.replace(",", ".")
+    fields = _split(probe, separator)
+    held = [fields[k - 1].strip() for k in columns if k <= len(fields)]
+    return bool(held) and all(_is_number(f) for f in held)
+
+
+def _split(line: str, separator: str | None) -> list[str]:
+    return line.split(separator) if separator else line.split()
+
+
+def _read_through(rows: list[str], separator: str | None, where: str,
+                  first_line: int) -> list[str]:
+    """The data rows as numpy reads them: CSV's double quotes removed (a number has
+    none to lose) and, where the fields are not separated by commas, a comma in a
+    number read as its decimal mark (said once per file)."""
+    if any('"' in r for r in rows):
+        rows = [r.replace('"', "") for r in rows]
+    if separator == "," or not any("," in r for r in rows):
+        return rows
+    both = next((i for i, r in enumerate(rows) if "." in r and "," in r), None)
+    if both is not None:
+        raise DataError(
+            f"{where}: line {both + first_line}: numbers written with both '.' and ',' "
+            f"({rows[both].strip()!r}): with {_SEPARATOR_NAMES[separator]}-separated "
+            "fields ',' is read as the decimal mark, so a '.' cannot be one too; save the "
+            "file with one decimal mark and no thousands separator.")
+    say_once(where, "decimal comma", DataWarning(
+        f"{where}: numbers read with ',' as the decimal mark (0,5 is 0.5), as the fields "
+        f"are {_SEPARATOR_NAMES[separator]}-separated."), _HERE)
+    return [r.replace(",", ".") for r in rows]
 
 
 def _check_blank(rows: list[str], where: str, first_line: int) -> None:
@@ -121,7 +194,7 @@ def _printed_step(rows: list[str], column: int, delimiter: str | None = ",") -> 
     exponents = set()
     for line in rows:
         try:
-            exponents.add(decimal.Decimal(line.split(delimiter)[column].strip())
+            exponents.add(decimal.Decimal(_split(line, delimiter)[column].strip())
                           .as_tuple().exponent)
         except (decimal.InvalidOperation, IndexError):
             return None
@@ -152,15 +225,21 @@ def _columns_example(raw: list[str], names: list[str], roles: list[str]) -> str:
     return json.dumps({"columns": spec})
 
 
-def _parse_header(fields: list[str], where: str, has_rate: bool = False
+def _unquoted(field: str) -> str:
+    field = field.strip()
+    return field[1:-1].strip() if len(field) > 1 and field[0] == field[-1] == '"' else field
+
+
+def _parse_header(fields: list[str], where: str, has_rate: bool = False, line: int = 1
                   ) -> tuple[list[str], str, dict[str, str]]:
-    """Validate the header; return the column names (as :data:`UNITS` spells them), the
-    input's SI name and the header's own text of each name it spells otherwise."""
+    """Validate the header (file line ``line``); return the column names (as
+    :data:`UNITS` spells them), the input's SI name and the header's own text of each
+    name it spells otherwise."""
     problems = []
-    raw = [f.strip() for f in fields]
+    raw = [_unquoted(f) for f in fields]
     if all(_is_number(n) for n in raw if n):
         raise DataError(
-            f"{where}: line 1: expected a header line such as "
+            f"{where}: line {line}: expected a header line such as "
             f"'trial,time_s,pressure_pa,position_m', got {','.join(fields)!r}; "
             "add the header as the first line (or name a headerless file's columns in the "
             'sidecar: "columns": {"1": "time_s", ...}).'
@@ -168,7 +247,7 @@ def _parse_header(fields: list[str], where: str, has_rate: bool = False
     names = [_canonical(n) if n else n for n in raw]
     for i, n in enumerate(names):
         if not n:
-            problems.append(f"column {i + 1} has an empty name (stray comma?)")
+            problems.append(f"column {i + 1} has an empty name (a stray separator?)")
     seen: dict[str, int] = {}
     for i, n in enumerate(names):
         if n and n in seen:
@@ -208,25 +287,27 @@ def _parse_header(fields: list[str], where: str, has_rate: bool = False
                 "header line is then skipped, and columns it does not name are not read), e.g. "
                 f"{_columns_example(raw, names, candidates)}")
         raise DataError(
-            f"{where}: line 1 (header): " + "; ".join(problems) + f". The {_EXPECTED_TEXT}; "
+            f"{where}: line {line} (header): " + "; ".join(problems) + f". The {_EXPECTED_TEXT}; "
             "rename, add or remove columns to match." + columns
         )
     headers = {n: text for text, n in zip(raw, names, strict=True) if text != n}
     return names, inputs[0], headers
 
 
-def _scan_rows(lines: list[str], names: list[str], where: str) -> None:
+def _scan_rows(lines: list[str], names: list[str], where: str, first_line: int = 2,
+               separator: str | None = ",") -> None:
     """Slow row-by-row scan that raises for the first bad line (called on failure)."""
     ncol = len(names)
     i64 = np.iinfo(np.int64)
     for i, line in enumerate(lines):
-        lineno = i + 2
-        fields = line.split(",")
+        lineno = i + first_line
+        fields = _split(line, separator)
         if len(fields) != ncol:
             what = "is blank" if not line.strip() else f"has {len(fields)} fields"
             raise DataError(
-                f"{where}: line {lineno} {what}; every row needs {ncol} comma-separated "
-                f"fields ({','.join(names)}). Fix or remove the row."
+                f"{where}: line {lineno} {what}; every row needs {ncol} "
+                f"{_SEPARATOR_NAMES[separator]}-separated fields ({','.join(names)}). Fix "
+                "or remove the row."
             )
         for name, text in zip(names, fields, strict=True):
             t = text.strip()
@@ -255,16 +336,19 @@ def _scan_rows(lines: list[str], names: list[str], where: str) -> None:
                 _raise_nonfinite(where, lineno, name, text)
 
 
-def _parse_rows(rows: list[str], names: list[str], where: str) -> np.ndarray:
-    """The rows as a structured array of finite values (``trial`` as int64)."""
+def _parse_rows(rows: list[str], names: list[str], where: str, first_line: int = 2,
+                separator: str | None = ",") -> np.ndarray:
+    """The rows (file line ``first_line`` on) as a structured array of finite values
+    (``trial`` as int64)."""
     dtype = [(n, np.int64 if n == "trial" else np.float64) for n in names]
     try:
-        table = np.loadtxt(rows, delimiter=",", dtype=dtype, comments=None, ndmin=1)
+        table = np.loadtxt(rows, delimiter=separator, dtype=dtype, comments=None, ndmin=1)
     except ValueError as exc:
-        _scan_rows(rows, names, where)
+        _scan_rows(rows, names, where, first_line, separator)
         raise DataError(
-            f"{where}: could not parse the data rows ({exc}; numpy counts rows from 0 at line 2). "
-            "Write plain comma-separated numbers."
+            f"{where}: could not parse the data rows ({exc}; numpy counts rows from 0 at "
+            f"line {first_line}). Write plain {_SEPARATOR_NAMES[separator]}-separated "
+            "numbers."
         ) from None
 
     value_cols = [n for n in names if n != "trial"]
@@ -277,35 +361,69 @@ def _parse_rows(rows: list[str], names: list[str], where: str) -> np.ndarray:
                 first_bad = (r, n)
     if first_bad is not None:
         r, n = first_bad
-        _raise_nonfinite(where, r + 2, n, rows[r].split(",")[names.index(n)])
+        _raise_nonfinite(where, r + first_line, n, _split(rows[r], separator)[names.index(n)])
 
     return table
 
 
+def _units_row(line: str, separator: str | None, width: int) -> list[str] | None:
+    """A line of units under the header (``s,kPa,mm`` or ``[s];[bar];[mm]``, a field
+    empty where a column has none), or None where ``line`` is not one."""
+    units = [_unquoted(u).strip("[]() ") for u in _split(line, separator)]
+    if len(units) != width or not any(units) or any(_is_number(u) for u in units):
+        return None
+    return units
+
+
+def _parse_header_lines(lines: list[str], separator: str | None, where: str, has_rate: bool,
+                        header: int) -> tuple[list[str], str, dict[str, str], int]:
+    """:func:`_parse_header` of the header line, or of it with the line of units below it
+    where the names alone are not read and the two together are (``Time`` over ``s``
+    reads as ``Time (s)``); also how many lines below the header it took (0 or 1).
+    Where a line of units is there and the two together are not read either, their
+    error is raised: it names the units it read."""
+    fields = _split(lines[0], separator)
+    try:
+        return (*_parse_header(fields, where, has_rate, header), 0)
+    except DataError:
+        units = _units_row(lines[1], separator, len(fields)) if len(lines) > 1 else None
+        if units is None:
+            raise
+        joined = [f"{_unquoted(f)} ({u})" if u else f for f, u in zip(fields, units,
+                                                                         strict=True)]
+        # where both fail, the error of the two together: it names the units it read
+        return (*_parse_header(joined, where, has_rate, header), 1)
+
+
 def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
     """A CSV file with a header line: its columns in SI."""
-    lines = _lines(path, where)
+    lines, skipped = _lines(path, where)
     if not lines:
         raise DataError(
             f"{where}: file is empty; expected a header line "
             "'trial,time_s,pressure_pa,position_m' followed by one row per sample."
         )
-    names, input_name, headers = _parse_header(lines[0].split(","), where, has_rate)
-    rows = lines[1:]
+    header, first = skipped + 1, skipped + 2
+    separator = _separator(lines[0])
+    names, input_name, headers, below = _parse_header_lines(lines, separator, where, has_rate,
+                                                            header)
+    first += below
+    rows = lines[1 + below:]
     if not rows:
         raise DataError(
-            f"{where}: line 2: header only, no data rows; add one row per sample "
+            f"{where}: line {first}: header only, no data rows; add one row per sample "
             f"({','.join(names)})."
         )
-    _check_blank(rows, where, 2)
-    table = _parse_rows(rows, names, where)
+    _check_blank(rows, where, first)
+    rows = _read_through(rows, separator, where, first)
+    table = _parse_rows(rows, names, where, first, separator)
     si = {UNITS[n][0] if n in UNITS else n: n for n in names}
     values = {s: table[n] if s == "trial" else to_si(table[n], n) for s, n in si.items()}
     step = None
     if "time_s" in si:
         col, factor = names.index(si["time_s"]), UNITS[si["time_s"]][1]
-        step = _scaled(lambda: _printed_step(rows, col), factor)
-    return _Table(values, {s: n for s, n in si.items() if s != "trial"}, input_name, 2,
+        step = _scaled(lambda: _printed_step(rows, col, separator), factor)
+    return _Table(values, {s: n for s, n in si.items() if s != "trial"}, input_name, first,
                   step or (lambda: None), headers=headers)
 
 
@@ -357,21 +475,30 @@ def _numbers(path: Path, where: str, spec: dict[int, str]
              ) -> tuple[dict[str, np.ndarray], list[str], int, str | None]:
     """The named columns of a headerless text file, as read (not converted): the values
     by name, the data lines, the line of the first, the delimiter."""
-    lines = _lines(path, where)
+    lines, skipped = _lines(path, where)
     if not lines:
         raise DataError(f"{where}: file is empty; expected one row of numbers per sample.")
-    delimiter = "," if "," in lines[0] else None
-    split = (lambda line: line.split(",")) if delimiter else str.split
-    first_line = 1
-    if not all(_is_number(f.strip()) for f in split(lines[0])):
-        lines, first_line = lines[1:], 2  # the lab's own header line: skipped
-        if not lines:
-            raise DataError(f"{where}: line 2: a header line only, no data rows.")
+    # the lab's own header, or an instrument's header block (LabVIEW's .lvm): every line
+    # above the first row of numbers, skipped (said where it is more than one line)
+    text = next((i for i, line in enumerate(lines) if _numeric(line, list(spec))),
+                len(lines))
+    first_line = skipped + text + 1
+    if text == len(lines):
+        raise DataError(f"{where}: no line of numbers below line {first_line - 1}: a "
+                        "header only, no data rows.")
+    if text > 1:
+        say_once(where, "header block", DataWarning(
+            f"{where}: lines {skipped + 1}-{skipped + text} are not rows of numbers (the "
+            f"file's own header) and were skipped; line {first_line} is the first row "
+            "read."), _HERE)
+    lines = lines[text:]
+    delimiter = _headerless_separator(lines[0])
     _check_blank(lines, where, first_line)
-    width = len(split(lines[0]))
+    lines = _read_through(lines, delimiter, where, first_line)
+    width = len(_split(lines[0], delimiter))
     beyond = [k for k in spec if k > width]
     if beyond:
-        sep = "comma-separated" if delimiter else "whitespace-separated"
+        sep = f"{_SEPARATOR_NAMES[delimiter]}-separated"
         raise DataError(
             f"{where}: line {first_line}: the sidecar's 'columns' names column "
             f"{beyond[0]} ({spec[beyond[0]]}) but the line has {width} {sep} fields; "
@@ -384,7 +511,7 @@ def _numbers(path: Path, where: str, spec: dict[int, str]
         table = None
     if table is None or not np.isfinite(table).all():
         for i, line in enumerate(lines):
-            fields = split(line)
+            fields = _split(line, delimiter)
             for k in cols:
                 text = fields[k - 1].strip() if k <= len(fields) else ""
                 if k > len(fields):
@@ -444,7 +571,7 @@ def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[
     Parameters
     ----------
     path : str or os.PathLike
-        A comma- or whitespace-separated text file of numbers (one value a line
+        A comma-, semicolon- or whitespace-separated text file of numbers (one value a line
         included), optionally with one header line of text, which is skipped.
     columns : dict
         Column number (from 1, as a string) to a name pmabayes reads
