@@ -257,6 +257,24 @@ def test_a_line_of_units_under_the_names_is_read_with_them(tmp_path: Path, names
                                                *rows], pressure_reference="gauge"))
 
 
+
+@pytest.mark.parametrize("lost", ["nan", "", "NaN"])
+def test_a_position_dropout_is_told_the_fix_and_the_fix_reads(tmp_path: Path, lost: str) -> None:
+    rows = clock_rows(np.arange(60) * 2e-3)
+    bad = [*rows]
+    bad[20] = ",".join(bad[20].split(",")[:2] + [lost])  # file line 22
+    with pytest.raises(DataError, match=at(tmp_path / "lost.csv", r": line 22, column "
+                                           r"position_mm: .*delete its row, and the gap")):
+        load(lab_file(tmp_path, "lost.csv", ["time_s,pressure_kpa,position_mm", *bad],
+                      pressure_reference="gauge"))
+    del bad[20]  # as the message says
+    ds, notes = read_quietly(lab_file(tmp_path, "kept.csv",
+                                      ["time_s,pressure_kpa,position_mm", *bad],
+                                      pressure_reference="gauge"))
+    assert ds.n_missing == 1 and not ds.observed[0, 20] and np.isnan(ds.position_m[0, 20])
+    assert any("1 sample not observed" in n or "1 sample missing" in n for n in notes)
+
+
 def test_a_labview_measurement_file_is_read_below_its_header_block(tmp_path: Path) -> None:
     t = np.arange(100) * 1e-3
     rows = [r.replace(",", "\t") + "\t" for r in clock_rows(t)]  # an empty comment column

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pmabayes.cli.ending import _finish, _um
 from pmabayes.cli.inputs import _load_all, _load_data, _model_for, _read_fit, _say, _segments
 from pmabayes.cli.options import (
+    _DATA_KINDS,
     _FOLDER_HELP,
     CliError,
     _effect_list,
@@ -174,8 +175,7 @@ def _criticism_commands(sub, common) -> None:
                           help="fit a model (MAP), criticise it and find which effect is "
                           "missing",
                           epilog="example: pmabayes diagnose data.csv --out diagnosis")
-    diag.add_argument("data", nargs="+", help="data files (.csv, .nc or MATLAB .mat v4-v7.3, "
-                      "each with an optional .json sidecar of the same stem), one per "
+    diag.add_argument("data", nargs="+", help=f"data files ({_DATA_KINDS}), one per "
                       "experiment, each on the rig its sidecar gives; the experiments share "
                       "the physical parameters")
     diag.add_argument("--effects", default=[], type=_effect_list,
@@ -234,8 +234,8 @@ def _validation_commands(sub, common) -> None:
                          help="predict held-out experiments with a fit's posterior: error, "
                          "noise floor, predictive band and its coverage")
     val.add_argument("fit", help="a fit written by `pmabayes fit`")
-    val.add_argument("data", nargs="+", help="held-out data files (.csv with optional .json "
-                     "sidecar, or .nc), one experiment each, each on the rig its sidecar gives")
+    val.add_argument("data", nargs="+", help=f"held-out data files ({_DATA_KINDS}), one "
+                     "experiment each, each on the rig its sidecar gives")
     val.add_argument("--json", help="write the numbers and bands per experiment here")
     val.add_argument("--out", help="folder for the figures and an HTML page" + _FOLDER_HELP)
     val.add_argument("--draws", type=_positive, default=300,

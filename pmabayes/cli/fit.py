@@ -13,6 +13,7 @@ from pmabayes.cli.ending import _finish, _floor_text, _nan, _print_adequacy, _um
 from pmabayes.cli.inputs import _fit_settings, _load_all, _model_for, _say
 from pmabayes.cli.options import (
     _DATA_HELP,
+    _DATA_KINDS,
     _FOLDER_HELP,
     CliError,
     _check_effects,
@@ -278,8 +279,7 @@ def _predict_commands(sub, common) -> None:
     pred = sub.add_parser("predict", parents=[common],
                           help="simulate the model on a data set's input and compare (no "
                           "fitting)")
-    pred.add_argument("data", help="data file: .csv, .nc or MATLAB .mat (v4-v7.3), with an "
-                      "optional .json sidecar of the same stem")
+    pred.add_argument("data", help=f"data file: {_DATA_KINDS}")
     pred.add_argument("--out", required=True, help="output folder" + _FOLDER_HELP)
     pred.add_argument("--effects", default=[], type=_effect_list,
                       help="comma-separated effects to add to the base model")
@@ -293,8 +293,7 @@ def _batch_commands(sub, common) -> None:
     bat = sub.add_parser("batch", parents=[common],
                          help="fit many independent data sets, each alone, on local "
                          "processes or a Dask cluster")
-    bat.add_argument("data", nargs="+", help="data files: .csv, .nc or MATLAB .mat (v4-v7.3), "
-                     "each with an optional .json sidecar of the same stem; each fit is "
+    bat.add_argument("data", nargs="+", help=f"data files: {_DATA_KINDS}; each fit is "
                      "written to OUT/<file stem>.nc")
     bat.add_argument("--out", required=True, help="output folder of the fits; a fit already "
                      "there is resumed or skipped, any other file of that name is refused")

@@ -219,8 +219,10 @@ def _fit_options(p: argparse.ArgumentParser) -> None:
     _trials_option(p, "fit")
 
 
-_DATA_HELP = ("data files, one per experiment (.csv, .nc or MATLAB .mat v4-v7.3, each with "
-              "an optional .json sidecar of the same stem); the experiments share the "
+#: The data files every command reads, as its help says them.
+_DATA_KINDS = ("text (.csv, .txt, .dat, .tsv, LabVIEW's .lvm), .nc or MATLAB .mat v4-v7.3, "
+               "each with an optional .json sidecar of the same stem")
+_DATA_HELP = (f"data files, one per experiment ({_DATA_KINDS}); the experiments share the "
               "physical parameters")
 _FOLDER_HELP = ("; created if missing; an existing one must be empty or this command's "
                 "own output")

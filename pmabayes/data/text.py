@@ -83,11 +83,18 @@ def _is_number(text: str) -> bool:
     return "_" not in text
 
 
+#: What a position column's bad value may be fixed with: a row missing from the clock.
+_DROPOUT = (" A position the sensor did not measure (a dropout) is a sample not observed: "
+            "delete its row, and the gap it leaves in the time column is read as one (said "
+            "on reading; nothing is filled in).")
+
+
 def _raise_nonfinite(where: str, lineno: int, name: str, text: str) -> None:
     raise DataError(
         f"{where}: line {lineno}, column {name}: value {text.strip()!r} is NaN or "
         "infinite; missing or saturated samples must be handled before import "
         "(nothing is dropped or filled in automatically)."
+        + (_DROPOUT if "position" in name else "")
     )
 
 
@@ -331,6 +338,7 @@ def _scan_rows(lines: list[str], names: list[str], where: str, first_line: int =
                 raise DataError(
                     f"{where}: line {lineno}, column {name}: {text!r} is not a number; "
                     "write plain decimal numbers (e.g. 0.25 or 1.5e5) in the column's unit."
+                    + (_DROPOUT if not t and "position" in name else "")
                 )
             if not math.isfinite(float(t)):
                 _raise_nonfinite(where, lineno, name, text)
@@ -521,7 +529,8 @@ def _numbers(path: Path, where: str, spec: dict[int, str]
                 if not _is_number(text):
                     raise DataError(
                         f"{where}: line {i + first_line}, column {k} ({spec[k]}): {text!r} "
-                        "is not a number; write plain decimal numbers.")
+                        "is not a number; write plain decimal numbers."
+                        + (_DROPOUT if not text and "position" in spec[k] else ""))
                 if not math.isfinite(float(text)):
                     _raise_nonfinite(where, i + first_line, f"{k} ({spec[k]})", text)
         raise DataError(f"{where}: could not parse the rows; write plain numbers.")
