@@ -275,6 +275,35 @@ def test_a_position_dropout_is_told_the_fix_and_the_fix_reads(tmp_path: Path, lo
     assert any("1 sample not observed" in n or "1 sample missing" in n for n in notes)
 
 
+
+@pytest.mark.parametrize(("name", "sep", "decimal"), [
+    ("Timestamp", ",", "."), ("Time", "\t", "."), ("Zeit", ";", ","),
+])
+def test_a_time_column_of_dates_is_read_as_seconds_from_its_first(
+        tmp_path: Path, name: str, sep: str, decimal: str) -> None:
+    t = np.arange(400) * 2e-3
+    rows = clock_rows(t)
+    ref = load(lab_file(tmp_path, "ref.csv", ["time_s,pressure_kpa,position_mm", *rows],
+                        pressure_reference="gauge"))
+    start = np.datetime64("2024-03-01T23:59:59.500", "ns")  # across midnight
+    stamps = [str(start + np.timedelta64(round(s * 1e9), "ns")).replace("T", " ")[:23]
+              for s in t]
+    saved = [sep.join([d.replace(".", decimal), *r.split(",")[1:]]).replace(
+        ".", decimal if decimal == "," else ".") for d, r in zip(stamps, rows, strict=True)]
+    header = sep.join([name, "Pressure (kPa)", "Position (mm)"])
+    ds, notes = read_quietly(lab_file(tmp_path, "stamped.csv", [header, *saved],
+                                      pressure_reference="gauge"))
+    # the reference's times are printed as repr (0.018000000000000002), the dates' to the ms
+    np.testing.assert_allclose(ds.time_s, ref.time_s, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(ds.position_m, ref.position_m)
+    assert ds.metadata["time_origin"] == "2024-03-01T23:59:59.500"
+    assert any(f"{name!r}, holds dates and times" in n for n in notes)
+    saved[99] = saved[99].replace(stamps[99][:10], "01/03/2024")  # file line 101
+    with pytest.raises(DataError, match=at(tmp_path / "bad.csv", r": line 101, column 1: "
+                                           r"'01/03/2024 .*' is not a date and time")):
+        load(lab_file(tmp_path, "bad.csv", [header, *saved], pressure_reference="gauge"))
+
+
 def test_a_labview_measurement_file_is_read_below_its_header_block(tmp_path: Path) -> None:
     t = np.arange(100) * 1e-3
     rows = [r.replace(",", "\t") + "\t" for r in clock_rows(t)]  # an empty comment column

@@ -122,6 +122,10 @@ SIDECAR_KEYS: dict[str, KeyDoc] = {
     "time_origin_s": KeyDoc(
         "number", "s", "none", "Written when a clock's origin is subtracted on reading.",
         "guide/lab_files", written=True),
+    "time_origin": KeyDoc(
+        "string (ISO 8601)", "", "none", "Written when a time column of dates and times "
+        "(`Timestamp`: `2024-03-01 12:00:00.001`) is read as seconds from its first: that "
+        "first date and time.", "guide/lab_files", written=True),
     "position_reference": KeyDoc(
         '`"absolute"` or `"start"`', "", "absolute", "How positions are referred: from the "
         "model's zero, or to the sensor's reading at rest at the record's start.",

@@ -204,6 +204,8 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
         del meta["columns"]  # a directive for reading this file, not for what is written
         meta["read_columns"] = table.read_columns
     meta = converted(table.columns, where, meta, declare, table.headers)
+    if table.time_origin is not None:
+        meta["time_origin"] = table.time_origin
     rate = _positive_rate(metadata)
     starts, ends, run_ids = _check_blocks(trial, where, first)
     if "time_s" in v:

@@ -29,6 +29,7 @@ import difflib
 import json
 import math
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -73,6 +74,7 @@ class _Table:
     printed_step: Callable[[], float | None]  # the time column's printed precision, in s
     read_columns: dict[str, str] | None = None  # a headerless file's "columns" map
     headers: dict[str, str] = field(default_factory=dict)  # name -> the header's own text
+    time_origin: str | None = None  # a time column of dates: its first, ISO 8601
 
 
 def _is_number(text: str) -> bool:
@@ -384,13 +386,19 @@ def _units_row(line: str, separator: str | None, width: int) -> list[str] | None
 
 
 def _parse_header_lines(lines: list[str], separator: str | None, where: str, has_rate: bool,
-                        header: int) -> tuple[list[str], str, dict[str, str], int]:
+                        header: int, clock: int | None = None
+                        ) -> tuple[list[str], str, dict[str, str], int]:
     """:func:`_parse_header` of the header line, or of it with the line of units below it
     where the names alone are not read and the two together are (``Time`` over ``s``
     reads as ``Time (s)``); also how many lines below the header it took (0 or 1).
     Where a line of units is there and the two together are not read either, their
     error is raised: it names the units it read."""
     fields = _split(lines[0], separator)
+    if clock is not None:  # a clock of dates, read as seconds from its first
+        names, input_name, headers = _parse_header(
+            [f if i != clock else "time_s" for i, f in enumerate(fields)], where, has_rate,
+            header)
+        return names, input_name, {**headers, "time_s": _unquoted(fields[clock])}, 0
     try:
         return (*_parse_header(fields, where, has_rate, header), 0)
     except DataError:
@@ -403,6 +411,48 @@ def _parse_header_lines(lines: list[str], separator: str | None, where: str, has
         return (*_parse_header(joined, where, has_rate, header), 1)
 
 
+#: A date and a time of day, ISO 8601 (``2024-03-01 12:00:00.001``, ``T`` or a space
+#: between them; a comma may be the seconds' decimal mark).
+_DATETIME = re.compile(r"\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}(:\d{2}([.,]\d+)?)?")
+#: A time column's names without a unit that may hold dates and times (letters only).
+_CLOCK_NAMES = ("time", "timestamp", "datetime", "date", "datum", "zeit")
+
+
+def _clock_column(fields: list[str], row: str, separator: str | None) -> int | None:
+    """The column a header names as a clock without a unit (``Timestamp``) and whose
+    value in ``row`` is a date and time, or None."""
+    values = _split(row.replace('"', ""), separator)
+    for i, f in enumerate(fields):
+        if (re.sub(r"[^a-z]", "", _unquoted(f).lower()) in _CLOCK_NAMES and i < len(values)
+                and _DATETIME.fullmatch(values[i].strip())):
+            return i
+    return None
+
+
+def _clock_seconds(rows: list[str], column: int, separator: str | None, where: str,
+                   first_line: int) -> tuple[list[str], str]:
+    """The rows with the dates of ``column`` written as seconds from the first (to the
+    nanosecond), and the first, as ISO 8601."""
+    split = [_split(r, separator) for r in rows]
+    texts = [f[column].strip() if column < len(f) else "" for f in split]
+    bad = next((i for i, t in enumerate(texts) if not _DATETIME.fullmatch(t)), None)
+    if bad is not None:
+        raise DataError(
+            f"{where}: line {bad + first_line}, column {column + 1}: {texts[bad]!r} is not "
+            f"a date and time as the column's first, {texts[0]!r}, is (ISO 8601: "
+            "2024-03-01 12:00:00.001); write every row's time the same way.")
+    stamps = np.array([t.replace(" ", "T").replace(",", ".") for t in texts],
+                      dtype="datetime64[ns]")
+    seconds = (stamps - stamps[0]).astype(np.int64) / 1e9
+    sep = separator if separator is not None else " "
+    # written with the decimal mark of the file's other numbers, which are read next
+    comma = separator != "," and any("," in v for f in split
+                                     for j, v in enumerate(f) if j != column)
+    for f, value in zip(split, seconds.tolist(), strict=True):
+        f[column] = repr(value).replace(".", ",") if comma else repr(value)
+    return [sep.join(f) for f in split], texts[0].replace(" ", "T").replace(",", ".")
+
+
 def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
     """A CSV file with a header line: its columns in SI."""
     lines, skipped = _lines(path, where)
@@ -413,8 +463,10 @@ def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
         )
     header, first = skipped + 1, skipped + 2
     separator = _separator(lines[0])
+    clock = _clock_column(_split(lines[0], separator), lines[1], separator) \
+        if len(lines) > 1 else None
     names, input_name, headers, below = _parse_header_lines(lines, separator, where, has_rate,
-                                                            header)
+                                                            header, clock)
     first += below
     rows = lines[1 + below:]
     if not rows:
@@ -423,6 +475,13 @@ def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
             f"({','.join(names)})."
         )
     _check_blank(rows, where, first)
+    origin = None
+    if clock is not None:  # before a decimal comma is read: a date has no decimal mark
+        rows, origin = _clock_seconds(rows, clock, separator, where, first)
+        say_once(where, "dates", DataWarning(
+            f"{where}: column {clock + 1}, {headers.get('time_s', 'time')!r}, holds dates "
+            f"and times: read as seconds from its first, {origin} (the metadata's "
+            "'time_origin' records it)."), _HERE)
     rows = _read_through(rows, separator, where, first)
     table = _parse_rows(rows, names, where, first, separator)
     si = {UNITS[n][0] if n in UNITS else n: n for n in names}
@@ -432,7 +491,7 @@ def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
         col, factor = names.index(si["time_s"]), UNITS[si["time_s"]][1]
         step = _scaled(lambda: _printed_step(rows, col, separator), factor)
     return _Table(values, {s: n for s, n in si.items() if s != "trial"}, input_name, first,
-                  step or (lambda: None), headers=headers)
+                  step or (lambda: None), headers=headers, time_origin=origin)
 
 
 def _scaled(step: Callable[[], float | None], factor: float) -> Callable[[], float | None]:
