@@ -407,7 +407,8 @@ def test_missing_header(tmp_path: Path) -> None:
          r"pmabayes does not know the unit 'cm' of position; it reads position_m, position_mm, "
          r"position_um \(if the values are in centimetres: multiply by 10 and name the column "
          r"position_mm\)"),
-        ("trial,time_sec,pressure_pa,position_m", r"unit 'sec' of time.*did you mean time_s\?"),
+        ("trial,time_min,pressure_pa,position_m",
+         r"unit 'min' of time.*minutes: multiply by 60 and name the column time_s"),
         ("trial,time_s,pressure_psi,pressure_kpa,position_m",
          r"pressure_psi and pressure_kpa both give pressure_pa: keep one column for pressure"),
         ("trial,time_s,pressure_pa", r"missing column 'position_m'"),

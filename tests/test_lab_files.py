@@ -304,6 +304,22 @@ def test_a_time_column_of_dates_is_read_as_seconds_from_its_first(
         load(lab_file(tmp_path, "bad.csv", [header, *saved], pressure_reference="gauge"))
 
 
+
+@pytest.mark.parametrize("header", [
+    "Time/s,Pressure/kPa,Position/mm",  # ISO 80000's quantity over its unit
+    "Time / s,Pressure / kPa,Position / mm",
+    "Time (sec),Pressure (kPa gauge),Position (millimetres)",
+    "Time [seconds],Pressure [kPag],Position [mm]",
+    "time_s,pressure_kpa,position_mm",
+])
+def test_units_in_a_header_as_people_write_them(tmp_path: Path, header: str) -> None:
+    rows = clock_rows(np.arange(40) * 2e-3)
+    ref = load(lab_file(tmp_path, "ref.csv", ["time_s,pressure_kpa,position_mm", *rows],
+                        pressure_reference="gauge"))
+    assert load(lab_file(tmp_path, "named.csv", [header, *rows],
+                         pressure_reference="gauge")) == ref
+
+
 def test_a_labview_measurement_file_is_read_below_its_header_block(tmp_path: Path) -> None:
     t = np.arange(100) * 1e-3
     rows = [r.replace(",", "\t") + "\t" for r in clock_rows(t)]  # an empty comment column
@@ -617,6 +633,9 @@ def test_check_trials_compares_the_samples_every_trial_observed() -> None:
     ("time_s,time_ms,pressure_pa,position_m", r"time_s and time_ms both give time_s"),
     ("time_s,pressure_bar,force_kn,position_m",
      r"both pressure_bar and force_kn are present; keep exactly one input column"),
+    ("Time (s),Pressure (psia),Position (mm)",
+     r"unit 'psia' of pressure.*name the column pressure_psi and declare "
+     r"\"pressure_reference\": \"absolute\""),
 ])
 def test_bad_unit_names_in_a_header(tmp_path: Path, header: str, pattern: str) -> None:
     path = lab_file(tmp_path, "h.csv", [header, "0,1,2,3", "0.01,1,2,3"])

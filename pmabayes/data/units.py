@@ -61,6 +61,23 @@ _ADVICE = {
     "time_min": "minutes: multiply by 60 and name the column time_s",
     "pressure_atm": "atmospheres: multiply by 101.325 and name the column pressure_kpa",
     "force_lbf": "pounds-force: multiply by 4.4482216152605 and name the column force_n",
+    "pressure_psia": "absolute psi: name the column pressure_psi and declare "
+                     "\"pressure_reference\": \"absolute\" in the sidecar",
+    "pressure_bara": "absolute bar: name the column pressure_bar and declare "
+                     "\"pressure_reference\": \"absolute\" in the sidecar",
+}
+#: a unit as a header may spell it out, to the name :data:`UNITS` gives it (gauge
+#: pressures are what pmabayes reads: ``psig`` and ``barg`` are ``psi`` and ``bar``)
+_UNIT_WORDS = {
+    "sec": "s", "secs": "s", "second": "s", "seconds": "s",
+    "msec": "ms", "millisecond": "ms", "milliseconds": "ms",
+    "usec": "us", "microsecond": "us", "microseconds": "us",
+    "pascal": "pa", "pascals": "pa", "psig": "psi", "barg": "bar", "kpag": "kpa",
+    "meter": "m", "meters": "m", "metre": "m", "metres": "m",
+    "millimeter": "mm", "millimeters": "mm", "millimetre": "mm", "millimetres": "mm",
+    "micrometer": "um", "micrometers": "um", "micrometre": "um", "micrometres": "um",
+    "micron": "um", "microns": "um",
+    "newton": "n", "newtons": "n", "kilonewton": "kn", "kilonewtons": "kn",
 }
 
 
@@ -72,19 +89,22 @@ def quantity(name: str) -> str | None:
 
 
 #: a header's quantity and unit as people write them: ``Pressure (psi)``,
-#: ``Position [mm]``, ``time_ms``, ``Time s``
-_HEADER = re.compile(r"([a-z]+)\s*(?:\(\s*([a-z]+)\s*\)|\[\s*([a-z]+)\s*\]|[_\s]+([a-z]+))")
+#: ``Position [mm]``, ``time_ms``, ``Time s``, ``Time/s`` (ISO 80000's quantity over its
+#: unit), and a pressure's ``(kPa gauge)``
+_HEADER = re.compile(r"([a-z]+)\s*(?:\(\s*([a-z]+)(?:[\s,]+gauge)?\s*\)"
+                     r"|\[\s*([a-z]+)(?:[\s,]+gauge)?\s*\]|[_\s]+([a-z]+)|\s*/\s*([a-z]+))")
 
 
 def header_name(text: str) -> str | None:
     """The column name a CSV header's text stands for, as :data:`UNITS` spells it.
 
     ``Pressure (psi)`` -> ``pressure_psi``, ``Position [mm]`` -> ``position_mm``,
-    ``Time (s)`` -> ``time_s``, ``TIME_MS`` -> ``time_ms``, ``Trial`` -> ``trial``: case
-    and spaces free, the unit after an underscore or a space, or in ``()`` or ``[]``
-    (``µm`` is ``um``). The result may name a unit pmabayes does not read
-    (``pressure_atm``: :func:`quantity` and :func:`unknown_unit` say so) or a quantity
-    it does not know (``displacement_mm``).
+    ``Time (s)`` -> ``time_s``, ``TIME_MS`` -> ``time_ms``, ``Time/s`` -> ``time_s``,
+    ``Trial`` -> ``trial``: case and spaces free, the unit after an underscore, a space
+    or a slash, or in ``()`` or ``[]`` (``µm`` is ``um``; a unit spelt out, ``sec``,
+    ``seconds``, ``millimetres``, ``psig``, is its symbol). The result may name a unit
+    pmabayes does not read (``pressure_atm``: :func:`quantity` and :func:`unknown_unit`
+    say so) or a quantity it does not know (``displacement_mm``).
 
     Parameters
     ----------
@@ -103,7 +123,7 @@ def header_name(text: str) -> str | None:
     if m is None:
         return None
     unit = next(u for u in m.groups()[1:] if u)
-    return f"{m.group(1)}_{unit}"
+    return f"{m.group(1)}_{_UNIT_WORDS.get(unit, unit)}"
 
 
 def unit_guess(text: str, roles: list[str]) -> str | None:
