@@ -44,7 +44,7 @@ def _swapped() -> list:
 #: file name -> (header, rows, sidecar): the files the FAQ's messages come from
 FILES = {
     "missing_column": (HEADER.rsplit(",", 1)[0], [r[:3] for r in _rows()], RIG),
-    "displacement": ("Trial,Time (s),Pressure (psi),Displacement (mm)",
+    "stroke": ("Trial,Time (s),Pressure (psi),Stroke (mm)",
                      _rows(p=P / 6894.757, x=X * 1e3), RIG),
     "centimetres": ("trial,time_s,pressure_pa,position_cm", _rows(x=X * 100), RIG),
     "text_value": (HEADER, _changed(57, 2, "n/a"), RIG),

@@ -311,6 +311,7 @@ def test_a_time_column_of_dates_is_read_as_seconds_from_its_first(
     "Time (sec),Pressure (kPa gauge),Position (millimetres)",
     "Time [seconds],Pressure [kPag],Position [mm]",
     "time_s,pressure_kpa,position_mm",
+    "Time (s),Muscle pressure (kPa),Displacement (mm)",  # words before the quantity
 ])
 def test_units_in_a_header_as_people_write_them(tmp_path: Path, header: str) -> None:
     rows = clock_rows(np.arange(40) * 2e-3)
@@ -318,6 +319,18 @@ def test_units_in_a_header_as_people_write_them(tmp_path: Path, header: str) -> 
                         pressure_reference="gauge"))
     assert load(lab_file(tmp_path, "named.csv", [header, *rows],
                          pressure_reference="gauge")) == ref
+
+
+def test_two_columns_of_one_quantity_are_offered_a_map_that_reads_one(tmp_path: Path) -> None:
+    rows = [r + "," + r.split(",")[2] for r in clock_rows(np.arange(40) * 2e-3)]
+    path = lab_file(tmp_path, "two.csv", ["Time (s),Pressure (kPa),Desired position (mm),"
+                                          "Measured position (mm)", *rows])
+    with pytest.raises(DataError) as info:
+        load(path)
+    text = str(info.value)
+    assert "appears twice (columns 3 and 4)" in text and "read one, the one measured" in text
+    example = json.loads(re.search(r"e\.g\. (\{.*\})$", text).group(1))
+    assert example == {"columns": {"1": "time_s", "2": "pressure_kpa", "3": "position_mm"}}
 
 
 def test_a_labview_measurement_file_is_read_below_its_header_block(tmp_path: Path) -> None:

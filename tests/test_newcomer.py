@@ -86,11 +86,11 @@ def test_force_in_kn_header(tmp_path):
 
 
 def test_an_unrecognised_header_offers_a_columns_map_for_the_files_own_header(tmp_path):
-    path = lab_csv(tmp_path / "lab.csv", "Trial,Time (s),Pressure (psi),Displacement (mm)")
+    path = lab_csv(tmp_path / "lab.csv", "Trial,Time (s),Pressure (psi),Stroke (mm)")
     with pytest.raises(DataError) as info:
         load(path)
     text = str(info.value)
-    assert "'Displacement (mm)' looks like 'position_mm'" in text
+    assert "'Stroke (mm)' looks like 'position_mm'" in text
     assert '"columns"' in text and "lab.json" in text
     example = json.loads(re.search(r"e\.g\. (\{.*\})$", text).group(1))
     assert example == {"columns": {"1": "trial", "2": "time_s", "3": "pressure_psi",

@@ -229,7 +229,7 @@ def _columns_example(raw: list[str], names: list[str], roles: list[str]) -> str:
     spec = {}
     for i, (text, name) in enumerate(zip(raw, names, strict=True)):
         guess = name if name in UNITS or name == "trial" else unit_guess(text, roles)
-        if guess is not None:
+        if guess is not None and guess not in spec.values():  # a second one: not read
             spec[str(i + 1)] = guess
     return json.dumps({"columns": spec})
 
@@ -258,18 +258,20 @@ def _parse_header(fields: list[str], where: str, has_rate: bool = False, line: i
         if not n:
             problems.append(f"column {i + 1} has an empty name (a stray separator?)")
     seen: dict[str, int] = {}
+    unread = False
     for i, n in enumerate(names):
         if n and n in seen:
             j = seen[n]
             both = (f" ({raw[j]!r} and {raw[i]!r} are both {n})" if raw[i] != raw[j] else "")
-            problems.append(f"column {n!r} appears twice (columns {j + 1} and {i + 1}){both}")
+            problems.append(f"column {n!r} appears twice (columns {j + 1} and {i + 1}){both}: "
+                            "read one, the one measured")
+            unread = True  # the map below reads the first; the message says which to read
         seen.setdefault(n, i)
     present = {UNITS[n][0] for n in names if n in UNITS} | ({"trial"} & set(names))
     inputs = [n for n in INPUT_NAMES if n in present]
     problems += role_problems(list(dict.fromkeys(n for n in names if n)))
     absent = [n for n in _ROLES if n not in present]
     candidates = absent + ([] if inputs else list(INPUT_NAMES))
-    unread = False
     for text, n in zip(raw, names, strict=True):
         if not n or n in UNITS or n == "trial":
             continue

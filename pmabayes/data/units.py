@@ -93,6 +93,12 @@ def quantity(name: str) -> str | None:
 #: unit), and a pressure's ``(kPa gauge)``
 _HEADER = re.compile(r"([a-z]+)\s*(?:\(\s*([a-z]+)(?:[\s,]+gauge)?\s*\)"
                      r"|\[\s*([a-z]+)(?:[\s,]+gauge)?\s*\]|[_\s]+([a-z]+)|\s*/\s*([a-z]+))")
+#: the same with words before the quantity, where the unit is bracketed or after a slash
+#: (``Motor force (N)``, ``Measured displacement [mm]``): the last word is the quantity
+_HEADER_WORDS = re.compile(r"(?:[a-z]+[\s_-]+)+([a-z]+)\s*(?:\(\s*([a-z]+)(?:[\s,]+gauge)?"
+                           r"\s*\)|\[\s*([a-z]+)(?:[\s,]+gauge)?\s*\]|\s*/\s*([a-z]+))")
+#: a quantity as a header may name it, to the name :data:`UNITS` gives it
+_QUANTITY_WORDS = {"displacement": "position"}
 
 
 def header_name(text: str) -> str | None:
@@ -102,9 +108,11 @@ def header_name(text: str) -> str | None:
     ``Time (s)`` -> ``time_s``, ``TIME_MS`` -> ``time_ms``, ``Time/s`` -> ``time_s``,
     ``Trial`` -> ``trial``: case and spaces free, the unit after an underscore, a space
     or a slash, or in ``()`` or ``[]`` (``µm`` is ``um``; a unit spelt out, ``sec``,
-    ``seconds``, ``millimetres``, ``psig``, is its symbol). The result may name a unit
-    pmabayes does not read (``pressure_atm``: :func:`quantity` and :func:`unknown_unit`
-    say so) or a quantity it does not know (``displacement_mm``).
+    ``seconds``, ``millimetres``, ``psig``, is its symbol). Words before the quantity
+    are passed over where the unit is bracketed (``Motor force (N)`` -> ``force_n``),
+    and ``Displacement`` is the position. The result may name a unit pmabayes does not
+    read (``pressure_atm``: :func:`quantity` and :func:`unknown_unit` say so) or a
+    quantity it does not know (``stroke_mm``).
 
     Parameters
     ----------
@@ -119,11 +127,11 @@ def header_name(text: str) -> str | None:
     t = text.strip().lower().replace("\u00b5", "u").replace("\u03bc", "u")
     if t == "trial":
         return t
-    m = _HEADER.fullmatch(t)
+    m = _HEADER.fullmatch(t) or _HEADER_WORDS.fullmatch(t)
     if m is None:
         return None
     unit = next(u for u in m.groups()[1:] if u)
-    return f"{m.group(1)}_{_UNIT_WORDS.get(unit, unit)}"
+    return f"{_QUANTITY_WORDS.get(m.group(1), m.group(1))}_{_UNIT_WORDS.get(unit, unit)}"
 
 
 def unit_guess(text: str, roles: list[str]) -> str | None:
@@ -140,7 +148,7 @@ def unit_guess(text: str, roles: list[str]) -> str | None:
     -------
     str or None
         By the field's unit where that unit has one quantity among ``roles``
-        (``Displacement (mm)`` -> ``position_mm``), else by spelling; None without a
+        (``Stroke (mm)`` -> ``position_mm``), else by spelling; None without a
         near match.
     """
     name = header_name(text)
