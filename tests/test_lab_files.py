@@ -224,6 +224,8 @@ def test_quoted_fields_and_a_preamble_are_read_through_and_lines_still_count(
     ds, notes = read_quietly(path)
     assert ds == ref
     assert any("lines 1-2 start with '#'" in n and "line 3 is read" in n for n in notes)
+    with pytest.raises(DataError, match=r"every line starts with '#' \(notes, no data\)"):
+        load(lab_file(tmp_path, "notes.csv", preamble))
     bad = [*preamble, *quoted]
     bad[9] = bad[9].replace(bad[9].split(",")[1], '"abc"')  # file line 10
     with pytest.raises(DataError, match=at(tmp_path / "bad.csv",

@@ -125,6 +125,9 @@ def _lines(path: Path, where: str) -> tuple[list[str], int]:
     skipped = 0
     while skipped < len(lines) and lines[skipped].lstrip().startswith("#"):
         skipped += 1
+    if skipped and skipped == len(lines):
+        raise DataError(f"{where}: every line starts with '#' (notes, no data); the header "
+                        "and the rows of samples go below the notes.")
     if skipped:
         say_once(where, "preamble", DataWarning(
             f"{where}: lines 1-{skipped} start with '#' (the instrument's or the lab's "
