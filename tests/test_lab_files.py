@@ -211,6 +211,15 @@ def test_semicolons_tabs_and_decimal_commas_read_as_the_comma_file(
     np.testing.assert_array_equal(load(bare).position_m, ref.position_m)
 
 
+def test_a_tab_left_at_the_end_of_a_comma_file_s_lines_separates_nothing(tmp_path: Path) -> None:
+    rows = clock_rows(np.arange(30) * 2e-3)
+    ref = load(lab_file(tmp_path, "ref.csv", ["time_s,pressure_kpa,position_mm", *rows],
+                        pressure_reference="gauge"))
+    assert load(lab_file(tmp_path, "tabbed.csv", ["time_s,pressure_kpa,position_mm\t",
+                                                  *(r + "\t" for r in rows)],
+                         pressure_reference="gauge")) == ref
+
+
 def test_quoted_fields_and_a_preamble_are_read_through_and_lines_still_count(
         tmp_path: Path) -> None:
     t = np.arange(50) * 2e-3

@@ -146,7 +146,10 @@ _SEPARATOR_NAMES = {";": "semicolon", "\t": "tab", ",": "comma", None: "whitespa
 
 def _separator(line: str) -> str | None:
     """The field separator of a file whose first line (header or data) is ``line``:
-    :data:`_SEPARATORS`' first that it holds, or None (white space)."""
+    :data:`_SEPARATORS`' first that it holds between its first and last field (a tab
+    or a space a logger leaves at a line's end separates nothing), or None (white
+    space)."""
+    line = line.strip()
     return next((sep for sep in _SEPARATORS if sep in line), None)
 
 
