@@ -319,9 +319,10 @@ def test_diagnose_refits_with_the_repeats_noise_model():
     assert runs["ar1"].settings["noise_model"] == ["AR(1) + white"]
 
 
-def test_the_noise_search_outside_its_support_warns_of_nothing_and_finds_the_optimum():
-    # a cost that is inf on half the plane, starting where scipy's first simplex has
-    # two vertices there: its convergence test then subtracts inf from inf
+def test_the_noise_search_outside_its_support_warns_of_nothing():
+    # a cost that is inf on half the space: from a start whose whole first simplex is
+    # there, scipy's convergence test subtracts inf from inf (the NaN is "not
+    # converged", as it should be); from one beside the edge, the search finds the optimum
     from pmabayes.inference.noise.repeats import _minimise_noise
 
     def neg(u):
@@ -331,7 +332,9 @@ def test_the_noise_search_outside_its_support_warns_of_nothing_and_finds_the_opt
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        stuck = _minimise_noise(neg, np.array([5.0, 0.5, 0.0]), shift=np.zeros(3))
         best = _minimise_noise(neg, np.array([-1e-4, 0.5, 0.0]), shift=np.zeros(3))
+    assert np.array_equal(stuck, [5.0, 0.5, 0.0])  # it cannot leave its start
     assert np.allclose(best, [-1.0, 0.5, 0.0], atol=1e-6)
 
 
