@@ -163,9 +163,7 @@ def _numeric(line: str, columns: list[int]) -> bool:
     """Whether ``line`` holds numbers in those of ``columns`` (from 1) it has, however it
     is separated (a column beyond its width is the caller's clearer error)."""
     separator = _headerless_separator(line)
-    probe = line.replace('"', "")
-    probe = probe if separator == "," else probe.replace(",", ".")
-    fields = _split(probe, separator)
+    fields = _split(_plain(line, separator), separator)
     held = [fields[k - 1].strip() for k in columns if k <= len(fields)]
     return bool(held) and all(_is_number(f) for f in held)
 
@@ -174,15 +172,20 @@ def _split(line: str, separator: str | None) -> list[str]:
     return line.split(separator) if separator else line.split()
 
 
+def _plain(line: str, separator: str | None) -> str:
+    """``line`` as numpy reads it: quotes removed, and a comma read as the decimal mark
+    where it does not separate the fields."""
+    line = line.replace('"', "")
+    return line if separator == "," else line.replace(",", ".")
+
+
 def _read_through(rows: list[str], separator: str | None, where: str,
                   first_line: int) -> list[str]:
     """The data rows as numpy reads them: CSV's double quotes removed (a number has
     none to lose) and, where the fields are not separated by commas, a comma in a
     number read as its decimal mark (said once per file)."""
-    if any('"' in r for r in rows):
-        rows = [r.replace('"', "") for r in rows]
     if separator == "," or not any("," in r for r in rows):
-        return rows
+        return [_plain(r, separator) for r in rows] if any('"' in r for r in rows) else rows
     both = next((i for i, r in enumerate(rows) if "." in r and "," in r), None)
     if both is not None:
         raise DataError(
@@ -193,7 +196,7 @@ def _read_through(rows: list[str], separator: str | None, where: str,
     say_once(where, "decimal comma", DataWarning(
         f"{where}: numbers read with ',' as the decimal mark (0,5 is 0.5), as the fields "
         f"are {_SEPARATOR_NAMES[separator]}-separated."), _HERE)
-    return [r.replace(",", ".") for r in rows]
+    return [_plain(r, separator) for r in rows]
 
 
 def _check_blank(rows: list[str], where: str, first_line: int) -> None:

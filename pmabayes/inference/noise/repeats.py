@@ -10,6 +10,7 @@ other modules; their choice is :mod:`pmabayes.inference.noise.choice`.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -99,17 +100,6 @@ def estimate_noise(likelihood: Likelihood | Sequence[Likelihood]) -> NoiseEstima
     return NoiseEstimate(float(np.exp(u[0])), float(np.tanh(u[1])), float(np.exp(u[2])), u, cov)
 
 
-def _cost_outside(neg):
-    """``neg``'s first value at one point, under the floating-point error handling in
-    force where this is called (not the one scipy's search runs under)."""
-    handling = np.geterr()
-
-    def cost(u: np.ndarray) -> float:
-        with np.errstate(**handling):
-            return float(neg(u)[0])
-    return cost
-
-
 def _minimise_noise(neg, u0: np.ndarray, shift: np.ndarray | None = None) -> np.ndarray:
     """Minimise ``neg`` (batched) over noise coordinates from ``u0``, and from ``u0 +
     shift`` (by default: every AR(1) + white noise's white part ``e^2`` times smaller,
@@ -118,16 +108,17 @@ def _minimise_noise(neg, u0: np.ndarray, shift: np.ndarray | None = None) -> np.
     if shift is None:
         shift = np.zeros(u0.size)
         shift[2::3] = -2.0  # (log sigma, atanh rho, log sigma_w) per noise
-    cost = _cost_outside(neg)
-    for start in (u0, u0 + shift):
+    with warnings.catch_warnings():
         # a simplex with two vertices outside the support (cost inf) makes scipy's own
         # convergence test subtract inf from inf: the NaN is read as "not converged",
         # as it should be, and is no news to the user; the cost's own warnings stay on
-        with np.errstate(invalid="ignore"):
-            res = minimize(cost, start, method="Nelder-Mead",
+        warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning,
+                                module=r"scipy\.optimize")
+        for start in (u0, u0 + shift):
+            res = minimize(lambda u: float(neg(u)[0]), start, method="Nelder-Mead",
                            options={"xatol": 1e-9, "fatol": 1e-9, "maxiter": 6000})
-        if best is None or res.fun < best.fun:
-            best = res
+            if best is None or res.fun < best.fun:
+                best = res
     return best.x
 
 
