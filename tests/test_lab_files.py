@@ -812,6 +812,54 @@ def test_the_real_cavatappi_file(tmp_path: Path) -> None:
     assert np.nanmax(pulses.pressure_pa) > 200 * PSI_PA and np.nanmin(pulses.position_m) < -5e-3
 
 
+def test_signals_in_separate_files_are_read_side_by_side(tmp_path: Path) -> None:
+    """``"columns_from"``: a logger's time and position in one file, the pressure in
+    another (with its own header line); the same data set as the one file holding all."""
+    t = np.arange(300) * 5e-3
+    rows = clock_rows(t)
+    whole = lab_file(tmp_path, "whole.csv", rows, pressure_reference="gauge",
+                     columns={"1": "time_s", "2": "pressure_kpa", "3": "position_mm"})
+    lab_file(tmp_path, "x.txt", [f"{r.split(',')[0]} {r.split(',')[2]}" for r in rows])
+    lab_file(tmp_path, "p.txt", ["pressure", *[r.split(",")[1] for r in rows]])
+    path = lab_file(tmp_path, "x.txt", (tmp_path / "x.txt").read_text().splitlines(),
+                    pressure_reference="gauge", columns={"1": "time_s", "2": "position_mm"},
+                    columns_from={"p.txt": {"1": "pressure_kpa"}})
+    ds, said = read_quietly(path)
+    ref, _ = read_quietly(whole)
+    for name in ("time_s", "input", "position_m"):
+        np.testing.assert_array_equal(getattr(ds, name), getattr(ref, name))
+    assert ds.metadata["read_columns"] == {"1": "time_s", "2": "position_mm",
+                                           "p.txt:1": "pressure_kpa"}
+    assert "columns_from" not in ds.metadata and any("pressure_kpa" in w for w in said)
+
+
+@pytest.mark.parametrize("meta, pattern", [
+    ({"columns_from": {"p.txt": {"1": "pressure_kpa"}}}, "'columns' must name"),
+    ({"columns": {"1": "time_s", "2": "position_mm"}, "columns_from": {"q.txt": {"1":
+      "pressure_kpa"}}}, r"names 'q.txt', but .*q.txt is not a file"),
+    ({"columns": {"1": "time_s", "2": "position_mm"}, "columns_from": ["p.txt"]},
+     "must map each other file's name"),
+    ({"columns": {"1": "time_s", "2": "position_mm"}, "columns_from": {"p.txt": {"1":
+      "position_mm"}}}, "position_mm is named twice"),
+    ({"columns": {"1": "time_s", "2": "position_mm"}, "columns_from": {"p.txt": {"1":
+      "force_kn"}, "short.txt": {"1": "pressure_kpa"}}}, "both pressure_kpa and force_kn"),
+    ({"columns": {"1": "time_s", "2": "position_mm"}, "columns_from": {"short.txt": {"1":
+      "pressure_kpa"}}}, r"short.txt: 299 rows of numbers \(lines 1-299\), against 300 in "
+     r".*x.txt \(lines 1-300\).*cut the longer one"),
+    ({"columns": {"1": "time_s", "2": "position_mm"}, "columns_from": {"p.txt": {"2":
+      "pressure_kpa"}}}, r"p.txt: line 2: the sidecar's 'columns' names column 2"),
+])
+def test_bad_columns_from(tmp_path: Path, meta: dict, pattern: str) -> None:
+    t = np.arange(300) * 5e-3
+    rows = clock_rows(t)
+    lab_file(tmp_path, "p.txt", ["pressure", *[r.split(",")[1] for r in rows]])
+    lab_file(tmp_path, "short.txt", [r.split(",")[1] for r in rows[:-1]])
+    path = lab_file(tmp_path, "x.txt", [f"{r.split(',')[0]} {r.split(',')[2]}" for r in rows],
+                    pressure_reference="gauge", **meta)
+    with pytest.raises(DataError, match=pattern):
+        read_quietly(path)
+
+
 @pytest.mark.skipif(not (REAL / "rc_columns").is_dir(), reason=f"{REAL} is not there")
 def test_the_real_rc_columns_as_the_docs_read_them(tmp_path: Path) -> None:
     """A load file (kN) and a displacement file (mm): one data set, as the user guide shows."""
@@ -829,3 +877,13 @@ def test_the_real_rc_columns_as_the_docs_read_them(tmp_path: Path) -> None:
     assert np.abs(ds.input).max() == pytest.approx(185.28e3) and np.ptp(ds.position_m) < 1.0
     save(ds, tmp_path / "chiu.csv")
     assert load(tmp_path / "chiu.csv") == ds
+    # the same two files read by a sidecar beside them, with no Python (linked, not copied)
+    for name in ("displ_chiu.txt", "load_kN_chiu.txt"):
+        (tmp_path / name).symlink_to(folder / name)
+    (tmp_path / "displ_chiu.json").write_text(json.dumps({
+        "columns": {"1": "position_mm"}, "columns_from": {"load_kN_chiu.txt": {"1": "force_kn"}},
+        "sample_rate_hz": 50.0, "rig": rig}))
+    side_by_side, _ = read_quietly(tmp_path / "displ_chiu.txt")
+    np.testing.assert_array_equal(side_by_side.time_s, np.arange(2671) / 50.0)
+    for name in ("input", "position_m"):
+        np.testing.assert_array_equal(getattr(side_by_side, name), getattr(ds, name))

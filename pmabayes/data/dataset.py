@@ -56,11 +56,11 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "pressure_reference", "ambient_pressure_pa", "check_units",
                  "converted_from_absolute", "input_between_samples", "period_samples",
                  "starts_in_steady_state", "initial_state", "mat_variables", "mat_trials",
-                 "columns", "read_columns", "converted_units", "max_gap_s", "segment",
-                 "time_origin_s", "time_origin", "position_reference", "steady_state_tol_m",
-                 "max_warmup_periods", "warmup_s", "position_sign", "position_zero_s",
-                 "position_zero", "disturbance_max_s", "disturbance_check", "conditions",
-                 "selected_trials", "input_range", "clock_shifts")
+                 "columns", "columns_from", "read_columns", "converted_units", "max_gap_s",
+                 "segment", "time_origin_s", "time_origin", "position_reference",
+                 "steady_state_tol_m", "max_warmup_periods", "warmup_s", "position_sign",
+                 "position_zero_s", "position_zero", "disturbance_max_s", "disturbance_check",
+                 "conditions", "selected_trials", "input_range", "clock_shifts")
 
 
 class DataError(ValueError):

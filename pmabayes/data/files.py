@@ -25,7 +25,7 @@ from pmabayes.data.matlab import read_mat, read_mat_segments
 from pmabayes.data.plausibility import _checked
 from pmabayes.data.record import _positive_rate, _table_datasets
 from pmabayes.data.sidecar import _read_sidecar, _sidecar_path
-from pmabayes.data.text import _columns_table, _header_table
+from pmabayes.data.text import _columns_table, _header_table, _other_files
 
 __all__ = ["read_csv", "write_csv", "read_netcdf", "write_netcdf", "load", "save",
            "load_segments"]
@@ -48,8 +48,14 @@ def _text_segments(path: PathLike, check_units: bool = True, split: bool = False
         metadata = _read_sidecar(sidecar)
     declare = f"the JSON sidecar {sidecar}"
     has_rate = _positive_rate(metadata) is not None
+    if "columns_from" in metadata and "columns" not in metadata:
+        raise DataError(f"{declare}: 'columns_from' reads columns of other files beside "
+                        f"this file's own, which 'columns' must name (e.g. {{\"columns\": "
+                        f"{{\"1\": \"position_mm\"}}}}): add it.")
     if "columns" in metadata:
-        table = _columns_table(path, where, metadata["columns"], declare, has_rate)
+        others = (_other_files(metadata["columns_from"], sidecar.parent, declare)
+                  if "columns_from" in metadata else [])
+        table = _columns_table(path, where, metadata["columns"], declare, has_rate, others)
     else:
         table = _header_table(path, where, has_rate)
     return _table_datasets(table, metadata, path, declare, check_units, split)

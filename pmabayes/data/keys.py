@@ -106,8 +106,15 @@ SIDECAR_KEYS: dict[str, KeyDoc] = {
         'or a name of `pmabayes.data.UNITS` (`"time_ms"`, `"pressure_psi"`, '
         '`"position_mm"`, ...). Columns not named are not read; a header line is '
         "skipped.", "guide/lab_files"),
+    "columns_from": KeyDoc(
+        "object", "", "none (every signal in this file)",
+        "Signals kept in other files, one row per sample of this file's clock: each "
+        "file's name (beside the sidecar) to a map of its columns like `columns`' "
+        '(`{"load_kN.txt": {"1": "force_kn"}}`). Needs `columns`; files of different '
+        "lengths are refused.", "guide/lab_files"),
     "read_columns": KeyDoc(
-        "object", "", "none", "Written on reading through `columns`: the map read.",
+        "object", "", "none", "Written on reading through `columns`: the map read (a "
+        "column of another file as `file:number`).",
         "guide/lab_files", written=True),
     "converted_units": KeyDoc(
         "object", "", "none", "Written on reading a column in another unit than SI: each "

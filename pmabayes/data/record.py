@@ -201,7 +201,9 @@ def _table_datasets(table: _Table, metadata: dict, path: Path, declare: str,
     trial = v["trial"] if "trial" in v else np.ones(rows, dtype=np.int64)
     meta = dict(metadata)
     if table.read_columns is not None:
-        del meta["columns"]  # a directive for reading this file, not for what is written
+        # directives for reading this file, not for what is written
+        del meta["columns"]
+        meta.pop("columns_from", None)
         meta["read_columns"] = table.read_columns
     meta = converted(table.columns, where, meta, declare, table.headers)
     if table.time_origin is not None:

@@ -11,8 +11,9 @@ refused with a sidecar ``"columns"`` map for it as the alternative. A headerless
 ``"columns"``, which names columns by number from 1, e.g. ``{"columns": {"3":
 "time_s", "4": "pressure_psi", "5": "position_mm"}}`` (and ``"trial"`` for a column of
 trial ids); columns it does not name are not read, and a first line that is not
-numbers (the lab's own header) is skipped. :func:`read_columns` reads named columns of
-any such file, for records whose signals are in separate files.
+numbers (the lab's own header) is skipped. Signals kept in separate files are read
+beside it, row for row, through the sidecar's ``"columns_from"`` (each other file's
+name to a map of its columns), or in Python with :func:`read_columns`.
 
 Fields may be separated by commas, semicolons, tabs or (a headerless file) white
 space, as the first line shows (:func:`_separator`); where they are not separated by
@@ -164,8 +165,9 @@ def _numeric(line: str, columns: list[int]) -> bool:
     is separated (a column beyond its width is the caller's clearer error)."""
     separator = _headerless_separator(line)
     fields = _split(_plain(line, separator), separator)
-    held = [fields[k - 1].strip() for k in columns if k <= len(fields)]
-    return bool(held) and all(_is_number(f) for f in held)
+    # a line narrower than every column named: its own fields tell
+    held = [fields[k - 1].strip() for k in columns if k <= len(fields)] or fields
+    return bool(held) and all(_is_number(f.strip()) for f in held)
 
 
 def _split(line: str, separator: str | None) -> list[str]:
@@ -608,11 +610,38 @@ def _numbers(path: Path, where: str, spec: dict[int, str]
     return values, lines, first_line, delimiter
 
 
+def _other_files(spec_in: object, folder: Path, declare: str
+                 ) -> list[tuple[Path, dict[int, str]]]:
+    """The sidecar's ``"columns_from"``: each other file (relative to ``folder``, the
+    sidecar's) and the map of its columns."""
+    example = '{"load_kN.txt": {"1": "force_kn"}}'
+    if not isinstance(spec_in, dict) or not spec_in:
+        raise DataError(
+            f"{declare}: 'columns_from' is {spec_in!r}; it must map each other file's name "
+            f"(beside the sidecar) to a map of its columns, e.g. {example}.")
+    out = []
+    for name, spec in spec_in.items():
+        other = folder / str(name)
+        if not other.is_file():
+            raise DataError(
+                f"{declare}: 'columns_from' names {name!r}, but {other} is not a file; "
+                "give its name relative to the sidecar's folder.")
+        out.append((other, _column_spec(spec, f"{declare}: 'columns_from' {name!r}")))
+    return out
+
+
 def _columns_table(path: Path, where: str, spec_in: object, declare: str,
-                   has_rate: bool) -> _Table:
-    """A headerless text file whose columns the sidecar's ``"columns"`` names."""
+                   has_rate: bool, others: list[tuple[Path, dict[int, str]]] = ()
+                   ) -> _Table:
+    """A headerless text file whose columns the sidecar's ``"columns"`` names, with the
+    columns ``others`` name in other files read beside it, row for row."""
     spec = _column_spec(spec_in, declare)
-    names = set(spec.values())
+    names = list(spec.values()) + [n for _, s in others for n in s.values()]
+    problems = [f"{n} is named twice" for n in sorted(set(names)) if names.count(n) > 1]
+    problems += role_problems(sorted(set(names)))
+    if problems:
+        raise DataError(f"{declare}: 'columns' and 'columns_from': " + "; ".join(problems)
+                        + ": name each quantity in one file.")
     si = {UNITS[n][0]: n for n in names if n in UNITS}
     missing = [r for r in ("position_m",) if r not in si]
     if not any(r in si for r in INPUT_NAMES):
@@ -621,27 +650,49 @@ def _columns_table(path: Path, where: str, spec_in: object, declare: str,
         missing.insert(0, "time_s")
     if missing:
         raise DataError(
-            f"{declare}: 'columns' names no column for {' and '.join(missing)} (in any unit: "
-            "pmabayes.data.UNITS); name one"
+            f"{declare}: 'columns'{' and columns_from name' if others else ' names'} no "
+            f"column for {' and '.join(missing)} (in any unit: pmabayes.data.UNITS); name one"
             + (", or give sample_rate_hz for a file without time" if "time_s" in missing
                else "") + ".")
     raw, lines, first_line, delimiter = _numbers(path, where, spec)
+    read = {str(k): n for k, n in sorted(spec.items())}
+    files = [(where, spec, lines, first_line, delimiter)]  # which file holds which column
+    for other, other_spec in others:
+        values, other_lines, other_first, other_delimiter = _numbers(other, str(other),
+                                                                     other_spec)
+        if len(other_lines) != len(lines):
+            raise DataError(
+                f"{other}: {len(other_lines)} rows of numbers (lines {other_first}-"
+                f"{other_first + len(other_lines) - 1}), against {len(lines)} in {where} "
+                f"(lines {first_line}-{first_line + len(lines) - 1}): files read side by "
+                "side hold one row per sample of one clock. Check that they are the same "
+                "test, and cut the longer one where the other ends if the logger ran on "
+                "(nothing is cut on reading).")
+        raw.update(values)
+        read.update({f"{other.name}:{k}": n for k, n in sorted(other_spec.items())})
+        files.append((str(other), other_spec, other_lines, other_first, other_delimiter))
+
+    def holder(name: str) -> tuple[str, dict[int, str], list[str], int, str | None]:
+        return next(f for f in files if name in f[1].values())
+
     values = {s: to_si(raw[n], n) for s, n in si.items()}
     if "trial" in names:
         t = raw["trial"]
         bad = t != np.round(t)
         if bad.any():
             i = int(np.argmax(bad))
-            raise DataError(f"{where}: line {i + first_line}, column trial: trial id "
+            at, _, _, first, _ = holder("trial")
+            raise DataError(f"{at}: line {i + first}, column trial: trial id "
                             f"{t[i]!r} is not an integer; use integer trial ids.")
         values["trial"] = t.astype(np.int64)
     step = None
     if "time_s" in si:
-        col = next(k for k, n in spec.items() if n == si["time_s"]) - 1
-        step = _scaled(lambda: _printed_step(lines, col, delimiter), UNITS[si["time_s"]][1])
+        _, clock, clock_lines, _, clock_delimiter = holder(si["time_s"])
+        col = next(k for k, n in clock.items() if n == si["time_s"]) - 1
+        step = _scaled(lambda: _printed_step(clock_lines, col, clock_delimiter),
+                       UNITS[si["time_s"]][1])
     input_name = next(r for r in INPUT_NAMES if r in si)
-    return _Table(values, si, input_name, first_line, step or (lambda: None),
-                  {str(k): n for k, n in sorted(spec.items())})
+    return _Table(values, si, input_name, first_line, step or (lambda: None), read)
 
 
 def read_columns(path: str | os.PathLike[str], columns: dict[str, str]) -> dict[str, np.ndarray]:
