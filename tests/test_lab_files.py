@@ -660,6 +660,10 @@ def test_check_trials_compares_the_samples_every_trial_observed() -> None:
     ("Time (s),Pressure (psia),Position (mm)",
      r"unit 'psia' of pressure.*name the column pressure_psi and declare "
      r"\"pressure_reference\": \"absolute\""),
+    ("Time (s),Pressure (V),Position (mm)",
+     r"'Pressure \(V\)' is pressure_v: column 'pressure_v' holds the pressure sensor's raw "
+     r"signal, not the pressure: convert it with the sensor's calibration \(value = gain x "
+     r"signal \+ offset.*save it as one of pressure_pa, pressure_kpa"),
 ])
 def test_bad_unit_names_in_a_header(tmp_path: Path, header: str, pattern: str) -> None:
     path = lab_file(tmp_path, "h.csv", [header, "0,1,2,3", "0.01,1,2,3"])

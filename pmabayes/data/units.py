@@ -66,6 +66,8 @@ _ADVICE = {
     "pressure_bara": "absolute bar: name the column pressure_bar and declare "
                      "\"pressure_reference\": \"absolute\" in the sidecar",
 }
+#: units of a sensor's raw output: the quantity needs the sensor's calibration
+_SIGNAL_UNITS = frozenset({"v", "mv", "volt", "volts", "ma", "counts", "count", "bits"})
 #: a unit as a header may spell it out, to the name :data:`UNITS` gives it (gauge
 #: pressures are what pmabayes reads: ``psig`` and ``barg`` are ``psi`` and ``bar``)
 _UNIT_WORDS = {
@@ -166,6 +168,10 @@ def unknown_unit(name: str) -> str:
     q = quantity(name)
     known = [n for n in UNITS if n.startswith(f"{q}_")]
     advice = _ADVICE.get(name)
+    if name.split("_", 1)[1] in _SIGNAL_UNITS:
+        return (f"column {name!r} holds the {q} sensor's raw signal, not the {q}: convert "
+                f"it with the sensor's calibration (value = gain x signal + offset, from its "
+                f"data sheet or your own calibration) and save it as one of {', '.join(known)}")
     if advice is None:
         close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
         advice = f"did you mean {close[0]}?" if close else f"convert it to {UNITS[known[0]][0]}"
