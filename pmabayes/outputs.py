@@ -8,8 +8,8 @@ carry a mark of what made them (:func:`stamp`: ``{"kind": KIND, "version": ...}`
 * a fit file, the root attribute ``pmabayes`` (:func:`pmabayes.inference.fitfile.is_fit_file`);
 * a JSON output, the key ``"pmabayes"``;
 * a folder, the file ``.pmabayes`` (:data:`MARK`, the same JSON);
-* a data set of ``pmabayes simulate``, the generator ``pmabayes.synthetic...`` in its
-  metadata.
+* a data set, the generator ``pmabayes.synthetic...`` (``pmabayes simulate``) or the
+  key ``"written_by"`` (``pmabayes read --out``) in its metadata.
 
 An empty folder is new. Pages are written to a temporary folder beside the output and
 moved in whole, the HTML last (:func:`staged`).
@@ -36,7 +36,7 @@ from pathlib import Path
 from pmabayes import __version__
 from pmabayes.util import Progress
 
-__all__ = ["MARK", "OutputError", "stamp", "json_kind", "folder_kind", "is_simulated",
+__all__ = ["MARK", "OutputError", "stamp", "json_kind", "folder_kind", "is_own_data",
            "check_writable", "check_file", "check_folder", "check_folder_for_new_files",
            "check_chains", "check_fits_folder", "refuse_foreign", "mark_folder", "created",
            "staged", "write_json"]
@@ -107,8 +107,9 @@ def folder_kind(path: str | Path) -> str | None:
     return obj.get("kind") if isinstance(obj, dict) else None
 
 
-def is_simulated(path: str | Path) -> bool:
-    """Whether ``path`` is a data set that pmabayes generated (``pmabayes simulate``).
+def is_own_data(path: str | Path) -> bool:
+    """Whether ``path`` is a data set that pmabayes wrote: generated (``pmabayes
+    simulate``) or read from a lab's file and written again (``pmabayes read --out``).
 
     Parameters
     ----------
@@ -118,16 +119,17 @@ def is_simulated(path: str | Path) -> bool:
     Returns
     -------
     bool
-        False for a missing, unreadable or measured data set.
+        False for a missing or unreadable data set, or a lab's own file.
     """
     from pmabayes.data import DataError, load
 
     try:
-        generator = load(path).metadata.get("generator")
+        meta = load(path).metadata
     except (DataError, OSError, ValueError):
         return False
-    return isinstance(generator, dict) and str(generator.get("function", "")).startswith(
-        "pmabayes.")
+    generator = meta.get("generator")
+    return (isinstance(generator, dict) and str(generator.get("function", "")).startswith(
+        "pmabayes.")) or isinstance(meta.get("written_by"), str)
 
 
 def _is_fit(path: Path) -> bool:
@@ -210,8 +212,8 @@ def check_file(path: str | Path, kind: str, option: str,
     path : str or Path
         The file to write.
     kind : str
-        ``"fit"`` (a fit file), ``"data"`` (a data set of ``simulate``, with its JSON
-        sidecar beside a CSV), or the command of a JSON output.
+        ``"fit"`` (a fit file), ``"data"`` (a data set of ``simulate`` or ``read``, with
+        its JSON sidecar beside a CSV), or the command of a JSON output.
     option : str
         The option that named it, for the messages.
     inputs : sequence of str or Path
@@ -238,18 +240,18 @@ def check_file(path: str | Path, kind: str, option: str,
             if not _is_fit(path):
                 refuse_foreign(path, option, "this file exists and is not a pmabayes fit")
         elif kind == "data":
-            if not is_simulated(path):
+            if not is_own_data(path):
                 refuse_foreign(path, option, "this file exists and is not a data set that "
-                               "`pmabayes simulate` wrote")
+                               "pmabayes wrote (`pmabayes simulate` or `pmabayes read --out`)")
         elif json_kind(path) != kind:
             refuse_foreign(path, option, f"this file exists and is not the JSON output of "
                            f"`pmabayes {kind}`")
     if kind == "data" and path.suffix.lower() == ".csv":  # and its JSON sidecar
         sidecar = path.with_suffix(".json")
         _not_an_input(sidecar, option, inputs)
-        if sidecar.exists() and not (path.exists() and is_simulated(path)):
+        if sidecar.exists() and not (path.exists() and is_own_data(path)):
             refuse_foreign(sidecar, f"{option} {path}: its sidecar", "this file exists and "
-                           "is not one `pmabayes simulate` wrote")
+                           "is not one pmabayes wrote")
     check_writable(path.parent, option, path)
     return path
 

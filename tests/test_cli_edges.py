@@ -77,7 +77,7 @@ def test_simulate_writes_over_its_own_data_only(tmp_path, capsys):
     mine = tmp_path / "measured.csv"
     mine.write_text("time_s,pressure_pa,position_m\n0,1,2\n")
     _one_line_error(capsys, main(["simulate", str(mine), "--trials", "2", "--duration", "1"]),
-                    "not a data set that `pmabayes simulate` wrote")
+                    "not a data set that pmabayes wrote (`pmabayes simulate` or")
     assert mine.read_text() == "time_s,pressure_pa,position_m\n0,1,2\n"
     sim = tmp_path / "sim.csv"
     sidecar = tmp_path / "sim.json"

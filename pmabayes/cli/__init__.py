@@ -63,7 +63,7 @@ options and argument types; ``inputs`` the reading of data files and fits; ``end
 the one ending of every command (its JSON summary and page where asked, each named,
 the time, the exit status); and one module per group of commands: ``fit`` (run, fit,
 batch, predict), ``report``, ``criticism`` (diagnose, compare, validate), ``data``
-(simulate, effects), ``design`` (design) and ``control`` (track, robustness). A command
+(read, simulate, effects), ``design`` (design) and ``control`` (track, robustness). A command
 is a function ``_cmd_NAME(args) -> int`` and its parser in its group's module.
 
 Its modules import only the standard library at their top; the package's layers are

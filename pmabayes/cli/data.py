@@ -1,12 +1,22 @@
-"""The commands of data and the library: ``simulate`` (a synthetic data set) and
-``effects`` (the registered effects and their parameters)."""
+"""The commands of data and the library: ``read`` (a data file as pmabayes reads it),
+``simulate`` (a synthetic data set) and ``effects`` (the registered effects and their
+parameters)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from pathlib import Path
 
-from pmabayes.cli.inputs import _say
-from pmabayes.cli.options import CliError, _check_effects, _effect_list, _parse_assignments, _seed
+from pmabayes.cli.inputs import _say, _segments
+from pmabayes.cli.options import (
+    _DATA_KINDS,
+    CliError,
+    _check_effects,
+    _effect_list,
+    _parse_assignments,
+    _seed,
+)
 from pmabayes.outputs import check_file
 
 __all__: list[str] = []
@@ -77,6 +87,35 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_read(args: argparse.Namespace) -> int:
+    out = check_file(args.out, "data", "--out") if args.out else None
+    from pmabayes.data import describe, save
+
+    datasets = []
+    for path in args.data:
+        _say().say(f"reading {path}")
+        for ds in _segments(path):
+            print(describe(ds))
+            datasets.append(ds)
+    if out is not None:
+        if len(datasets) > 1:
+            raise CliError(f"--out writes one data set, but {len(datasets)} were read (files "
+                           "or segments); read one file, or write each segment in Python "
+                           "(pmabayes.data.load_segments, then pmabayes.data.save)")
+        from pmabayes import __version__
+
+        ds = dataclasses.replace(datasets[0], metadata={
+            **datasets[0].metadata,
+            "written_by": f"pmabayes read {__version__}, from {datasets[0].source}"})
+        out.parent.mkdir(parents=True, exist_ok=True)
+        save(ds, out)
+        print(f"wrote {out}: the data set in pmabayes' own format (SI columns, the "
+              "sidecar's declarations kept)")
+    first = args.out or args.data[0]
+    print(f"next: pmabayes fit {first} --out results/{Path(first).stem}/fit.nc")
+    return 0
+
+
 def _effect_parameters(name: str) -> list[str]:
     from pmabayes.model.effects import get_effect
 
@@ -105,6 +144,16 @@ def _cmd_effects(args: argparse.Namespace) -> int:
 
 
 def _data_commands(sub, common) -> None:
+    read = sub.add_parser("read", parents=[common],
+                          help="read data files as pmabayes reads them and say what they "
+                          "hold (grid, gaps, units converted, ranges, rig), before a fit",
+                          epilog="example: pmabayes read lab/muscle_b.csv")
+    read.add_argument("data", nargs="+", help=f"data files: {_DATA_KINDS}")
+    read.add_argument("--out", help="write the one data set read in pmabayes' own format "
+                      "(.csv with a .json sidecar, or .nc); an existing file must be one "
+                      "pmabayes wrote")
+    read.set_defaults(func=_cmd_read)
+
     simu = sub.add_parser("simulate", parents=[common],
                           help="write a synthetic repeated-chirp data set",
                           epilog="example: pmabayes simulate lagged.csv --effects "

@@ -83,6 +83,7 @@ from pmabayes.data.files import (
     write_netcdf,
 )
 from pmabayes.data.matlab import MAT_ROLES, MAT_TRIALS, read_mat, read_mat_segments
+from pmabayes.data.summary import describe
 from pmabayes.data.text import read_columns
 from pmabayes.data.units import UNITS
 
@@ -99,6 +100,7 @@ __all__ = [
     "UNITS",
     "check_same_input_kind",
     "check_time_grid",
+    "describe",
     "experiment_conditions",
     "load",
     "load_segments",

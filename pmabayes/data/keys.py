@@ -181,4 +181,8 @@ SIDECAR_KEYS: dict[str, KeyDoc] = {
         '(`[{"lines": [9001, 10000], "shift_s": -1.0}]`, lines of the file); applied on '
         "reading and said. A clock that steps back gets an error that proposes it.",
         "guide/lab_records"),
+    "written_by": KeyDoc(
+        "string", "", "none", "Written by `pmabayes read --out`: the command and version "
+        "that wrote the lab's file again in pmabayes' own format (so that the command may "
+        "write over it again).", "guide/lab_files", written=True),
 }
