@@ -662,8 +662,9 @@ def test_check_trials_compares_the_samples_every_trial_observed() -> None:
      r"\"pressure_reference\": \"absolute\""),
     ("Time (s),Pressure (V),Position (mm)",
      r"'Pressure \(V\)' is pressure_v: column 'pressure_v' holds the pressure sensor's raw "
-     r"signal, not the pressure: convert it with the sensor's calibration \(value = gain x "
-     r"signal \+ offset.*save it as one of pressure_pa, pressure_kpa"),
+     r"signal, not the pressure: declare the sensor's calibration \(value = gain x signal \+ "
+     r"offset.*in the sidecar, \"calibration\": \{\"pressure_v\": \{\"to\": \"pressure_kpa\", "
+     r"\"gain\": ..., \"offset\": ...\}\}, to read it as one of pressure_pa, pressure_kpa"),
 ])
 def test_bad_unit_names_in_a_header(tmp_path: Path, header: str, pattern: str) -> None:
     path = lab_file(tmp_path, "h.csv", [header, "0,1,2,3", "0.01,1,2,3"])
@@ -862,6 +863,75 @@ def test_bad_columns_from(tmp_path: Path, meta: dict, pattern: str) -> None:
                     pressure_reference="gauge", **meta)
     with pytest.raises(DataError, match=pattern):
         read_quietly(path)
+
+
+def test_a_sensors_signal_is_read_through_its_calibration(tmp_path: Path) -> None:
+    """``"calibration"``: a header's ``Pressure (V)``, a map's ``position_mv`` in another
+    file; each read as gain x signal + offset, said, recorded, and written back as SI."""
+    t = np.arange(200) * 1e-3
+    volts = 1.0 + 0.5 * np.sin(2 * np.pi * 2.0 * t)
+    mm = 2.0 + np.sin(2 * np.pi * 2.0 * t - 0.4)
+    path = lab_file(tmp_path, "v.csv", ["Time (s),Pressure (V),Position (mm)"] + [
+        f"{a!r},{b!r},{c!r}" for a, b, c in zip(t.tolist(), volts.tolist(), mm.tolist(),
+                                                strict=True)],
+        pressure_reference="gauge",
+        calibration={"pressure_v": {"to": "pressure_kpa", "gain": 100.0, "offset": -12.5}})
+    ds, said = read_quietly(path)
+    np.testing.assert_allclose(ds.input[0], (100.0 * volts - 12.5) * 1e3, rtol=1e-14)
+    np.testing.assert_array_equal(ds.position_m[0], mm / 1e3)
+    assert ds.metadata["calibrated"] == {"pressure_v": {"to": "pressure_kpa", "gain": 100.0,
+                                                        "offset": -12.5}}
+    assert "calibration" not in ds.metadata
+    assert any("calibration: pressure_kpa = 100 x V - 12.5" in w for w in said), said
+    assert not any("'Pressure (V)' x" in w for w in said), said  # not a unit's factor
+    save(ds, tmp_path / "own.csv")
+    assert read_csv(tmp_path / "own.csv") == ds  # SI now: the record is not applied again
+    assert "calibrated on reading: pressure_kpa = 100 x V - 12.5" in data.describe(ds)
+    # the position's signal in a file of its own, named by a map
+    lab_file(tmp_path, "x.txt", [f"{c * 250.0!r}" for c in mm.tolist()])  # 250 mV per mm
+    path = lab_file(tmp_path, "p.txt", [f"{a!r} {b!r}" for a, b in zip(t.tolist(), volts.tolist(),
+                                                                       strict=True)],
+                    pressure_reference="gauge", columns={"1": "time_s", "2": "pressure_v"},
+                    columns_from={"x.txt": {"1": "position_mv"}},
+                    calibration={"pressure_v": {"to": "pressure_kpa", "gain": 100.0,
+                                                "offset": -12.5},
+                                 "position_mv": {"to": "position_mm", "gain": 0.004}})
+    other, _ = read_quietly(path)
+    np.testing.assert_allclose(other.input, ds.input, rtol=1e-14)
+    np.testing.assert_allclose(other.position_m, ds.position_m, rtol=1e-14)
+
+
+@pytest.mark.parametrize(("calibration", "pattern"), [
+    ("100 kPa/V", r"'calibration' is '100 kPa/V'; it must map a column"),
+    ({"pressure_kpa": {"to": "pressure_kpa", "gain": 1.0}},
+     r"'calibration' 'pressure_kpa': not a column of a sensor's signal.*needs no calibration"),
+    ({"pressure_v": {"to": "position_mm", "gain": 1.0}},
+     r"\"to\" is 'position_mm'; it must be a unit of pressure pmabayes reads"),
+    ({"pressure_v": {"to": "pressure_kpa"}}, r"give \"to\" .*, \"gain\" and"),
+    ({"pressure_v": {"to": "pressure_kpa", "gain": 100.0, "zero": 1.0}}, r"give \"to\""),
+    ({"pressure_v": {"to": "pressure_kpa", "gain": "100"}}, r"\"gain\" is '100'; it must be a "
+     r"finite number"),
+    ({"pressure_v": {"to": "pressure_kpa", "gain": 0}}, r"\"gain\" is 0"),
+    ({"pressure_v": {"to": "pressure_kpa", "gain": 100.0},
+      "pressure_mv": {"to": "pressure_kpa", "gain": 0.1}},
+     r"'calibration' names pressure_mv, which no column of .*v.csv is"),
+])
+def test_bad_calibrations(tmp_path: Path, calibration: object, pattern: str) -> None:
+    path = lab_file(tmp_path, "v.csv", ["Time (s),Pressure (V),Position (mm)", "0,1,2",
+                                        "0.001,1,2"], calibration=calibration)
+    with pytest.raises(DataError, match=r"the JSON sidecar .*v\.json: .*" + pattern):
+        load(path)
+
+
+def test_a_mat_files_sidecar_may_not_name_columns(tmp_path: Path) -> None:
+    path = tmp_path / "m.mat"
+    scipy.io.savemat(path, {"time_s": np.arange(5) * 0.01, "pressure_pa": np.ones(5),
+                            "position_m": np.zeros(5)})
+    path.with_suffix(".json").write_text(json.dumps(
+        {"calibration": {"pressure_v": {"to": "pressure_kpa", "gain": 1.0}}}))
+    with pytest.raises(DataError, match="'calibration' read the columns of a text file, and a "
+                       ".mat file has variables: name them with \"mat_variables\""):
+        load(path)
 
 
 @pytest.mark.skipif(not (REAL / "rc_columns").is_dir(), reason=f"{REAL} is not there")

@@ -60,7 +60,8 @@ METADATA_KEYS = ("description", "generator", "rig", "sample_rate_hz", "synthetic
                  "segment", "time_origin_s", "time_origin", "position_reference",
                  "steady_state_tol_m", "max_warmup_periods", "warmup_s", "position_sign",
                  "position_zero_s", "position_zero", "disturbance_max_s", "disturbance_check",
-                 "conditions", "selected_trials", "input_range", "clock_shifts", "written_by")
+                 "conditions", "selected_trials", "input_range", "clock_shifts", "written_by",
+                 "calibration", "calibrated")
 
 
 class DataError(ValueError):

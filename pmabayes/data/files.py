@@ -16,6 +16,7 @@ from typing import Any
 
 import xarray as xr
 
+from pmabayes.data.calibration import SignalNames, apply, calibrations
 from pmabayes.data.dataset import (
     DataError,
     Dataset,
@@ -52,12 +53,19 @@ def _text_segments(path: PathLike, check_units: bool = True, split: bool = False
         raise DataError(f"{declare}: 'columns_from' reads columns of other files beside "
                         f"this file's own, which 'columns' must name (e.g. {{\"columns\": "
                         f"{{\"1\": \"position_mm\"}}}}): add it.")
+    calibrated = calibrations(metadata.get("calibration"), declare)
+    signals = SignalNames(calibrated) if calibrated else None
     if "columns" in metadata:
-        others = (_other_files(metadata["columns_from"], sidecar.parent, declare)
+        others = (_other_files(metadata["columns_from"], sidecar.parent, declare, signals)
                   if "columns_from" in metadata else [])
-        table = _columns_table(path, where, metadata["columns"], declare, has_rate, others)
+        table = _columns_table(path, where, metadata["columns"], declare, has_rate, others,
+                               signals)
     else:
-        table = _header_table(path, where, has_rate)
+        table = _header_table(path, where, has_rate, signals)
+    if signals is not None:  # the declaration becomes a record: the data set holds SI
+        record = apply(signals, table.values, where, declare)
+        metadata = {**{k: v for k, v in metadata.items() if k != "calibration"},
+                    "calibrated": record}
     return _table_datasets(table, metadata, path, declare, check_units, split)
 
 

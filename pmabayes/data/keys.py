@@ -185,4 +185,12 @@ SIDECAR_KEYS: dict[str, KeyDoc] = {
         "string", "", "none", "Written by `pmabayes read --out`: the command and version "
         "that wrote the lab's file again in pmabayes' own format (so that the command may "
         "write over it again).", "guide/lab_files", written=True),
+    "calibration": KeyDoc(
+        "object", "the `to` unit", "none", "A sensor's signal read through its "
+        "calibration: the column as pmabayes spells it (a header `Pressure (V)` is "
+        '`pressure_v`) to `{"to": "pressure_kpa", "gain": 100.0, "offset": 0.0}`: '
+        "`to` = `gain` x signal + `offset`, then SI. Text files.", "guide/lab_files"),
+    "calibrated": KeyDoc(
+        "object", "", "none", "Written on reading through `calibration`: the "
+        "calibrations applied.", "guide/lab_files", written=True),
 }

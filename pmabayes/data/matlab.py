@@ -632,6 +632,13 @@ def _mat_datasets(path: str | os.PathLike[str], given: dict[str, Any], mat_trial
     metadata: dict = _read_sidecar(sidecar) if sidecar.is_file() else {}
     declare = f"the JSON sidecar {sidecar}"
     _check_declarations(metadata, declare)  # a misspelt key before it misleads the mapping
+    text_only = [k for k in ("columns", "columns_from", "calibration") if k in metadata]
+    if text_only:
+        raise DataError(
+            f"{declare}: {', '.join(repr(k) for k in text_only)} read the columns of a text "
+            "file, and a .mat file has variables: name them with \"mat_variables\" (their "
+            "values in the units the variables' names say, or SI), and remove "
+            f"{', '.join(repr(k) for k in text_only)}.")
     variables, version = _variables(path, where)
     where_v = f"{where} (MATLAB {version})"
 

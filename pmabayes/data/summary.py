@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pmabayes.data.calibration import Calibration
 from pmabayes.data.dataset import Dataset
 
 __all__ = ["describe"]
@@ -88,6 +89,9 @@ def describe(dataset: Dataset) -> str:
     if converted:
         lines.append("units converted on reading: " + "; ".join(
             f"{c['from']} x {c['factor']:g} -> {si}" for si, c in converted.items()))
+    if meta.get("calibrated"):
+        lines.append("calibrated on reading: " + "; ".join(
+            Calibration(signal, **c).text() for signal, c in meta["calibrated"].items()))
     if meta.get("read_columns"):
         lines.append("columns read: " + ", ".join(
             f"{k} as {n}" for k, n in meta["read_columns"].items()))

@@ -250,11 +250,13 @@ def _unquoted(field: str) -> str:
     return field[1:-1].strip() if len(field) > 1 and field[0] == field[-1] == '"' else field
 
 
-def _parse_header(fields: list[str], where: str, has_rate: bool = False, line: int = 1
+def _parse_header(fields: list[str], where: str, has_rate: bool = False, line: int = 1,
+                  rename: Callable[[list[str]], list[str]] | None = None
                   ) -> tuple[list[str], str, dict[str, str]]:
     """Validate the header (file line ``line``); return the column names (as
     :data:`UNITS` spells them), the input's SI name and the header's own text of each
-    name it spells otherwise."""
+    name it spells otherwise. ``rename`` reads a sensor's signal as the quantity its
+    calibration gives (:class:`~pmabayes.data.calibration.SignalNames`)."""
     problems = []
     raw = [_unquoted(f) for f in fields]
     if all(_is_number(n) for n in raw if n):
@@ -264,7 +266,8 @@ def _parse_header(fields: list[str], where: str, has_rate: bool = False, line: i
             "add the header as the first line (or name a headerless file's columns in the "
             'sidecar: "columns": {"1": "time_s", ...}).'
         )
-    names = [_canonical(n) if n else n for n in raw]
+    spelt = [_canonical(n) if n else n for n in raw]
+    names = rename(spelt) if rename is not None else spelt
     for i, n in enumerate(names):
         if not n:
             problems.append(f"column {i + 1} has an empty name (a stray separator?)")
@@ -312,7 +315,8 @@ def _parse_header(fields: list[str], where: str, has_rate: bool = False, line: i
             f"{where}: line {line} (header): " + "; ".join(problems) + f". The {_EXPECTED_TEXT}; "
             "rename, add or remove columns to match." + columns
         )
-    headers = {n: text for text, n in zip(raw, names, strict=True) if text != n}
+    headers = {n: text for text, n, m in zip(raw, names, spelt, strict=True)
+               if text != n and n == m}  # a calibrated signal's conversion is its own
     return names, inputs[0], headers
 
 
@@ -399,7 +403,8 @@ def _units_row(line: str, separator: str | None, width: int) -> list[str] | None
 
 
 def _parse_header_lines(lines: list[str], separator: str | None, where: str, has_rate: bool,
-                        header: int, clock: int | None = None
+                        header: int, clock: int | None = None,
+                        rename: Callable[[list[str]], list[str]] | None = None
                         ) -> tuple[list[str], str, dict[str, str], int]:
     """:func:`_parse_header` of the header line, or of it with the line of units below it
     where the names alone are not read and the two together are (``Time`` over ``s``
@@ -410,10 +415,10 @@ def _parse_header_lines(lines: list[str], separator: str | None, where: str, has
     if clock is not None:  # a clock of dates, read as seconds from its first
         names, input_name, headers = _parse_header(
             [f if i != clock else "time_s" for i, f in enumerate(fields)], where, has_rate,
-            header)
+            header, rename)
         return names, input_name, {**headers, "time_s": _unquoted(fields[clock])}, 0
     try:
-        return (*_parse_header(fields, where, has_rate, header), 0)
+        return (*_parse_header(fields, where, has_rate, header, rename), 0)
     except DataError:
         units = _units_row(lines[1], separator, len(fields)) if len(lines) > 1 else None
         if units is None:
@@ -421,7 +426,7 @@ def _parse_header_lines(lines: list[str], separator: str | None, where: str, has
         joined = [f"{_unquoted(f)} ({u})" if u else f for f, u in zip(fields, units,
                                                                          strict=True)]
         # where both fail, the error of the two together: it names the units it read
-        return (*_parse_header(joined, where, has_rate, header), 1)
+        return (*_parse_header(joined, where, has_rate, header, rename), 1)
 
 
 #: A date and a time of day, ISO 8601 (``2024-03-01 12:00:00.001``, ``T`` or a space
@@ -466,7 +471,8 @@ def _clock_seconds(rows: list[str], column: int, separator: str | None, where: s
     return [sep.join(f) for f in split], texts[0].replace(" ", "T").replace(",", ".")
 
 
-def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
+def _header_table(path: Path, where: str, has_rate: bool,
+                  rename: Callable[[list[str]], list[str]] | None = None) -> _Table:
     """A CSV file with a header line: its columns in SI."""
     lines, skipped = _lines(path, where)
     if not lines:
@@ -479,7 +485,7 @@ def _header_table(path: Path, where: str, has_rate: bool) -> _Table:
     clock = _clock_column(_split(lines[0], separator), lines[1], separator) \
         if len(lines) > 1 else None
     names, input_name, headers, below = _parse_header_lines(lines, separator, where, has_rate,
-                                                            header, clock)
+                                                            header, clock, rename)
     first += below
     rows = lines[1 + below:]
     if not rows:
@@ -517,8 +523,10 @@ def _scaled(step: Callable[[], float | None], factor: float) -> Callable[[], flo
 # ----------------------------------------------------------------------------- named by index
 
 
-def _column_spec(spec: object, declare: str) -> dict[int, str]:
-    """The sidecar's ``"columns"``: column number (from 1) to a name pmabayes reads."""
+def _column_spec(spec: object, declare: str,
+                 rename: Callable[[list[str]], list[str]] | None = None) -> dict[int, str]:
+    """The sidecar's ``"columns"``: column number (from 1) to a name pmabayes reads (a
+    calibrated signal's as ``rename`` reads it)."""
     example = '{"1": "time_s", "3": "pressure_psi", "4": "position_mm"}'
     if not isinstance(spec, dict) or not spec:
         raise DataError(
@@ -527,6 +535,8 @@ def _column_spec(spec: object, declare: str) -> dict[int, str]:
     out: dict[int, str] = {}
     problems = []
     for key, name in spec.items():
+        if rename is not None and isinstance(name, str):
+            name = rename([name])[0]
         if not (isinstance(key, str) and key.strip().isdigit() and int(key) >= 1):
             problems.append(f"key {key!r} is not a column number (columns are numbered from "
                             "1: \"1\", \"2\", ...)")
@@ -610,7 +620,8 @@ def _numbers(path: Path, where: str, spec: dict[int, str]
     return values, lines, first_line, delimiter
 
 
-def _other_files(spec_in: object, folder: Path, declare: str
+def _other_files(spec_in: object, folder: Path, declare: str,
+                 rename: Callable[[list[str]], list[str]] | None = None
                  ) -> list[tuple[Path, dict[int, str]]]:
     """The sidecar's ``"columns_from"``: each other file (relative to ``folder``, the
     sidecar's) and the map of its columns."""
@@ -626,16 +637,17 @@ def _other_files(spec_in: object, folder: Path, declare: str
             raise DataError(
                 f"{declare}: 'columns_from' names {name!r}, but {other} is not a file; "
                 "give its name relative to the sidecar's folder.")
-        out.append((other, _column_spec(spec, f"{declare}: 'columns_from' {name!r}")))
+        out.append((other, _column_spec(spec, f"{declare}: 'columns_from' {name!r}",
+                                        rename)))
     return out
 
 
 def _columns_table(path: Path, where: str, spec_in: object, declare: str,
-                   has_rate: bool, others: list[tuple[Path, dict[int, str]]] = ()
-                   ) -> _Table:
+                   has_rate: bool, others: list[tuple[Path, dict[int, str]]] = (),
+                   rename: Callable[[list[str]], list[str]] | None = None) -> _Table:
     """A headerless text file whose columns the sidecar's ``"columns"`` names, with the
     columns ``others`` name in other files read beside it, row for row."""
-    spec = _column_spec(spec_in, declare)
+    spec = _column_spec(spec_in, declare, rename)
     names = list(spec.values()) + [n for _, s in others for n in s.values()]
     problems = [f"{n} is named twice" for n in sorted(set(names)) if names.count(n) > 1]
     problems += role_problems(sorted(set(names)))

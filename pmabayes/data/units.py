@@ -169,9 +169,12 @@ def unknown_unit(name: str) -> str:
     known = [n for n in UNITS if n.startswith(f"{q}_")]
     advice = _ADVICE.get(name)
     if name.split("_", 1)[1] in _SIGNAL_UNITS:
-        return (f"column {name!r} holds the {q} sensor's raw signal, not the {q}: convert "
-                f"it with the sensor's calibration (value = gain x signal + offset, from its "
-                f"data sheet or your own calibration) and save it as one of {', '.join(known)}")
+        to = known[1] if len(known) > 1 else known[0]  # the SI one is rarely a sheet's
+        return (f"column {name!r} holds the {q} sensor's raw signal, not the {q}: declare "
+                f"the sensor's calibration (value = gain x signal + offset, from its data "
+                f"sheet or your own calibration) in the sidecar, \"calibration\": "
+                f"{{\"{name}\": {{\"to\": \"{to}\", \"gain\": ..., \"offset\": ...}}}}, to "
+                f"read it as one of {', '.join(known)}")
     if advice is None:
         close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
         advice = f"did you mean {close[0]}?" if close else f"convert it to {UNITS[known[0]][0]}"
