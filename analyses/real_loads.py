@@ -24,6 +24,7 @@ Usage::
 
     python analyses/real_loads.py [--samples 1,2] [--rounds 2] [--out DIR] [--seed 0]
         [--steps 600] [--leave-one-out] [--candidates A,B] [--effects A,B]
+        [--prior NAME=SPEC]
 
 ``--effects maxwell_creep,force_length_map --rounds -1`` repeats the final fit and the
 held-out predictions of the effects sample 1's two diagnoses named, without diagnosing.
@@ -51,6 +52,7 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[str], list[dict]
     train = [str(paths[g]) for g in TRAIN_G]
     held = [str(paths[g]) for g in HELD_OUT_G]
     seed, quiet = ["--seed", str(args.seed)], ["--quiet"]
+    priors = [a for p in args.prior for a in ("--prior", p)]
     candidates = ["--candidates", args.candidates] if args.candidates else []
     effects: list[str] = [e for e in args.effects.split(",") if e]
     rounds = []
@@ -58,7 +60,7 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[str], list[dict]
         fx = ["--effects", ",".join(effects)] if effects else []
         diag = out / f"diagnose_{round_}.json"
         took, _ = pmabayes("diagnose", *train, "--json", str(diag), *fx, *candidates,
-                           "--proposal-dir", str(out), *seed, *quiet)
+                           "--proposal-dir", str(out), *priors, *seed, *quiet)
         d = json.loads(diag.read_text())
         agreement = d.get("agreement") or {}
         rounds.append({"effects": list(effects), "seconds": took, "adequate": d["adequate"],
@@ -74,7 +76,7 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[str], list[dict]
     tag = "+".join(["base", *effects])
     fit = out / "fit_final.nc"
     pmabayes("fit", *train, "--out", str(fit), "--restart", *fx, "--steps", str(args.steps),
-             "--walkers", "48", *seed, *quiet)
+             "--walkers", "48", *priors, *seed, *quiet)
     val = out / "validate_final.json"
     pmabayes("validate", str(fit), *held, "--json", str(val), "--draws", "200", *seed, *quiet)
     rows = rows_of(json.loads(val.read_text()), tag)
@@ -83,7 +85,7 @@ def loop(paths: dict[int, Path], out: Path, args) -> tuple[list[str], list[dict]
             rest = [str(paths[h]) for h in sorted(TRAIN_G + HELD_OUT_G) if h != g]
             f_out = out / f"fit_without_{g}g.nc"
             pmabayes("fit", *rest, "--out", str(f_out), "--restart", *fx, "--steps",
-                     str(args.steps), "--walkers", "48", *seed, *quiet)
+                     str(args.steps), "--walkers", "48", *priors, *seed, *quiet)
             v_out = out / f"validate_{g}g.json"
             pmabayes("validate", str(f_out), str(paths[g]), "--json", str(v_out), "--draws",
                      "200", *seed, *quiet)
@@ -152,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--effects", default="",
                     help="effects to start from (e.g. those an earlier run's diagnoses "
                     "named); with --rounds -1 no diagnosis is run: fit and validate only")
+    ap.add_argument("--prior", action="append", default=[], metavar="NAME=SPEC",
+                    help="replace a parameter's prior in every diagnosis and fit, as "
+                    "pmabayes' own --prior (repeatable)")
     ap.add_argument("--candidates", default="",
                     help="the candidates diagnose tests (default: all it has)")
     ap.add_argument("--leave-one-out", action="store_true",
